@@ -1,0 +1,50 @@
+# ilcforce: `make help` lists the targets.
+SHELL := /bin/bash
+.DELETE_ON_ERROR:
+.DEFAULT_GOAL := help
+
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+RESULTS ?= results
+EXPERIMENTS := paper noise-free realistic
+METHODS := c1 c2 c3
+# numba keeps compiled kernels here so that only the first run pays for compilation
+export NUMBA_CACHE_DIR ?= $(CURDIR)/.venv/numba-cache
+
+help: ## list the targets
+	@grep -E '^[a-zA-Z_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-12s\033[0m %s\n", $$1, $$2}'
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $@
+
+install: $(STAMP) ## create .venv and install ilcforce with its test extras
+
+test: $(STAMP) ## run the fast test suite (slow paper-level studies excluded)
+	$(PY) -m pytest -q
+
+test-slow: $(STAMP) ## run only the slow paper-level regression studies
+	$(PY) -m pytest -q -m slow
+
+bench: $(STAMP) ## print speed figures (medians over repeated runs)
+	$(PY) -m ilcforce.bench
+
+STORES := $(foreach e,$(EXPERIMENTS),$(foreach m,$(METHODS),$(RESULTS)/$(e)/$(m).h5))
+
+$(RESULTS)/%.h5: $(STAMP)
+	$(VENV)/bin/ilcforce simulate --config experiments/$(word 1,$(subst /, ,$*)).toml \
+	    --method $(word 2,$(subst /, ,$*)) --out $@ --overwrite
+
+reproduce: $(STORES) ## run the paper, noise-free and realistic experiments, then write the report
+	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
+	@echo "report: $(RESULTS)/report/report.md"
+
+clean: ## remove generated results, caches and the virtual environment
+	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info
+	find . -name __pycache__ -type d -prune -exec rm -rf {} +
+
+.PHONY: help install test test-slow bench reproduce clean

@@ -1,0 +1,3 @@
+from ilcforce.cli import main
+
+main()

@@ -1,0 +1,245 @@
+"""Command-line interface: parse, call one library function, render. No science here.
+
+Exit codes: 0 success (a diverged method is a result, not a failure), 2 bad input or a store that
+cannot be used (one line on stderr, never a traceback), 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import shlex
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+from ilcforce import __version__
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    help="Iterative learning control for hybrid force/position control of a five-bar robot "
+         "(reproduces and checks the ILC + sliding mode paper; see README.md).",
+)
+out = Console()
+err = Console(stderr=True)
+
+
+class CliError(Exception):
+    """Bad input found by the CLI itself."""
+
+
+def _fail(message: str, code: int = 2) -> None:
+    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _guard(func):
+    """Turn the library's input errors into one line and exit code 2."""
+
+    @functools.wraps(func)
+    def wrapper(*args, **kwargs):
+        from ilcforce.config import ConfigError
+        from ilcforce.experiment import UnknownMethodError
+        from ilcforce.store import StoreError
+
+        try:
+            return func(*args, **kwargs)
+        except (ConfigError, StoreError, UnknownMethodError, CliError) as exc:
+            _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        except KeyboardInterrupt:
+            err.print("interrupted: every finished iteration is stored; continue with --resume", highlight=False)
+            raise typer.Exit(130)
+        except OSError as exc:
+            _fail(f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": "))
+
+    return wrapper
+
+
+def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], sets: Optional[list[str]]):
+    from ilcforce.config import load_config, parse_override
+
+    overrides = dict(parse_override(s) for s in (sets or []))
+    if seed is not None:
+        if seed < 0:
+            raise CliError(f"--seed must be >= 0, got {seed}")
+        overrides["experiment.seed"] = seed
+    if iters is not None:
+        if iters < 1:
+            raise CliError(f"--iters must be >= 1, got {iters}")
+        overrides["experiment.iterations"] = iters
+    return load_config(config, overrides)
+
+
+def _methods(text: str) -> list[str]:
+    from ilcforce.controllers import REGISTRY
+
+    names = [m.strip().lower() for m in text.split(",") if m.strip()]
+    if not names:
+        raise CliError("--methods is empty; e.g. --methods c1,c2,c3")
+    for name in names:
+        if name not in REGISTRY:
+            raise CliError(f"unknown method {name!r}; choose from {', '.join(REGISTRY)}")
+    return names
+
+
+def _g(value) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return "-" if math.isnan(value) else f"{value:.3g}"
+    return str(value)
+
+
+def _run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool):
+    from ilcforce.experiment import run_method
+
+    command = shlex.join(["ilcforce", *sys.argv[1:]])
+    total = config.experiment.iterations
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[last]}"), TimeElapsedColumn(), console=err,
+                  transient=False, disable=not err.is_terminal) as progress:
+        task = progress.add_task(f"{config.experiment.name}/{method}", total=total, last="")
+
+        def tick(record, row):
+            progress.update(task, completed=record.iteration + 1,
+                            last=f"j={record.iteration} |e_P|={_g(row['position_error_2norm'])} m "
+                                 f"|e_F|={_g(row['force_error_2norm'])} N {record.status}")
+
+        summary = run_method(config, method, path, overwrite=overwrite, resume=resume, command=command,
+                             progress=tick)
+    return summary
+
+
+@app.command()
+@_guard
+def simulate(
+    method: Annotated[str, typer.Option("--method", "-m", help="controller: c1, c2 or c3")] = "c3",
+    iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations (default: the experiment's)")] = None,
+    config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
+    out_path: Annotated[Optional[Path], typer.Option("--out", "-o", help="HDF5 store (default: results/<experiment>/<method>.h5)")] = None,
+    seed: Annotated[Optional[int], typer.Option("--seed", help="random seed (disturbance and noise)")] = None,
+    sets: Annotated[Optional[list[str]], typer.Option("--set", help="override a config value, e.g. --set c3.eta=2 (repeatable)")] = None,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing result")] = False,
+    resume: Annotated[bool, typer.Option("--resume", help="continue an interrupted run from its last complete iteration")] = False,
+    results: Annotated[Path, typer.Option("--results", help="results folder for the default --out")] = Path("results"),
+) -> None:
+    """Run one method over the iterations and store every iteration in HDF5."""
+    from ilcforce.experiment import default_store_path
+
+    names = _methods(method)
+    if len(names) != 1:
+        raise CliError("--method takes one method; use `ilcforce compare --methods ...` for several")
+    cfg = _load(config, seed, iters, sets)
+    path = out_path if out_path is not None else default_store_path(results, cfg, names[0])
+    summary = _run_one(cfg, names[0], path, overwrite=overwrite, resume=resume)
+    table = Table(title=f"{cfg.experiment.name} / {names[0]}  ->  {path}")
+    for col in ("j", "|e_P|_2 (m)", "|e_F|_2 (N)", "H_x (N)", "H_y (N)", "loop fallbacks", "status"):
+        table.add_column(col, justify="right")
+    for row in summary.rows:
+        status = row["status"] if row["status"] == "complete" else f"[red]diverged at t = {row['diverged_time']:.4f} s[/]"
+        table.add_row(str(row["iteration"]), _g(row["position_error_2norm"]), _g(row["force_error_2norm"]),
+                      _g(row["chattering_task_x"]), _g(row["chattering_task_y"]), str(row["fallback_count"]), status)
+    out.print(table)
+    if not summary.rows:
+        out.print(f"nothing to run: {path} already holds iterations 0..{summary.first_iteration - 1}")
+    if summary.diverged:
+        out.print(f"[red]{names[0]} diverged[/]; later iterations were not run (the store records where).")
+
+
+@app.command()
+@_guard
+def compare(
+    methods: Annotated[str, typer.Option("--methods", help="comma-separated methods")] = "c1,c2,c3",
+    config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
+    iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations")] = None,
+    seed: Annotated[Optional[int], typer.Option("--seed", help="random seed")] = None,
+    sets: Annotated[Optional[list[str]], typer.Option("--set", help="override a config value (repeatable)")] = None,
+    results: Annotated[Path, typer.Option("--results", help="results folder")] = Path("results"),
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="rerun methods whose stored result differs")] = False,
+) -> None:
+    """Run the methods that have no complete result for this experiment, then compare them side by side."""
+    from ilcforce import store
+    from ilcforce.experiment import default_store_path
+    from ilcforce.report.tables import comparison_frame
+
+    names = _methods(methods)
+    cfg = _load(config, seed, iters, sets)
+    metrics_by_method = {}
+    for name in names:
+        path = default_store_path(results, cfg, name)
+        action = "run"
+        if path.exists() and not overwrite:
+            state = store.read_provenance(path).get("run_state")
+            stored = store.read_provenance(path).get("config_json")
+            if stored != cfg.to_json():
+                raise CliError(f"{path} holds a run with a different configuration; pass --overwrite to rerun it")
+            action = "keep" if state in ("complete", "diverged") else "resume"
+        if action != "keep":
+            _run_one(cfg, name, path, overwrite=overwrite and path.exists(), resume=action == "resume")
+        metrics_by_method[name] = store.read_metrics(path)
+    frame = comparison_frame(metrics_by_method)
+    _print_frame(frame, f"{cfg.experiment.name}: comparison (same seed {cfg.experiment.seed}, same disturbance and noise)")
+
+
+def _print_frame(frame, title: str) -> None:
+    table = Table(title=title)
+    index_name = frame.index.name or ""
+    table.add_column(index_name)
+    for col in frame.columns:
+        table.add_column(str(col), justify="right")
+    for idx, row in frame.iterrows():
+        table.add_row(str(idx), *(_g(v) for v in row.tolist()))
+    out.print(table)
+
+
+@app.command()
+@_guard
+def report(
+    results: Annotated[Path, typer.Option("--results", help="folder of HDF5 stores (results/<experiment>/<method>.h5)")] = Path("results"),
+    out_dir: Annotated[Optional[Path], typer.Option("--out", help="output folder (default: <results>/report)")] = None,
+) -> None:
+    """Write the paper's tables, figures and a verdict on each claim from the HDF5 stores."""
+    from ilcforce.report.build import write_report
+
+    if not results.is_dir():
+        raise CliError(f"results folder {results} does not exist; run `ilcforce simulate` or `make reproduce` first")
+    target = out_dir if out_dir is not None else results / "report"
+    summary = write_report(results, target)
+    for warning in summary.warnings:
+        err.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
+    if not summary.experiments:
+        raise CliError(f"no usable ilcforce stores under {results}")
+    out.print(f"report for {', '.join(summary.experiments)} written to {target}/index.md")
+
+
+@app.command()
+@_guard
+def validate(paths: Annotated[list[Path], typer.Argument(help="HDF5 stores to check against the schema")]) -> None:
+    """Check HDF5 stores against the ilcforce schema."""
+    from ilcforce import store
+
+    for path in paths:
+        store.validate(path)
+        prov = store.read_provenance(path)
+        out.print(f"{path}: ok ({prov.get('experiment')}/{prov.get('method')}, "
+                  f"{len(store.iterations(path))} iterations, {prov.get('run_state')})")
+
+
+@app.command()
+def version() -> None:
+    """Print the ilcforce version."""
+    out.print(f"ilcforce {__version__}")
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

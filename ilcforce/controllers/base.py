@@ -1,0 +1,219 @@
+"""The one contract every controller implements, and the parts all of them share.
+
+A controller has two halves:
+
+* a compiled **law**, called by the simulation loop at every control sample. Its signature is fixed
+  (:data:`LAW_SIGNATURE`) so that the loop is compiled and cached once and calls any law through a
+  function pointer::
+
+      law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag) -> (tau1, tau2)
+
+  ``k`` is the control sample, ``t`` its time (s); ``meas`` (:data:`MEAS_WIDTH`,) holds what a real
+  controller could read (layout below); ``ref`` (n_control, 12) the reference (``ilcforce.task``
+  column layout) of which the law reads row k; ``gains`` the controller's packed gains;
+  ``mem_prev`` (n_control, width) the learned memory of iteration j - 1 and ``mem_new`` that of
+  iteration j (written only when ``write`` is True); ``diag`` (:data:`DIAG_WIDTH`,) receives
+  sigma for logging. The return value is the joint torque (N m).
+
+  The law never integrates anything and never sees the true plant. It must be a polynomial of
+  degree at most 2 in the acceleration ``meas[MEAS_ACCEL + force axis]`` (with
+  ``meas[MEAS_FORCE_ACCEL + ...]`` following it through the stiffness relation): the simulator
+  uses that to resolve the algebraic loop of SPEC section 4 ("implicit" scheme). The contract test
+  checks this for every registered law.
+
+* a Python **object** implementing :class:`Controller`: it packs the gains, owns the learned memory
+  between iterations, and names it for the store.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numba import njit, types
+
+# --- measurement vector handed to a law (filled by the simulator) ----------------------------
+MEAS_THETA = 0  # measured joint angles theta1, theta2 (rad)
+MEAS_DTHETA = 2  # measured joint rates (rad/s)
+MEAS_FORCE = 4  # measured contact force F (x, y), N, task.Wall convention
+MEAS_POSITION = 6  # P from the nominal kinematics of the measured angles (m)
+MEAS_VELOCITY = 8  # dP/dt = J dtheta from the measured rates (m/s)
+MEAS_JACOBIAN = 10  # nominal J at the measured angles: J00, J01, J10, J11
+MEAS_ACCEL = 14  # end-effector acceleration estimate (x, y), m/s^2 (scheme dependent)
+MEAS_FORCE_RATE = 16  # dF/dt estimate (x, y), N/s
+MEAS_FORCE_ACCEL = 18  # d2F/dt2 estimate (x, y), N/s^2
+MEAS_TASK_INERTIA = 20  # nominal D at the measured state: D00, D01, D11 (only if requested)
+MEAS_TASK_CORIOLIS = 23  # nominal C at the measured state: C00, C01, C10, C11 (only if requested)
+MEAS_WIDTH = 27
+
+DIAG_SIGMA = 0
+DIAG_WIDTH = 2
+
+# --- gains shared by every law (eq. 8 and the force feed-forward sign) -----------------------
+GAIN_SELECTION = 0  # s: 1 on force-controlled axes (S = diag(s), Sbar = I - S)
+GAIN_LAMBDA_P = 2  # lambda_P diagonal
+GAIN_LAMBDA_F1 = 4  # lambda_F1 diagonal
+GAIN_LAMBDA_F2 = 6  # lambda_F2 diagonal
+GAIN_FEEDFORWARD_SIGN = 8  # w of task.Wall: +1 adds +F (SPEC default), -1 the paper's -F
+GAIN_SPECIFIC = 9  # first index of a controller's own gains
+
+LAW_SIGNATURE = types.UniTuple(types.float64, 2)(
+    types.int64,
+    types.float64,
+    types.float64[::1],
+    types.float64[:, ::1],
+    types.float64[::1],
+    types.float64[:, ::1],
+    types.float64[:, ::1],
+    types.boolean,
+    types.float64[::1],
+)
+LAW_TYPE = types.FunctionType(LAW_SIGNATURE)
+
+
+@njit(cache=True)
+def sgn(x):
+    """Signum with sgn(0) = 0 (SPEC section 3)."""
+    if x > 0.0:
+        return 1.0
+    if x < 0.0:
+        return -1.0
+    return 0.0
+
+
+@njit(cache=True)
+def _axis_terms(i, k, meas, ref, gains, psi_desired):
+    s = gains[GAIN_SELECTION + i]
+    sbar = 1.0 - s
+    e_p = sbar * (ref[k, 0 + i] - meas[MEAS_POSITION + i])  # eq. (6)
+    de_p = sbar * (ref[k, 2 + i] - meas[MEAS_VELOCITY + i])
+    e_f = s * (ref[k, 6 + i] - meas[MEAS_FORCE + i])  # eq. (7)
+    de_f = s * (ref[k, 8 + i] - meas[MEAS_FORCE_RATE + i])
+    dde_f = s * (ref[k, 10 + i] - meas[MEAS_FORCE_ACCEL + i])
+    lp = gains[GAIN_LAMBDA_P + i]
+    lf1 = gains[GAIN_LAMBDA_F1 + i]
+    lf2 = gains[GAIN_LAMBDA_F2 + i]
+    sigma = lp * e_p + de_p + lf1 * e_f + lf2 * de_f  # eq. (8)
+    acc = ref[k, 4 + i] if psi_desired else meas[MEAS_ACCEL + i]
+    psi1 = lp * de_p + lf1 * de_f + lf2 * dde_f + sbar * ref[k, 4 + i] + s * acc  # eq. (12), first block
+    psi2 = meas[MEAS_VELOCITY + i] + sigma  # eq. (12), second block
+    return sigma, psi1, psi2
+
+
+@njit(cache=True)
+def surface_terms(k, meas, ref, gains, psi_desired):
+    """Errors, the sliding surface (eq. 8) and the regressor inputs of eq. (12), per task axis.
+
+    Returns (sigma_x, sigma_y, psi1_x, psi1_y, psi2_x, psi2_y) where
+    sigma = lambda_P e_P + de_P + lambda_F1 e_F + lambda_F2 de_F                     (eq. 8)
+    psi1 = lambda_P de_P + lambda_F1 de_F + lambda_F2 dde_F + Sbar ddP_d + S ddP        (eq. 12)
+    psi2 = dP + sigma                                                                (eq. 12)
+    With ``psi_desired`` the S ddP term uses the desired acceleration S ddP_d instead (SPEC 4).
+    """
+    sx, p1x, p2x = _axis_terms(0, k, meas, ref, gains, psi_desired)
+    sy, p1y, p2y = _axis_terms(1, k, meas, ref, gains, psi_desired)
+    return sx, sy, p1x, p1y, p2x, p2y
+
+
+@njit(cache=True)
+def joint_torque(meas, ux, uy):
+    """tau = J^T u for a task-space command u (N), with the nominal J at the measured angles."""
+    J00 = meas[MEAS_JACOBIAN]
+    J01 = meas[MEAS_JACOBIAN + 1]
+    J10 = meas[MEAS_JACOBIAN + 2]
+    J11 = meas[MEAS_JACOBIAN + 3]
+    return J00 * ux + J10 * uy, J01 * ux + J11 * uy
+
+
+def pack_common_gains(surface, wall_sign: float) -> list[float]:
+    """The shared prefix of every law's gain vector (indices GAIN_SELECTION .. GAIN_SPECIFIC - 1)."""
+    values = [*surface.selection, *surface.lambda_p, *surface.lambda_f1, *surface.lambda_f2, wall_sign]
+    assert len(values) == GAIN_SPECIFIC
+    return [float(v) for v in values]
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """What the iteration loop needs from a method. See the module docstring."""
+
+    name: str
+    #: the compiled law, a numba dispatcher with LAW_SIGNATURE
+    law: object
+    #: True if the law reads MEAS_TASK_INERTIA / MEAS_TASK_CORIOLIS (the simulator fills them)
+    uses_nominal_dynamics: bool
+
+    def gains(self) -> np.ndarray:
+        """Packed gains, shape (n_gains,)."""
+
+    def begin_iteration(self, iteration: int) -> tuple[np.ndarray, np.ndarray]:
+        """Memory buffers (mem_prev, mem_new) for iteration j, each (n_control, width)."""
+
+    def end_iteration(self, completed: bool) -> None:
+        """After iteration j: its memory becomes the one iteration j + 1 learns from."""
+
+    def learned_state(self) -> dict[str, np.ndarray]:
+        """Named views of the memory after the last finished iteration (control grid)."""
+
+    def learned_units(self) -> dict[str, str]:
+        """Unit of each entry of learned_state()."""
+
+    def restore(self, memory: dict[str, np.ndarray]) -> None:
+        """Load a stored learned_state() (for --resume)."""
+
+
+class MemoryController:
+    """Shared machinery for controllers whose memory is an (n_control, width) array.
+
+    Subclasses set ``name``, ``law``, ``uses_nominal_dynamics``, ``memory_layout``
+    (name -> (first column, last column + 1, unit, squeeze)) and implement ``gains()``.
+    """
+
+    name = ""
+    law = None
+    uses_nominal_dynamics = False
+    memory_layout: dict[str, tuple[int, int, str]] = {}
+
+    def __init__(self, n_control: int):
+        width = max((stop for _, stop, _ in self.memory_layout.values()), default=0)
+        self.n_control = int(n_control)
+        self._prev = np.zeros((self.n_control, width))  # memory of j - 1 (zero before j = 0)
+        self._new = np.zeros((self.n_control, width))
+
+    def begin_iteration(self, iteration: int) -> tuple[np.ndarray, np.ndarray]:
+        self._new[...] = np.nan  # every sample is written by the law; NaN marks an unreached one
+        return self._prev, self._new
+
+    def end_iteration(self, completed: bool) -> None:
+        if completed:
+            self._prev, self._new = self._new, self._prev
+
+    def learned_state(self) -> dict[str, np.ndarray]:
+        out = {}
+        for key, (start, stop, _unit) in self.memory_layout.items():
+            block = self._prev[:, start:stop]
+            out[key] = block[:, 0].copy() if stop - start == 1 else block.copy()
+        return out
+
+    def learned_units(self) -> dict[str, str]:
+        return {key: unit for key, (_a, _b, unit) in self.memory_layout.items()}
+
+    def restore(self, memory: dict[str, np.ndarray]) -> None:
+        for key, (start, stop, _unit) in self.memory_layout.items():
+            if key not in memory:
+                raise ValueError(f"stored memory lacks {key!r} needed by {self.name}")
+            block = np.asarray(memory[key], dtype=np.float64).reshape(self.n_control, stop - start)
+            self._prev[:, start:stop] = block
+
+
+def check_vector(name: str, value, length: int) -> tuple[float, ...]:
+    """A finite numeric vector of the given length, or ValueError naming ``name``."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a list of {length} numbers, got {value!r}") from None
+    if arr.shape != (length,):
+        raise ValueError(f"{name} must have {length} entries, got {arr.size}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return tuple(float(v) for v in arr)
+

@@ -1,0 +1,71 @@
+"""C1: traditional sliding mode control with a nominal model (eq. 26, SPEC section 3).
+
+tau_j = J^T (k sigma_j + alpha sgn(sigma_j) + Xi_nom^T Psi_j + w F_j), with
+Xi_nom^T Psi_j = D_nom psi1 + C_nom (dP + sigma) (eqs. 11-12 with G = 0), D_nom and C_nom the nominal
+task-space model at the measured state. Memoryless: nothing is learned between iterations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ilcforce.controllers.base import (
+    GAIN_FEEDFORWARD_SIGN, GAIN_SPECIFIC, LAW_SIGNATURE, MEAS_FORCE, MEAS_TASK_CORIOLIS,
+    MEAS_TASK_INERTIA, DIAG_SIGMA, MemoryController, check_vector, joint_torque, pack_common_gains,
+    sgn, surface_terms,
+)
+
+
+@dataclass(frozen=True)
+class C1Gains:
+    """Gains of eq. (26)."""
+
+    k: tuple[float, float] = (10.0, 100.0)  # diagonal of k, N s/m
+    alpha: float = 0.1  # switching gain, N (must exceed |F_v|)
+
+    def __post_init__(self) -> None:
+        check_vector("c1.k", self.k, 2)
+        if not (np.isfinite(self.alpha) and self.alpha >= 0):
+            raise ValueError(f"c1.alpha must be finite and >= 0, got {self.alpha!r}")
+
+
+@njit(LAW_SIGNATURE, cache=True)
+def c1_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+    sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, False)
+    g = GAIN_SPECIFIC
+    w = gains[GAIN_FEEDFORWARD_SIGN]
+    D00 = meas[MEAS_TASK_INERTIA]
+    D01 = meas[MEAS_TASK_INERTIA + 1]
+    D11 = meas[MEAS_TASK_INERTIA + 2]
+    C00 = meas[MEAS_TASK_CORIOLIS]
+    C01 = meas[MEAS_TASK_CORIOLIS + 1]
+    C10 = meas[MEAS_TASK_CORIOLIS + 2]
+    C11 = meas[MEAS_TASK_CORIOLIS + 3]
+    # Xi_nom^T Psi = D psi1 + C (dP + sigma)                                      eqs. (11)-(12)
+    mx = D00 * p1x + D01 * p1y + C00 * p2x + C01 * p2y
+    my = D01 * p1x + D11 * p1y + C10 * p2x + C11 * p2y
+    alpha = gains[g + 2]
+    # eq. (26), with +w F (erratum 1)
+    ux = gains[g] * sx + alpha * sgn(sx) + mx + w * meas[MEAS_FORCE]
+    uy = gains[g + 1] * sy + alpha * sgn(sy) + my + w * meas[MEAS_FORCE + 1]
+    diag[DIAG_SIGMA] = sx
+    diag[DIAG_SIGMA + 1] = sy
+    return joint_torque(meas, ux, uy)
+
+
+class C1Controller(MemoryController):
+    name = "c1"
+    title = "C1: sliding mode control with nominal model (eq. 26)"
+    law = staticmethod(c1_law)
+    uses_nominal_dynamics = True
+    memory_layout = {}
+
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C1Gains):
+        super().__init__(n_control)
+        self._gains = np.array(pack_common_gains(surface, wall_sign) + [*gains.k, gains.alpha])
+
+    def gains(self) -> np.ndarray:
+        return self._gains

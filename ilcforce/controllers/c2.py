@@ -1,0 +1,59 @@
+"""C2: traditional ILC of Azenha (2000), eq. (27) (SPEC section 3).
+
+tau_j = v_j + w J^T F_j,  v_j(t) = v_{j-1}(t) + J_j^T k sigma_j(t),  v_{-1} = 0.
+The update is current-iteration: this iteration's sigma enters this iteration's v at the same sample.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ilcforce.controllers.base import (
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, GAIN_SPECIFIC, LAW_SIGNATURE, MEAS_FORCE, MemoryController,
+    check_vector, joint_torque, pack_common_gains, surface_terms,
+)
+
+
+@dataclass(frozen=True)
+class C2Gains:
+    """Gains of eq. (27)."""
+
+    k: tuple[float, float] = (400.0, 400.0)  # learning gain diagonal, N s/m
+
+    def __post_init__(self) -> None:
+        check_vector("c2.k", self.k, 2)
+
+
+@njit(LAW_SIGNATURE, cache=True)
+def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+    sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)
+    g = GAIN_SPECIFIC
+    w = gains[GAIN_FEEDFORWARD_SIGN]
+    lx, ly = joint_torque(meas, gains[g] * sx, gains[g + 1] * sy)
+    v1 = mem_prev[k, 0] + lx  # eq. (27), v_j = v_{j-1} + J^T k sigma_j
+    v2 = mem_prev[k, 1] + ly
+    if write:
+        mem_new[k, 0] = v1
+        mem_new[k, 1] = v2
+    fx, fy = joint_torque(meas, w * meas[MEAS_FORCE], w * meas[MEAS_FORCE + 1])
+    diag[DIAG_SIGMA] = sx
+    diag[DIAG_SIGMA + 1] = sy
+    return v1 + fx, v2 + fy  # eq. (27), tau_j = v_j + w J^T F_j (erratum 1)
+
+
+class C2Controller(MemoryController):
+    name = "c2"
+    title = "C2: traditional ILC (eq. 27)"
+    law = staticmethod(c2_law)
+    uses_nominal_dynamics = False
+    memory_layout = {"v": (0, 2, "N m")}
+
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains):
+        super().__init__(n_control)
+        self._gains = np.array(pack_common_gains(surface, wall_sign) + [*gains.k])
+
+    def gains(self) -> np.ndarray:
+        return self._gains

@@ -1,0 +1,158 @@
+"""The iteration (learning) loop: one method, all iterations, straight into the store.
+
+``run_method`` is the library entry point the CLI calls. Per iteration j it
+
+1. picks the true plant (perturbed from ``plant.perturbation.from_iteration`` on) while the
+   controller keeps the nominal model;
+2. draws the disturbance and noise from (seed, j): the same for every method;
+3. simulates the iteration (``ilcforce.simulate``), the learning updates happening inside at each
+   sample (current-iteration ILC, SPEC section 3);
+4. attaches tau_d and the learned memory and commits the iteration to the HDF5 store.
+
+A diverged iteration is stored and ends the method's run. ``resume=True`` continues a stored run
+from its last complete iteration, restoring the learned memory; because every random draw
+depends on (seed, j) only, the result is bit-identical to an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ilcforce import metrics
+from ilcforce.config import Config
+from ilcforce.controllers import REGISTRY
+from ilcforce.noise import draw_iteration
+from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
+from ilcforce.simulate import IterationInputs, complete_record, desired_inputs, run_iteration
+from ilcforce.store import StoreWriter
+from ilcforce.task import (REF_ACCELERATION, REF_FORCE, REF_POSITION, REF_VELOCITY)
+
+
+class UnknownMethodError(ValueError):
+    """A method name that is not in the controller registry."""
+
+
+@dataclass(frozen=True)
+class RunSummary:
+    """What ``run_method`` did. ``rows`` holds one metrics dict per iteration run in this call."""
+
+    path: Path
+    method: str
+    first_iteration: int  # first iteration simulated in this call
+    rows: tuple[dict, ...]
+    status: str  # "complete" or "diverged"; "complete" also when nothing was left to run
+
+    @property
+    def diverged(self) -> bool:
+        return self.status == STATUS_DIVERGED
+
+
+def make_controller(config: Config, method: str):
+    """Instantiate the registered controller ``method`` with the experiment's gains."""
+    if method not in REGISTRY:
+        raise UnknownMethodError(f"unknown method {method!r}; choose one of {', '.join(REGISTRY)}")
+    cls, _gains_cls = REGISTRY[method]
+    return cls(config.n_control, config.surface, config.wall.sign, config.gains[method])
+
+
+def reference_log(config: Config) -> dict[str, np.ndarray]:
+    """The /reference datasets of the store (records.REFERENCE_SIGNALS) on the log grid."""
+    ref = config.reference_samples()[:: config.simulation.log_every]
+    out = {
+        "time": config.control_times()[:: config.simulation.log_every],
+        "position_desired": ref[:, REF_POSITION:REF_POSITION + 2],
+        "velocity_desired": ref[:, REF_VELOCITY:REF_VELOCITY + 2],
+        "acceleration_desired": ref[:, REF_ACCELERATION:REF_ACCELERATION + 2],
+        "force_desired": ref[:, REF_FORCE:REF_FORCE + 2],
+    }
+    assert set(out) == set(REFERENCE_SIGNALS)
+    return {k: np.ascontiguousarray(v) for k, v in out.items()}
+
+
+def simulate_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None):
+    """Yield the :class:`IterationRecord` of iterations ``first .. iterations - 1`` in order.
+
+    Stops after a diverged iteration. ``memory`` (a stored learned state) seeds iteration ``first``.
+    """
+    controller = make_controller(config, method)
+    if memory:
+        controller.restore(memory)
+    reference = config.reference_samples()
+    ref_log = reference[:: config.simulation.log_every]
+    nominal = config.plant.links()
+    desired_cache: dict = {}
+    for j in range(first, config.experiment.iterations):
+        true_plant = config.plant.true_plant(j)
+        inputs = IterationInputs(
+            iteration=j, true_plant=true_plant, nominal_plant=nominal, wall=config.wall,
+            reference=reference, settings=config.simulation, noise=config.noise,
+            draws=draw_iteration(config.experiment.seed, j, config.n_control, config.noise),
+            selection=config.surface.selection,
+        )
+        mem_prev, mem_new = controller.begin_iteration(j)
+        record = run_iteration(inputs, controller, mem_prev, mem_new)
+        controller.end_iteration(record.status == STATUS_COMPLETE)
+        if true_plant not in desired_cache:
+            desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
+        # a diverged iteration stores the memory it was writing (NaN where it never got)
+        memory_now = controller.learned_state() if record.status == STATUS_COMPLETE else _partial_memory(
+            controller, mem_new)
+        yield complete_record(record, desired_cache[true_plant], memory_now, controller.learned_units())
+        if record.status == STATUS_DIVERGED:
+            return
+
+
+def _partial_memory(controller, mem_new: np.ndarray) -> dict:
+    out = {}
+    for key, (start, stop, _unit) in controller.memory_layout.items():
+        block = mem_new[:, start:stop]
+        out[key] = block[:, 0].copy() if stop - start == 1 else block.copy()
+    return out
+
+
+def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
+               command: str = "", progress: Callable[[IterationRecord, dict], None] | None = None) -> RunSummary:
+    """Run ``method`` over the experiment's iterations and store every iteration in ``out``.
+
+    ``progress(record, metrics_row)`` is called after each stored iteration.
+    Raises ``ilcforce.store.StoreError`` for store problems (existing result, concurrent writer, ...).
+    """
+    make_controller(config, method)  # fail on a bad method before touching any file
+    rows = []
+    writer = StoreWriter(
+        out, experiment=config.experiment.name, method=method, config_toml=config.to_toml(),
+        config_json=config.to_json(), seed=config.experiment.seed, command=command,
+        n_iterations=config.experiment.iterations, reference=reference_log(config),
+        overwrite=overwrite, resume=resume,
+    )
+    with writer:
+        first = writer.last_complete_iteration + 1
+        if resume and writer.stored_status() == STATUS_DIVERGED:
+            writer.finish(STATUS_DIVERGED)
+            return RunSummary(Path(out), method, first, (), STATUS_DIVERGED)
+        memory = writer.resume_memory() if first > 0 else None
+        status = STATUS_COMPLETE
+        for record in simulate_iterations(config, method, first, memory):
+            writer.append(record)
+            row = metrics.iteration_metrics(record)
+            rows.append(row)
+            if progress is not None:
+                progress(record, row)
+            if record.status == STATUS_DIVERGED:
+                status = STATUS_DIVERGED
+        writer.finish(status)
+    return RunSummary(Path(out), method, first, tuple(rows), status)
+
+
+def default_store_path(results_dir: Path, config: Config, method: str) -> Path:
+    """``results/<experiment>/<method>.h5``."""
+    return Path(results_dir) / config.experiment.name / f"{method}.h5"
+
+
+def fmt(value: float) -> str:
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.3g}"

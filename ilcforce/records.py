@@ -1,0 +1,100 @@
+"""What one simulated iteration produces: the record the simulator returns and the store writes.
+
+The record is the boundary between the science (plant, controllers, simulation loop) and the
+results machinery (HDF5 store, metrics, reports). Everything in it is plain numpy.
+
+Grids
+-----
+* control grid: ``t_k = k * Ts`` for ``k = 0 .. n_control - 1`` (``n_control = T / Ts + 1``,
+  20001 for the paper's setup). Learned memories live here.
+* log grid: every ``log_every``-th control sample (``n_log = (n_control - 1) / log_every + 1``,
+  2001 for the paper's setup, i.e. 1 ms). Trajectories live here.
+
+Axis conventions: task-space arrays have columns (x, y); joint-space arrays have columns
+(joint 1, joint 2) = (theta1, theta2), the two actuated joints.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+STATUS_COMPLETE = "complete"
+STATUS_DIVERGED = "diverged"
+
+TASK_AXES = ("x", "y")
+JOINT_AXES = ("1", "2")
+
+#: Logged signals: name -> (axes, unit, description). ``axes`` is None for a scalar per sample,
+#: otherwise the column labels of the trailing dimension. Every array is (n_log,) or (n_log, 2),
+#: time-major. After a divergence the remaining samples are NaN.
+LOG_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
+    "time": (None, "s", "time of the log sample"),
+    "joint_angle": (JOINT_AXES, "rad", "true actuated joint angles theta"),
+    "joint_rate": (JOINT_AXES, "rad/s", "true actuated joint rates dtheta"),
+    "joint_angle_measured": (JOINT_AXES, "rad", "encoder reading (true + noise)"),
+    "joint_rate_measured": (JOINT_AXES, "rad/s", "rate sensor reading (true + noise)"),
+    "position": (TASK_AXES, "m", "true end-effector position P"),
+    "velocity": (TASK_AXES, "m/s", "true end-effector velocity dP/dt"),
+    "contact_force": (TASK_AXES, "N", "true contact force F (SPEC section 2 convention)"),
+    "contact_force_measured": (TASK_AXES, "N", "force sensor reading (true + noise)"),
+    "disturbance": (TASK_AXES, "N", "task-space disturbance F_v acting on the robot"),
+    "torque": (JOINT_AXES, "N m", "applied joint torque tau (zero-order hold)"),
+    "task_input": (TASK_AXES, "N", "task-space input F_E = J^-T tau at the true pose"),
+    "desired_torque": (JOINT_AXES, "N m", "tau_d: inverse dynamics of this iteration's true plant along the desired motion, with the desired contact force"),
+    "desired_task_input": (TASK_AXES, "N", "J^-T tau_d at the desired pose"),
+    "sliding_surface": (TASK_AXES, "m/s", "sigma as computed by the controller from its measurements (eq. 8)"),
+    "position_error": (TASK_AXES, "m", "e_P = Sbar (P_d - P), true position (eq. 6)"),
+    "force_error": (TASK_AXES, "N", "e_F = S (F_d - F), true force (eq. 7)"),
+}
+
+#: Reference signals stored once per file under /reference, on the log grid.
+REFERENCE_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
+    "time": (None, "s", "time of the log sample"),
+    "position_desired": (TASK_AXES, "m", "P_d; x is position-controlled, y is y_e + F_yd / K_e (the pose that produces F_d)"),
+    "velocity_desired": (TASK_AXES, "m/s", "dP_d/dt"),
+    "acceleration_desired": (TASK_AXES, "m/s^2", "d2P_d/dt2"),
+    "force_desired": (TASK_AXES, "N", "F_d"),
+}
+
+
+@dataclass(frozen=True)
+class IterationRecord:
+    """Everything iteration ``iteration`` (j, counted from 0) produced.
+
+    Attributes
+    ----------
+    iteration : int
+        j, counted from 0.
+    status : str
+        ``"complete"`` or ``"diverged"``.
+    diverged_time : float
+        Time (s) at which the watchdog stopped the iteration; NaN if complete.
+    diverged_reason : str
+        One line naming the watchdog rule that fired; empty if complete.
+    fallback_count : int
+        Control samples where the implicit acceleration scheme found no real solution and
+        reused the previous sample's acceleration (SPEC section 4). 0 for other schemes.
+    log : dict[str, ndarray]
+        Every entry of :data:`LOG_SIGNALS`, on the log grid, shape (n_log,) or (n_log, 2).
+    memory : dict[str, ndarray]
+        The controller's learned memory *after* this iteration, i.e. the memory iteration j + 1
+        starts from (Theta_hat_j, alpha_hat_j for C3; v_j for C2; empty for C1). Each array is
+        (n_control, ...) on the control grid. Units are in ``memory_units``.
+    memory_units : dict[str, str]
+        Unit string for each entry of ``memory``.
+    """
+
+    iteration: int
+    status: str
+    diverged_time: float
+    diverged_reason: str
+    fallback_count: int
+    log: dict[str, np.ndarray]
+    memory: dict[str, np.ndarray] = field(default_factory=dict)
+    memory_units: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def diverged(self) -> bool:
+        return self.status == STATUS_DIVERGED

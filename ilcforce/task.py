@@ -1,0 +1,103 @@
+"""The contact task: the compliant wall and the reference (SPEC sections 2 and 3, paper Section 4.1).
+
+Force convention (erratum 1). With the default ``force_sign = "applied"`` the robot works on the side
+y <= y_e and F is the force the end-effector applies to the wall, F = (0, K_e max(0, y - y_e)) >= 0;
+the wall pushes back on the robot with -F, and the control laws add +F as feed-forward.
+``force_sign = "paper"`` is the literal reading of eqs. (9), (11), (14): the robot sits on the far
+side (y >= y_e), F is the force on the robot, F = (0, K_e max(0, y_e - y)), and the laws subtract it.
+Both are encoded by one sign w (+1 applied, -1 paper): penetration w (y - y_e), force on the robot
+(0, -w F_y), feed-forward w F, and the pose that produces F_d is y_e + w F_d / K_e.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+FORCE_SIGNS = {"applied": 1.0, "paper": -1.0}
+
+#: Columns of the per-sample reference array made by :meth:`Reference.sample`.
+REF_POSITION = 0  # P_d (x, y), m
+REF_VELOCITY = 2  # dP_d/dt, m/s
+REF_ACCELERATION = 4  # d2P_d/dt2, m/s^2
+REF_FORCE = 6  # F_d (x, y), N
+REF_FORCE_RATE = 8  # dF_d/dt, N/s
+REF_FORCE_ACCEL = 10  # d2F_d/dt2, N/s^2
+REF_WIDTH = 12
+
+
+@dataclass(frozen=True)
+class Wall:
+    """A frictionless compliant wall normal to y."""
+
+    position: float = 0.4  # y_e, the wall's surface, m
+    stiffness: float = 1000.0  # K_e, N/m
+    force_sign: str = "applied"  # "applied" (SPEC default) or "paper" (literal signs of eqs. 9-14)
+
+    def __post_init__(self) -> None:
+        if self.force_sign not in FORCE_SIGNS:
+            raise ValueError(f"wall.force_sign must be one of {', '.join(FORCE_SIGNS)}, got {self.force_sign!r}")
+        if not (math.isfinite(self.stiffness) and self.stiffness > 0):
+            raise ValueError(f"wall.stiffness must be finite and positive, got {self.stiffness!r}")
+        if not math.isfinite(self.position):
+            raise ValueError(f"wall.position must be finite, got {self.position!r}")
+
+    @property
+    def sign(self) -> float:
+        """w: +1 for the applied-force convention, -1 for the paper's literal reading."""
+        return FORCE_SIGNS[self.force_sign]
+
+    def contact_force(self, y: np.ndarray) -> np.ndarray:
+        """Measured-convention contact force F_y (N) for end-effector heights y (m); any shape."""
+        return self.stiffness * np.maximum(0.0, self.sign * (np.asarray(y, dtype=np.float64) - self.position))
+
+    def pose_for_force(self, force: np.ndarray) -> np.ndarray:
+        """The height y (m) at which the wall's force equals ``force`` (N) >= 0."""
+        return self.position + self.sign * np.asarray(force, dtype=np.float64) / self.stiffness
+
+
+@dataclass(frozen=True)
+class Reference:
+    """The task of Section 4.1: x_d = a cos(2 pi f t) + c, F_yd = A sin(2 pi g t) + B (e^t - 1).
+
+    Defaults give x_d = 0.15 cos(pi t / 2) + 0.2 m and F_yd = 5 sin(pi t) + 5 (e^t - 1) N on [0, 2] s.
+    """
+
+    duration: float = 2.0  # T, length of one iteration, s
+    x_amplitude: float = 0.15  # m
+    x_offset: float = 0.2  # m
+    x_frequency: float = 0.25  # Hz (pi/2 rad/s)
+    force_sine_amplitude: float = 5.0  # N
+    force_sine_frequency: float = 0.5  # Hz (pi rad/s)
+    force_exp_amplitude: float = 5.0  # N
+
+    def sample(self, t: np.ndarray, wall: Wall) -> np.ndarray:
+        """Reference and its analytic derivatives at times ``t`` (s), shape (n,).
+
+        Returns an (n, 12) array with column blocks (x, y) of P_d, dP_d, ddP_d, F_d, dF_d, ddF_d
+        (offsets REF_POSITION ... REF_FORCE_ACCEL). P_d's y column is the pose that produces F_d on
+        the wall (y_e + w F_yd / K_e); the laws use only Sbar P_d, so it serves tau_d and plots.
+        """
+        t = np.asarray(t, dtype=np.float64)
+        wx = 2.0 * math.pi * self.x_frequency
+        wf = 2.0 * math.pi * self.force_sine_frequency
+        a, c = self.x_amplitude, self.x_offset
+        A, B = self.force_sine_amplitude, self.force_exp_amplitude
+        out = np.zeros((t.size, REF_WIDTH))
+        out[:, REF_POSITION] = a * np.cos(wx * t) + c
+        out[:, REF_VELOCITY] = -a * wx * np.sin(wx * t)
+        out[:, REF_ACCELERATION] = -a * wx * wx * np.cos(wx * t)
+        et = np.exp(t)
+        f = A * np.sin(wf * t) + B * (et - 1.0)
+        df = A * wf * np.cos(wf * t) + B * et
+        ddf = -A * wf * wf * np.sin(wf * t) + B * et
+        out[:, REF_FORCE + 1] = f
+        out[:, REF_FORCE_RATE + 1] = df
+        out[:, REF_FORCE_ACCEL + 1] = ddf
+        w, k = wall.sign, wall.stiffness
+        out[:, REF_POSITION + 1] = wall.position + w * f / k
+        out[:, REF_VELOCITY + 1] = w * df / k
+        out[:, REF_ACCELERATION + 1] = w * ddf / k
+        return out
