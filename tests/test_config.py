@@ -1,0 +1,98 @@
+"""Experiment configuration: defaults, the shipped experiments, and one clear line per bad input."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from ilcforce.config import ConfigError, config_from_dict, default_config, load_config, parse_override
+
+EXPERIMENTS = sorted(Path("experiments").glob("*.toml"))
+
+
+def test_paper_toml_is_the_embedded_default():
+    assert load_config("experiments/paper.toml") == default_config()
+
+
+def test_spec_defaults():
+    c = default_config()
+    assert c.simulation.sample_time == 1e-4 and c.simulation.log_every == 10 and c.n_log == 2001
+    assert c.n_control == 20001
+    assert c.surface.selection == (0.0, 1.0)  # erratum 2
+    assert c.wall.force_sign == "applied"  # erratum 1
+    assert len(c.gains["c3"].gamma) == 8  # erratum 3
+    assert c.simulation.acceleration == "implicit"  # erratum 4
+    assert c.plant.true_plant(9).m3 == c.plant.m3 and c.plant.true_plant(10).m3 == pytest.approx(1.4 * 0.2611)
+
+
+@pytest.mark.parametrize("path", EXPERIMENTS, ids=[p.stem for p in EXPERIMENTS])
+def test_shipped_experiments_load(path):
+    config = load_config(path)
+    assert config.experiment.name == path.stem
+
+
+def test_toml_round_trip():
+    c = load_config("experiments/realistic.toml")
+    assert config_from_dict(tomllib.loads(c.to_toml())) == c
+
+
+BAD = [
+    ({"c3": {"gamm": [1.0]}}, "did you mean 'gamma'"),
+    ({"simulaton": {}}, "did you mean 'simulation'"),
+    ({"c3": {"gamma": [1.0, 2.0]}}, "c3.gamma must have 8 entries"),
+    ({"c1": {"k": [1.0]}}, "c1.k must have 2 entries"),
+    ({"wall": {"stiffness": "stiff"}}, "wall.stiffness must be a number"),
+    ({"wall": {"stiffness": float("inf")}}, "wall.stiffness must be finite"),
+    ({"plant": {"m3": -1.0}}, "plant.m3 must be finite and positive"),
+    ({"plant": {"L1": 0.0}}, "plant.L1 must be finite and positive"),
+    ({"simulation": {"sample_time": 3e-4}}, "does not divide the horizon"),
+    ({"simulation": {"log_every": 7}}, "log_every = 7 does not divide"),
+    ({"simulation": {"substeps": 0}}, "simulation.substeps must be an integer >= 1"),
+    ({"simulation": {"acceleration": "magic"}}, "simulation.acceleration must be one of"),
+    ({"reference": {"x_amplitude": 0.5}}, "leaves the reachable workspace"),
+    ({"simulation": {"initial_position": [2.0, 2.0]}}, "simulation.initial_position leaves the reachable"),
+    ({"experiment": {"iterations": 0}}, "experiment.iterations must be >= 1"),
+    ({"experiment": {"iterations": 2.5}}, "experiment.iterations must be an integer"),
+    ({"surface": {"selection": [1.0, 1.0]}}, "exactly one force axis"),
+    ({"plant": {"perturbation": {"parameter": "m9"}}}, "plant.perturbation.parameter must be one of"),
+    ({"noise": {"encoder": -1.0}}, "noise.encoder must be finite and >= 0"),
+    ({"wall": {"force_sign": "up"}}, "wall.force_sign must be one of"),
+    ({"c3": {"psi_acceleration": "guess"}}, "c3.psi_acceleration must be one of"),
+    ({"wall": 3}, "[wall] must be a table"),
+]
+
+
+@pytest.mark.parametrize("data, message", BAD, ids=[m for _d, m in BAD])
+def test_bad_config_names_the_field(data, message):
+    with pytest.raises(ConfigError) as info:
+        config_from_dict(data)
+    text = str(info.value)
+    assert message in text
+    assert "\n" not in text
+
+
+def test_bad_files(tmp_path):
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config(tmp_path / "missing.toml")
+    empty = tmp_path / "empty.toml"
+    empty.write_text("  \n")
+    with pytest.raises(ConfigError, match="is empty"):
+        load_config(empty)
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[wall\nstiffness = ")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        load_config(broken)
+    wrong = tmp_path / "wrong.toml"
+    wrong.write_text("[wall]\nstifness = 3.0\n")
+    with pytest.raises(ConfigError, match=r"wrong.toml: unknown key wall.stifness \(did you mean 'stiffness'\?\)"):
+        load_config(wrong)
+
+
+def test_overrides():
+    assert parse_override("c3.eta=2") == ("c3.eta", 2)
+    assert parse_override("wall.force_sign=paper") == ("wall.force_sign", "paper")
+    assert load_config(None, dict([parse_override("c3.k=[1.0, 2.0]")])).gains["c3"].k == (1.0, 2.0)
+    with pytest.raises(ConfigError, match="KEY=VALUE"):
+        parse_override("c3.eta")
