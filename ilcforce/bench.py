@@ -26,7 +26,7 @@ from ilcforce.plant import _accel_terms
 from ilcforce.simulate import IterationInputs, run_iteration
 
 
-@njit(LAW_SIGNATURE, cache=True)
+@njit(LAW_SIGNATURE, cache=True, error_model="numpy")
 def zero_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     """A trivial controller: no torque."""
     return 0.0, 0.0
@@ -42,7 +42,7 @@ class ZeroController(MemoryController):
         return np.zeros(9)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _plant_loop(p, n):
     acc = 0.0
     for i in range(n):

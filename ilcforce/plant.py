@@ -28,6 +28,7 @@ dDq/dt - 2 Cq is skew-symmetric (property P2), and so is dD/dt - 2 C.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -76,10 +77,11 @@ class FiveBarParams:
     def __post_init__(self) -> None:
         for name in PARAM_NAMES:
             value = getattr(self, name)
-            if not isinstance(value, (int, float)) or isinstance(value, bool):
+            if not isinstance(value, numbers.Real) or isinstance(value, (bool, np.bool_)):
                 raise ValueError(f"plant.{name} must be a number, got {value!r}")
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"plant.{name} must be finite and positive, got {value!r}")
+            object.__setattr__(self, name, float(value))  # numpy scalars become plain floats
 
     def as_array(self) -> np.ndarray:
         """Packed float64 vector in :data:`PARAM_NAMES` order, for the compiled kernels."""
@@ -101,7 +103,7 @@ class FiveBarParams:
 # --------------------------------------------------------------------------------------------
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _kinematics(p, th1, th2):
     """Forward kinematics with the loop-closure Jacobian.
 
@@ -150,7 +152,7 @@ def _kinematics(p, th1, th2):
     return (True, px, py, u3x, u3y, u4x, u4y, R00, R01, R10, R11, J00, J01, J10, J11)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _dynamics(p, th1, th2, dth1, dth2):
     """Joint-space model terms at (theta, dtheta).
 
@@ -242,7 +244,7 @@ def _dynamics(p, th1, th2, dth1, dth2):
             Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _task_model(p, th1, th2, dth1, dth2):
     """Task-space model (eq. 4) at (theta, dtheta).
 
@@ -279,12 +281,14 @@ def _task_model(p, th1, th2, dth1, dth2):
     return (ok, px, py, vx, vy, J00, J01, J10, J11, D00, D01, D11, C00, C01, C10, C11)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _inverse_kinematics(p, px, py):
     """Elbows-out inverse kinematics. Returns (ok, theta1, theta2)."""
     L1, L2, L3, L4, L5 = p[0], p[1], p[2], p[3], p[4]
     r1 = math.hypot(px, py)
     r2 = math.hypot(px - L5, py)
+    if r1 == 0.0 or r2 == 0.0:
+        return (False, math.nan, math.nan)
     c_a = (L1 * L1 + r1 * r1 - L3 * L3) / (2.0 * L1 * r1)
     c_b = (L2 * L2 + r2 * r2 - L4 * L4) / (2.0 * L2 * r2)
     if not (-1.0 < c_a < 1.0) or not (-1.0 < c_b < 1.0):
@@ -294,7 +298,7 @@ def _inverse_kinematics(p, px, py):
     return (True, th1, th2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _accel_terms(p, th1, th2, dth1, dth2):
     """Forward dynamics as an affine map of the generalised force.
 
@@ -365,7 +369,10 @@ class FiveBar:
         """Elbows-out joint angles (rad) for end-effector position P (m); raises if unreachable."""
         px, py = _pair("position", position)
         ok, th1, th2 = _inverse_kinematics(self._p, px, py)
-        if not ok or not _kinematics(self._p, th1, th2)[0]:
+        fk = _kinematics(self._p, th1, th2) if ok else (False,)
+        # the elbows-out angles may belong to the lower assembly, whose forward kinematics (the upper
+        # intersection) is another point: such a P is outside the working mode too
+        if not fk[0] or math.hypot(fk[1] - px, fk[2] - py) > 1e-9:
             raise UnreachableError(f"point ({px:.6g}, {py:.6g}) m is not reachable in the elbows-out working mode")
         return np.array([th1, th2])
 

@@ -122,7 +122,7 @@ class SimulationSettings:
         return n // self.log_every + 1
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _stage(p, th1, th2, d1, d2, tau1, tau2, ye, ke, w, fvx, fvy):
     """Joint accelerations of the true plant pressed against the wall. Returns (ok, dd1, dd2)."""
     (ok, px, py, J00, J01, J10, J11, _dx, _dy, b1, b2, Mi00, Mi01, Mi11) = _accel_terms(p, th1, th2, d1, d2)
@@ -135,7 +135,7 @@ def _stage(p, th1, th2, d1, d2, tau1, tau2, ye, ke, w, fvx, fvy):
     return ok, Mi00 * r1 + Mi01 * r2, Mi01 * r1 + Mi11 * r2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _set_candidate(meas, axis, a, dfdy):
     """Put a candidate force-axis acceleration a into the measurement vector (implicit scheme)."""
     meas[MEAS_ACCEL + axis] = a
@@ -161,7 +161,7 @@ _SIM_SIGNATURE = types.UniTuple(types.int64, 3)(
 )
 
 
-@njit(_SIM_SIGNATURE, cache=True)
+@njit(_SIM_SIGNATURE, cache=True, error_model="numpy")
 def _simulate(law, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset, log):
     """One iteration. Returns (status, failing sample or -1, implicit-loop fallback count)."""
     n_steps = ref.shape[0] - 1

@@ -71,7 +71,7 @@ LAW_SIGNATURE = types.UniTuple(types.float64, 2)(
 LAW_TYPE = types.FunctionType(LAW_SIGNATURE)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def sgn(x):
     """Signum with sgn(0) = 0 (SPEC section 3)."""
     if x > 0.0:
@@ -81,7 +81,7 @@ def sgn(x):
     return 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _axis_terms(i, k, meas, ref, gains, psi_desired):
     s = gains[GAIN_SELECTION + i]
     sbar = 1.0 - s
@@ -100,7 +100,7 @@ def _axis_terms(i, k, meas, ref, gains, psi_desired):
     return sigma, psi1, psi2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def surface_terms(k, meas, ref, gains, psi_desired):
     """Errors, the sliding surface (eq. 8) and the regressor inputs of eq. (12), per task axis.
 
@@ -115,7 +115,7 @@ def surface_terms(k, meas, ref, gains, psi_desired):
     return sx, sy, p1x, p1y, p2x, p2y
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def joint_torque(meas, ux, uy):
     """tau = J^T u for a task-space command u (N), with the nominal J at the measured angles."""
     J00 = meas[MEAS_JACOBIAN]

@@ -32,7 +32,7 @@ class C1Gains:
             raise ValueError(f"c1.alpha must be finite and >= 0, got {self.alpha!r}")
 
 
-@njit(LAW_SIGNATURE, cache=True)
+@njit(LAW_SIGNATURE, cache=True, error_model="numpy")
 def c1_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, False)
     g = GAIN_SPECIFIC

@@ -27,7 +27,7 @@ class C2Gains:
         check_vector("c2.k", self.k, 2)
 
 
-@njit(LAW_SIGNATURE, cache=True)
+@njit(LAW_SIGNATURE, cache=True, error_model="numpy")
 def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)
     g = GAIN_SPECIFIC

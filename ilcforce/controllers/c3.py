@@ -44,7 +44,7 @@ class C3Gains:
                              f"got {self.psi_acceleration!r}")
 
 
-@njit(LAW_SIGNATURE, cache=True)
+@njit(LAW_SIGNATURE, cache=True, error_model="numpy")
 def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     g = GAIN_SPECIFIC
     psi_desired = gains[g + 11] > 0.5

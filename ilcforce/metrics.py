@@ -1,0 +1,203 @@
+"""Per-iteration metrics (SPEC section 6): error norms, chattering, convergence iteration.
+
+Pure numpy; consumes :class:`ilcforce.records.IterationRecord` and never touches files.
+
+Every metric is computed on the **log grid** (``n_log`` samples, 2001 at 1 ms for the paper's
+setup) from ``record.log``:
+
+* error norms, for ``e`` = ``position_error`` (m) and ``force_error`` (N), shape (n_log, 2).
+  ``e`` is zero on the axis that the selection matrix does not select, so summing over both
+  columns is the same as taking the selected axis only:
+
+  - ``*_2norm``: the paper's "2-norm" ``sqrt(sum_k sum_i e_i(t_k)^2)``. It grows with the number
+    of samples; it is the definition whose magnitudes match Table 2 of the paper.
+  - ``*_l2``: the grid-independent L2 norm ``sqrt(dt * sum_k sum_i e_i(t_k)^2)``, ``dt`` the
+    log spacing (s); units m s^1/2 or N s^1/2 (tabulated as the signal's unit).
+  - ``*_rms``: ``sqrt(mean_k sum_i e_i(t_k)^2)``.
+  - ``*_max``: ``max_k ||e(t_k)||`` (Euclidean norm per sample).
+
+* chattering ``H`` (Table 3): the population standard deviation (ddof = 0) over the log grid of
+  ``Delta = desired - applied`` input, in task space per axis (``desired_task_input -
+  task_input``, N) and in joint space per joint (``desired_torque - torque``, N m).
+
+A **diverged** iteration (status ``"diverged"``; its logs are NaN after the divergence time)
+gets NaN for every norm and every ``H``: a norm over a truncated trajectory is not comparable
+with one over the full trajectory. It keeps ``status``, ``diverged_time`` and
+``fallback_count``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from ilcforce.records import JOINT_AXES, STATUS_DIVERGED, TASK_AXES, IterationRecord
+
+#: Metric columns, in table order: name -> (unit, description). ``"-"`` marks a dimensionless
+#: column. The store keeps one row per iteration with exactly these columns.
+METRIC_COLUMNS: dict[str, tuple[str, str]] = {
+    "iteration": ("-", "iteration index j, counted from 0"),
+    "status": ("-", "'complete' or 'diverged'"),
+    "fallback_count": ("-", "control samples where the implicit acceleration scheme reused the previous acceleration"),
+    "diverged_time": ("s", "time at which the watchdog stopped the iteration; NaN if complete"),
+    "position_error_2norm": ("m", "paper's 2-norm sqrt(sum_k |e_P(t_k)|^2) over the log grid"),
+    "position_error_l2": ("m", "L2 norm sqrt(dt sum_k |e_P(t_k)|^2) over the log grid (unit m s^1/2)"),
+    "position_error_rms": ("m", "RMS sqrt(mean_k |e_P(t_k)|^2) over the log grid"),
+    "position_error_max": ("m", "max_k |e_P(t_k)| (Euclidean norm per sample)"),
+    "force_error_2norm": ("N", "paper's 2-norm sqrt(sum_k |e_F(t_k)|^2) over the log grid"),
+    "force_error_l2": ("N", "L2 norm sqrt(dt sum_k |e_F(t_k)|^2) over the log grid (unit N s^1/2)"),
+    "force_error_rms": ("N", "RMS sqrt(mean_k |e_F(t_k)|^2) over the log grid"),
+    "force_error_max": ("N", "max_k |e_F(t_k)| (Euclidean norm per sample)"),
+    "chattering_task_x": ("N", "H: population std over the log grid of desired_task_input - task_input, x axis"),
+    "chattering_task_y": ("N", "H: population std over the log grid of desired_task_input - task_input, y axis"),
+    "chattering_joint_1": ("N m", "H: population std over the log grid of desired_torque - torque, joint 1"),
+    "chattering_joint_2": ("N m", "H: population std over the log grid of desired_torque - torque, joint 2"),
+}
+
+_NORM_KINDS = ("2norm", "l2", "rms", "max")
+
+
+def _log_array(record: IterationRecord, name: str, shape: tuple[int, ...]) -> np.ndarray:
+    """``record.log[name]`` as float64, checked to have ``shape``; ValueError names the signal."""
+    if name not in record.log:
+        raise ValueError(f"record.log is missing signal {name!r} (iteration {record.iteration})")
+    array = np.asarray(record.log[name], dtype=np.float64)
+    if array.shape != shape:
+        raise ValueError(
+            f"record.log[{name!r}] has shape {array.shape}, expected {shape} (iteration {record.iteration})"
+        )
+    return array
+
+
+def error_norms(error: np.ndarray, dt: float) -> dict[str, float]:
+    """The four norms of an error trajectory.
+
+    Parameters
+    ----------
+    error : ndarray, shape (n, 2)
+        Error samples on a uniform grid, time-major (any unit U).
+    dt : float
+        Grid spacing (s), > 0.
+
+    Returns
+    -------
+    dict
+        ``{"2norm", "l2", "rms", "max"}`` -> float, all in U (``l2`` in U s^1/2).
+    """
+    squared_norm = np.sum(np.square(error), axis=1)  # |e(t_k)|^2, shape (n,)
+    total = float(np.sum(squared_norm))
+    return {
+        "2norm": float(np.sqrt(total)),
+        "l2": float(np.sqrt(dt * total)),
+        "rms": float(np.sqrt(np.mean(squared_norm))),
+        "max": float(np.sqrt(np.max(squared_norm))),
+    }
+
+
+def iteration_metrics(record: IterationRecord) -> dict[str, object]:
+    """One metrics row for one iteration, keys and order exactly :data:`METRIC_COLUMNS`.
+
+    Parameters
+    ----------
+    record : IterationRecord
+        Its ``log`` must hold ``time`` (n_log,) and ``position_error``, ``force_error``,
+        ``task_input``, ``desired_task_input``, ``torque``, ``desired_torque`` (n_log, 2), with
+        n_log >= 2 on a uniform grid.
+
+    Returns
+    -------
+    dict
+        ``iteration`` (int), ``status`` (str), ``fallback_count`` (int), ``diverged_time``
+        (float, s) and the float norms / chattering values (NaN for a diverged iteration).
+    """
+    if "time" not in record.log:
+        raise ValueError(f"record.log is missing signal 'time' (iteration {record.iteration})")
+    time = np.asarray(record.log["time"], dtype=np.float64)
+    if time.ndim != 1 or time.shape[0] < 2:
+        raise ValueError(
+            f"record.log['time'] must have shape (n_log,) with n_log >= 2, got {time.shape} "
+            f"(iteration {record.iteration})"
+        )
+    n_log = time.shape[0]
+    row: dict[str, object] = {
+        "iteration": int(record.iteration),
+        "status": str(record.status),
+        "fallback_count": int(record.fallback_count),
+        "diverged_time": float(record.diverged_time),
+    }
+    signals = {
+        name: _log_array(record, name, (n_log, 2))
+        for name in ("position_error", "force_error", "task_input", "desired_task_input", "torque", "desired_torque")
+    }
+    if record.status == STATUS_DIVERGED:
+        for column in METRIC_COLUMNS:
+            row.setdefault(column, float("nan"))
+        return row
+
+    # Uniform log grid: the spacing from the end points is exact for t_k = t_0 + k dt.
+    dt = float(time[-1] - time[0]) / (n_log - 1)
+    for error_name in ("position_error", "force_error"):
+        norms = error_norms(signals[error_name], dt)
+        for kind in _NORM_KINDS:
+            row[f"{error_name}_{kind}"] = norms[kind]
+    # Table 3: H = std over the log grid of Delta = tau_d - tau (ddof = 0), task and joint space.
+    task_delta = signals["desired_task_input"] - signals["task_input"]
+    joint_delta = signals["desired_torque"] - signals["torque"]
+    for column, axis in enumerate(TASK_AXES):
+        row[f"chattering_task_{axis}"] = float(np.std(task_delta[:, column]))
+    for column, axis in enumerate(JOINT_AXES):
+        row[f"chattering_joint_{axis}"] = float(np.std(joint_delta[:, column]))
+    return {name: row[name] for name in METRIC_COLUMNS}
+
+
+def convergence_iteration(
+    norms: Sequence[float] | np.ndarray,
+    *,
+    factor: float = 1.5,
+    window: tuple[int, int] = (5, 9),
+    last: int = 9,
+) -> int | None:
+    """The convergence iteration j-bar (SPEC section 6; the paper never defines it).
+
+    j-bar is the first ``j <= last`` with ``norms[j] <= factor * median(norms[window[0] ..
+    window[1]])`` (both window ends inclusive).
+
+    Parameters
+    ----------
+    norms : array_like, shape (n_iterations,)
+        One error norm per iteration, indexed by iteration from 0 (NaN where not available).
+    factor : float
+        Tolerance factor, >= 1 (1.5 in the report).
+    window : (int, int)
+        First and last iteration (inclusive) of the settled window, ``0 <= window[0] <=
+        window[1]``.
+    last : int
+        Last iteration that may be returned, >= 0.
+
+    Returns
+    -------
+    int or None
+        j-bar; None when ``norms[0 .. window[1]]`` are not all available and finite (fewer
+        than ``window[1] + 1`` finite values, e.g. a run that diverged early) or when no
+        ``j <= last`` qualifies.
+    """
+    if not np.isfinite(factor) or factor < 1:
+        raise ValueError(f"factor must be a finite number >= 1, got {factor!r}")
+    if len(window) != 2 or not all(isinstance(w, (int, np.integer)) for w in window):
+        raise ValueError(f"window must be a pair of ints (first, last), got {window!r}")
+    if not 0 <= window[0] <= window[1]:
+        raise ValueError(f"window must satisfy 0 <= window[0] <= window[1], got {window!r}")
+    if not isinstance(last, (int, np.integer)) or last < 0:
+        raise ValueError(f"last must be an int >= 0, got {last!r}")
+    values = np.asarray(norms, dtype=np.float64)
+    if values.ndim != 1:
+        raise ValueError(f"norms must be one-dimensional (one norm per iteration), got shape {values.shape}")
+    needed = window[1] + 1
+    if values.shape[0] < needed or not np.all(np.isfinite(values[:needed])):
+        return None
+    threshold = factor * float(np.median(values[window[0] : window[1] + 1]))
+    for j in range(min(last, values.shape[0] - 1) + 1):
+        if values[j] <= threshold:  # NaN compares False, so it never qualifies
+            return j
+    return None

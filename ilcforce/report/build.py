@@ -1,0 +1,600 @@
+"""Write the report: tables, claims, figures and a readable ``report.md`` per experiment.
+
+Reads only the results store (:mod:`ilcforce.store`); never simulates. Layout written::
+
+    <out_dir>/index.md                      links to every experiment's report
+    <out_dir>/<experiment>/report.md        readable on its own
+    <out_dir>/<experiment>/table2.csv|.md   Table 2, ours beside the paper's
+    <out_dir>/<experiment>/table3.csv|.md   Table 3, ours beside the paper's
+    <out_dir>/<experiment>/comparison.csv|.md
+    <out_dir>/<experiment>/claims.csv|.md   the five claims with verdicts and rules
+    <out_dir>/<experiment>/<figure>.png|.pdf
+
+Problems with the inputs (an unreadable or foreign file, a missing method, a partial run, a newer
+schema) never raise: each becomes one line in :attr:`ReportSummary.warnings` and in the report,
+and everything that can still be reported is.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+import ilcforce
+from ilcforce import store
+from ilcforce.report import claims as claims_module
+from ilcforce.report import figures, paper, tables
+
+#: The methods an experiment is expected to hold.
+EXPECTED_METHODS = tables.METHOD_ORDER
+
+#: Figures written per experiment: file stem -> caption.
+FIGURES = {
+    "fig2_reference": "Fig. 2: desired position x_d and desired force F_yd",
+    "fig3_position_error_norm": "Fig. 3: 2-norm of the position error (X) against iteration",
+    "fig4_force_error_norm": "Fig. 4: 2-norm of the force error (Y) against iteration",
+    "fig5_tracking_error": "Fig. 5: position error X and force error Y at j = 0, 5, 10, 15",
+    "fig6_input_x": "Fig. 6: (a) control input and (b) Delta tau in X, C1 and C3 at j = 19",
+    "fig7_input_y": "Fig. 7: (a) control input and (b) Delta tau in Y, C1 and C3 at j = 19",
+    "fig_alpha_hat": "C3's learned switching gain alpha_hat_j(t) (not in the paper)",
+}
+FIGURE_FORMATS = ("png", "pdf")
+
+#: Errors a store reader may raise for a bad file (StoreError) or unexpected contents.
+_READ_ERRORS = (store.StoreError, OSError, KeyError, ValueError, TypeError)
+
+
+@dataclass(frozen=True)
+class ReportSummary:
+    """What :func:`write_report` did.
+
+    Attributes
+    ----------
+    out_dir : Path
+        The report directory; ``out_dir / "index.md"`` links every experiment's report.
+    experiments : tuple[str, ...]
+        Experiments a report was written for, sorted.
+    files : tuple[Path, ...]
+        Every file written.
+    warnings : tuple[str, ...]
+        One line per problem found (skipped file, missing method, partial run, ...).
+    """
+
+    out_dir: Path
+    experiments: tuple[str, ...]
+    files: tuple[Path, ...]
+    warnings: tuple[str, ...]
+
+    @property
+    def index(self) -> Path:
+        return self.out_dir / "index.md"
+
+
+@dataclass
+class _Method:
+    """One readable store (internal)."""
+
+    name: str
+    path: Path
+    provenance: dict[str, Any]
+    metrics: pd.DataFrame
+
+
+@dataclass
+class _Experiment:
+    """What was read for one experiment, plus its warnings (internal)."""
+
+    name: str
+    methods: dict[str, _Method] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    notes: dict[str, str] = field(default_factory=dict)  # figure stem -> why it was not drawn
+
+    def warn(self, text: str) -> None:
+        self.warnings.append(f"{self.name}: {' '.join(str(text).split())}")
+
+    @property
+    def metrics(self) -> dict[str, pd.DataFrame]:
+        return {name: method.metrics for name, method in self.methods.items()}
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------------------------
+
+
+def perturbation_iteration(provenance: Mapping[str, Any]) -> int:
+    """``plant.perturbation.from_iteration`` from the stored JSON config; 10 if absent."""
+    try:
+        config = json.loads(str(provenance.get("config_json", "")))
+        value = config["plant"]["perturbation"]["from_iteration"]
+        return int(value)
+    except (ValueError, KeyError, TypeError):
+        return paper.PERTURBATION_ITERATION
+
+
+def _load_experiment(name: str, paths: Mapping[str, Path]) -> _Experiment:
+    experiment = _Experiment(name)
+    reader_major, reader_minor = (int(x) for x in store.SCHEMA_VERSION.split("."))
+    for method in tables.ordered_methods(paths):
+        path = paths[method]
+        try:
+            store.validate(path)
+            provenance = store.read_provenance(path)
+            metrics = store.read_metrics(path)
+        except _READ_ERRORS as error:
+            experiment.warn(f"skipped {path.name}: {error}")
+            continue
+        stored_method = str(provenance.get("method", method))
+        if stored_method != method:
+            experiment.warn(f"{path.name} holds method {stored_method!r}; reported as {method!r} (its file name)")
+        version = str(provenance.get("schema_version", ""))
+        try:
+            major, minor = (int(x) for x in version.split("."))
+            if (major, minor) > (reader_major, reader_minor):
+                experiment.warn(
+                    f"{path.name}: written with newer schema {version} (this reader: {store.SCHEMA_VERSION}); "
+                    "fields added since are ignored"
+                )
+        except ValueError:
+            pass
+        run_state = str(provenance.get("run_state", ""))
+        requested = provenance.get("n_iterations_requested")
+        if run_state in ("running", "partial"):
+            experiment.warn(
+                f"{method}: partial results (run_state {run_state!r}): {len(metrics.index)} of {requested} "
+                "iterations stored"
+            )
+        if len(metrics.index) == 0:
+            experiment.warn(f"{method}: store holds no complete iteration; skipped")
+            continue
+        experiment.methods[method] = _Method(method, path, provenance, metrics)
+    for method in EXPECTED_METHODS:
+        if method not in experiment.methods and method not in paths:
+            experiment.warn(f"method {method} missing (no {method}.h5); claims that need it are not evaluable")
+        elif method not in experiment.methods:
+            experiment.warn(f"method {method} missing (its store was skipped); claims that need it are not evaluable")
+    for method, loaded in experiment.methods.items():
+        j = tables.chattering_iteration(loaded.metrics)
+        if j is not None and j != paper.CHATTERING_ITERATION:
+            experiment.warn(
+                f"{method}: iteration {paper.CHATTERING_ITERATION} not complete; Table 3 and Figs. 6, 7 use "
+                f"iteration {j}, the last complete one"
+            )
+    return experiment
+
+
+# ---------------------------------------------------------------------------------------------
+# Figures
+# ---------------------------------------------------------------------------------------------
+
+
+def _save(fig: Figure, directory: Path, stem: str, formats: tuple[str, ...]) -> list[Path]:
+    written = []
+    for fmt in formats:
+        path = directory / f"{stem}.{fmt}"
+        # No creation date in the PDF, so that an unchanged report is byte-identical.
+        metadata = {"CreationDate": None} if fmt == "pdf" else None
+        fig.savefig(path, format=fmt, metadata=metadata)
+        written.append(path)
+    return written
+
+
+def _figure_builders(experiment: _Experiment, p: int) -> dict[str, Callable[[], Figure | str]]:
+    """Stem -> a callable making the figure, or returning a one-line reason it cannot be drawn."""
+    methods = experiment.methods
+
+    def reference() -> Figure | str:
+        first = next(iter(methods.values()))
+        return figures.figure_reference(store.read_reference(first.path))
+
+    def norms(column: str, ylabel: str) -> Callable[[], Figure | str]:
+        return lambda: figures.figure_error_norm(experiment.metrics, column, ylabel, perturbation_iteration=p)
+
+    def tracking() -> Figure | str:
+        frames: dict[str, dict[int, pd.DataFrame]] = {}
+        for name, method in methods.items():
+            stored = {int(j) for j in method.metrics.index}  # every committed iteration, diverged included
+            frames[name] = {
+                j: store.read_iteration(method.path, j) for j in figures.TRACKING_ITERATIONS if j in stored
+            }
+        return figures.figure_tracking_error(frames)
+
+    def inputs(axis: str) -> Callable[[], Figure | str]:
+        def build() -> Figure | str:
+            chosen = {}
+            for name in ("c1", "c3"):
+                if name not in methods:
+                    continue
+                j = tables.chattering_iteration(methods[name].metrics)
+                if j is not None:
+                    chosen[f"{name}"] = store.read_iteration(methods[name].path, j)
+            if not chosen:
+                return "no complete C1 or C3 iteration"
+            return figures.figure_input(chosen, axis)
+
+        return build
+
+    def alpha_hat() -> Figure | str:
+        if "c3" not in methods:
+            return "no C3 results"
+        method = methods["c3"]
+        alphas = {}
+        for j in tables.complete_iterations(method.metrics):
+            memory = store.read_memory(method.path, j)
+            if "alpha_hat" in memory:
+                alphas[j] = memory["alpha_hat"]
+        if not alphas:
+            return "the C3 store holds no alpha_hat memory"
+        duration = float(store.read_reference(method.path).index.to_numpy()[-1])
+        profiles = figures.profile_iterations(list(alphas))
+        return figures.figure_switching_gain(alphas, duration, profiles=profiles)
+
+    return {
+        "fig2_reference": reference,
+        "fig3_position_error_norm": norms("position_error_2norm", "position error 2-norm (m)"),
+        "fig4_force_error_norm": norms("force_error_2norm", "force error 2-norm (N)"),
+        "fig5_tracking_error": tracking,
+        "fig6_input_x": inputs("x"),
+        "fig7_input_y": inputs("y"),
+        "fig_alpha_hat": alpha_hat,
+    }
+
+
+def _write_figures(experiment: _Experiment, directory: Path, p: int, formats: tuple[str, ...]) -> list[Path]:
+    written: list[Path] = []
+    if not experiment.methods or not formats:
+        for stem in FIGURES:
+            experiment.notes[stem] = "no readable store" if not experiment.methods else "no figure format requested"
+        return written
+    for stem, build in _figure_builders(experiment, p).items():
+        try:
+            with figures.report_style():
+                made = build()
+                if isinstance(made, str):
+                    experiment.notes[stem] = made
+                    continue
+                written += _save(made, directory, stem, formats)
+        except _READ_ERRORS as error:
+            experiment.notes[stem] = f"not drawn: {' '.join(str(error).split())}"
+            experiment.warn(f"{stem} not drawn: {error}")
+    return written
+
+
+# ---------------------------------------------------------------------------------------------
+# report.md
+# ---------------------------------------------------------------------------------------------
+
+DEFINITIONS = """\
+* Iterations are counted from j = 0. The paper's "iteration j = 20" (Table 3, Figs. 6, 7) is the
+  20th iteration, our j = 19.
+* Error 2-norm (Table 2, Figs. 3, 4): the paper's ||e||_2 = sqrt(sum_k e(t_k)^2) over the samples
+  of the log grid (2001 samples at 1 ms for the paper's setup), for e_P (X, m) and e_F (Y, N).
+  It grows with the number of samples; it is the definition whose magnitudes match Table 2.
+  The stores also hold the grid-independent L2 norm sqrt(dt sum_k e(t_k)^2), the RMS and the max.
+* Convergence iteration j̄ (Table 2; the paper never defines it): the first j <= 9 whose error
+  2-norm is within 1.5x the median of iterations 5..9. Its 2-norm is the one at j̄.
+* Chattering H (Table 3): the population standard deviation (ddof = 0) over the log grid of
+  Delta = tau_d - tau, where tau_d is the inverse dynamics of that iteration's true plant along
+  the desired motion with the desired contact force. Task space (X, Y: J^-T tau, N; the space
+  whose magnitudes match the paper) and joint space (1, 2: N m). Read at j = 19.
+* A diverged iteration (the watchdog stopped it) has no error norm and no H; the method's later
+  iterations were not run.
+"""
+
+
+def _provenance_table(experiment: _Experiment) -> pd.DataFrame:
+    rows = []
+    for name, method in experiment.methods.items():
+        prov = method.provenance
+        rows.append(
+            {
+                "method": name,
+                "file": method.path.name,
+                "run_state": prov.get("run_state", ""),
+                "iterations": f"{len(method.metrics.index)} of {prov.get('n_iterations_requested', '?')}",
+                "seed": prov.get("seed", ""),
+                "ilcforce": prov.get("ilcforce_version", ""),
+                "git_commit": (str(prov.get("git_commit", "")) or "unknown")[:12],
+                "created_utc": prov.get("created_utc", ""),
+                "updated_utc": prov.get("updated_utc", ""),
+                "schema": prov.get("schema_version", ""),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _config_section(experiment: _Experiment) -> list[str]:
+    lines: list[str] = []
+    groups: dict[str, list[str]] = {}
+    for name, method in experiment.methods.items():
+        groups.setdefault(str(method.provenance.get("config_toml", "")), []).append(name)
+    for text, names in groups.items():
+        lines.append(f"Configuration of {', '.join(names)} (TOML, as stored):")
+        lines.append("")
+        lines.append("```toml")
+        lines.append(text.rstrip("\n") or "# (empty)")
+        lines.append("```")
+        lines.append("")
+    lines.append("Command lines:")
+    lines.append("")
+    for name, method in experiment.methods.items():
+        lines.append(f"* {name}: `{method.provenance.get('command', '')}`")
+    lines.append("")
+    return lines
+
+
+def _divergence_lines(experiment: _Experiment) -> list[str]:
+    lines = []
+    for name, method in experiment.methods.items():
+        found = tables.divergence(method.metrics)
+        if found is None:
+            lines.append(f"* {name}: no divergence ({len(method.metrics.index)} iterations)")
+            continue
+        j, time = found
+        try:
+            reason = store.read_iteration(method.path, j).attrs.get("diverged_reason", "") or "no reason stored"
+        except _READ_ERRORS as error:
+            reason = f"reason unreadable: {' '.join(str(error).split())}"
+        lines.append(f"* {name}: diverged at iteration {j}, t = {time:.4g} s: {reason}")
+    return lines
+
+
+def _fallback_table(experiment: _Experiment) -> pd.DataFrame:
+    rows = []
+    for name, method in experiment.methods.items():
+        counts = method.metrics["fallback_count"].to_numpy(dtype=float)
+        rows.append(
+            {
+                "method": name,
+                "total": int(np.nansum(counts)),
+                "max_per_iteration": int(np.nanmax(counts)) if counts.size else 0,
+                "iterations_with_fallbacks": int(np.sum(counts > 0)),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _claims_view(frame: pd.DataFrame) -> pd.DataFrame:
+    return frame[["claim", "verdict", "statement", "paper", "ours"]]
+
+
+def _report_text(
+    experiment: _Experiment,
+    *,
+    p: int,
+    table2: pd.DataFrame,
+    table3: pd.DataFrame,
+    comparison: pd.DataFrame,
+    claims: pd.DataFrame,
+    figure_files: list[Path],
+) -> str:
+    md = tables.markdown_table
+    lines = [f"# ilcforce report: experiment `{experiment.name}`", ""]
+    lines += [
+        "Reproduction of the simulation study of the paper (Section 4): C1 = sliding mode control "
+        "(eq. 26), C2 = traditional ILC (eq. 27), C3 = the paper's ILC + sliding mode (eq. 14). "
+        f"The m3 perturbation (x 1.4) acts from iteration j = {p} on (from the configuration). "
+        f"Written by ilcforce {ilcforce.__version__} from the stores alone.",
+        "",
+        "## Warnings",
+        "",
+    ]
+    lines += [f"* {w}" for w in experiment.warnings] or ["None."]
+    lines += ["", "## Provenance", ""]
+    if experiment.methods:
+        lines.append(md(_provenance_table(experiment)))
+        lines += _config_section(experiment)
+    else:
+        lines += ["No readable store for this experiment.", ""]
+    lines += ["## Definitions", "", DEFINITIONS]
+    lines += [
+        "## Table 2: convergence iteration and error 2-norm at j̄",
+        "",
+        "Ours beside the paper's (`_paper` columns; the paper gives no C1 values).",
+        "",
+        md(table2),
+        "## Table 3: chattering H at the 20th iteration",
+        "",
+        "`iteration` is the iteration read (19 unless that iteration was not run). The paper gives "
+        "task-space values for C1 and C3 only.",
+        "",
+        md(table3),
+        "## Comparison of the methods",
+        "",
+        "Error 2-norms at j = 0, j̄, 9, 10 (first perturbed iteration in the paper's setup) and 19; "
+        "H at the 20th iteration; divergence; implicit-loop fallbacks over all iterations.",
+        "",
+        md(tables.by_quantity(comparison)),
+        "## The paper's claims",
+        "",
+        "Verdicts come from our numbers only; the paper's figures are shown for comparison.",
+        "",
+        md(_claims_view(claims)),
+        "### Verdict rules",
+        "",
+    ]
+    for row in claims.itertuples(index=False):
+        lines.append(f"{row.claim}. {row.rule}")
+    lines += [
+        "",
+        "For every claim: a method whose good behaviour the claim asserts that diverged within the "
+        "iterations the claim reads makes it *fails* (checked first); otherwise a method the claim "
+        "needs with no results, or a missing iteration, makes it *not evaluable*; a baseline (the "
+        "method claimed worse) that diverged counts as an infinite error norm from its divergence on. "
+        f"p = {p} is the perturbation iteration (from the configuration).",
+        "",
+        "## Divergence",
+        "",
+    ]
+    lines += _divergence_lines(experiment) or ["No readable store."]
+    lines += ["", "## Implicit-loop fallbacks", ""]
+    lines += [
+        "Control samples where the implicit acceleration scheme found no real solution and reused the "
+        "previous sample's acceleration (SPEC section 4), per method.",
+        "",
+    ]
+    lines.append(md(_fallback_table(experiment)) if experiment.methods else "No readable store.\n")
+    lines += ["## Figures", ""]
+    for stem, caption in FIGURES.items():
+        made = sorted((p.name for p in figure_files if p.stem == stem), key=lambda n: not n.endswith(".png"))
+        if made:
+            others = " ".join(f"([{name.rsplit('.', 1)[-1].upper()}]({name}))" for name in made[1:])
+            lines += [f"### {caption}", "", f"![{caption}]({made[0]}) {others}".rstrip(), ""]
+        else:
+            lines += [f"### {caption}", "", f"Not drawn: {experiment.notes.get(stem, 'unknown reason')}.", ""]
+    lines += [
+        "## Files",
+        "",
+        "Tables as CSV (full precision) and Markdown: [table2](table2.md), [table3](table3.md), "
+        "[comparison](comparison.md), [claims](claims.md).",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------------------------
+# Entry point
+# ---------------------------------------------------------------------------------------------
+
+
+def _write_experiment(
+    experiment: _Experiment, directory: Path, formats: tuple[str, ...]
+) -> tuple[list[Path], pd.DataFrame]:
+    directory.mkdir(parents=True, exist_ok=True)
+    p = paper.PERTURBATION_ITERATION
+    found = {perturbation_iteration(m.provenance) for m in experiment.methods.values()}
+    if found:
+        p = min(found)
+        if len(found) > 1:
+            experiment.warn(f"methods disagree on the perturbation iteration {sorted(found)}; using {p}")
+    metrics = experiment.metrics
+    table2 = tables.table2(metrics)
+    table3 = tables.table3(metrics)
+    comparison = tables.comparison_frame(metrics)
+    claims = claims_module.judge_claims(metrics, perturbation_iteration=p)
+    written: list[Path] = []
+    written += tables.write_table(table2, directory, "table2", title=f"Table 2 ({experiment.name})")
+    written += tables.write_table(table3, directory, "table3", title=f"Table 3 ({experiment.name})")
+    written.append(tables.write_csv(comparison, directory / "comparison.csv"))
+    written.append(
+        tables.write_markdown(
+            tables.by_quantity(comparison), directory / "comparison.md", title=f"Comparison ({experiment.name})"
+        )
+    )
+    written += tables.write_table(claims, directory, "claims", title=f"Claims ({experiment.name})")
+    figure_files = _write_figures(experiment, directory, p, formats)
+    written += figure_files
+    report = directory / "report.md"
+    report.write_text(
+        _report_text(
+            experiment,
+            p=p,
+            table2=table2,
+            table3=table3,
+            comparison=comparison,
+            claims=claims,
+            figure_files=figure_files,
+        ),
+        encoding="utf-8",
+    )
+    written.append(report)
+    return written, claims
+
+
+def _misplaced_files(results_dir: Path) -> list[str]:
+    """One warning per ``*.h5`` directly in ``results_dir``: stores live one level down.
+
+    (Every ``*.h5`` one level down is listed by find_stores and validated with the experiment.)
+    """
+    warnings = []
+    for path in sorted(results_dir.glob("*.h5")):
+        if path.is_file():
+            warnings.append(f"{path}: skipped, not in an experiment directory (expected <experiment>/<method>.h5)")
+    return warnings
+
+
+def write_report(
+    results_dir: Path, out_dir: Path, *, formats: tuple[str, ...] = FIGURE_FORMATS
+) -> ReportSummary:
+    """Write the report for every experiment under ``results_dir`` into ``out_dir``.
+
+    Parameters
+    ----------
+    results_dir : Path
+        Holds ``<experiment>/<method>.h5`` stores (see :func:`ilcforce.store.find_stores`).
+    out_dir : Path
+        Created if missing; ``out_dir/<experiment>/`` per experiment and ``out_dir/index.md``.
+    formats : tuple of str
+        Figure file formats (matplotlib names), PNG and PDF by default. The report links the PNG.
+
+    Returns
+    -------
+    ReportSummary
+        Experiments reported, files written, and one warning line per problem. Never raises for
+        a bad input file; raises :class:`ilcforce.store.StoreError` only if ``results_dir`` is
+        not a directory, and OSError if ``out_dir`` cannot be written.
+    """
+    results_dir = Path(results_dir)
+    out_dir = Path(out_dir)
+    found = store.find_stores(results_dir)
+    warnings: list[str] = _misplaced_files(results_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    verdicts: dict[str, pd.DataFrame] = {}
+    experiment_warnings: dict[str, list[str]] = {}
+    for name, paths in found.items():
+        experiment = _load_experiment(name, paths)
+        if not experiment.methods:
+            experiment.warn("no readable store; no report written")
+            warnings += experiment.warnings
+            continue
+        files, claims = _write_experiment(experiment, out_dir / name, tuple(formats))
+        written += files
+        verdicts[name] = claims
+        warnings += experiment.warnings
+        experiment_warnings[name] = experiment.warnings
+    index = out_dir / "index.md"
+    index.write_text(_index_text(results_dir, verdicts, experiment_warnings, warnings), encoding="utf-8")
+    written.append(index)
+    return ReportSummary(
+        out_dir=out_dir,
+        experiments=tuple(sorted(verdicts)),
+        files=tuple(written),
+        warnings=tuple(warnings),
+    )
+
+
+def _index_text(
+    results_dir: Path,
+    verdicts: Mapping[str, pd.DataFrame],
+    experiment_warnings: Mapping[str, list[str]],
+    warnings: list[str],
+) -> str:
+    lines = ["# ilcforce reports", "", f"Results read from `{results_dir}`.", ""]
+    if not verdicts:
+        lines += ["No experiment found (expected `<experiment>/<method>.h5` stores).", ""]
+    else:
+        rows = []
+        for name, claims in verdicts.items():
+            row: dict[str, object] = {"experiment": f"[{name}]({name}/report.md)"}
+            for claim in claims.itertuples(index=False):
+                row[f"claim {claim.claim}"] = claim.verdict
+            row["warnings"] = len(experiment_warnings.get(name, []))
+            rows.append(row)
+        lines += ["Verdicts on the paper's five claims (see each report for the numbers and rules):", ""]
+        lines.append(tables.markdown_table(pd.DataFrame(rows)))
+        for number, claim in enumerate(claims_module.CLAIMS, start=1):
+            lines.append(f"{number}. {claim.statement}")
+        lines.append("")
+    lines += ["## Warnings", ""]
+    lines += [f"* {w}" for w in warnings] or ["None."]
+    lines.append("")
+    return "\n".join(lines)
+

@@ -1,0 +1,289 @@
+"""The report's figures (the paper's Figs. 2-7 and the learned switching gain).
+
+Every ``plot_*`` function draws on the Axes it is given and returns the artists it drew; none
+creates a figure, shows or saves one. The ``figure_*`` functions compose those into a
+:class:`matplotlib.figure.Figure` built directly (no pyplot, so no GUI backend and no global
+figure registry); :mod:`ilcforce.report.build` saves them. Wrap figure creation and saving in
+``with report_style():`` so that the single style file applies.
+
+Inputs are the DataFrames the store readers return: metrics frames indexed by iteration j,
+iteration frames and the reference indexed by time t (s) with columns ``<signal>_<axis>``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+from collections.abc import Iterator, Mapping, Sequence
+from importlib import resources
+
+import matplotlib.style
+import numpy as np
+import pandas as pd
+from matplotlib.artist import Artist
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from ilcforce.records import STATUS_COMPLETE
+from ilcforce.report import paper
+
+#: Colours stay with the method across every figure ("C<n>" is the n-th colour of the style's cycle).
+METHOD_COLORS = {"c1": "C0", "c2": "C1", "c3": "C2"}
+METHOD_LABELS = {"c1": "C1 (SMC)", "c2": "C2 (ILC)", "c3": "C3 (ILC + SMC)"}
+
+#: Fig. 5 shows these iterations (Section 4.2.1).
+TRACKING_ITERATIONS = (0, 5, 10, 15)
+
+
+def _color(method: str) -> str | None:
+    return METHOD_COLORS.get(method)
+
+
+def _label(method: str) -> str:
+    return METHOD_LABELS.get(method, method)
+
+
+@contextlib.contextmanager
+def report_style() -> Iterator[None]:
+    """Context in which figures are created and saved with ``style.mplstyle``."""
+    style = resources.files("ilcforce.report").joinpath("style.mplstyle")
+    with resources.as_file(style) as path, matplotlib.style.context(str(path)):
+        yield
+
+
+def _time(frame: pd.DataFrame) -> np.ndarray:
+    return np.asarray(frame.index.to_numpy(), dtype=float)
+
+
+# ---------------------------------------------------------------------------------------------
+# Plot functions: draw on the given axes, return the artists
+# ---------------------------------------------------------------------------------------------
+
+
+def plot_desired_position(ax: Axes, reference: pd.DataFrame) -> list[Artist]:
+    """Fig. 2 (a): desired position x_d (m) against time (s)."""
+    artists: list[Artist] = list(ax.plot(_time(reference), reference["position_desired_x"], color="k", label="$x_d$"))
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("desired position $x_d$ (m)")
+    return artists
+
+
+def plot_desired_force(ax: Axes, reference: pd.DataFrame) -> list[Artist]:
+    """Fig. 2 (b): desired contact force F_yd (N) against time (s)."""
+    artists: list[Artist] = list(ax.plot(_time(reference), reference["force_desired_y"], color="k", label="$F_{yd}$"))
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("desired force $F_{yd}$ (N)")
+    return artists
+
+
+def plot_error_norms(
+    ax: Axes,
+    metrics_by_method: Mapping[str, pd.DataFrame],
+    column: str,
+    *,
+    perturbation_iteration: int | None = paper.PERTURBATION_ITERATION,
+    ylabel: str = "",
+) -> list[Artist]:
+    """Figs. 3, 4: ``metrics[column]`` (an error 2-norm) against iteration j for every method, log y.
+
+    Only complete iterations are drawn; a method that diverged is labelled with the iteration.
+    A vertical dashed line marks ``perturbation_iteration`` (None: no line).
+    """
+    artists: list[Artist] = []
+    for method, metrics in metrics_by_method.items():
+        complete = metrics["status"].astype(str).to_numpy() == STATUS_COMPLETE
+        j = np.asarray(metrics.index.to_numpy()[complete], dtype=float)
+        values = np.asarray(metrics[column].to_numpy()[complete], dtype=float)
+        label = _label(method)
+        diverged = metrics.index[metrics["status"].astype(str).to_numpy() != STATUS_COMPLETE]
+        if len(diverged):
+            label += f", diverged at j = {int(diverged[0])}"
+        (line,) = ax.plot(j, values, marker="o", color=_color(method), label=label)
+        artists.append(line)
+        finite = np.isfinite(values)
+        if len(diverged) and finite.any():
+            # A cross at the diverged iteration, at the height of the last finite norm.
+            artists += ax.plot(
+                [float(diverged[0])], [values[finite][-1]], marker="X", markersize=9, linestyle="none",
+                color=line.get_color(),
+            )
+    if any(np.any(np.asarray(line.get_ydata(), dtype=float) > 0) for line in artists):
+        ax.set_yscale("log")
+    if perturbation_iteration is not None:
+        artists.append(ax.axvline(perturbation_iteration, color="0.4", linestyle="--", linewidth=1.0, label="m3 x 1.4"))
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("iteration j")
+    ax.set_ylabel(ylabel or column)
+    ax.legend()
+    return artists
+
+
+def plot_tracking_error(
+    ax: Axes,
+    frames_by_iteration: Mapping[int, pd.DataFrame],
+    column: str,
+    *,
+    ylabel: str = "",
+    title: str = "",
+) -> list[Artist]:
+    """Fig. 5: one error signal (e.g. ``position_error_x``) against time, one line per iteration."""
+    artists: list[Artist] = []
+    for j, frame in sorted(frames_by_iteration.items()):
+        artists += ax.plot(_time(frame), frame[column], label=f"j = {j}")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(ylabel or column)
+    if title:
+        ax.set_title(title)
+    if artists:
+        ax.legend()
+    return artists
+
+
+def plot_task_input(ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str) -> list[Artist]:
+    """Figs. 6 (a), 7 (a): task-space input F_E along ``axis`` ("x" or "y") against time, per method.
+
+    The desired input J^-T tau_d of the first frame is drawn dashed for reference.
+    """
+    artists: list[Artist] = []
+    for method, frame in frames_by_method.items():
+        artists += ax.plot(_time(frame), frame[f"task_input_{axis}"], color=_color(method), label=_label(method))
+    for frame in list(frames_by_method.values())[:1]:
+        artists += ax.plot(
+            _time(frame), frame[f"desired_task_input_{axis}"], color="k", linestyle="--", linewidth=0.8, label="desired"
+        )
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(f"control input {axis.upper()} (N)")
+    if artists:
+        ax.legend()
+    return artists
+
+
+def plot_input_deviation(ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str) -> list[Artist]:
+    """Figs. 6 (b), 7 (b): Delta = desired_task_input - task_input along ``axis`` against time."""
+    artists: list[Artist] = []
+    for method, frame in frames_by_method.items():
+        delta = frame[f"desired_task_input_{axis}"] - frame[f"task_input_{axis}"]
+        artists += ax.plot(_time(frame), delta, color=_color(method), label=_label(method), linewidth=0.8)
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(rf"$\Delta\tau$ {axis.upper()} (N)")
+    if artists:
+        ax.legend()
+    return artists
+
+
+def control_time(n_control: int, duration: float) -> np.ndarray:
+    """Control grid t_k = k T / (n_control - 1), k = 0 .. n_control - 1, in s."""
+    return np.linspace(0.0, duration, n_control)
+
+
+def plot_switching_gain(
+    ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray], duration: float
+) -> list[Artist]:
+    """C3's learned switching gain alpha_hat_j(t) against time, one line per iteration j.
+
+    ``alpha_by_iteration[j]`` has shape (n_control,): the memory after iteration j, on the control
+    grid spanning [0, duration] s.
+    """
+    artists: list[Artist] = []
+    for j, alpha in sorted(alpha_by_iteration.items()):
+        alpha = np.asarray(alpha, dtype=float).reshape(-1)
+        artists += ax.plot(control_time(alpha.size, duration), alpha, label=f"j = {j}")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel(r"learned switching gain $\hat\alpha_j$ (N)")
+    if artists:
+        ax.legend(ncols=2)
+    return artists
+
+
+def plot_switching_gain_mean(ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray]) -> list[Artist]:
+    """Mean over time and maximum over time of alpha_hat_j against iteration j."""
+    js = sorted(alpha_by_iteration)
+    mean = [float(np.mean(alpha_by_iteration[j])) for j in js]
+    peak = [float(np.max(alpha_by_iteration[j])) for j in js]
+    artists: list[Artist] = []
+    artists += ax.plot(js, mean, marker="o", color=_color("c3"), label="mean over t")
+    artists += ax.plot(js, peak, marker="s", color=_color("c3"), linestyle=":", label="max over t")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("iteration j")
+    ax.set_ylabel(r"$\hat\alpha_j$ (N)")
+    ax.legend()
+    return artists
+
+
+# ---------------------------------------------------------------------------------------------
+# Figure composers (no saving)
+# ---------------------------------------------------------------------------------------------
+
+
+def figure_reference(reference: pd.DataFrame) -> Figure:
+    """Fig. 2: desired position and desired force."""
+    fig = Figure(figsize=(6.4, 4.4))
+    ax_position, ax_force = fig.subplots(2, 1, sharex=True)
+    plot_desired_position(ax_position, reference)
+    plot_desired_force(ax_force, reference)
+    ax_position.set_xlabel("")
+    return fig
+
+
+def figure_error_norm(
+    metrics_by_method: Mapping[str, pd.DataFrame],
+    column: str,
+    ylabel: str,
+    *,
+    perturbation_iteration: int | None,
+) -> Figure:
+    """Figs. 3, 4: one error 2-norm against iteration for every method."""
+    fig = Figure()
+    ax = fig.subplots()
+    plot_error_norms(ax, metrics_by_method, column, perturbation_iteration=perturbation_iteration, ylabel=ylabel)
+    return fig
+
+
+def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]]) -> Figure:
+    """Fig. 5: position error X (top row) and force error Y (bottom row), one column per method.
+
+    ``frames[method][j]`` is the iteration frame of iteration j (j in 0, 5, 10, 15 where run).
+    """
+    methods = list(frames)
+    n = max(1, len(methods))
+    fig = Figure(figsize=(3.2 * n, 5.0))
+    axes = np.atleast_2d(fig.subplots(2, n, sharex=True, squeeze=False))
+    for k, method in enumerate(methods):
+        plot_tracking_error(
+            axes[0, k], frames[method], "position_error_x", ylabel="position error X (m)", title=_label(method)
+        )
+        plot_tracking_error(axes[1, k], frames[method], "force_error_y", ylabel="force error Y (N)")
+        axes[0, k].set_xlabel("")
+    return fig
+
+
+def figure_input(frames_by_method: Mapping[str, pd.DataFrame], axis: str) -> Figure:
+    """Figs. 6 (``axis="x"``), 7 (``"y"``): (a) control input, (b) Delta tau, C1 and C3 at j = 19."""
+    fig = Figure(figsize=(6.4, 5.0))
+    ax_input, ax_delta = fig.subplots(2, 1, sharex=True)
+    plot_task_input(ax_input, frames_by_method, axis)
+    plot_input_deviation(ax_delta, frames_by_method, axis)
+    ax_input.set_xlabel("")
+    ax_input.set_title(f"(a) control input, {axis.upper()}")
+    ax_delta.set_title(rf"(b) $\Delta\tau$, {axis.upper()}")
+    return fig
+
+
+def figure_switching_gain(alpha_by_iteration: Mapping[int, np.ndarray], duration: float, *, profiles: Sequence[int] = ()) -> Figure:
+    """alpha_hat_j(t) for the iterations in ``profiles`` (all if empty), and its mean/max per j."""
+    fig = Figure(figsize=(6.4, 5.0))
+    ax_profiles, ax_mean = fig.subplots(2, 1)
+    chosen = {j: a for j, a in alpha_by_iteration.items() if not profiles or j in profiles}
+    plot_switching_gain(ax_profiles, chosen, duration)
+    plot_switching_gain_mean(ax_mean, alpha_by_iteration)
+    return fig
+
+
+def profile_iterations(iterations: Sequence[int], count: int = 5) -> list[int]:
+    """About ``count`` iterations spread evenly over ``iterations`` (first and last included)."""
+    iterations = sorted(iterations)
+    if len(iterations) <= count:
+        return iterations
+    picks = np.linspace(0, len(iterations) - 1, count)
+    return sorted({iterations[int(math.floor(p + 0.5))] for p in picks})

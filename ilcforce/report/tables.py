@@ -1,0 +1,373 @@
+"""Tables 2 and 3 and the method comparison, built from metrics DataFrames (never from files).
+
+Every function here takes the per-method metrics frames that :func:`ilcforce.store.read_metrics`
+returns (indexed by iteration j, counted from 0; columns ``status``, ``fallback_count``,
+``diverged_time``, ``position_error_2norm`` (m), ``force_error_2norm`` (N),
+``chattering_task_x``/``_y`` (N), ``chattering_joint_1``/``_2`` (N m), ...) and returns a
+DataFrame. Writers to CSV and Markdown are at the end; the Markdown renderer is our own (pandas'
+``to_markdown`` needs ``tabulate``, which ilcforce does not depend on).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ilcforce.metrics import convergence_iteration
+from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
+from ilcforce.report import paper
+
+#: Methods in the order the paper lists them; other method names follow, sorted.
+METHOD_ORDER = ("c1", "c2", "c3")
+
+#: Last iteration that may be the convergence iteration j̄, and the window whose median defines
+#: "converged" (SPEC section 6: first j <= 9 within 1.5x the median of iterations 5..9).
+JBAR_LAST = 9
+JBAR_WINDOW = (5, 9)
+JBAR_FACTOR = 1.5
+
+#: Iterations at which the comparison frame samples the error 2-norms.
+COMPARISON_ITERATIONS = (0, 9, 10, 19)
+
+#: Units of the columns these tables produce; the Markdown renderer appends them to headers.
+COLUMN_UNITS = {
+    "position_error_2norm": "m",
+    "position_error_2norm_paper": "m",
+    "force_error_2norm": "N",
+    "force_error_2norm_paper": "N",
+    "chattering_task_x": "N",
+    "chattering_task_x_paper": "N",
+    "chattering_task_y": "N",
+    "chattering_task_y_paper": "N",
+    "chattering_joint_1": "N m",
+    "chattering_joint_2": "N m",
+    "diverged_time": "s",
+}
+
+
+def ordered_methods(methods: Iterable[str]) -> list[str]:
+    """``methods`` sorted as c1, c2, c3 first, then any other name alphabetically."""
+    names = set(methods)
+    known = [m for m in METHOD_ORDER if m in names]
+    return known + sorted(names - set(METHOD_ORDER))
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading one method's metrics frame
+# ---------------------------------------------------------------------------------------------
+
+
+def complete_iterations(metrics: pd.DataFrame) -> list[int]:
+    """Iterations whose status is ``"complete"``, ascending."""
+    mask = metrics["status"].astype(str) == STATUS_COMPLETE
+    return sorted(int(j) for j in metrics.index[mask.to_numpy()])
+
+
+def value_at(metrics: pd.DataFrame, column: str, iteration: int) -> float:
+    """``metrics[column]`` at ``iteration`` if that iteration is stored and complete, else NaN."""
+    if iteration not in metrics.index or column not in metrics.columns:
+        return math.nan
+    if str(metrics.at[iteration, "status"]) != STATUS_COMPLETE:
+        return math.nan
+    return float(metrics.at[iteration, column])
+
+
+def divergence(metrics: pd.DataFrame) -> tuple[int, float] | None:
+    """(iteration, time in s) of the first diverged iteration, or None if no iteration diverged."""
+    mask = (metrics["status"].astype(str) == STATUS_DIVERGED).to_numpy()
+    if not mask.any():
+        return None
+    j = int(metrics.index[mask][0])
+    time = float(metrics.at[j, "diverged_time"]) if "diverged_time" in metrics.columns else math.nan
+    return j, time
+
+
+def describe_divergence(metrics: pd.DataFrame) -> str:
+    """``"none"`` or e.g. ``"iteration 12 at t = 0.534 s"``."""
+    found = divergence(metrics)
+    if found is None:
+        return "none"
+    j, time = found
+    return f"iteration {j} at t = {time:.4g} s"
+
+
+def jbar(metrics: pd.DataFrame, column: str) -> int | None:
+    """Convergence iteration j̄ of ``metrics[column]`` (SPEC section 6), or None.
+
+    None when any of iterations 0..9 is missing or not complete (the definition needs all ten).
+    """
+    norms = np.array([value_at(metrics, column, j) for j in range(JBAR_LAST + 1)])
+    if not np.all(np.isfinite(norms)):
+        return None
+    found = convergence_iteration(norms, factor=JBAR_FACTOR, window=JBAR_WINDOW, last=JBAR_LAST)
+    return None if found is None else int(found)
+
+
+def chattering_iteration(metrics: pd.DataFrame, preferred: int = paper.CHATTERING_ITERATION) -> int | None:
+    """``preferred`` (j = 19) if that iteration is complete, else the last complete one, else None."""
+    done = complete_iterations(metrics)
+    if preferred in done:
+        return preferred
+    return done[-1] if done else None
+
+
+# ---------------------------------------------------------------------------------------------
+# Tables
+# ---------------------------------------------------------------------------------------------
+
+
+def _int_or_na(value: int | None) -> object:
+    return pd.NA if value is None else int(value)
+
+
+def table2(metrics_by_method: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
+    """Table 2: convergence iteration j̄ and the error 2-norm at j̄, ours beside the paper's.
+
+    One row per method (C1 included; the paper gives no C1 value, so its paper columns are NaN).
+    Columns: ``method``, ``jbar_position``, ``jbar_position_paper``, ``position_error_2norm`` (m,
+    at our j̄), ``position_error_2norm_paper``, and the same four for ``force`` (N). j̄ columns
+    are nullable integers (<NA> when j̄ cannot be computed, e.g. a divergence before j = 9).
+    """
+    rows = []
+    for method in ordered_methods(metrics_by_method):
+        metrics = metrics_by_method[method]
+        published = paper.table2_row(method)
+        row: dict[str, object] = {"method": method}
+        for quantity in ("position", "force"):
+            column = f"{quantity}_error_2norm"
+            ours = jbar(metrics, column)
+            row[f"jbar_{quantity}"] = _int_or_na(ours)
+            row[f"jbar_{quantity}_paper"] = _int_or_na(
+                None if published is None else getattr(published, f"jbar_{quantity}")
+            )
+            row[column] = math.nan if ours is None else value_at(metrics, column, ours)
+            row[f"{column}_paper"] = math.nan if published is None else getattr(published, column)
+        rows.append(row)
+    columns = ["method"] + [
+        name
+        for quantity in ("position", "force")
+        for name in (
+            f"jbar_{quantity}",
+            f"jbar_{quantity}_paper",
+            f"{quantity}_error_2norm",
+            f"{quantity}_error_2norm_paper",
+        )
+    ]
+    frame = pd.DataFrame(rows, columns=columns)
+    for quantity in ("position", "force"):
+        for name in (f"jbar_{quantity}", f"jbar_{quantity}_paper"):
+            frame[name] = frame[name].astype("Int64")
+    frame.attrs["units"] = {c: COLUMN_UNITS[c] for c in columns if c in COLUMN_UNITS}
+    return frame
+
+
+def table3(
+    metrics_by_method: Mapping[str, pd.DataFrame], *, iteration: int = paper.CHATTERING_ITERATION
+) -> pd.DataFrame:
+    """Table 3: chattering H = std(tau_d - tau) at ``iteration`` (j = 19, the paper's "j = 20").
+
+    One row per method present (C1 and C3 carry the paper's values; C2, if present, NaN).
+    ``iteration`` is the one actually read: j = 19 if complete, else that method's last complete
+    iteration (the caller reports the substitution). Columns: ``method``, ``iteration``,
+    ``chattering_task_x``, ``chattering_task_x_paper``, ``chattering_task_y``,
+    ``chattering_task_y_paper`` (N), ``chattering_joint_1``, ``chattering_joint_2`` (N m).
+    """
+    rows = []
+    for method in ordered_methods(metrics_by_method):
+        metrics = metrics_by_method[method]
+        published = paper.table3_row(method)
+        j = chattering_iteration(metrics, iteration)
+        row: dict[str, object] = {"method": method, "iteration": _int_or_na(j)}
+        for axis in ("x", "y"):
+            column = f"chattering_task_{axis}"
+            row[column] = math.nan if j is None else value_at(metrics, column, j)
+            row[f"{column}_paper"] = math.nan if published is None else getattr(published, f"task_{axis}")
+        for axis in ("1", "2"):
+            column = f"chattering_joint_{axis}"
+            row[column] = math.nan if j is None else value_at(metrics, column, j)
+        rows.append(row)
+    columns = [
+        "method",
+        "iteration",
+        "chattering_task_x",
+        "chattering_task_x_paper",
+        "chattering_task_y",
+        "chattering_task_y_paper",
+        "chattering_joint_1",
+        "chattering_joint_2",
+    ]
+    frame = pd.DataFrame(rows, columns=columns)
+    frame["iteration"] = frame["iteration"].astype("Int64")
+    frame.attrs["units"] = {c: COLUMN_UNITS[c] for c in columns if c in COLUMN_UNITS}
+    return frame
+
+
+def comparison_frame(metrics_by_method: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
+    """One row per method: the numbers a reader compares the methods by.
+
+    Columns: ``method``, ``iterations`` (stored), ``jbar_position``, ``position_error_2norm_j0``,
+    ``_jbar``, ``_j9``, ``_j10``, ``_j19`` (m), the same for ``force`` (N), ``chattering_iteration``
+    (19 or the last complete), ``chattering_task_x``, ``chattering_task_y`` (N) there,
+    ``divergence`` ("none" or "iteration j at t = ... s"), ``diverged_iteration`` (nullable int),
+    ``diverged_time`` (s, NaN if none), ``fallback_total`` (implicit-loop fallbacks, all iterations).
+    A value is NaN where its iteration is missing or did not complete.
+    """
+    rows = []
+    for method in ordered_methods(metrics_by_method):
+        metrics = metrics_by_method[method]
+        row: dict[str, object] = {"method": method, "iterations": int(len(metrics.index))}
+        for quantity in ("position", "force"):
+            column = f"{quantity}_error_2norm"
+            converged = jbar(metrics, column)
+            row[f"jbar_{quantity}"] = _int_or_na(converged)
+            row[f"{column}_j0"] = value_at(metrics, column, 0)
+            row[f"{column}_jbar"] = math.nan if converged is None else value_at(metrics, column, converged)
+            for j in COMPARISON_ITERATIONS[1:]:
+                row[f"{column}_j{j}"] = value_at(metrics, column, j)
+        j_h = chattering_iteration(metrics)
+        row["chattering_iteration"] = _int_or_na(j_h)
+        for axis in ("x", "y"):
+            column = f"chattering_task_{axis}"
+            row[column] = math.nan if j_h is None else value_at(metrics, column, j_h)
+        found = divergence(metrics)
+        row["divergence"] = describe_divergence(metrics)
+        row["diverged_iteration"] = _int_or_na(None if found is None else found[0])
+        row["diverged_time"] = math.nan if found is None else found[1]
+        fallbacks = pd.to_numeric(metrics["fallback_count"], errors="coerce") if "fallback_count" in metrics else None
+        row["fallback_total"] = 0 if fallbacks is None else int(np.nansum(fallbacks.to_numpy(dtype=float)))
+        rows.append(row)
+    columns = ["method", "iterations"]
+    for quantity in ("position", "force"):
+        columns += [f"jbar_{quantity}", f"{quantity}_error_2norm_j0", f"{quantity}_error_2norm_jbar"]
+        columns += [f"{quantity}_error_2norm_j{j}" for j in COMPARISON_ITERATIONS[1:]]
+    columns += [
+        "chattering_iteration",
+        "chattering_task_x",
+        "chattering_task_y",
+        "divergence",
+        "diverged_iteration",
+        "diverged_time",
+        "fallback_total",
+    ]
+    frame = pd.DataFrame(rows, columns=columns)
+    for name in ("jbar_position", "jbar_force", "chattering_iteration", "diverged_iteration"):
+        frame[name] = frame[name].astype("Int64")
+    units = {}
+    for name in frame.columns:
+        if name.startswith("position_error_2norm"):
+            units[name] = "m"
+        elif name.startswith("force_error_2norm"):
+            units[name] = "N"
+        elif name in COLUMN_UNITS:
+            units[name] = COLUMN_UNITS[name]
+    frame.attrs["units"] = units
+    return frame
+
+
+def by_quantity(frame: pd.DataFrame) -> pd.DataFrame:
+    """A one-row-per-method frame turned for reading: one row per quantity, one column per method.
+
+    The quantity names carry their unit (``[m]``) from ``frame.attrs["units"]``; the cells keep
+    their values (mixed types, object columns), so the Markdown renderer formats each.
+    """
+    if "method" not in frame.columns or frame.empty:
+        return frame
+    units = frame.attrs.get("units", {})
+    rows = []
+    for name in frame.columns:
+        if name == "method":
+            continue
+        row: dict[str, object] = {"quantity": f"{name} [{units[name]}]" if name in units else name}
+        for method, value in zip(frame["method"], frame[name], strict=True):
+            row[str(method)] = value
+        rows.append(row)
+    turned = pd.DataFrame(rows, columns=["quantity", *map(str, frame["method"])], dtype=object)
+    return turned
+
+
+# ---------------------------------------------------------------------------------------------
+# Writers
+# ---------------------------------------------------------------------------------------------
+
+
+def _is_missing(value: object) -> bool:
+    if value is None or value is pd.NA:
+        return True
+    try:
+        return bool(pd.isna(value))
+    except (TypeError, ValueError):
+        return False
+
+
+def format_cell(value: object, float_format: str = "{:.4g}") -> str:
+    """One Markdown cell: missing -> "–", floats with ``float_format``, text with ``|`` escaped."""
+    if _is_missing(value):
+        return "–"
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value))
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return float_format.format(float(value))
+    text = str(value).replace("\r", " ").replace("\n", " ")
+    return text.replace("|", "\\|")
+
+
+def _is_numeric_column(column: pd.Series) -> bool:
+    """Numbers only (missing values allowed), booleans excluded: right-aligned in Markdown."""
+    if pd.api.types.is_bool_dtype(column):
+        return False
+    if pd.api.types.is_numeric_dtype(column):
+        return True
+    values = [v for v in column if not _is_missing(v)]
+    return bool(values) and all(
+        isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)) for v in values
+    )
+
+
+def markdown_table(frame: pd.DataFrame, *, float_format: str = "{:.4g}") -> str:
+    """``frame`` as a GitHub-flavoured Markdown table (no index), numbers right-aligned.
+
+    Headers get `` [unit]`` from ``frame.attrs["units"]`` where one is given.
+    """
+    if len(frame.columns) == 0:
+        return "(no data)\n"
+    units = frame.attrs.get("units", {})
+    headers = [f"{name} [{units[name]}]" if name in units else str(name) for name in frame.columns]
+    aligns = ["---:" if _is_numeric_column(frame[name]) else ":---" for name in frame.columns]
+    lines = [
+        "| " + " | ".join(format_cell(h) for h in headers) + " |",
+        "|" + "|".join(aligns) + "|",
+    ]
+    for row in frame.itertuples(index=False, name=None):
+        lines.append("| " + " | ".join(format_cell(v, float_format) for v in row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_csv(frame: pd.DataFrame, path: Path) -> Path:
+    """Write ``frame`` (no index) to ``path`` as CSV at full precision; returns ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame.to_csv(path, index=False)
+    return path
+
+
+def write_markdown(frame: pd.DataFrame, path: Path, *, title: str | None = None) -> Path:
+    """Write ``frame`` as a Markdown table (under a ``# title`` if given); returns ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = markdown_table(frame)
+    if title:
+        text = f"# {title}\n\n{text}"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def write_table(frame: pd.DataFrame, directory: Path, stem: str, *, title: str | None = None) -> list[Path]:
+    """Write ``<directory>/<stem>.csv`` and ``<stem>.md``; returns both paths."""
+    return [
+        write_csv(frame, directory / f"{stem}.csv"),
+        write_markdown(frame, directory / f"{stem}.md", title=title),
+    ]

@@ -1,0 +1,698 @@
+"""Tests of the report package: tables, claim verdicts, figures, and the end-to-end report.
+
+The synthetic stores are written with the real :class:`ilcforce.store.StoreWriter` from records
+whose metrics are known in closed form: the position error is constant in time, e_x(t) = N / sqrt(n)
+on n log samples, so its 2-norm is exactly N; Delta = desired_task_input - task_input is H times
+a zero-mean, unit-population-std pattern, so its population std (ddof = 0) is exactly H. The only
+error left is floating-point rounding, hence ``rtol=1e-12``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from matplotlib.artist import Artist
+from matplotlib.figure import Figure
+
+from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, IterationRecord
+from ilcforce.report import build, claims, figures, paper, tables
+from ilcforce.report.build import ReportSummary, write_report
+from ilcforce.store import StoreWriter, read_metrics
+
+N_LOG = 21  # log samples over [0, 2] s (0.1 s spacing): small, but every code path is the same
+LOG_EVERY = 10
+N_CONTROL = (N_LOG - 1) * LOG_EVERY + 1
+N_ITERATIONS = 20
+DURATION = 2.0
+RTOL = 1e-12  # closed-form values, only float rounding of a 21-term sum separates them
+
+# Known 2-norms per iteration j = 0..19 (position in m, force in N). C2 and C3 are built so that
+# their convergence iterations and converged norms are the paper's Table 2 values; the m3 change
+# at j = 10 makes C2 and C3 jump and converge again, C1 barely moves.
+POSITION = {
+    "c1": [5e-5] * 10 + [5.5e-5] * 10,
+    "c2": [1e-3, 1e-4, 3e-5, 7.6e-6 * 1.05, 7.7e-6] + [7.6e-6] * 5 + [4e-5, 2e-5, 1e-5, 8e-6] + [7.6e-6] * 6,
+    "c3": [1e-3, 2e-4, 5e-5, 1e-5, 4.3e-6 * 1.02] + [4.3e-6] * 5 + [3e-5, 1e-5, 5e-6] + [4.3e-6] * 7,
+}
+FORCE = {
+    "c1": [0.5] * 10 + [0.55] * 10,
+    "c2": [1.0, 0.3, 0.096 * 1.04, 0.097] + [0.096] * 6 + [0.5, 0.2, 0.1] + [0.096] * 7,
+    "c3": [1.0, 0.4, 0.2, 0.058 * 1.03, 0.059] + [0.058] * 5 + [0.4, 0.1, 0.06] + [0.058] * 7,
+}
+# Known chattering H per method (task X, task Y in N; joint 1, joint 2 in N m), every iteration.
+CHATTERING = {
+    "c1": (0.06, 0.0534, 0.011, 0.012),
+    "c2": (0.05, 0.04, 0.009, 0.008),
+    "c3": (0.0359, 0.0219, 0.006, 0.005),
+}
+# Expected convergence iterations: first j <= 9 within 1.5x the median of j = 5..9.
+EXPECTED_JBAR = {"c2": (3, 2), "c3": (4, 3)}
+
+CONFIG = {"plant": {"perturbation": {"from_iteration": 10, "mass_factor": 1.4}}, "iterations": N_ITERATIONS}
+CONFIG_TOML = "iterations = 20\n\n[plant.perturbation]\nfrom_iteration = 10\nmass_factor = 1.4\n"
+
+
+def _time() -> np.ndarray:
+    return np.linspace(0.0, DURATION, N_LOG)
+
+
+def _reference() -> dict[str, np.ndarray]:
+    t = _time()
+    force = 5 * np.sin(np.pi * t) + 5 * (np.exp(t) - 1)
+    zeros = np.zeros_like(t)
+    return {
+        "time": t,
+        "position_desired": np.column_stack([0.15 * np.cos(np.pi * t / 2) + 0.2, 0.4 + force / 1000]),
+        "velocity_desired": np.column_stack([zeros, zeros]),
+        "acceleration_desired": np.column_stack([zeros, zeros]),
+        "force_desired": np.column_stack([zeros, force]),
+    }
+
+
+def _unit_pattern() -> np.ndarray:
+    """Zero-mean pattern with population standard deviation exactly 1 (up to rounding)."""
+    pattern = np.where(np.arange(N_LOG) % 2 == 0, 1.0, -1.0)
+    pattern -= pattern.mean()
+    return pattern / pattern.std()
+
+
+def make_record(
+    method: str,
+    j: int,
+    *,
+    position_norm: float,
+    force_norm: float,
+    chattering: tuple[float, float, float, float],
+    diverged_time: float | None = None,
+) -> IterationRecord:
+    """A record whose metrics are known: 2-norms ``position_norm``, ``force_norm``; H ``chattering``."""
+    t = _time()
+    log = {}
+    for name, (axes, _unit, _description) in LOG_SIGNALS.items():
+        log[name] = t.copy() if axes is None else np.zeros((N_LOG, 2))
+    log["position_error"][:, 0] = position_norm / math.sqrt(N_LOG)
+    log["force_error"][:, 1] = force_norm / math.sqrt(N_LOG)
+    log["desired_task_input"] = np.column_stack([np.sin(t), 10 + t])
+    log["desired_torque"] = np.column_stack([np.cos(t), 1 + t])
+    pattern = _unit_pattern()
+    hx, hy, h1, h2 = chattering
+    log["task_input"] = log["desired_task_input"] - np.column_stack([hx * pattern, hy * pattern])
+    log["torque"] = log["desired_torque"] - np.column_stack([h1 * pattern, h2 * pattern])
+    memory: dict[str, np.ndarray] = {}
+    units: dict[str, str] = {}
+    if method == "c3":
+        control_t = np.linspace(0.0, DURATION, N_CONTROL)
+        memory = {"theta_hat": np.full((N_CONTROL, 8), 0.1 * j), "alpha_hat": 0.01 * (j + 1) * (1 + np.sin(control_t))}
+        units = {"theta_hat": "mixed", "alpha_hat": "N"}
+    elif method == "c2":
+        memory = {"v": np.full((N_CONTROL, 2), 0.5 * j)}
+        units = {"v": "N m"}
+    status = "complete"
+    reason = ""
+    if diverged_time is not None:
+        status = "diverged"
+        reason = "|tau| above 1e3 N m"
+        late = t > diverged_time
+        for name in log:
+            if name != "time":
+                log[name][late] = np.nan
+        log["time"] = np.where(late, np.nan, t)
+    return IterationRecord(
+        iteration=j,
+        status=status,
+        diverged_time=math.nan if diverged_time is None else diverged_time,
+        diverged_reason=reason,
+        fallback_count=j if method == "c3" else 0,
+        log=log,
+        memory=memory,
+        memory_units=units,
+    )
+
+
+def write_store(
+    path: Path,
+    method: str,
+    *,
+    experiment: str = "synthetic",
+    last: int = N_ITERATIONS - 1,
+    diverge_at: int | None = None,
+    finish: bool = True,
+) -> Path:
+    """A store of ``method`` with iterations 0..``last`` (or up to a divergence at ``diverge_at``)."""
+    with StoreWriter(
+        path,
+        experiment=experiment,
+        method=method,
+        config_toml=CONFIG_TOML,
+        config_json=json.dumps(CONFIG),
+        seed=7,
+        command=f"ilcforce simulate --method {method} (test)",
+        n_iterations=N_ITERATIONS,
+        reference=_reference(),
+    ) as writer:
+        for j in range(last + 1):
+            diverged = diverge_at is not None and j == diverge_at
+            writer.append(
+                make_record(
+                    method,
+                    j,
+                    position_norm=POSITION[method][j],
+                    force_norm=FORCE[method][j],
+                    chattering=CHATTERING[method],
+                    diverged_time=0.55 if diverged else None,
+                )
+            )
+            if diverged:
+                break
+        if finish:
+            writer.finish("diverged" if diverge_at is not None else "complete")
+    return path
+
+
+@pytest.fixture(scope="module")
+def results_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """``results/synthetic/{c1,c2,c3}.h5``, 20 complete iterations each, known metrics."""
+    root = tmp_path_factory.mktemp("results")
+    for method in ("c1", "c2", "c3"):
+        write_store(root / "synthetic" / f"{method}.h5", method)
+    return root
+
+
+@pytest.fixture(scope="module")
+def metrics_by_method(results_dir: Path) -> dict[str, pd.DataFrame]:
+    return {m: read_metrics(results_dir / "synthetic" / f"{m}.h5") for m in ("c1", "c2", "c3")}
+
+
+# ---------------------------------------------------------------------------------------------
+# Tables
+# ---------------------------------------------------------------------------------------------
+
+
+def test_table2_matches_known_values(metrics_by_method: dict[str, pd.DataFrame]) -> None:
+    table = tables.table2(metrics_by_method).set_index("method")
+    assert list(table.index) == ["c1", "c2", "c3"]
+    for method, (jbar_position, jbar_force) in EXPECTED_JBAR.items():
+        assert table.at[method, "jbar_position"] == jbar_position, f"{method} position j̄"
+        assert table.at[method, "jbar_force"] == jbar_force, f"{method} force j̄"
+        np.testing.assert_allclose(
+            table.at[method, "position_error_2norm"],
+            POSITION[method][jbar_position],
+            rtol=RTOL,
+            err_msg=f"{method}: position 2-norm at j̄ must be the known constructed value",
+        )
+        np.testing.assert_allclose(
+            table.at[method, "force_error_2norm"],
+            FORCE[method][jbar_force],
+            rtol=RTOL,
+            err_msg=f"{method}: force 2-norm at j̄ must be the known constructed value",
+        )
+        published = paper.table2_row(method)
+        assert published is not None
+        assert table.at[method, "jbar_position_paper"] == published.jbar_position
+        assert table.at[method, "position_error_2norm_paper"] == published.position_error_2norm
+        assert table.at[method, "force_error_2norm_paper"] == published.force_error_2norm
+    # C1 has a j̄ of its own (constant norm: j = 0) but no paper value.
+    assert table.at["c1", "jbar_position"] == 0
+    assert pd.isna(table.at["c1", "jbar_position_paper"])
+    assert math.isnan(table.at["c1", "position_error_2norm_paper"])
+
+
+def test_table2_paper_values_are_the_published_ones() -> None:
+    c2, c3 = paper.table2_row("c2"), paper.table2_row("c3")
+    assert c2 == paper.ConvergenceRow("c2", 3, 7.6e-6, 2, 0.096)
+    assert c3 == paper.ConvergenceRow("c3", 4, 4.3e-6, 3, 0.058)
+    assert paper.table2_row("c1") is None
+    np.testing.assert_allclose(
+        [paper.TABLE3[0].task_x / paper.TABLE3[1].task_x, paper.TABLE3[0].task_y / paper.TABLE3[1].task_y],
+        [paper.CHATTERING_RATIO_X, paper.CHATTERING_RATIO_Y],
+        atol=0.005,
+        err_msg="the text's ratios must agree with Table 3 to the 3 digits printed",
+    )
+
+
+def test_table3_matches_known_values(metrics_by_method: dict[str, pd.DataFrame]) -> None:
+    table = tables.table3(metrics_by_method).set_index("method")
+    for method, (hx, hy, h1, h2) in CHATTERING.items():
+        assert table.at[method, "iteration"] == 19, f"{method}: Table 3 is read at j = 19"
+        np.testing.assert_allclose(
+            table.loc[method, ["chattering_task_x", "chattering_task_y", "chattering_joint_1", "chattering_joint_2"]]
+            .to_numpy(dtype=float),
+            [hx, hy, h1, h2],
+            rtol=1e-9,  # population std of a 21-sample pattern scaled to std 1: rounding only
+            err_msg=f"{method}: H must equal the constructed population standard deviation",
+        )
+    assert table.at["c1", "chattering_task_x_paper"] == 0.06
+    assert table.at["c3", "chattering_task_y_paper"] == 0.0219
+    assert math.isnan(table.at["c2", "chattering_task_x_paper"])
+
+
+def test_table3_falls_back_to_last_complete_iteration(metrics_by_method: dict[str, pd.DataFrame]) -> None:
+    short = {m: frame.loc[:14] for m, frame in metrics_by_method.items()}
+    table = tables.table3(short).set_index("method")
+    assert (table["iteration"] == 14).all(), "with 15 iterations Table 3 must use j = 14"
+
+
+def test_comparison_frame(metrics_by_method: dict[str, pd.DataFrame]) -> None:
+    frame = tables.comparison_frame(metrics_by_method).set_index("method")
+    for method in ("c1", "c2", "c3"):
+        for j in (0, 9, 10, 19):
+            np.testing.assert_allclose(
+                frame.at[method, f"position_error_2norm_j{j}"],
+                POSITION[method][j],
+                rtol=RTOL,
+                err_msg=f"{method}: position 2-norm at j = {j}",
+            )
+            np.testing.assert_allclose(
+                frame.at[method, f"force_error_2norm_j{j}"], FORCE[method][j], rtol=RTOL, err_msg=f"{method} force j={j}"
+            )
+        assert frame.at[method, "divergence"] == "none"
+        assert frame.at[method, "iterations"] == N_ITERATIONS
+    assert frame.at["c3", "fallback_total"] == sum(range(N_ITERATIONS)), "C3 records carry fallback_count = j"
+    assert frame.at["c1", "fallback_total"] == 0
+
+
+def test_markdown_table_renders_units_missing_values_and_pipes() -> None:
+    frame = pd.DataFrame({"method": ["a|b", "c"], "norm": [1.23456e-6, math.nan], "j": pd.array([3, None], dtype="Int64")})
+    frame.attrs["units"] = {"norm": "m"}
+    text = tables.markdown_table(frame)
+    lines = text.strip().splitlines()
+    assert lines[0] == "| method | norm [m] | j |"
+    assert lines[1] == "|:---|---:|---:|"
+    assert lines[2] == "| a\\|b | 1.235e-06 | 3 |"
+    assert lines[3] == "| c | – | – |"
+
+
+# ---------------------------------------------------------------------------------------------
+# Claims: verdict rules on synthetic metrics frames
+# ---------------------------------------------------------------------------------------------
+
+
+def sequence(jbar: int, final: float, *, jump: float = 10.0, settle: float = 1.0, p: int = 10) -> list[float]:
+    """20 norms: 10 x final before ``jbar``, ``final`` from j̄ to p - 1, ``jump`` x final at ``p``,
+    then ``settle`` x final (1.0: converged again)."""
+    values = [10 * final if j < jbar else final for j in range(p)]
+    values += [jump * final] + [settle * final] * (N_ITERATIONS - p - 1)
+    return values
+
+
+def metrics_frame(
+    position: list[float],
+    force: list[float],
+    chattering: tuple[float, float] = (0.05, 0.05),
+    *,
+    diverged_at: int | None = None,
+) -> pd.DataFrame:
+    """A frame shaped like :func:`ilcforce.store.read_metrics` (the columns the report reads)."""
+    n = len(position) if diverged_at is None else diverged_at + 1
+    status = ["complete"] * n
+    pos, frc = list(position[:n]), list(force[:n])
+    hx, hy = [chattering[0]] * n, [chattering[1]] * n
+    diverged_time = [math.nan] * n
+    if diverged_at is not None:
+        status[-1] = "diverged"
+        pos[-1] = frc[-1] = hx[-1] = hy[-1] = math.nan
+        diverged_time[-1] = 0.5
+    return pd.DataFrame(
+        {
+            "status": status,
+            "fallback_count": [0] * n,
+            "diverged_time": diverged_time,
+            "position_error_2norm": pos,
+            "force_error_2norm": frc,
+            "chattering_task_x": hx,
+            "chattering_task_y": hy,
+            "chattering_joint_1": hx,
+            "chattering_joint_2": hy,
+        },
+        index=pd.Index(range(n), name="iteration"),
+    )
+
+
+def good_case(**overrides: pd.DataFrame) -> dict[str, pd.DataFrame]:
+    """Every claim holds: j̄ as published, C3 45% below C2, jumps at 10, C1 chatters 2x C3."""
+    case = {
+        "c1": metrics_frame([1e-3] * 10 + [1.2e-3] * 10, [10.0] * 10 + [11.0] * 10, (0.06, 0.05)),
+        "c2": metrics_frame(sequence(3, 1e-5), sequence(2, 0.1), (0.05, 0.04)),
+        "c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.03, 0.02)),
+    }
+    case.update(overrides)
+    return case
+
+
+def verdicts(case: dict[str, pd.DataFrame], **kwargs: int) -> dict[int, str]:
+    frame = claims.judge_claims(case, **kwargs)
+    assert set(frame["verdict"]) <= set(claims.VERDICTS)
+    return dict(zip(frame["claim"], frame["verdict"], strict=True))
+
+
+def test_all_claims_hold_on_the_good_case() -> None:
+    frame = claims.judge_claims(good_case())
+    assert list(frame.columns) == ["claim", "statement", "paper", "ours", "verdict", "rule"]
+    assert list(frame["verdict"]) == ["holds"] * 5, frame[["claim", "ours"]].to_string()
+    assert frame["rule"].str.len().min() > 40, "every claim states its rule"
+
+
+@pytest.mark.parametrize(
+    ("claim", "overrides", "expected"),
+    [
+        # Claim 1: C2 worse than C1 in position only -> 3 of 4 comparisons.
+        (1, {"c2": metrics_frame([1.0] * 20, sequence(2, 0.1))}, "in part"),
+        (1, {"c1": metrics_frame([1e-9] * 20, [1e-9] * 20)}, "fails"),
+        # Claim 2: force ratio 0.604 (the paper's own Table 2 numbers) -> position only.
+        (2, {"c2": metrics_frame(sequence(3, 7.6e-6), sequence(2, 0.096)),
+             "c3": metrics_frame(sequence(4, 4.3e-6), sequence(3, 0.058))}, "in part"),
+        (2, {"c3": metrics_frame(sequence(4, 1e-5), sequence(3, 0.1))}, "fails"),
+        # Claim 3: C3's j̄ off by 3 on both -> 2 of 4 within +-1; all off -> fails.
+        (3, {"c3": metrics_frame(sequence(7, 5.5e-6), sequence(6, 0.055))}, "in part"),
+        (3, {"c2": metrics_frame(sequence(7, 1e-5), sequence(6, 0.1)),
+             "c3": metrics_frame(sequence(7, 5.5e-6), sequence(7, 0.055))}, "fails"),
+        # Claim 4: C1 degrades 3x -> 8 of 10 parts; nothing as claimed -> fails.
+        (4, {"c1": metrics_frame([1e-3] * 10 + [3e-3] * 10, [10.0] * 10 + [30.0] * 10)}, "in part"),
+        (4, {"c1": metrics_frame([1e-3] * 10 + [3e-3] * 10, [10.0] * 10 + [30.0] * 10),
+             "c2": metrics_frame(sequence(3, 1e-5, jump=1.9, settle=2.0), sequence(2, 0.1, jump=1.9, settle=2.0)),
+             "c3": metrics_frame(sequence(4, 5.5e-6, jump=1.9, settle=2.0), sequence(3, 0.055, jump=1.9, settle=2.0))},
+         "fails"),
+        # Claim 5: C3 chatters more in X only -> in part; on both -> fails.
+        (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.07, 0.02))}, "in part"),
+        (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.07, 0.06))}, "fails"),
+    ],
+)
+def test_claim_verdict_rules(claim: int, overrides: dict[str, pd.DataFrame], expected: str) -> None:
+    judgement = claims.judge_claim(claim, good_case(**overrides))
+    assert judgement.verdict == expected, f"claim {claim}: {judgement.ours}"
+
+
+def test_divergence_of_an_asserted_method_fails_only_the_claims_that_read_it() -> None:
+    case = good_case(c3=metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.03, 0.02), diverged_at=12))
+    result = claims.judge_claims(case).set_index("claim")
+    assert result.loc[[1, 2, 3], "verdict"].tolist() == ["holds"] * 3, "C3 ran cleanly up to j = 11"
+    for number in (4, 5):
+        assert result.at[number, "verdict"] == "fails"
+        assert "c3 diverged at iteration 12" in result.at[number, "ours"], "the divergence is named"
+
+
+def test_early_divergence_fails_the_early_claims() -> None:
+    case = good_case(c2=metrics_frame(sequence(3, 1e-5), sequence(2, 0.1), diverged_at=4))
+    assert verdicts(case) == {1: "fails", 2: "holds", 3: "fails", 4: "fails", 5: "holds"}
+
+
+def test_diverged_baseline_counts_as_worse() -> None:
+    case = good_case(c1=metrics_frame([1e-3] * 20, [10.0] * 20, diverged_at=5))
+    result = claims.judge_claims(case).set_index("claim")
+    assert result.at[1, "verdict"] == "holds", "a baseline that diverged tracks worse"
+    assert "c1 diverged" in result.at[1, "ours"]
+    assert result.at[4, "verdict"] == "fails", "claim 4 asserts C1 degrades only slightly"
+    assert result.at[5, "verdict"] == "not evaluable", "no H for C1 at j = 19"
+
+
+def test_missing_method_is_not_evaluable() -> None:
+    case = good_case()
+    del case["c2"]
+    assert verdicts(case) == {1: "not evaluable", 2: "not evaluable", 3: "not evaluable", 4: "not evaluable", 5: "holds"}
+    assert verdicts({}) == dict.fromkeys(range(1, 6), "not evaluable")
+
+
+def test_perturbation_iteration_is_a_parameter() -> None:
+    shifted = {
+        "c1": metrics_frame([1e-3] * 20, [10.0] * 20, (0.06, 0.05)),
+        "c2": metrics_frame(sequence(3, 1e-5, p=8), sequence(2, 0.1, p=8), (0.05, 0.04)),
+        "c3": metrics_frame(sequence(4, 5.5e-6, p=8), sequence(3, 0.055, p=8), (0.03, 0.02)),
+    }
+    assert claims.judge_claim(4, shifted, perturbation_iteration=8).verdict == "holds"
+    assert claims.judge_claim(4, shifted, perturbation_iteration=10).verdict != "holds"
+
+
+def test_perturbation_iteration_from_config() -> None:
+    assert build.perturbation_iteration({"config_json": json.dumps(CONFIG)}) == 10
+    eight = {"plant": {"perturbation": {"from_iteration": 8}}}
+    assert build.perturbation_iteration({"config_json": json.dumps(eight)}) == 8
+    assert build.perturbation_iteration({"config_json": "{}"}) == paper.PERTURBATION_ITERATION
+    assert build.perturbation_iteration({}) == paper.PERTURBATION_ITERATION
+
+
+def test_claims_on_the_synthetic_store(metrics_by_method: dict[str, pd.DataFrame]) -> None:
+    """The store reproduces the paper's numbers, so its verdicts are the paper's own data's."""
+    result = verdicts(metrics_by_method)
+    # Claim 2 is "in part": the paper's own force numbers are 0.058 / 0.096 = 0.604, a 39.6% cut.
+    assert result == {1: "holds", 2: "in part", 3: "holds", 4: "holds", 5: "holds"}
+
+
+# ---------------------------------------------------------------------------------------------
+# Figures: each plot function draws on the axes it is given and returns those artists
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def frames(results_dir: Path) -> dict[str, dict[int, pd.DataFrame]]:
+    from ilcforce.store import read_iteration
+
+    return {
+        m: {j: read_iteration(results_dir / "synthetic" / f"{m}.h5", j) for j in (0, 5, 10, 15, 19)}
+        for m in ("c1", "c2", "c3")
+    }
+
+
+def _check_artists(artists: list[Artist], ax: object, minimum: int) -> None:
+    assert len(artists) >= minimum, f"expected at least {minimum} artists, got {len(artists)}"
+    for artist in artists:
+        assert isinstance(artist, Artist)
+        assert artist.axes is ax, f"{artist!r} is not drawn on the given axes"
+
+
+def _axes() -> tuple[Figure, object]:
+    fig = Figure()
+    return fig, fig.subplots()
+
+
+def test_plot_reference(results_dir: Path) -> None:
+    from ilcforce.store import read_reference
+
+    reference = read_reference(results_dir / "synthetic" / "c1.h5")
+    with figures.report_style():
+        _fig, ax = _axes()
+        _check_artists(figures.plot_desired_position(ax, reference), ax, 1)
+        _fig, ax = _axes()
+        artists = figures.plot_desired_force(ax, reference)
+        _check_artists(artists, ax, 1)
+        np.testing.assert_allclose(
+            artists[0].get_ydata(), _reference()["force_desired"][:, 1], rtol=0, atol=0, err_msg="F_yd drawn as stored"
+        )
+
+
+@pytest.mark.parametrize("column", ["position_error_2norm", "force_error_2norm"])
+def test_plot_error_norms(metrics_by_method: dict[str, pd.DataFrame], column: str) -> None:
+    with figures.report_style():
+        _fig, ax = _axes()
+        artists = figures.plot_error_norms(ax, metrics_by_method, column, perturbation_iteration=10)
+    _check_artists(artists, ax, 4)  # three methods and the perturbation line
+    assert ax.get_yscale() == "log"
+    assert list(artists[-1].get_xdata()) == [10, 10], "the perturbation iteration is marked"
+
+
+def test_plot_tracking_error(frames: dict[str, dict[int, pd.DataFrame]]) -> None:
+    chosen = {j: frames["c3"][j] for j in figures.TRACKING_ITERATIONS}
+    for column in ("position_error_x", "force_error_y"):
+        _fig, ax = _axes()
+        _check_artists(figures.plot_tracking_error(ax, chosen, column), ax, 4)
+
+
+@pytest.mark.parametrize("axis", ["x", "y"])
+def test_plot_inputs(frames: dict[str, dict[int, pd.DataFrame]], axis: str) -> None:
+    chosen = {"c1": frames["c1"][19], "c3": frames["c3"][19]}
+    _fig, ax = _axes()
+    _check_artists(figures.plot_task_input(ax, chosen, axis), ax, 3)  # C1, C3, desired
+    _fig, ax = _axes()
+    artists = figures.plot_input_deviation(ax, chosen, axis)
+    _check_artists(artists, ax, 2)
+    index = {"x": 0, "y": 1}[axis]
+    np.testing.assert_allclose(
+        np.std(artists[0].get_ydata()),
+        CHATTERING["c1"][index],
+        rtol=1e-9,
+        err_msg="the drawn Delta tau is the signal whose std is H",
+    )
+
+
+def test_plot_switching_gain() -> None:
+    alphas = {j: np.full(N_CONTROL, 0.01 * (j + 1)) for j in range(5)}
+    _fig, ax = _axes()
+    artists = figures.plot_switching_gain(ax, alphas, DURATION)
+    _check_artists(artists, ax, 5)
+    assert artists[0].get_xdata()[-1] == DURATION
+    _fig, ax = _axes()
+    _check_artists(figures.plot_switching_gain_mean(ax, alphas), ax, 2)
+
+
+def test_profile_iterations() -> None:
+    assert figures.profile_iterations(list(range(20)), 5) == [0, 5, 10, 14, 19]
+    assert figures.profile_iterations([0, 1], 5) == [0, 1]
+
+
+# ---------------------------------------------------------------------------------------------
+# End to end
+# ---------------------------------------------------------------------------------------------
+
+TABLE_STEMS = ("table2", "table3", "comparison", "claims")
+REPORT_HEADINGS = (
+    "# ilcforce report",
+    "## Warnings",
+    "## Provenance",
+    "## Definitions",
+    "## Table 2",
+    "## Table 3",
+    "## Comparison of the methods",
+    "## The paper's claims",
+    "### Verdict rules",
+    "## Divergence",
+    "## Implicit-loop fallbacks",
+    "## Figures",
+)
+
+
+@pytest.fixture(scope="module")
+def report(results_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> ReportSummary:
+    """The full report (PNG and PDF figures) of the synthetic results, written once."""
+    return write_report(results_dir, tmp_path_factory.mktemp("report"))
+
+
+def test_write_report_end_to_end(report: ReportSummary) -> None:
+    summary, out = report, report.out_dir
+    assert isinstance(summary, ReportSummary)
+    assert summary.experiments == ("synthetic",)
+    assert summary.warnings == (), summary.warnings
+    directory = out / "synthetic"
+    promised = [directory / f"{stem}.{ext}" for stem in TABLE_STEMS for ext in ("csv", "md")]
+    promised += [directory / f"{stem}.{ext}" for stem in build.FIGURES for ext in ("png", "pdf")]
+    promised += [directory / "report.md", out / "index.md"]
+    for path in promised:
+        assert path.is_file(), f"{path} was not written"
+        minimum = 5000 if path.suffix in (".png", ".pdf") else 100
+        assert path.stat().st_size > minimum, f"{path} is only {path.stat().st_size} bytes"
+        assert path in summary.files, f"{path} missing from the summary"
+    report = (directory / "report.md").read_text(encoding="utf-8")
+    for heading in REPORT_HEADINGS:
+        assert f"\n{heading}" in "\n" + report, f"report.md lacks the heading {heading!r}"
+    assert "from_iteration = 10" in report, "the stored TOML config is quoted"
+    assert "within 1.5x the median of iterations 5..9" in report, "the j̄ definition is stated"
+    for stem in build.FIGURES:
+        assert f"]({stem}.png)" in report, f"report.md does not link {stem}"
+    assert "(synthetic/report.md)" in (out / "index.md").read_text(encoding="utf-8")
+    # The CSV round-trips the numbers at full precision.
+    table2 = pd.read_csv(directory / "table2.csv").set_index("method")
+    assert table2.at["c3", "position_error_2norm"] == pytest.approx(POSITION["c3"][4], rel=RTOL)
+    claims_csv = pd.read_csv(directory / "claims.csv")
+    assert list(claims_csv["verdict"]) == ["holds", "in part", "holds", "holds", "holds"]
+
+
+def test_write_report_twice_is_identical(results_dir: Path, report: ReportSummary, tmp_path: Path) -> None:
+    second = write_report(results_dir, tmp_path)
+    assert len(report.files) == len(second.files)
+    for path in report.files:
+        if path.suffix in (".md", ".csv", ".pdf"):
+            twin = tmp_path / path.relative_to(report.out_dir)
+            assert path.read_bytes() == twin.read_bytes(), f"{path.name} differs between two runs"
+
+
+def _garbage(path: Path) -> None:
+    path.write_bytes(b"this is not an HDF5 file\n" * 10)
+
+
+def _hdf5_without_schema(path: Path) -> None:
+    import h5py  # only to make a foreign (valid HDF5, not ilcforce) file
+
+    with h5py.File(path, "w") as handle:
+        handle.create_dataset("data", data=np.arange(3))
+
+
+@pytest.mark.parametrize("make_foreign", [_garbage, _hdf5_without_schema], ids=["garbage", "foreign-hdf5"])
+@pytest.mark.parametrize("where", ["experiment", "top"])
+def test_foreign_file_gives_one_warning(
+    results_dir: Path, tmp_path: Path, make_foreign: object, where: str
+) -> None:
+    root = tmp_path / "results"
+    (root / "synthetic").mkdir(parents=True)
+    for method in ("c1", "c2", "c3"):
+        (root / "synthetic" / f"{method}.h5").write_bytes((results_dir / "synthetic" / f"{method}.h5").read_bytes())
+    foreign = root / "synthetic" / "foreign.h5" if where == "experiment" else root / "stray.h5"
+    make_foreign(foreign)  # type: ignore[operator]
+    summary = write_report(root, tmp_path / "out", formats=())  # no figures: this test is about inputs
+    assert len(summary.warnings) == 1, summary.warnings
+    assert foreign.name in summary.warnings[0]
+    assert "\n" not in summary.warnings[0]
+    assert summary.experiments == ("synthetic",)
+    index = (tmp_path / "out" / "index.md").read_text(encoding="utf-8")
+    assert foreign.name in index
+    if where == "experiment":
+        assert foreign.name in (tmp_path / "out" / "synthetic" / "report.md").read_text(encoding="utf-8")
+
+
+def test_degraded_experiment_reports_what_it_can(tmp_path: Path) -> None:
+    """C1 missing, C2 partial (killed after 10 iterations), C3 diverged at j = 12."""
+    root = tmp_path / "results"
+    write_store(root / "degraded" / "c2.h5", "c2", experiment="degraded", last=9, finish=False)
+    write_store(root / "degraded" / "c3.h5", "c3", experiment="degraded", diverge_at=12)
+    summary = write_report(root, tmp_path / "out", formats=("png",))
+    text = "\n".join(summary.warnings)
+    assert "method c1 missing" in text
+    assert "c2: partial results" in text
+    assert "use iteration 9" in text and "use iteration 11" in text, "Table 3 substitutions are reported"
+    report = (tmp_path / "out" / "degraded" / "report.md").read_text(encoding="utf-8")
+    assert "c3: diverged at iteration 12, t = 0.55 s: |tau| above 1e3 N m" in report
+    for warning in summary.warnings:
+        assert warning in report, "every warning is also in the report"
+    result = pd.read_csv(tmp_path / "out" / "degraded" / "claims.csv").set_index("claim")
+    assert result.at[1, "verdict"] == "not evaluable", "C1 missing"
+    assert result.at[2, "verdict"] == "in part", "C2 and C3 ran through j = 9 (paper's numbers: in part)"
+    assert result.at[3, "verdict"] == "holds"
+    assert result.at[4, "verdict"] == "fails", "C3 diverged: a divergence settles it although C1 is missing"
+    assert result.at[5, "verdict"] == "fails"
+    assert "c3 diverged at iteration 12" in result.at[5, "ours"]
+    # The figures that need only C3 or the metrics are still drawn.
+    for stem in ("fig3_position_error_norm", "fig_alpha_hat", "fig6_input_x"):
+        assert (tmp_path / "out" / "degraded" / f"{stem}.png").is_file(), stem
+
+
+def test_empty_results_dir(tmp_path: Path) -> None:
+    summary = write_report(tmp_path, tmp_path / "out")
+    assert summary.experiments == ()
+    assert "No experiment found" in (tmp_path / "out" / "index.md").read_text(encoding="utf-8")
+
+
+def _copy_stores(source: Path, target: Path, methods: tuple[str, ...] = ("c1", "c2", "c3")) -> None:
+    target.mkdir(parents=True)
+    for method in methods:
+        (target / f"{method}.h5").write_bytes((source / f"{method}.h5").read_bytes())
+
+
+@pytest.mark.parametrize(("version", "reported"), [("1.9", True), ("2.0", False)])
+def test_newer_schema_gives_one_warning(results_dir: Path, tmp_path: Path, version: str, reported: bool) -> None:
+    """A newer minor version is read with a warning; a newer major version is skipped with one."""
+    import h5py  # only to fake a store written by a newer ilcforce
+
+    _copy_stores(results_dir / "synthetic", tmp_path / "results" / "synthetic")
+    with h5py.File(tmp_path / "results" / "synthetic" / "c3.h5", "a") as handle:
+        handle.attrs["schema_version"] = version
+    summary = write_report(tmp_path / "results", tmp_path / "out", formats=())
+    about_c3 = [w for w in summary.warnings if "c3" in w]
+    assert any(version in w and "newer" in w for w in about_c3), summary.warnings
+    table = pd.read_csv(tmp_path / "out" / "synthetic" / "table2.csv")
+    assert ("c3" in set(table["method"])) == reported
+    if not reported:
+        assert "method c3 missing" in "\n".join(summary.warnings)
+
+
+def test_experiment_without_readable_store_is_not_reported(results_dir: Path, tmp_path: Path) -> None:
+    root = tmp_path / "results"
+    _copy_stores(results_dir / "synthetic", root / "good")
+    (root / "broken").mkdir()
+    _garbage(root / "broken" / "c1.h5")
+    summary = write_report(root, tmp_path / "out", formats=())
+    assert summary.experiments == ("good",)
+    assert any(w.startswith("broken: no readable store") for w in summary.warnings), summary.warnings
+    assert not (tmp_path / "out" / "broken").exists()
+    assert "broken: no readable store" in (tmp_path / "out" / "index.md").read_text(encoding="utf-8")
