@@ -9,7 +9,6 @@ from __future__ import annotations
 import functools
 import math
 import shlex
-import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -96,10 +95,23 @@ def _g(value) -> str:
     return str(value)
 
 
-def _run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool):
+def _command_line(ctx: typer.Context) -> str:
+    """The invocation as ilcforce saw it (resolved options), for the store's provenance."""
+    parts = ["ilcforce", ctx.info_name or ""]
+    flags = {"out_path": "--out", "out_dir": "--out", "sets": "--set"}
+    for name, value in ctx.params.items():
+        if value in (None, False, [], ()):
+            continue
+        flag = flags.get(name, "--" + name.replace("_", "-"))
+        values = value if isinstance(value, (list, tuple)) else [value]
+        for v in values:
+            parts += [flag] if v is True else [flag, str(v)]
+    return shlex.join(parts)
+
+
+def _run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool, command: str):
     from ilcforce.experiment import run_method
 
-    command = shlex.join(["ilcforce", *sys.argv[1:]])
     total = config.experiment.iterations
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[last]}"), TimeElapsedColumn(), console=err,
@@ -119,6 +131,7 @@ def _run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool):
 @app.command()
 @_guard
 def simulate(
+    ctx: typer.Context,
     method: Annotated[str, typer.Option("--method", "-m", help="controller: c1, c2 or c3")] = "c3",
     iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations (default: the experiment's)")] = None,
     config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
@@ -137,7 +150,7 @@ def simulate(
         raise CliError("--method takes one method; use `ilcforce compare --methods ...` for several")
     cfg = _load(config, seed, iters, sets)
     path = out_path if out_path is not None else default_store_path(results, cfg, names[0])
-    summary = _run_one(cfg, names[0], path, overwrite=overwrite, resume=resume)
+    summary = _run_one(cfg, names[0], path, overwrite=overwrite, resume=resume, command=_command_line(ctx))
     table = Table(title=f"{cfg.experiment.name} / {names[0]}  ->  {path}")
     for col in ("j", "|e_P|_2 (m)", "|e_F|_2 (N)", "H_x (N)", "H_y (N)", "loop fallbacks", "status"):
         table.add_column(col, justify="right")
@@ -155,6 +168,7 @@ def simulate(
 @app.command()
 @_guard
 def compare(
+    ctx: typer.Context,
     methods: Annotated[str, typer.Option("--methods", help="comma-separated methods")] = "c1,c2,c3",
     config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
     iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations")] = None,
@@ -181,16 +195,19 @@ def compare(
                 raise CliError(f"{path} holds a run with a different configuration; pass --overwrite to rerun it")
             action = "keep" if state in ("complete", "diverged") else "resume"
         if action != "keep":
-            _run_one(cfg, name, path, overwrite=overwrite and path.exists(), resume=action == "resume")
+            _run_one(cfg, name, path, overwrite=overwrite and path.exists(), resume=action == "resume",
+                     command=_command_line(ctx))
         metrics_by_method[name] = store.read_metrics(path)
     frame = comparison_frame(metrics_by_method)
-    _print_frame(frame, f"{cfg.experiment.name}: comparison (same seed {cfg.experiment.seed}, same disturbance and noise)")
+    if "method" in frame.columns:
+        frame = frame.set_index("method")
+    _print_frame(frame.T, f"{cfg.experiment.name}: same seed {cfg.experiment.seed}, same disturbance and noise")
 
 
 def _print_frame(frame, title: str) -> None:
+    """One row per quantity, one column per method (narrow enough for a terminal)."""
     table = Table(title=title)
-    index_name = frame.index.name or ""
-    table.add_column(index_name)
+    table.add_column("")
     for col in frame.columns:
         table.add_column(str(col), justify="right")
     for idx, row in frame.iterrows():

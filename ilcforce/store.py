@@ -444,7 +444,26 @@ def read_provenance(path: str | os.PathLike[str]) -> dict[str, Any]:
     with _open_store(path) as (handle, checked_path):
         _validate_open(handle, checked_path)
         names = list(ROOT_ATTRS) + sorted(set(handle.attrs) - set(ROOT_ATTRS))
-        return {name: _py(handle.attrs[name]) for name in names}
+        out = {name: _py(handle.attrs[name]) for name in names}
+    if out.get("run_state") == "running" and not writer_active(path):
+        out["run_state"] = "partial"  # the writer was killed (kill -9, power loss) mid-run
+    return out
+
+
+def writer_active(path: str | os.PathLike[str]) -> bool:
+    """True while a :class:`StoreWriter` holds ``<path>.lock`` (the flock dies with its process)."""
+    lock = Path(path).with_name(f"{Path(path).name}.lock")
+    try:
+        fd = os.open(lock, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        return True
+    finally:
+        os.close(fd)  # closing releases a lock we took
+    return False
 
 
 def read_metrics(path: str | os.PathLike[str]) -> pd.DataFrame:

@@ -19,7 +19,7 @@ import pytest
 from matplotlib.artist import Artist
 from matplotlib.figure import Figure
 
-from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, IterationRecord
+from ilcforce.records import LOG_SIGNALS, IterationRecord
 from ilcforce.report import build, claims, figures, paper, tables
 from ilcforce.report.build import ReportSummary, write_report
 from ilcforce.store import StoreWriter, read_metrics
@@ -696,3 +696,12 @@ def test_experiment_without_readable_store_is_not_reported(results_dir: Path, tm
     assert any(w.startswith("broken: no readable store") for w in summary.warnings), summary.warnings
     assert not (tmp_path / "out" / "broken").exists()
     assert "broken: no readable store" in (tmp_path / "out" / "index.md").read_text(encoding="utf-8")
+
+
+def test_zero_norms_do_not_divide_by_zero() -> None:
+    """Noise-free perfect tracking gives zero norms; the rules must still give verdicts (no warnings)."""
+    zero = metrics_frame([0.0] * 20, [0.0] * 20, (0.0, 0.0))
+    result = verdicts(good_case(c2=zero, c3=zero))
+    assert result[1] == "holds", "zero error beats C1"
+    assert result[2] == "fails", "0 / 0 is not a 40% reduction"
+    assert result[5] == "holds", "H(C1) / 0 is infinite, above 1"

@@ -147,9 +147,10 @@ def _load_experiment(name: str, paths: Mapping[str, Path]) -> _Experiment:
         run_state = str(provenance.get("run_state", ""))
         requested = provenance.get("n_iterations_requested")
         if run_state in ("running", "partial"):
+            why = "still running or killed" if run_state == "running" else "stopped before finishing"
             experiment.warn(
-                f"{method}: partial results (run_state {run_state!r}): {len(metrics.index)} of {requested} "
-                "iterations stored"
+                f"{method}: partial results (run_state {run_state!r}, {why}): {len(metrics.index)} of "
+                f"{requested} iterations stored"
             )
         if len(metrics.index) == 0:
             experiment.warn(f"{method}: store holds no complete iteration; skipped")
@@ -208,16 +209,17 @@ def _figure_builders(experiment: _Experiment, p: int) -> dict[str, Callable[[], 
 
     def inputs(axis: str) -> Callable[[], Figure | str]:
         def build() -> Figure | str:
-            chosen = {}
+            chosen, read_at = {}, {}
             for name in ("c1", "c3"):
                 if name not in methods:
                     continue
                 j = tables.chattering_iteration(methods[name].metrics)
                 if j is not None:
-                    chosen[f"{name}"] = store.read_iteration(methods[name].path, j)
+                    chosen[name] = store.read_iteration(methods[name].path, j)
+                    read_at[name] = j
             if not chosen:
                 return "no complete C1 or C3 iteration"
-            return figures.figure_input(chosen, axis)
+            return figures.figure_input(chosen, axis, iterations=read_at)
 
         return build
 
@@ -234,7 +236,8 @@ def _figure_builders(experiment: _Experiment, p: int) -> dict[str, Callable[[], 
             return "the C3 store holds no alpha_hat memory"
         duration = float(store.read_reference(method.path).index.to_numpy()[-1])
         profiles = figures.profile_iterations(list(alphas))
-        return figures.figure_switching_gain(alphas, duration, profiles=profiles)
+        unit = store.read_memory_units(method.path, max(alphas)).get("alpha_hat", "N")
+        return figures.figure_switching_gain(alphas, duration, profiles=profiles, unit=unit)
 
     return {
         "fig2_reference": reference,

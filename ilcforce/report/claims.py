@@ -125,9 +125,17 @@ def _count_verdict(passed: Sequence[bool]) -> str:
     return FAILS
 
 
+def _ratio(numerator: float, denominator: float) -> float:
+    """numerator / denominator for norms >= 0: x / 0 is inf (0 / 0 is NaN), x / inf is 0."""
+    numerator, denominator = float(numerator), float(denominator)
+    if denominator == 0.0:
+        return math.nan if numerator == 0.0 else math.inf
+    return numerator / denominator
+
+
 def _fmt(value: float) -> str:
     if math.isinf(value):
-        return "inf (diverged)"
+        return "inf"
     if math.isnan(value):
         return "n/a"
     return f"{value:.3g}"
@@ -215,12 +223,14 @@ def _claim2(ctx: _Context) -> Judgement:
     for quantity, column, _unit in METRICS:
         c3 = ctx.mean_norm("c3", column, first, last)
         c2 = ctx.mean_norm("c2", column, first, last)
-        ratio = c3 / c2
+        ratio = _ratio(c3, c2)
         passed.append(bool(ratio < REDUCTION_RATIO))
-        text = f"{quantity} C3/C2 = {_fmt(ratio)} ({(ratio - 1) * 100:+.1f}%)"
+        text = f"{quantity} C3/C2 = {_fmt(ratio)}"
+        if math.isfinite(ratio):
+            text += f" ({(ratio - 1) * 100:+.1f}%)"
         j2, j3 = jbar(ctx.metrics["c2"], column), jbar(ctx.metrics["c3"], column)
         if j2 is not None and j3 is not None:
-            at_jbar = value_at(ctx.metrics["c3"], column, j3) / value_at(ctx.metrics["c2"], column, j2)
+            at_jbar = _ratio(value_at(ctx.metrics["c3"], column, j3), value_at(ctx.metrics["c2"], column, j2))
             text += f", at j̄: {_fmt(at_jbar)}"
         parts.append(text)
     return ctx.finish(f"mean 2-norm over j = {first}..{last}: " + "; ".join(parts), _count_verdict(passed))
@@ -260,14 +270,14 @@ def _claim4(ctx: _Context) -> Judgement:
         rises, again = [], []
         for method in ("c1", "c2", "c3"):
             norm_before, norm_after, norm_end = ctx.norms(method, column, (before, after, end))
-            rise = norm_after / norm_before
+            rise = _ratio(norm_after, norm_before)
             rises.append(f"{method.upper()} x{_fmt(rise)}")
             if method == "c1":
                 passed.append(bool(rise < STRONG_RISE))
             else:
                 passed.append(bool(rise >= STRONG_RISE))
                 passed.append(bool(norm_end <= RECONVERGED * norm_before))
-                again.append(f"{method.upper()} {_fmt(norm_end / norm_before)}")
+                again.append(f"{method.upper()} {_fmt(_ratio(norm_end, norm_before))}")
         parts.append(
             f"{quantity}: rise j = {before} -> {after}: {', '.join(rises)}; "
             f"norm(j = {end}) / norm(j = {before}): {', '.join(again)}"
@@ -292,9 +302,9 @@ def _claim5(ctx: _Context) -> Judgement:
         column = f"chattering_task_{axis}"
         h1 = value_at(ctx.metrics["c1"], column, j)
         h3 = value_at(ctx.metrics["c3"], column, j)
-        if not (math.isfinite(h1) and math.isfinite(h3)) or h3 <= 0:
+        if not (math.isfinite(h1) and math.isfinite(h3)):
             raise _Stop(NOT_EVALUABLE, f"H ({axis.upper()}) not available at j = {j}")
-        ratio = h1 / h3
+        ratio = _ratio(h1, h3)
         passed.append(bool(ratio > 1.0))
         parts.append(f"{axis.upper()} {_fmt(ratio)} (paper {published}; H: C1 {_fmt(h1)}, C3 {_fmt(h3)} N)")
     where = f"j = {j}" + ("" if j == target else f" (last complete; j = {target} not run)")

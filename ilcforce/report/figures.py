@@ -140,14 +140,25 @@ def plot_tracking_error(
     return artists
 
 
-def plot_task_input(ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str) -> list[Artist]:
+def _input_label(method: str, iterations: Mapping[str, int] | None) -> str:
+    if iterations is None or method not in iterations:
+        return _label(method)
+    return f"{_label(method)}, j = {iterations[method]}"
+
+
+def plot_task_input(
+    ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None
+) -> list[Artist]:
     """Figs. 6 (a), 7 (a): task-space input F_E along ``axis`` ("x" or "y") against time, per method.
 
-    The desired input J^-T tau_d of the first frame is drawn dashed for reference.
+    The desired input J^-T tau_d of the first frame is drawn dashed for reference. ``iterations``
+    (method -> j), if given, labels each line with the iteration it shows.
     """
     artists: list[Artist] = []
     for method, frame in frames_by_method.items():
-        artists += ax.plot(_time(frame), frame[f"task_input_{axis}"], color=_color(method), label=_label(method))
+        artists += ax.plot(
+            _time(frame), frame[f"task_input_{axis}"], color=_color(method), label=_input_label(method, iterations)
+        )
     for frame in list(frames_by_method.values())[:1]:
         artists += ax.plot(
             _time(frame), frame[f"desired_task_input_{axis}"], color="k", linestyle="--", linewidth=0.8, label="desired"
@@ -159,12 +170,16 @@ def plot_task_input(ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis
     return artists
 
 
-def plot_input_deviation(ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str) -> list[Artist]:
+def plot_input_deviation(
+    ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None
+) -> list[Artist]:
     """Figs. 6 (b), 7 (b): Delta = desired_task_input - task_input along ``axis`` against time."""
     artists: list[Artist] = []
     for method, frame in frames_by_method.items():
         delta = frame[f"desired_task_input_{axis}"] - frame[f"task_input_{axis}"]
-        artists += ax.plot(_time(frame), delta, color=_color(method), label=_label(method), linewidth=0.8)
+        artists += ax.plot(
+            _time(frame), delta, color=_color(method), label=_input_label(method, iterations), linewidth=0.8
+        )
     ax.set_xlabel("time (s)")
     ax.set_ylabel(rf"$\Delta\tau$ {axis.upper()} (N)")
     if artists:
@@ -178,7 +193,7 @@ def control_time(n_control: int, duration: float) -> np.ndarray:
 
 
 def plot_switching_gain(
-    ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray], duration: float
+    ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray], duration: float, *, unit: str = "N"
 ) -> list[Artist]:
     """C3's learned switching gain alpha_hat_j(t) against time, one line per iteration j.
 
@@ -190,13 +205,15 @@ def plot_switching_gain(
         alpha = np.asarray(alpha, dtype=float).reshape(-1)
         artists += ax.plot(control_time(alpha.size, duration), alpha, label=f"j = {j}")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(r"learned switching gain $\hat\alpha_j$ (N)")
+    ax.set_ylabel(rf"learned switching gain $\hat\alpha_j$ ({unit})")
     if artists:
         ax.legend(ncols=2)
     return artists
 
 
-def plot_switching_gain_mean(ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray]) -> list[Artist]:
+def plot_switching_gain_mean(
+    ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray], *, unit: str = "N"
+) -> list[Artist]:
     """Mean over time and maximum over time of alpha_hat_j against iteration j."""
     js = sorted(alpha_by_iteration)
     mean = [float(np.mean(alpha_by_iteration[j])) for j in js]
@@ -206,7 +223,7 @@ def plot_switching_gain_mean(ax: Axes, alpha_by_iteration: Mapping[int, np.ndarr
     artists += ax.plot(js, peak, marker="s", color=_color("c3"), linestyle=":", label="max over t")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("iteration j")
-    ax.set_ylabel(r"$\hat\alpha_j$ (N)")
+    ax.set_ylabel(rf"$\hat\alpha_j$ ({unit})")
     ax.legend()
     return artists
 
@@ -258,25 +275,29 @@ def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]]) -> F
     return fig
 
 
-def figure_input(frames_by_method: Mapping[str, pd.DataFrame], axis: str) -> Figure:
+def figure_input(
+    frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None
+) -> Figure:
     """Figs. 6 (``axis="x"``), 7 (``"y"``): (a) control input, (b) Delta tau, C1 and C3 at j = 19."""
     fig = Figure(figsize=(6.4, 5.0))
     ax_input, ax_delta = fig.subplots(2, 1, sharex=True)
-    plot_task_input(ax_input, frames_by_method, axis)
-    plot_input_deviation(ax_delta, frames_by_method, axis)
+    plot_task_input(ax_input, frames_by_method, axis, iterations=iterations)
+    plot_input_deviation(ax_delta, frames_by_method, axis, iterations=iterations)
     ax_input.set_xlabel("")
     ax_input.set_title(f"(a) control input, {axis.upper()}")
     ax_delta.set_title(rf"(b) $\Delta\tau$, {axis.upper()}")
     return fig
 
 
-def figure_switching_gain(alpha_by_iteration: Mapping[int, np.ndarray], duration: float, *, profiles: Sequence[int] = ()) -> Figure:
+def figure_switching_gain(
+    alpha_by_iteration: Mapping[int, np.ndarray], duration: float, *, profiles: Sequence[int] = (), unit: str = "N"
+) -> Figure:
     """alpha_hat_j(t) for the iterations in ``profiles`` (all if empty), and its mean/max per j."""
     fig = Figure(figsize=(6.4, 5.0))
     ax_profiles, ax_mean = fig.subplots(2, 1)
     chosen = {j: a for j, a in alpha_by_iteration.items() if not profiles or j in profiles}
-    plot_switching_gain(ax_profiles, chosen, duration)
-    plot_switching_gain_mean(ax_mean, alpha_by_iteration)
+    plot_switching_gain(ax_profiles, chosen, duration, unit=unit)
+    plot_switching_gain_mean(ax_mean, alpha_by_iteration, unit=unit)
     return fig
 
 

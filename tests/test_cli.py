@@ -1,0 +1,158 @@
+"""The command line through typer's CliRunner: happy paths and one clear line for every bad input."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from ilcforce import store
+from ilcforce.cli import app
+
+SHORT = ["--set", "reference.duration=0.2"]
+
+
+@pytest.fixture
+def runner():
+    return CliRunner()
+
+
+def _one_clear_line(result, expected: str):
+    text = result.output.strip()
+    assert result.exit_code == 2, f"exit {result.exit_code}: {text}"
+    assert "Traceback" not in text and result.exception is None or isinstance(result.exception, SystemExit)
+    assert expected in text, text
+    assert len(text.splitlines()) == 1, f"expected one line, got:\n{text}"
+
+
+def test_simulate_writes_a_valid_store(runner, tmp_path):
+    out = tmp_path / "c3.h5"
+    result = runner.invoke(app, ["simulate", "--method", "c3", "--iters", "2", "--out", str(out), *SHORT])
+    assert result.exit_code == 0, result.output
+    assert "complete" in result.output
+    store.validate(out)
+    assert store.iterations(out) == [0, 1]
+    prov = store.read_provenance(out)
+    assert prov["run_state"] == "complete" and prov["method"] == "c3" and prov["seed"] == 0
+    assert prov["command"].startswith("ilcforce simulate --method c3 --iters 2")
+
+
+def test_default_output_path_and_existing_result(runner, tmp_path):
+    args = ["simulate", "-m", "c1", "-n", "1", "--results", str(tmp_path), *SHORT]
+    assert runner.invoke(app, args).exit_code == 0
+    path = tmp_path / "paper" / "c1.h5"
+    assert path.is_file()
+    before = path.read_bytes()
+    _one_clear_line(runner.invoke(app, args), "--overwrite replaces it")
+    assert path.read_bytes() == before, "an existing result must not be touched without --overwrite"
+    assert runner.invoke(app, [*args, "--overwrite"]).exit_code == 0
+
+
+def test_resume_continues(runner, tmp_path):
+    out = tmp_path / "c2.h5"
+    assert runner.invoke(app, ["simulate", "-m", "c2", "-n", "2", "--out", str(out), *SHORT]).exit_code == 0
+    result = runner.invoke(app, ["simulate", "-m", "c2", "-n", "4", "--out", str(out), "--resume", *SHORT])
+    assert result.exit_code == 0, result.output
+    assert store.iterations(out) == [0, 1, 2, 3]
+
+
+def test_diverged_method_is_a_result(runner, tmp_path):
+    out = tmp_path / "c2.h5"
+    result = runner.invoke(app, ["simulate", "-m", "c2", "-n", "3", "--out", str(out), "--set", "wall.force_sign=paper",
+                                 "--set", "reference.duration=0.5"])
+    assert result.exit_code == 0, result.output
+    assert "diverged" in result.output
+    assert store.read_provenance(out)["run_state"] == "diverged"
+
+
+def test_compare_and_report(runner, tmp_path):
+    results = tmp_path / "results"
+    result = runner.invoke(app, ["compare", "--methods", "c1,c3", "-n", "2", "--results", str(results), *SHORT])
+    assert result.exit_code == 0, result.output
+    assert "c1" in result.output and "c3" in result.output
+    again = runner.invoke(app, ["compare", "--methods", "c1,c3", "-n", "2", "--results", str(results), *SHORT])
+    assert again.exit_code == 0, again.output
+    report = runner.invoke(app, ["report", "--results", str(results), "--out", str(tmp_path / "rep")])
+    assert report.exit_code == 0, report.output
+    assert (tmp_path / "rep" / "index.md").is_file()
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["simulate", "--method", "c9"], "unknown method 'c9'"),
+    (["simulate", "--iters", "0"], "--iters must be >= 1"),
+    (["simulate", "--iters", "-3"], "--iters must be >= 1"),
+    (["simulate", "--seed", "-1"], "--seed must be >= 0"),
+    (["simulate", "--config", "missing.toml"], "missing.toml does not exist"),
+    (["simulate", "--set", "c3.gamm=[1]"], "did you mean 'gamma'"),
+    (["simulate", "--set", "simulation.sample_time=3e-4"], "does not divide the horizon"),
+    (["simulate", "--set", "reference.x_offset=0.9"], "leaves the reachable workspace"),
+    (["simulate", "--set", "c3"], "KEY=VALUE"),
+    (["compare", "--methods", "c1,cx"], "unknown method 'cx'"),
+    (["validate", "nothing-here.h5"], "nothing-here.h5"),
+])
+def test_bad_input_one_line(runner, args, expected):
+    _one_clear_line(runner.invoke(app, args), expected)
+
+
+def test_bad_config_files(runner, tmp_path):
+    empty = tmp_path / "empty.toml"
+    empty.write_text("")
+    _one_clear_line(runner.invoke(app, ["simulate", "-c", str(empty)]), "is empty")
+    junk = tmp_path / "junk.toml"
+    junk.write_text("this is = = not toml")
+    _one_clear_line(runner.invoke(app, ["simulate", "-c", str(junk)]), "not valid TOML")
+    binary = tmp_path / "binary.toml"
+    binary.write_bytes(b"\xff\xfe\x00garbage")
+    _one_clear_line(runner.invoke(app, ["simulate", "-c", str(binary)]), "binary.toml")
+
+
+def test_unwritable_output(runner, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    _one_clear_line(runner.invoke(app, ["simulate", "-n", "1", "--out", str(blocker / "sub" / "c3.h5"), *SHORT]),
+                    str(blocker))
+
+
+def _foreign(path):
+    with h5py.File(path, "w") as f:
+        f.attrs["schema"] = "someone.else"
+        f["x"] = np.arange(3)
+
+
+def _newer(tmp_path, runner):
+    path = tmp_path / "newer.h5"
+    assert runner.invoke(app, ["simulate", "-n", "1", "--out", str(path), *SHORT]).exit_code == 0
+    with h5py.File(path, "a") as f:
+        f.attrs["schema_version"] = "99.0"
+    return path
+
+
+def test_bad_store_files(runner, tmp_path):
+    empty = tmp_path / "empty.h5"
+    empty.write_bytes(b"")
+    _one_clear_line(runner.invoke(app, ["validate", str(empty)]), "empty.h5")
+    foreign = tmp_path / "foreign.h5"
+    _foreign(foreign)
+    _one_clear_line(runner.invoke(app, ["validate", str(foreign)]), "not an ilcforce store")
+    good = tmp_path / "good.h5"
+    assert runner.invoke(app, ["simulate", "-n", "1", "--out", str(good), *SHORT]).exit_code == 0
+    truncated = tmp_path / "truncated.h5"
+    truncated.write_bytes(good.read_bytes()[: good.stat().st_size // 2])
+    _one_clear_line(runner.invoke(app, ["validate", str(truncated)]), "truncated.h5")
+    _one_clear_line(runner.invoke(app, ["validate", str(_newer(tmp_path, runner))]), "newer")
+    # resuming onto a foreign file refuses and leaves it alone
+    before = foreign.read_bytes()
+    _one_clear_line(runner.invoke(app, ["simulate", "-n", "1", "--out", str(foreign), "--resume", *SHORT]), "foreign.h5")
+    assert foreign.read_bytes() == before
+
+
+def test_report_skips_bad_files_with_a_warning(runner, tmp_path):
+    results = tmp_path / "results"
+    assert runner.invoke(app, ["simulate", "-m", "c1", "-n", "1", "--results", str(results), *SHORT]).exit_code == 0
+    (results / "paper" / "c2.h5").write_bytes(b"not hdf5 at all")
+    result = runner.invoke(app, ["report", "--results", str(results), "--out", str(tmp_path / "rep")])
+    assert result.exit_code == 0, result.output
+    assert "Traceback" not in result.output
+    assert "c2.h5" in result.output
+    _one_clear_line(runner.invoke(app, ["report", "--results", str(tmp_path / "nowhere")]), "does not exist")

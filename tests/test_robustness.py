@@ -1,0 +1,112 @@
+"""Interrupted and concurrent runs, with real processes: kill -9, Ctrl-C, a second writer, resume."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from ilcforce import store
+
+ITERS = "12"
+
+
+def _start(out, *extra, iters=ITERS):
+    cmd = [sys.executable, "-m", "ilcforce", "simulate", "-m", "c3", "-n", iters, "--out", str(out), *extra]
+    return subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+def _wait_for_iterations(proc, out, n, timeout=120.0):
+    """Poll the store (safe while it is written: commits are atomic) until n iterations exist."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            pytest.fail(f"the run ended before it could be interrupted: {proc.communicate()[1]}")
+        if out.exists():
+            try:
+                if len(store.iterations(out)) >= n:
+                    return
+            except store.StoreError:
+                pass
+        time.sleep(0.005)
+    pytest.fail("timed out waiting for iterations")
+
+
+def _assert_same_run(a, b):
+    ia, ib = store.iterations(a), store.iterations(b)
+    assert ia == ib
+    for j in ia:
+        fa, fb = store.read_iteration(a, j), store.read_iteration(b, j)
+        np.testing.assert_array_equal(fa.to_numpy(), fb.to_numpy(), err_msg=f"iteration {j} logs differ")
+        ma, mb = store.read_memory(a, j), store.read_memory(b, j)
+        for key in ma:
+            np.testing.assert_array_equal(ma[key], mb[key], err_msg=f"iteration {j} memory {key} differs")
+    np.testing.assert_array_equal(store.read_metrics(a).select_dtypes("number").to_numpy(),
+                                  store.read_metrics(b).select_dtypes("number").to_numpy())
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    out = tmp_path_factory.mktemp("ref") / "c3.h5"
+    proc = _start(out)
+    _, stderr = proc.communicate(timeout=300)
+    assert proc.returncode == 0, stderr
+    return out
+
+
+def test_kill_9_then_resume_is_bit_identical(tmp_path, uninterrupted):
+    out = tmp_path / "c3.h5"
+    proc = _start(out)
+    _wait_for_iterations(proc, out, 2)
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=30)
+    store.validate(out)  # the file a kill -9 leaves opens and validates
+    done = store.iterations(out)
+    assert 2 <= len(done) < int(ITERS), f"kill landed outside the run: {done}"
+    assert done == list(range(len(done))), "every finished iteration is intact"
+    assert store.read_provenance(out)["run_state"] == "partial"
+    # without --resume the partial result is protected
+    refused = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c3", "-n", ITERS, "--out", str(out)],
+                             capture_output=True, text=True)
+    assert refused.returncode == 2 and "--resume" in refused.stderr and "Traceback" not in refused.stderr
+    resumed = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c3", "-n", ITERS, "--out", str(out),
+                              "--resume"], capture_output=True, text=True)
+    assert resumed.returncode == 0, resumed.stderr
+    assert store.read_provenance(out)["run_state"] == "complete"
+    _assert_same_run(uninterrupted, out)
+
+
+def test_ctrl_c_leaves_a_partial_valid_store(tmp_path):
+    out = tmp_path / "c3.h5"
+    proc = _start(out)
+    _wait_for_iterations(proc, out, 2)
+    proc.send_signal(signal.SIGINT)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "--resume" in stderr
+    store.validate(out)
+    assert store.read_provenance(out)["run_state"] == "partial"
+    assert len(store.iterations(out)) >= 2
+
+
+def test_second_writer_is_refused(tmp_path):
+    """A long first run (hundreds of iterations) is still writing when the second process starts."""
+    out = tmp_path / "c3.h5"
+    first = _start(out, iters="400")
+    try:
+        _wait_for_iterations(first, out, 1)
+        second = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c3", "-n", ITERS, "--out", str(out),
+                                 "--overwrite"], capture_output=True, text=True)
+        assert first.poll() is None, "the first run must still be running for this test to mean anything"
+        assert second.returncode == 2
+        assert "being written by another ilcforce process" in second.stderr
+        assert len(second.stderr.strip().splitlines()) == 1
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.communicate(timeout=60)
+    store.validate(out)
+    assert store.read_provenance(out)["run_state"] == "partial"
