@@ -8,7 +8,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 RESULTS ?= results
-EXPERIMENTS := paper noise-free realistic ts-1ms
+EXPERIMENTS := paper noise-free realistic ts-1ms long-run
 METHODS := c1 c2 c3
 # numba keeps compiled kernels here so that only the first run pays for compilation
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.venv/numba-cache
@@ -39,7 +39,7 @@ $(RESULTS)/%.h5: $(STAMP)
 	$(VENV)/bin/ilcforce simulate --config experiments/$(word 1,$(subst /, ,$*)).toml \
 	    --method $(word 2,$(subst /, ,$*)) --out $@ --overwrite
 
-reproduce: $(STORES) ## run the paper, noise-free, realistic and ts-1ms experiments, then write the report
+reproduce: $(STORES) ## run every experiment in experiments/, then write the report
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
 	@echo "report: $(RESULTS)/report/report.md"
 
