@@ -10,6 +10,7 @@ STAMP := $(VENV)/.installed
 RESULTS ?= results
 EXPERIMENTS := paper noise-free realistic ts-1ms long-run
 METHODS := c1 c2 c3
+JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 # numba keeps compiled kernels here so that only the first run pays for compilation
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.venv/numba-cache
 
@@ -39,12 +40,15 @@ $(RESULTS)/%.h5: $(STAMP)
 	$(VENV)/bin/ilcforce simulate --config experiments/$(word 1,$(subst /, ,$*)).toml \
 	    --method $(word 2,$(subst /, ,$*)) --out $@ --overwrite
 
-reproduce: $(STORES) ## run every experiment in experiments/, then write the report
+stores: $(STORES)
+
+reproduce: $(STAMP) ## run every experiment in experiments/ for c1, c2, c3 (in parallel), then write the report
+	$(MAKE) --no-print-directory -j $(JOBS) -O stores
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
-	@echo "report: $(RESULTS)/report/report.md"
+	@echo "report: $(RESULTS)/report/index.md"
 
 clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
-.PHONY: help install test test-slow bench reproduce clean
+.PHONY: help install test test-slow bench stores reproduce clean

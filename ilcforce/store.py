@@ -362,6 +362,28 @@ def _is_complete(group: h5py.Group) -> bool:
         return False
 
 
+def _scan(handle: h5py.File, path: Path) -> _Layout:
+    """The layout readers need: log length and the complete iterations (attributes only).
+
+    Readers use this instead of the full :func:`_validate_open`, whose per-dataset checks would make
+    every read cost O(file size); :func:`validate` and writers do the full check.
+    """
+    reference = _require_group(handle, "reference", path)
+    time = reference.get("time")
+    if not isinstance(time, h5py.Dataset) or time.ndim != 1:
+        raise StoreError(f"{path}: missing or malformed dataset /reference/time")
+    iterations = _require_group(handle, "iterations", path)
+    complete: dict[int, str] = {}
+    for name, group in iterations.items():
+        if isinstance(group, h5py.Group) and _is_complete(group):
+            try:
+                complete[int(name)] = group.name
+            except ValueError:
+                raise StoreError(f"{path}: unexpected iteration group /iterations/{name}") from None
+    ordered = tuple(sorted(complete))
+    return _Layout(n_log=int(time.shape[0]), complete=ordered, groups={j: complete[j] for j in ordered})
+
+
 def _validate_open(handle: h5py.File, path: Path) -> _Layout:
     """The structural checks of :func:`validate` on an open file whose header is checked."""
     reference = _require_group(handle, "reference", path)
@@ -436,13 +458,13 @@ def validate(path: str | os.PathLike[str]) -> None:
 def iterations(path: str | os.PathLike[str]) -> list[int]:
     """Complete iterations stored in ``path``, ascending."""
     with _open_store(path) as (handle, checked_path):
-        return list(_validate_open(handle, checked_path).complete)
+        return list(_scan(handle, checked_path).complete)
 
 
 def read_provenance(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Root attributes as python types (str, int, float, bool, list), :data:`ROOT_ATTRS` first."""
     with _open_store(path) as (handle, checked_path):
-        _validate_open(handle, checked_path)
+        _scan(handle, checked_path)
         names = list(ROOT_ATTRS) + sorted(set(handle.attrs) - set(ROOT_ATTRS))
         out = {name: _py(handle.attrs[name]) for name in names}
     if out.get("run_state") == "running" and not writer_active(path):
@@ -478,7 +500,7 @@ def read_metrics(path: str | os.PathLike[str]) -> pd.DataFrame:
         ``df.attrs["descriptions"]`` column -> description.
     """
     with _open_store(path) as (handle, checked_path):
-        layout = _validate_open(handle, checked_path)
+        layout = _scan(handle, checked_path)
         metrics = handle["metrics"]
         iteration_column = metrics["iteration"][()].astype(np.int64)
         columns: dict[str, np.ndarray] = {}
@@ -490,6 +512,9 @@ def read_metrics(path: str | os.PathLike[str]) -> pd.DataFrame:
                 values = np.asarray(dataset.asstr()[()], dtype=object)
             else:
                 values = dataset[()]
+            if values.shape != iteration_column.shape:
+                raise StoreError(f"{checked_path}: metrics columns have different lengths "
+                                 f"(iteration={iteration_column.size}, {column}={values.size})")
             columns[column] = values
             units[column] = str(_py(dataset.attrs["units"]))
             descriptions[column] = str(_py(dataset.attrs.get("description", "")))
@@ -560,7 +585,7 @@ def read_iteration(path: str | os.PathLike[str], j: int) -> pd.DataFrame:
         ``status``, ``fallback_count``, ``diverged_time`` (s), ``diverged_reason``.
     """
     with _open_store(path) as (handle, checked_path):
-        layout = _validate_open(handle, checked_path)
+        layout = _scan(handle, checked_path)
         group = handle[_group_for(layout, int(j), checked_path)]
         time = group["log/time"][()]
         reference_time = handle["reference/time"][()]
@@ -581,7 +606,7 @@ def read_memory(path: str | os.PathLike[str], j: int) -> dict[str, np.ndarray]:
     memoryless controller.
     """
     with _open_store(path) as (handle, checked_path):
-        layout = _validate_open(handle, checked_path)
+        layout = _scan(handle, checked_path)
         memory = handle[_group_for(layout, int(j), checked_path)]["memory"]
         return {name: np.array(dataset[()], dtype=np.float64) for name, dataset in memory.items()}
 
@@ -589,7 +614,7 @@ def read_memory(path: str | os.PathLike[str], j: int) -> dict[str, np.ndarray]:
 def read_memory_units(path: str | os.PathLike[str], j: int) -> dict[str, str]:
     """Units of the learned memory stored with iteration ``j``: name -> unit."""
     with _open_store(path) as (handle, checked_path):
-        layout = _validate_open(handle, checked_path)
+        layout = _scan(handle, checked_path)
         memory = handle[_group_for(layout, int(j), checked_path)]["memory"]
         return {name: str(_py(dataset.attrs["units"])) for name, dataset in memory.items()}
 
@@ -599,7 +624,7 @@ def read_reference(path: str | os.PathLike[str]) -> pd.DataFrame:
     ``<signal>_<axis>`` of :data:`~ilcforce.records.REFERENCE_SIGNALS` (e.g.
     ``position_desired_x``), ``df.attrs["units"]`` column -> unit. Shape (n_log, 8)."""
     with _open_store(path) as (handle, checked_path):
-        _validate_open(handle, checked_path)
+        _scan(handle, checked_path)
         reference = handle["reference"]
         return _frame_from_group(reference, REFERENCE_SIGNALS, reference["time"][()])
 
