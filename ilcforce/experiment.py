@@ -16,7 +16,6 @@ depends on (seed, j) only, the result is bit-identical to an uninterrupted run.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -100,19 +99,11 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
         if true_plant not in desired_cache:
             desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
         # a diverged iteration stores the memory it was writing (NaN where it never got)
-        memory_now = controller.learned_state() if record.status == STATUS_COMPLETE else _partial_memory(
-            controller, mem_new)
+        memory_now = (controller.learned_state() if record.status == STATUS_COMPLETE
+                      else controller.unfinished_state())
         yield complete_record(record, desired_cache[true_plant], memory_now, controller.learned_units())
         if record.status == STATUS_DIVERGED:
             return
-
-
-def _partial_memory(controller, mem_new: np.ndarray) -> dict:
-    out = {}
-    for key, (start, stop, _unit) in controller.memory_layout.items():
-        block = mem_new[:, start:stop]
-        out[key] = block[:, 0].copy() if stop - start == 1 else block.copy()
-    return out
 
 
 def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
@@ -153,6 +144,3 @@ def default_store_path(results_dir: Path, config: Config, method: str) -> Path:
     """``results/<experiment>/<method>.h5``."""
     return Path(results_dir) / config.experiment.name / f"{method}.h5"
 
-
-def fmt(value: float) -> str:
-    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.3g}"

@@ -152,7 +152,10 @@ class Controller(Protocol):
         """After iteration j: its memory becomes the one iteration j + 1 learns from."""
 
     def learned_state(self) -> dict[str, np.ndarray]:
-        """Named views of the memory after the last finished iteration (control grid)."""
+        """Named copies of the memory after the last finished iteration (control grid)."""
+
+    def unfinished_state(self) -> dict[str, np.ndarray]:
+        """Named copies of the memory an unfinished (diverged) iteration was writing."""
 
     def learned_units(self) -> dict[str, str]:
         """Unit of each entry of learned_state()."""
@@ -165,7 +168,8 @@ class MemoryController:
     """Shared machinery for controllers whose memory is an (n_control, width) array.
 
     Subclasses set ``name``, ``law``, ``uses_nominal_dynamics``, ``memory_layout``
-    (name -> (first column, last column + 1, unit, squeeze)) and implement ``gains()``.
+    (name -> (first column, last column + 1, unit); a one-column block is stored as a vector)
+    and implement ``gains()``.
     """
 
     name = ""
@@ -187,12 +191,19 @@ class MemoryController:
         if completed:
             self._prev, self._new = self._new, self._prev
 
-    def learned_state(self) -> dict[str, np.ndarray]:
+    def _named(self, memory: np.ndarray) -> dict[str, np.ndarray]:
         out = {}
         for key, (start, stop, _unit) in self.memory_layout.items():
-            block = self._prev[:, start:stop]
+            block = memory[:, start:stop]
             out[key] = block[:, 0].copy() if stop - start == 1 else block.copy()
         return out
+
+    def learned_state(self) -> dict[str, np.ndarray]:
+        return self._named(self._prev)
+
+    def unfinished_state(self) -> dict[str, np.ndarray]:
+        """The memory a diverged iteration was writing (NaN where it never got)."""
+        return self._named(self._new)
 
     def learned_units(self) -> dict[str, str]:
         return {key: unit for key, (_a, _b, unit) in self.memory_layout.items()}
