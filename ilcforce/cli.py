@@ -6,9 +6,13 @@ cannot be used (one line on stderr, never a traceback), 130 interrupted.
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import os
 import math
 import shlex
+import signal
+import threading
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -123,9 +127,35 @@ def _run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool, 
                             last=f"j={record.iteration} |e_P|={_g(row['position_error_2norm'])} m "
                                  f"|e_F|={_g(row['force_error_2norm'])} N {record.status}")
 
-        summary = run_method(config, method, path, overwrite=overwrite, resume=resume, command=command,
-                             progress=tick)
+        with _deferred_interrupt() as interrupted:
+            summary = run_method(config, method, path, overwrite=overwrite, resume=resume, command=command,
+                                 progress=tick, stop_requested=interrupted)
     return summary
+
+
+@contextlib.contextmanager
+def _deferred_interrupt():
+    """First Ctrl-C: finish storing the iteration in flight, then stop. Second: stop at once.
+
+    A KeyboardInterrupt raised wherever the signal lands (e.g. inside a garbage-collection
+    callback, where Python ignores it) could be lost; a flag checked between iterations cannot.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    requested = []
+
+    def handler(signum, frame):
+        if requested:
+            raise KeyboardInterrupt
+        requested.append(signum)
+        err.print("stopping after the current iteration is stored (Ctrl-C again to stop now)", highlight=False)
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield lambda: bool(requested)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 @app.command()
@@ -220,6 +250,7 @@ def _print_frame(frame, title: str) -> None:
 def report(
     results: Annotated[Path, typer.Option("--results", help="folder of HDF5 stores (results/<experiment>/<method>.h5)")] = Path("results"),
     out_dir: Annotated[Optional[Path], typer.Option("--out", help="output folder (default: <results>/report)")] = None,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="experiments reported in parallel (default: CPU count)")] = 0,
 ) -> None:
     """Write the paper's tables, figures and a verdict on each claim from the HDF5 stores."""
     from ilcforce.report.build import write_report
@@ -227,7 +258,9 @@ def report(
     if not results.is_dir():
         raise CliError(f"results folder {results} does not exist; run `ilcforce simulate` or `make reproduce` first")
     target = out_dir if out_dir is not None else results / "report"
-    summary = write_report(results, target)
+    if jobs < 0:
+        raise CliError(f"--jobs must be >= 0 (0: one per CPU), got {jobs}")
+    summary = write_report(results, target, jobs=jobs or os.cpu_count() or 1)
     for warning in summary.warnings:
         err.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
     if not summary.experiments:

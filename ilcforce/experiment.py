@@ -107,10 +107,13 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
 
 
 def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
-               command: str = "", progress: Callable[[IterationRecord, dict], None] | None = None) -> RunSummary:
+               command: str = "", progress: Callable[[IterationRecord, dict], None] | None = None,
+               stop_requested: Callable[[], bool] | None = None) -> RunSummary:
     """Run ``method`` over the experiment's iterations and store every iteration in ``out``.
 
-    ``progress(record, metrics_row)`` is called after each stored iteration.
+    ``progress(record, metrics_row)`` is called after each stored iteration. If
+    ``stop_requested()`` turns true (e.g. Ctrl-C), the run stops after the iteration it is on has
+    been stored, by raising KeyboardInterrupt; the store is left "partial", ready for ``resume``.
     Raises ``ilcforce.store.StoreError`` for store problems (existing result, concurrent writer, ...).
     """
     make_controller(config, method)  # fail on a bad method before touching any file
@@ -136,6 +139,8 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
                 progress(record, row)
             if record.status == STATUS_DIVERGED:
                 status = STATUS_DIVERGED
+            elif stop_requested is not None and stop_requested():
+                raise KeyboardInterrupt
         writer.finish(status)
     return RunSummary(Path(out), method, first, tuple(rows), status)
 

@@ -17,6 +17,9 @@ and everything that can still be reported is.
 
 from __future__ import annotations
 
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -523,8 +526,18 @@ def _misplaced_files(results_dir: Path) -> list[str]:
     return warnings
 
 
+def _report_experiment(name: str, paths: Mapping[str, Path], out_dir: Path, formats: tuple[str, ...]):
+    """One experiment's report (a process-pool task). Returns (files, claims or None, warnings)."""
+    experiment = _load_experiment(name, paths)
+    if not experiment.methods:
+        experiment.warn("no readable store; no report written")
+        return [], None, experiment.warnings
+    files, claims = _write_experiment(experiment, out_dir / name, formats)
+    return files, claims, experiment.warnings
+
+
 def write_report(
-    results_dir: Path, out_dir: Path, *, formats: tuple[str, ...] = FIGURE_FORMATS
+    results_dir: Path, out_dir: Path, *, formats: tuple[str, ...] = FIGURE_FORMATS, jobs: int = 1
 ) -> ReportSummary:
     """Write the report for every experiment under ``results_dir`` into ``out_dir``.
 
@@ -536,6 +549,9 @@ def write_report(
         Created if missing; ``out_dir/<experiment>/`` per experiment and ``out_dir/index.md``.
     formats : tuple of str
         Figure file formats (matplotlib names), PNG and PDF by default. The report links the PNG.
+    jobs : int
+        Experiments reported in parallel worker processes (1: all in this process). Each
+        experiment's files are the same either way.
 
     Returns
     -------
@@ -552,17 +568,20 @@ def write_report(
     written: list[Path] = []
     verdicts: dict[str, pd.DataFrame] = {}
     experiment_warnings: dict[str, list[str]] = {}
-    for name, paths in found.items():
-        experiment = _load_experiment(name, paths)
-        if not experiment.methods:
-            experiment.warn("no readable store; no report written")
-            warnings += experiment.warnings
+    tasks = [(name, paths, out_dir, tuple(formats)) for name, paths in found.items()]
+    if jobs > 1 and len(tasks) > 1:
+        context = multiprocessing.get_context("fork")  # workers inherit the imported modules
+        with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=context) as pool:
+            outcomes = list(pool.map(_report_experiment, *zip(*tasks)))
+    else:
+        outcomes = [_report_experiment(*task) for task in tasks]
+    for (name, *_rest), (files, claims, experiment_warns) in zip(tasks, outcomes):
+        warnings += experiment_warns
+        if claims is None:
             continue
-        files, claims = _write_experiment(experiment, out_dir / name, tuple(formats))
         written += files
         verdicts[name] = claims
-        warnings += experiment.warnings
-        experiment_warnings[name] = experiment.warnings
+        experiment_warnings[name] = experiment_warns
     index = out_dir / "index.md"
     index.write_text(_index_text(results_dir, verdicts, experiment_warnings, warnings), encoding="utf-8")
     written.append(index)
