@@ -92,7 +92,10 @@ def _methods(text: str) -> list[str]:
 
 
 def _g(value) -> str:
-    if value is None:
+    """A table cell: 3 significant digits, '-' for a missing value (None, NaN, pandas NA)."""
+    import pandas as pd
+
+    if value is None or value is pd.NA:
         return "-"
     if isinstance(value, float):
         return "-" if math.isnan(value) else f"{value:.3g}"
@@ -229,19 +232,21 @@ def compare(
                      command=_command_line(ctx))
         metrics_by_method[name] = store.read_metrics(path)
     frame = comparison_frame(metrics_by_method)
+    units = dict(frame.attrs.get("units", {}))
     if "method" in frame.columns:
         frame = frame.set_index("method")
-    _print_frame(frame.T, f"{cfg.experiment.name}: same seed {cfg.experiment.seed}, same disturbance and noise")
+    _print_frame(frame.T, f"{cfg.experiment.name}: same seed {cfg.experiment.seed}, same disturbance and noise", units)
 
 
-def _print_frame(frame, title: str) -> None:
+def _print_frame(frame, title: str, units: dict[str, str]) -> None:
     """One row per quantity, one column per method (narrow enough for a terminal)."""
     table = Table(title=title)
     table.add_column("")
     for col in frame.columns:
         table.add_column(str(col), justify="right")
     for idx, row in frame.iterrows():
-        table.add_row(str(idx), *(_g(v) for v in row.tolist()))
+        label = f"{idx} ({units[idx]})" if units.get(idx) not in (None, "", "-") else str(idx)
+        table.add_row(label, *(_g(v) for v in row.tolist()))
     out.print(table)
 
 
