@@ -35,7 +35,11 @@ bench: $(STAMP) ## print speed figures (medians over repeated runs)
 
 STORES := $(foreach e,$(EXPERIMENTS),$(foreach m,$(METHODS),$(RESULTS)/$(e)/$(m).h5))
 
-$(RESULTS)/%.h5: $(STAMP)
+SOURCES := $(shell find ilcforce -name '*.py' -o -name '*.mplstyle')
+
+# a store is rebuilt when the code or its experiment file changes
+.SECONDEXPANSION:
+$(RESULTS)/%.h5: $(STAMP) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).toml
 	$(VENV)/bin/ilcforce simulate --config experiments/$(word 1,$(subst /, ,$*)).toml \
 	    --method $(word 2,$(subst /, ,$*)) --out $@ --overwrite
 

@@ -222,9 +222,9 @@ def compare(
         path = default_store_path(results, cfg, name)
         action = "run"
         if path.exists() and not overwrite:
-            state = store.read_provenance(path).get("run_state")
-            stored = store.read_provenance(path).get("config_json")
-            if stored != cfg.to_json():
+            provenance = store.read_provenance(path)
+            state = provenance.get("run_state")
+            if provenance.get("config_json") != cfg.to_json():
                 raise CliError(f"{path} holds a run with a different configuration; pass --overwrite to rerun it")
             action = "keep" if state in ("complete", "diverged") else "resume"
         if action != "keep":

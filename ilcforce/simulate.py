@@ -123,16 +123,31 @@ class SimulationSettings:
 
 
 @njit(cache=True, error_model="numpy")
-def _stage(p, th1, th2, d1, d2, tau1, tau2, ye, ke, w, fvx, fvy):
-    """Joint accelerations of the true plant pressed against the wall. Returns (ok, dd1, dd2)."""
-    (ok, px, py, J00, J01, J10, J11, _dx, _dy, b1, b2, Mi00, Mi01, Mi11) = _accel_terms(p, th1, th2, d1, d2)
+def _drift(p, th1, th2, d1, d2, ye, ke, w, fvx, fvy):
+    """The true plant pressed against the wall, with the torque left out.
+
+    Dq ddtheta = tau + r with r = J^T f - Cq dtheta, f the wall's reaction plus the disturbance
+    (the force on the robot). Returns (ok, Px, Py, J00, J01, J10, J11, dJv_x, dJv_y, r1, r2,
+    Mi00, Mi01, Mi11, F_y) with Mi = Dq^-1 and F_y the wall's force in the task.Wall convention.
+    """
+    (ok, px, py, J00, J01, J10, J11, dJvx, dJvy, b1, b2, Mi00, Mi01, Mi11) = _accel_terms(p, th1, th2, d1, d2)
     pen = w * (py - ye)
     fy_wall = ke * pen if pen > 0.0 else 0.0
     gx = -fvx  # force on the robot: disturbance (eq. 1, tau_v = J^T F_v) ...
     gy = -w * fy_wall - fvy  # ... and the wall's reaction
-    r1 = tau1 + J00 * gx + J10 * gy - b1
-    r2 = tau2 + J01 * gx + J11 * gy - b2
-    return ok, Mi00 * r1 + Mi01 * r2, Mi01 * r1 + Mi11 * r2
+    r1 = J00 * gx + J10 * gy - b1
+    r2 = J01 * gx + J11 * gy - b2
+    return (ok, px, py, J00, J01, J10, J11, dJvx, dJvy, r1, r2, Mi00, Mi01, Mi11, fy_wall)
+
+
+@njit(cache=True, error_model="numpy")
+def _stage(p, th1, th2, d1, d2, tau1, tau2, ye, ke, w, fvx, fvy):
+    """Joint accelerations of the true plant under torque tau. Returns (ok, dd1, dd2)."""
+    (ok, _px, _py, _J00, _J01, _J10, _J11, _dx, _dy, r1, r2,
+     Mi00, Mi01, Mi11, _fy) = _drift(p, th1, th2, d1, d2, ye, ke, w, fvx, fvy)
+    q1 = tau1 + r1
+    q2 = tau2 + r2
+    return ok, Mi00 * q1 + Mi01 * q2, Mi01 * q1 + Mi11 * q2
 
 
 @njit(cache=True, error_model="numpy")
@@ -191,16 +206,10 @@ def _simulate(law, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noi
         base = 2 * substeps * k
         fvx, fvy = dist[base, 0], dist[base, 1]
         # 1. true plant at the sample (reused as RK4's first stage)
-        (ok, px, py, J00, J01, J10, J11, dJvx, dJvy, b1, b2,
-         Mi00, Mi01, Mi11) = _accel_terms(p_true, th1, th2, d1, d2)
+        (ok, px, py, J00, J01, J10, J11, dJvx, dJvy, r1, r2,
+         Mi00, Mi01, Mi11, fy_wall) = _drift(p_true, th1, th2, d1, d2, ye, ke, w, fvx, fvy)
         if not ok:
             return RUN_WORKING_MODE, k, fallback
-        pen = w * (py - ye)
-        fy_wall = ke * pen if pen > 0.0 else 0.0
-        gx = -fvx
-        gy = -w * fy_wall - fvy
-        r1 = J00 * gx + J10 * gy - b1
-        r2 = J01 * gx + J11 * gy - b2
         a01 = Mi00 * r1 + Mi01 * r2  # joint acceleration at zero torque
         a02 = Mi01 * r1 + Mi11 * r2
 
@@ -346,19 +355,20 @@ def _simulate(law, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noi
                 ok1, k1a, k1b = _stage(p_true, th1, th2, d1, d2, tau1, tau2, ye, ke, w, dist[m, 0], dist[m, 1])
                 if not ok1:
                     return RUN_WORKING_MODE, k, fallback
-            ok2, k2a, k2b = _stage(p_true, th1 + 0.5 * h * d1, th2 + 0.5 * h * d2,
-                                   d1 + 0.5 * h * k1a, d2 + 0.5 * h * k1b,
+            # stage velocities v2, v3, v4 (v1 = d)
+            v2a, v2b = d1 + 0.5 * h * k1a, d2 + 0.5 * h * k1b
+            ok2, k2a, k2b = _stage(p_true, th1 + 0.5 * h * d1, th2 + 0.5 * h * d2, v2a, v2b,
                                    tau1, tau2, ye, ke, w, dist[m + 1, 0], dist[m + 1, 1])
-            ok3, k3a, k3b = _stage(p_true, th1 + 0.5 * h * (d1 + 0.5 * h * k1a), th2 + 0.5 * h * (d2 + 0.5 * h * k1b),
-                                   d1 + 0.5 * h * k2a, d2 + 0.5 * h * k2b,
+            v3a, v3b = d1 + 0.5 * h * k2a, d2 + 0.5 * h * k2b
+            ok3, k3a, k3b = _stage(p_true, th1 + 0.5 * h * v2a, th2 + 0.5 * h * v2b, v3a, v3b,
                                    tau1, tau2, ye, ke, w, dist[m + 1, 0], dist[m + 1, 1])
-            ok4, k4a, k4b = _stage(p_true, th1 + h * (d1 + 0.5 * h * k2a), th2 + h * (d2 + 0.5 * h * k2b),
-                                   d1 + h * k3a, d2 + h * k3b,
+            v4a, v4b = d1 + h * k3a, d2 + h * k3b
+            ok4, k4a, k4b = _stage(p_true, th1 + h * v3a, th2 + h * v3b, v4a, v4b,
                                    tau1, tau2, ye, ke, w, dist[m + 2, 0], dist[m + 2, 1])
             if not (ok2 and ok3 and ok4):
                 return RUN_WORKING_MODE, k, fallback
-            th1 += h / 6.0 * (d1 + 2.0 * (d1 + 0.5 * h * k1a) + 2.0 * (d1 + 0.5 * h * k2a) + (d1 + h * k3a))
-            th2 += h / 6.0 * (d2 + 2.0 * (d2 + 0.5 * h * k1b) + 2.0 * (d2 + 0.5 * h * k2b) + (d2 + h * k3b))
+            th1 += h / 6.0 * (d1 + 2.0 * v2a + 2.0 * v3a + v4a)
+            th2 += h / 6.0 * (d2 + 2.0 * v2b + 2.0 * v3b + v4b)
             d1 += h / 6.0 * (k1a + 2.0 * k2a + 2.0 * k3a + k4a)
             d2 += h / 6.0 * (k1b + 2.0 * k2b + 2.0 * k3b + k4b)
         if not (math.isfinite(th1) and math.isfinite(th2) and math.isfinite(d1) and math.isfinite(d2)):
