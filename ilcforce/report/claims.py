@@ -352,3 +352,43 @@ def judge_claims(
             }
         )
     return pd.DataFrame(rows, columns=["claim", "statement", "paper", "ours", "verdict", "rule"])
+
+
+def judge_claims_over_seeds(
+    metrics: pd.DataFrame,
+    *,
+    perturbation_iteration: int = paper.PERTURBATION_ITERATION,
+) -> pd.DataFrame:
+    """Each claim judged per seed, then summarised as verdict frequencies over seeds.
+
+    ``metrics`` is a tidy frame for ONE setting: columns ``seed``, ``method``, ``iteration`` and
+    the metric columns (:data:`ilcforce.metrics.METRIC_COLUMNS`), one row per (seed, method,
+    iteration). A single run is the one-seed case.
+
+    Returns one row per claim with ``claim``, ``statement``, ``n_seeds``, one count column per
+    verdict (``holds``, ``in part``, ``fails``, ``not evaluable``), ``verdict`` (the most frequent
+    one; ties go to the weaker verdict) and ``frequency`` ("holds in 97 of 100 seeds").
+    """
+    from ilcforce.stats import frequency_interval, format_interval
+
+    counts = {claim.number: dict.fromkeys(VERDICTS, 0) for claim in CLAIMS}
+    seeds = sorted(metrics["seed"].unique())
+    for seed in seeds:
+        per_seed = metrics[metrics["seed"] == seed]
+        by_method = {m: frame.drop(columns=["seed", "method"]).set_index("iteration").sort_index()
+                     for m, frame in per_seed.groupby("method")}
+        for claim in CLAIMS:
+            verdict = judge_claim(claim.number, by_method, perturbation_iteration=perturbation_iteration).verdict
+            counts[claim.number][verdict] += 1
+    weakest_first = (NOT_EVALUABLE, FAILS, IN_PART, HOLDS)
+    rows = []
+    for claim in CLAIMS:
+        c = counts[claim.number]
+        top = max(weakest_first, key=lambda v: c[v])  # max keeps the first (weakest) of a tie
+        share = frequency_interval(c[top], len(seeds)) if seeds else None
+        rows.append({"claim": claim.number, "statement": claim.statement, "n_seeds": len(seeds), **c,
+                     "verdict": top,
+                     "frequency": (f"{top} in {c[top]} of {len(seeds)} seeds "
+                                   f"(95% Wilson interval of the share {format_interval(share)})"
+                                   if seeds else "-")})
+    return pd.DataFrame(rows)
