@@ -81,6 +81,7 @@ class C3Controller(MemoryController):
     law = staticmethod(c3_law)
     uses_nominal_dynamics = False
     memory_layout = {"theta_hat": (0, 8, "mixed: kg (D entries), kg/s (C entries)"), "alpha_hat": (8, 9, "N")}
+    memory_labels = {"theta_hat": ("D11", "D12", "C11", "C12", "D21", "D22", "C21", "C22")}  # Theta order
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains):
         super().__init__(n_control)
