@@ -262,7 +262,8 @@ def _table(title: str) -> Table:
     """A rich table whose title is shown literally (a path may contain [brackets]); ASCII
     borders when the output encoding cannot show box-drawing characters."""
     encoding = (out.encoding or "").lower().replace("-", "")
-    return Table(title=escape(title), box=HEAVY_HEAD if encoding.startswith("utf") else ASCII)
+    shown = title.encode(out.encoding or "utf-8", "replace").decode(out.encoding or "utf-8", "replace")
+    return Table(title=escape(shown), box=HEAVY_HEAD if encoding.startswith("utf") else ASCII)
 
 
 def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str, bool]:

@@ -55,13 +55,16 @@ def test_validate_line_is_not_wrapped_when_piped(tmp_path: Path):
     assert result.stdout.count("\n") == 1 and str(deep) in result.stdout and len(result.stdout) > 80
 
 
-def test_ascii_locale_prints_every_result(tmp_path: Path):
+def test_ascii_locale_with_a_non_ascii_path(tmp_path: Path):
+    """Under an ASCII locale the file name arrives with surrogate escapes: it used to end in a
+    UnicodeEncodeError traceback writing the store's provenance."""
     env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONIOENCODING": "ascii", "PYTHONUTF8": "0"}
-    out = tmp_path / "c3.h5"
+    out = tmp_path / "r\u00e9sultat.h5"
     result = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c3", "-n", "1", "--out", str(out),
                              *SHORT], capture_output=True, text=True, timeout=300, env=env)
     assert result.returncode == 0, result.stderr
     assert "Traceback" not in result.stderr and "complete" in result.stdout
+    store.validate(out)
 
 
 def test_compare_overwrite_keeps_identical_results(runner, tmp_path: Path):
