@@ -16,8 +16,8 @@ import numpy as np
 from numba import njit
 
 from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, GAIN_SPECIFIC, LAW_SIGNATURE, MEAS_FORCE, MemoryController,
-    check_vector, joint_torque, pack_common_gains, sgn, surface_terms,
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law,
+    gain_indices, joint_torque, pack_gains, sgn, surface_terms,
 )
 
 PSI_ACCELERATION = {"measured": 0.0, "desired": 1.0}
@@ -44,10 +44,15 @@ class C3Gains:
                              f"got {self.psi_acceleration!r}")
 
 
-@njit(LAW_SIGNATURE, cache=True, error_model="numpy")
-def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    g = GAIN_SPECIFIC
-    psi_desired = gains[g + 11] > 0.5
+K, ETA, GAMMA, PSI_ACCELERATION_FLAG = gain_indices(C3Gains, "k", "eta", "gamma", "psi_acceleration")
+
+
+@njit(cache=True, error_model="numpy")
+def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_max):
+    """Eq. (14) at sample k, with the previous iteration's memory scaled by ``keep`` and alpha_hat_j
+    capped at ``alpha_max``. The paper's C3 is keep = 1, alpha_max = inf (both then exact no-ops);
+    C3-leak (``c3_leak``) uses keep = 1 - leakage and a finite bound."""
+    psi_desired = gains[PSI_ACCELERATION_FLAG] > 0.5
     sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, psi_desired)
     w = gains[GAIN_FEEDFORWARD_SIGN]
     # Theta_hat_j = Theta_hat_{j-1} + Gamma Phi sigma: rows 0-3 see Psi sigma_x, rows 4-7 Psi sigma_y
@@ -55,8 +60,8 @@ def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     my = 0.0  # (Phi^T Theta_hat_j)_y
     for r in range(4):
         psi = p1x if r == 0 else (p1y if r == 1 else (p2x if r == 2 else p2y))
-        th_x = mem_prev[k, r] + gains[g + 3 + r] * psi * sx  # eq. (14), Theta update
-        th_y = mem_prev[k, 4 + r] + gains[g + 7 + r] * psi * sy
+        th_x = keep * mem_prev[k, r] + gains[GAMMA + r] * psi * sx  # eq. (14), Theta update
+        th_y = keep * mem_prev[k, 4 + r] + gains[GAMMA + 4 + r] * psi * sy
         mx += th_x * psi
         my += th_y * psi
         if write:
@@ -64,28 +69,32 @@ def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
             mem_new[k, 4 + r] = th_y
     sgx = sgn(sx)
     sgy = sgn(sy)
-    alpha = mem_prev[k, 8] + gains[g + 2] * (sx * sgx + sy * sgy)  # eq. (14), alpha update
+    alpha = keep * mem_prev[k, 8] + gains[ETA] * (sx * sgx + sy * sgy)  # eq. (14), alpha update
+    if alpha > alpha_max:  # (a NaN stays NaN, so the watchdog still sees a divergence)
+        alpha = alpha_max
     if write:
         mem_new[k, 8] = alpha
     # eq. (14), control law with +w F (erratum 1)
-    ux = gains[g] * sx + mx + w * meas[MEAS_FORCE] + alpha * sgx
-    uy = gains[g + 1] * sy + my + w * meas[MEAS_FORCE + 1] + alpha * sgy
+    ux = gains[K] * sx + mx + w * meas[MEAS_FORCE] + alpha * sgx
+    uy = gains[K + 1] * sy + my + w * meas[MEAS_FORCE + 1] + alpha * sgy
     diag[DIAG_SIGMA] = sx
     diag[DIAG_SIGMA + 1] = sy
     return joint_torque(meas, ux, uy)
 
 
+def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0, np.inf)
+
+
 class C3Controller(MemoryController):
     name = "c3"
-    title = "C3: ILC based on sliding mode (eq. 14), the paper's method"
-    law = staticmethod(c3_law)
+    law = compiled_law(c3_law)
     uses_nominal_dynamics = False
     memory_layout = {"theta_hat": (0, 8, "mixed: kg (D entries), kg/s (C entries)"), "alpha_hat": (8, 9, "N")}
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains):
-        super().__init__(n_control)
-        self._gains = np.array(pack_common_gains(surface, wall_sign)
-                               + [*gains.k, gains.eta, *gains.gamma, PSI_ACCELERATION[gains.psi_acceleration]])
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains, sample_time: float = float("nan")):
+        super().__init__(n_control, sample_time)
+        self._gains = pack_gains(surface, wall_sign, gains, encode={"psi_acceleration": PSI_ACCELERATION})
 
     def gains(self) -> np.ndarray:
         return self._gains
