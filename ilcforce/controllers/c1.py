@@ -1,8 +1,8 @@
 """C1: traditional sliding mode control with a nominal model (eq. 26, SPEC section 3).
 
 tau_j = J^T (k sigma_j + alpha sgn(sigma_j) + Xi_nom^T Psi_j + w F_j), with
-Xi_nom^T Psi_j = D_nom psi1 + C_nom (dP + sigma) (eqs. 11-12 with G = 0), D_nom and C_nom the nominal
-task-space model at the measured state. Memoryless: nothing is learned between iterations.
+Xi_nom^T Psi_j = D_nom psi1 + C_nom (dP + sigma) + G_nom (eqs. 11-12), D_nom, C_nom and G_nom the
+nominal task-space model at the measured state (G_nom = 0 for the five-bar). Memoryless: nothing is learned between iterations.
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import numpy as np
 from numba import njit
 
 from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MEAS_TASK_CORIOLIS, MEAS_TASK_INERTIA,
-    MemoryController, check_vector, compiled_law, gain_indices, joint_torque, pack_gains, sgn,
-    surface_terms,
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MEAS_TASK_CORIOLIS, MEAS_TASK_GRAVITY,
+    MEAS_TASK_INERTIA, MemoryController, check_vector, compiled_law, gain_indices, joint_torque,
+    pack_gains, sgn, surface_terms,
 )
 
 
@@ -37,7 +37,7 @@ K, ALPHA = gain_indices(C1Gains, "k", "alpha")
 
 @njit(cache=True, error_model="numpy")
 def nominal_model_force(meas, p1x, p1y, p2x, p2y):
-    """Xi_nom^T Psi = D_nom psi1 + C_nom (dP + sigma), the nominal model's task force (N), per axis."""
+    """Xi_nom^T Psi = D_nom psi1 + C_nom (dP + sigma) + G_nom, the nominal model's task force (N), per axis."""
     D00 = meas[MEAS_TASK_INERTIA]
     D01 = meas[MEAS_TASK_INERTIA + 1]
     D11 = meas[MEAS_TASK_INERTIA + 2]
@@ -45,9 +45,9 @@ def nominal_model_force(meas, p1x, p1y, p2x, p2y):
     C01 = meas[MEAS_TASK_CORIOLIS + 1]
     C10 = meas[MEAS_TASK_CORIOLIS + 2]
     C11 = meas[MEAS_TASK_CORIOLIS + 3]
-    # Xi_nom^T Psi = D psi1 + C (dP + sigma)                                      eqs. (11)-(12)
-    mx = D00 * p1x + D01 * p1y + C00 * p2x + C01 * p2y
-    my = D01 * p1x + D11 * p1y + C10 * p2x + C11 * p2y
+    # Xi_nom^T Psi = D psi1 + C (dP + sigma) + G                                  eqs. (11)-(12)
+    mx = D00 * p1x + D01 * p1y + C00 * p2x + C01 * p2y + meas[MEAS_TASK_GRAVITY]
+    my = D01 * p1x + D11 * p1y + C10 * p2x + C11 * p2y + meas[MEAS_TASK_GRAVITY + 1]
     return mx, my
 
 
@@ -70,7 +70,9 @@ class C1Controller(MemoryController):
     uses_nominal_dynamics = True
     memory_layout = {}
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C1Gains, sample_time: float = float("nan")):
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C1Gains, *, gravity: bool = False,
+                 sample_time: float = float("nan")):
+        # the nominal G arrives in meas (MEAS_TASK_GRAVITY, zero without gravity): nothing to switch
         super().__init__(n_control, sample_time)
         self._gains = pack_gains(surface, wall_sign, gains)
 

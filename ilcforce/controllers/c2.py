@@ -50,7 +50,8 @@ class C2Controller(MemoryController):
     uses_nominal_dynamics = False
     memory_layout = {"v": (0, 2, "N m")}
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains, sample_time: float = float("nan")):
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains, *, gravity: bool = False,
+                 sample_time: float = float("nan")):
         super().__init__(n_control, sample_time)
         self._gains = pack_gains(surface, wall_sign, gains)
 

@@ -31,7 +31,9 @@ import math
 from dataclasses import dataclass
 
 from ilcforce.controllers.base import compiled_law, gain_indices
-from ilcforce.controllers.c3 import ETA, GAMMA, K, PSI_ACCELERATION_FLAG, C3Controller, C3Gains, c3_torque
+from ilcforce.controllers.c3 import (
+    ETA, GAMMA, GAMMA_GRAVITY, K, PSI_ACCELERATION_FLAG, C3Controller, C3Gains, c3_torque,
+)
 
 
 @dataclass(frozen=True)
@@ -49,8 +51,8 @@ class C3LeakGains(C3Gains):
             raise ValueError(f"c3-leak.alpha_max must be >= 0, got {self.alpha_max!r}")
 
 
-_C3_INDICES = (K, ETA, GAMMA, PSI_ACCELERATION_FLAG)
-*_SHARED, LEAKAGE, ALPHA_MAX = gain_indices(C3LeakGains, "k", "eta", "gamma", "psi_acceleration",
+_C3_INDICES = (K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG)
+*_SHARED, LEAKAGE, ALPHA_MAX = gain_indices(C3LeakGains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration",
                                             "leakage", "alpha_max")
 assert tuple(_SHARED) == _C3_INDICES, "C3-leak packs C3's gains at C3's indices (the shared kernel reads them)"
 

@@ -78,8 +78,8 @@ class PDILCController(MemoryController):
     #: v: the feed-forward iteration j + 1 applies (after Q); an unfinished iteration's is unfiltered
     memory_layout = {"v": (0, 2, "N m")}
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: PDILCGains,
-                 sample_time: float = float("nan")):
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: PDILCGains, *,
+                 gravity: bool = False, sample_time: float = float("nan")):
         super().__init__(n_control, sample_time)
         if not (math.isfinite(self.sample_time) and self.sample_time > 0):
             raise ValueError("pd-ilc needs the control sample time to design its Q filter")

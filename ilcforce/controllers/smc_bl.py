@@ -78,8 +78,8 @@ class SMCBoundaryLayerController(MemoryController):
     uses_nominal_dynamics = True
     memory_layout = {}
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: SMCBoundaryLayerGains,
-                 sample_time: float = float("nan")):
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: SMCBoundaryLayerGains, *,
+                 gravity: bool = False, sample_time: float = float("nan")):
         super().__init__(n_control, sample_time)
         self._gains = pack_gains(surface, wall_sign, gains)
 
