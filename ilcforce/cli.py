@@ -25,6 +25,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from ilcforce import __version__
+from ilcforce.controllers import PAPER_METHODS, REGISTRY
 
 app = typer.Typer(
     add_completion=False,
@@ -106,8 +107,6 @@ def _variant(seed: Optional[int], sets: Optional[list[str]]) -> dict[str, object
 
 
 def _methods(text: str) -> list[str]:
-    from ilcforce.controllers import REGISTRY
-
     names = [m.strip().lower() for m in text.split(",") if m.strip()]
     if not names:
         raise CliError("--methods is empty; e.g. --methods c1,c2,c3")
@@ -192,7 +191,7 @@ def _deferred_interrupt():
 @_guard
 def simulate(
     ctx: typer.Context,
-    method: Annotated[str, typer.Option("--method", "-m", help="controller: c1, c2 or c3")] = "c3",
+    method: Annotated[str, typer.Option("--method", "-m", help=f"controller: {', '.join(REGISTRY)}")] = "c3",
     iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations (default: the experiment's)")] = None,
     config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
     out_path: Annotated[Optional[Path], typer.Option("--out", "-o", help="HDF5 store (default: results/<experiment>/<method>.h5)")] = None,
@@ -229,7 +228,7 @@ def simulate(
 @_guard
 def compare(
     ctx: typer.Context,
-    methods: Annotated[str, typer.Option("--methods", help="comma-separated methods")] = "c1,c2,c3",
+    methods: Annotated[str, typer.Option("--methods", help=f"comma-separated methods from {', '.join(REGISTRY)}")] = ",".join(PAPER_METHODS),
     config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
     iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations")] = None,
     seed: Annotated[Optional[int], typer.Option("--seed", help="random seed")] = None,

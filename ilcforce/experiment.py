@@ -56,9 +56,9 @@ def make_controller(config: Config, method: str):
     """Instantiate the registered controller ``method`` with the experiment's gains."""
     if method not in REGISTRY:
         raise UnknownMethodError(f"unknown method {method!r}; choose one of {', '.join(REGISTRY)}")
-    cls, _gains_cls = REGISTRY[method]
+    cls = REGISTRY[method].controller_class
     return cls(config.n_control, config.surface, config.wall.sign, config.gains[method],
-               gravity=config.plant.has_gravity)
+               gravity=config.plant.has_gravity, sample_time=config.simulation.sample_time)
 
 
 def reference_log(config: Config) -> dict[str, np.ndarray]:
@@ -106,7 +106,7 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
         )
         mem_prev, mem_new = controller.begin_iteration(j)
         record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps)
-        controller.end_iteration(record.status == STATUS_COMPLETE)
+        controller.end_iteration(record)  # between-iteration learning sees the finished iteration
         if true_plant not in desired_cache:
             desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
         # a diverged iteration stores the memory it was writing (NaN where it never got)
