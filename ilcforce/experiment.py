@@ -82,12 +82,16 @@ def memory_labels(controller) -> dict[str, tuple[str, ...]]:
 
 
 def simulate_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None,
-                        stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None):
+                        stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
+                        desired_cache: dict | None = None):
     """Yield the :class:`IterationRecord` of iterations ``first .. iterations - 1`` in order.
 
     Stops after a diverged iteration. ``memory`` (a stored learned state) seeds iteration ``first``.
     ``stop_requested`` and ``chunk_steps`` go to :func:`~ilcforce.simulate.run_iteration` (an
     iteration in flight is abandoned with KeyboardInterrupt within one chunk of the request).
+    ``desired_cache`` (true plant -> tau_d arrays) may be shared by callers that run many cells of
+    the same wall, reference and grids (a study's worker); it must only ever hold entries computed
+    for that same (wall, reference, sample_time, log_every).
     """
     controller = make_controller(config, method)
     if memory:
@@ -95,7 +99,8 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     reference = config.reference_samples()
     ref_log = reference[:: config.simulation.log_every]
     nominal = config.plant.links()
-    desired_cache: dict = {}
+    if desired_cache is None:
+        desired_cache = {}
     for j in range(first, config.experiment.iterations):
         true_plant = config.plant.true_plant(j)
         inputs = IterationInputs(
@@ -120,7 +125,8 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
 
 def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
                command: str = "", progress: Callable[[IterationRecord, dict], None] | None = None,
-               stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None) -> RunSummary:
+               stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
+               desired_cache: dict | None = None) -> RunSummary:
     """Run ``method`` over the experiment's iterations and store every iteration in ``out``.
 
     ``progress(record, metrics_row)`` is called after each stored iteration. If
@@ -145,7 +151,8 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
             return RunSummary(Path(out), method, first, (), STATUS_DIVERGED)
         memory = writer.resume_memory() if first > 0 else None
         status = STATUS_COMPLETE
-        for record in simulate_iterations(config, method, first, memory, stop_requested, chunk_steps):
+        for record in simulate_iterations(config, method, first, memory, stop_requested, chunk_steps,
+                                          desired_cache=desired_cache):
             row = writer.append(record)  # the store computes the metrics row once
             rows.append(row)
             if progress is not None:
