@@ -16,7 +16,7 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
     [simulation]  sample_time, substeps, log_every, acceleration, filter_hz, torque_bound, initial_position
     [noise]       disturbance_amplitude, ..., encoder, joint_rate, force_sensor
     [surface]     selection, lambda_p, lambda_f1, lambda_f2          (eq. 8, shared by all methods)
-    [c1] [c2] [c3]                                                   (each method's own gains)
+    [c1] [c2] [c3] [smc-bl] ... one per registered method            (each method's own gains)
 """
 
 from __future__ import annotations
@@ -136,7 +136,7 @@ class SurfaceGains:
 
 
 def _default_gains() -> dict[str, object]:
-    return {name: gains_cls() for name, (_cls, gains_cls) in REGISTRY.items()}
+    return {name: spec.gains_class() for name, spec in REGISTRY.items()}
 
 
 @dataclass(frozen=True)
@@ -346,7 +346,7 @@ def config_from_dict(data: dict) -> Config:
         if key in sections:
             kwargs[key] = _build(type(getattr(default, key)), value, key)
         elif key in REGISTRY:
-            gains[key] = _build(REGISTRY[key][1], value, key)
+            gains[key] = _build(REGISTRY[key].gains_class, value, key)
         else:
             raise ConfigError(f"unknown section [{key}]{_did_you_mean(key, [*sections, *REGISTRY])}")
     try:
