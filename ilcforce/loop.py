@@ -24,7 +24,7 @@ from ilcforce.controllers.base import (
     MEAS_FORCE_RATE, MEAS_JACOBIAN, MEAS_POSITION, MEAS_TASK_CORIOLIS, MEAS_TASK_GRAVITY,
     MEAS_TASK_INERTIA, MEAS_THETA, MEAS_VELOCITY, MEAS_WIDTH,
 )
-from ilcforce.plants.base import ACCEL_TYPE, KIN_TYPE, TASK_TYPE
+from ilcforce.plants.base import ACCEL_TYPE, DYN_TYPE, IK_TYPE, KIN_TYPE, TASK_TYPE
 from ilcforce.task import wall_force, wall_stiffness
 
 #: Watchdog outcomes of the compiled loop.
@@ -114,8 +114,8 @@ _SIM_SIGNATURE = types.UniTuple(types.int64, 2)(
     ACCEL_TYPE,  # true plant: forward dynamics terms
     KIN_TYPE,  # nominal plant: kinematics
     TASK_TYPE,  # nominal plant: task-space model
-    types.float64[::1],  # true plant parameters
-    types.float64[::1],  # nominal plant parameters
+    types.intp,  # true plant parameters (address of the packed vector, see ilcforce.plants.base)
+    types.intp,  # nominal plant parameters (address)
     types.float64[::1],  # wall: y_e, K_e, w
     types.float64[::1],  # law gains
     types.float64[:, ::1],  # mem_prev
@@ -362,3 +362,48 @@ def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_n
     return status, k_fail
 
 
+
+
+_DESIRED_SIGNATURE = types.int64(
+    DYN_TYPE, IK_TYPE, types.intp,  # the plant's joint-space model, inverse kinematics, parameters (address)
+    types.float64[:, ::1],  # reference (n, 12), ilcforce.task layout
+    types.float64,  # w, the wall's force sign
+    types.float64[:, ::1],  # out: tau_d (n, 2)
+    types.float64[:, ::1],  # out: J^-T tau_d (n, 2)
+)
+
+
+@njit(_DESIRED_SIGNATURE, cache=True, error_model="numpy")
+def desired_kernel(dyn, ik, p, ref, w, tau_d, task_d):
+    """tau_d = Dq ddtheta_d + Cq dtheta_d + G_q - J^T f_d along the reference (eq. 1), f_d = -w F_d
+    the wall's reaction to the desired force; and J^-T tau_d. dtheta_d = J^-1 dP_d and
+    ddtheta_d = J^-1 (ddP_d - dJ dtheta_d) by 2x2 inverses. Returns -1, or the first row whose
+    P_d is outside the plant's working mode (the rest is then unset)."""
+    for i in range(ref.shape[0]):
+        px, py = ref[i, 0], ref[i, 1]
+        ok, th1, th2 = ik(p, px, py)
+        if ok == 0.0:
+            return i
+        J = dyn(p, th1, th2, 0.0, 0.0)
+        if J[0] == 0.0 or math.hypot(J[1] - px, J[2] - py) > 1e-9:  # the IK's pose must map back to P_d
+            return i
+        J00, J01, J10, J11 = J[3], J[4], J[5], J[6]
+        det = J00 * J11 - J01 * J10
+        vx, vy = ref[i, 2], ref[i, 3]
+        d1 = (J11 * vx - J01 * vy) / det
+        d2 = (J00 * vy - J10 * vx) / det
+        (_ok, _px, _py, _J00, _J01, _J10, _J11, dJ00, dJ01, dJ10, dJ11,
+         Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = dyn(p, th1, th2, d1, d2)
+        ax = ref[i, 4] - (dJ00 * d1 + dJ01 * d2)
+        ay = ref[i, 5] - (dJ10 * d1 + dJ11 * d2)
+        dd1 = (J11 * ax - J01 * ay) / det
+        dd2 = (J00 * ay - J10 * ax) / det
+        fx = w * ref[i, 6]  # -f_d: the robot must push back the wall's reaction -w F_d
+        fy = w * ref[i, 7]
+        t1 = Dq00 * dd1 + Dq01 * dd2 + Cq00 * d1 + Cq01 * d2 + G1 + J00 * fx + J10 * fy  # eq. (1)
+        t2 = Dq01 * dd1 + Dq11 * dd2 + Cq10 * d1 + Cq11 * d2 + G2 + J01 * fx + J11 * fy
+        tau_d[i, 0] = t1
+        tau_d[i, 1] = t2
+        task_d[i, 0] = (J11 * t1 - J10 * t2) / det  # J^-T tau_d
+        task_d[i, 1] = (J00 * t2 - J01 * t1) / det
+    return -1
