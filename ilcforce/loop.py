@@ -376,34 +376,44 @@ _DESIRED_SIGNATURE = types.int64(
 @njit(_DESIRED_SIGNATURE, cache=True, error_model="numpy")
 def desired_kernel(dyn, ik, p, ref, w, tau_d, task_d):
     """tau_d = Dq ddtheta_d + Cq dtheta_d + G_q - J^T f_d along the reference (eq. 1), f_d = -w F_d
-    the wall's reaction to the desired force; and J^-T tau_d. dtheta_d = J^-1 dP_d and
-    ddtheta_d = J^-1 (ddP_d - dJ dtheta_d) by 2x2 inverses. Returns -1, or the first row whose
-    P_d is outside the plant's working mode (the rest is then unset)."""
+    the wall's reaction to the desired force; and J^-T tau_d, with dtheta_d = J^-1 dP_d and
+    ddtheta_d = J^-1 (ddP_d - dJ dtheta_d). Returns -1, or the first row whose P_d is outside the
+    plant's working mode (the rest is then unset).
+
+    The solves and products are numba's np.linalg.solve and @ (LAPACK and BLAS, as numpy's), in
+    the order of the plant's public API, so the numbers are those of the readable Python loop.
+    """
+    J = np.empty((2, 2))
+    Jt = np.empty((2, 2))
+    dJ = np.empty((2, 2))
+    Dq = np.empty((2, 2))
+    Cq = np.empty((2, 2))
+    v = np.empty(2)
+    acc = np.empty(2)
+    f = np.empty(2)
+    g = np.empty(2)
     for i in range(ref.shape[0]):
         px, py = ref[i, 0], ref[i, 1]
         ok, th1, th2 = ik(p, px, py)
         if ok == 0.0:
             return i
-        J = dyn(p, th1, th2, 0.0, 0.0)
-        if J[0] == 0.0 or math.hypot(J[1] - px, J[2] - py) > 1e-9:  # the IK's pose must map back to P_d
+        o = dyn(p, th1, th2, 0.0, 0.0)
+        if o[0] == 0.0 or math.hypot(o[1] - px, o[2] - py) > 1e-9:  # the IK's pose must map back to P_d
             return i
-        J00, J01, J10, J11 = J[3], J[4], J[5], J[6]
-        det = J00 * J11 - J01 * J10
-        vx, vy = ref[i, 2], ref[i, 3]
-        d1 = (J11 * vx - J01 * vy) / det
-        d2 = (J00 * vy - J10 * vx) / det
-        (_ok, _px, _py, _J00, _J01, _J10, _J11, dJ00, dJ01, dJ10, dJ11,
-         Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = dyn(p, th1, th2, d1, d2)
-        ax = ref[i, 4] - (dJ00 * d1 + dJ01 * d2)
-        ay = ref[i, 5] - (dJ10 * d1 + dJ11 * d2)
-        dd1 = (J11 * ax - J01 * ay) / det
-        dd2 = (J00 * ay - J10 * ax) / det
-        fx = w * ref[i, 6]  # -f_d: the robot must push back the wall's reaction -w F_d
-        fy = w * ref[i, 7]
-        t1 = Dq00 * dd1 + Dq01 * dd2 + Cq00 * d1 + Cq01 * d2 + G1 + J00 * fx + J10 * fy  # eq. (1)
-        t2 = Dq01 * dd1 + Dq11 * dd2 + Cq10 * d1 + Cq11 * d2 + G2 + J01 * fx + J11 * fy
-        tau_d[i, 0] = t1
-        tau_d[i, 1] = t2
-        task_d[i, 0] = (J11 * t1 - J10 * t2) / det  # J^-T tau_d
-        task_d[i, 1] = (J00 * t2 - J01 * t1) / det
+        J[0, 0], J[0, 1], J[1, 0], J[1, 1] = o[3], o[4], o[5], o[6]
+        Jt[0, 0], Jt[0, 1], Jt[1, 0], Jt[1, 1] = o[3], o[5], o[4], o[6]
+        v[0], v[1] = ref[i, 2], ref[i, 3]
+        dtheta = np.linalg.solve(J, v)
+        o = dyn(p, th1, th2, dtheta[0], dtheta[1])
+        dJ[0, 0], dJ[0, 1], dJ[1, 0], dJ[1, 1] = o[7], o[8], o[9], o[10]
+        Dq[0, 0], Dq[0, 1], Dq[1, 0], Dq[1, 1] = o[11], o[12], o[12], o[13]
+        Cq[0, 0], Cq[0, 1], Cq[1, 0], Cq[1, 1] = o[14], o[15], o[16], o[17]
+        g[0], g[1] = o[18], o[19]
+        acc[0], acc[1] = ref[i, 4], ref[i, 5]
+        ddtheta = np.linalg.solve(J, acc - dJ @ dtheta)
+        f[0], f[1] = -w * ref[i, 6], -w * ref[i, 7]  # the force on the robot: the wall's reaction
+        tau = Dq @ ddtheta + Cq @ dtheta - Jt @ f + g  # eq. (1)
+        tau_d[i, 0], tau_d[i, 1] = tau[0], tau[1]
+        x = np.linalg.solve(Jt, tau)  # J^-T tau_d
+        task_d[i, 0], task_d[i, 1] = x[0], x[1]
     return -1
