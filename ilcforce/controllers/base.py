@@ -307,6 +307,15 @@ class MemoryController:
     def learned_units(self) -> dict[str, str]:
         return {key: unit for key, (_a, _b, unit) in self.memory_layout.items()}
 
+    #: optional column labels of a memory block: name -> one label per column
+    memory_labels: dict[str, tuple[str, ...]] = {}
+
+    def learned_labels(self) -> dict[str, tuple[str, ...]]:
+        """Column labels of each multi-column memory block (those given in ``memory_labels``)."""
+        return {key: tuple(labels) for key, labels in self.memory_labels.items()
+                if key in self.memory_layout
+                and len(labels) == self.memory_layout[key][1] - self.memory_layout[key][0]}
+
     def restore(self, memory: dict[str, np.ndarray]) -> None:
         for key, (start, stop, _unit) in self.memory_layout.items():
             if key not in memory:

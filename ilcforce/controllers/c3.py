@@ -119,6 +119,11 @@ class C3Controller(MemoryController):
     #: Theta's entries in memory order (G = 0)
     theta_names = ("D11", "D12", "C11", "C12", "D21", "D22", "C21", "C22")
 
+    @property
+    def memory_labels(self) -> dict[str, tuple[str, ...]]:
+        """Theta_hat's column labels for the store (D11 D12 C11 C12 ...; G entries with gravity)."""
+        return {"theta_hat": tuple(self.theta_names)}
+
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
         if gravity:  # the full Theta of eq. (13), decided by the plant (SPEC 8); the law reads na from the memory width
