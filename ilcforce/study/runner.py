@@ -31,7 +31,7 @@ from pathlib import Path
 
 from ilcforce.study.cell import run_cell
 from ilcforce.study.spec import Cell, Study, StudyError
-from ilcforce.study.store import DONE, FAILED, StudyStore
+from ilcforce.store.study import DONE, FAILED, StudyStore
 
 #: Seconds allowed to reach a remote scheduler, and then for a first worker to be there.
 CONNECT_TIMEOUT = 10.0
@@ -192,7 +192,8 @@ def dask_client(workers: int, scheduler: str | None):
                 client.close()
             return
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.CRITICAL)
+                               dashboard_address=":0",  # any free port: a second study (or a test) on this machine must not collide on 8787
+                               silence_logs=logging.CRITICAL)
         try:
             client = Client(cluster, set_as_default=False)
             try:
