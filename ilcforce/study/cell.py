@@ -38,7 +38,7 @@ def memory_columns(method: str) -> list[str]:
     """The memory-norm columns a method's rows carry (``memory_rms_<name>`` per learned memory)."""
     from ilcforce.controllers import REGISTRY
 
-    return [f"memory_rms_{name}" for name in REGISTRY[method][0].memory_layout]
+    return [f"memory_rms_{name}" for name in REGISTRY[method].memory_layout]
 
 
 def desired_cache(config: Config) -> dict:
