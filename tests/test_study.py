@@ -270,19 +270,6 @@ def test_second_driver_is_refused(tmp_path):
         first.close()
 
 
-def test_local_cluster_matches_in_process(tmp_path):
-    """Two LocalCluster worker processes give the in-process metrics bit for bit."""
-    study = small_study(sweep={"c3.eta": [5.0, 2.0]})
-    run_study(study, tmp_path / "one", workers=1)
-    summary = run_study(study, tmp_path / "two", workers=2)
-    assert summary.scheduler == "LocalCluster" and summary.failed == ()
-    pd.testing.assert_frame_equal(tidy_metrics(tmp_path / "one" / "studies" / "tiny.h5"),
-                                  tidy_metrics(summary.path), check_exact=True)
-    sessions = read_study(summary.path).sessions
-    assert sessions[-1]["scheduler"] == "LocalCluster" and sessions[-1]["workers"] == 2
-    assert "dask" in sessions[-1]["versions"]
-
-
 # ------------------------------------------------------------------------------------------------
 # CLI and export
 
@@ -345,3 +332,19 @@ def test_study_store_records_provenance(tmp_path):
     session = results.sessions[-1]
     assert session["command"] == "ilcforce study x" and session["scheduler"] == "in-process"
     assert {"ilcforce", "numpy", "numba", "h5py", "python"} <= set(session["versions"])
+
+
+def test_shipped_study_files_load_and_are_named_after_their_file():
+    """`make studies` finds study files by their [study] table and expects study.name == file stem."""
+    from pathlib import Path
+
+    from ilcforce.study.spec import is_study_file
+
+    files = [p for p in sorted(Path("experiments").glob("*.toml")) if is_study_file(p)]
+    assert Path("experiments/paper-mc.toml") in files
+    for path in files:
+        study = load_study(path)
+        assert study.name == path.stem
+    paper = load_study("experiments/paper-mc.toml")
+    assert paper.seeds == tuple(range(100)) and paper.methods == ("c1", "c2", "c3")
+    assert paper.settings[0].config.experiment.iterations == 20
