@@ -12,6 +12,7 @@ import os
 import math
 import shlex
 import signal
+import sys
 import threading
 from pathlib import Path
 from typing import Annotated, Optional
@@ -19,9 +20,12 @@ from typing import Annotated, Optional
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.box import ASCII, HEAVY_HEAD
+from rich.markup import escape
 from rich.table import Table
 
 from ilcforce import __version__
+from ilcforce.controllers import PAPER_METHODS, REGISTRY
 
 app = typer.Typer(
     add_completion=False,
@@ -37,8 +41,21 @@ class CliError(Exception):
     """Bad input found by the CLI itself."""
 
 
+def _say(text: str, *, stderr: bool = False) -> None:
+    """One plain line: never markup, never wrapped, never a UnicodeEncodeError (unencodable
+    characters are replaced under an ASCII locale)."""
+    stream = sys.stderr if stderr else sys.stdout
+    encoding = getattr(stream, "encoding", None) or "utf-8"
+    line = " ".join(str(text).split()) if "\n" in str(text) else str(text)
+    try:
+        stream.write(line.encode(encoding, "replace").decode(encoding, "replace") + "\n")
+        stream.flush()
+    except (OSError, ValueError):
+        pass
+
+
 def _fail(message: str, code: int = 2) -> None:
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    _say(f"error: {message}", stderr=True)
     raise typer.Exit(code)
 
 
@@ -56,7 +73,7 @@ def _guard(func):
         except (ConfigError, StoreError, UnknownMethodError, CliError) as exc:
             _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
         except KeyboardInterrupt:
-            err.print("interrupted: every finished iteration is stored; continue with --resume", highlight=False)
+            _say("interrupted: every finished iteration is stored; continue with --resume", stderr=True)
             raise typer.Exit(130)
         except OSError as exc:
             _fail(f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": "))
@@ -79,9 +96,17 @@ def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], set
     return load_config(config, overrides)
 
 
-def _methods(text: str) -> list[str]:
-    from ilcforce.controllers import REGISTRY
+def _variant(seed: Optional[int], sets: Optional[list[str]]) -> dict[str, object]:
+    """The overrides that make a variant (its own results folder): every --set, and --seed."""
+    from ilcforce.config import parse_override
 
+    overrides = dict(parse_override(s) for s in (sets or []))
+    if seed is not None:
+        overrides["experiment.seed"] = seed
+    return overrides
+
+
+def _methods(text: str) -> list[str]:
     names = [m.strip().lower() for m in text.split(",") if m.strip()]
     if not names:
         raise CliError("--methods is empty; e.g. --methods c1,c2,c3")
@@ -138,7 +163,8 @@ def _run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool, 
 
 @contextlib.contextmanager
 def _deferred_interrupt():
-    """First Ctrl-C: finish storing the iteration in flight, then stop. Second: stop at once.
+    """First Ctrl-C: stop within one chunk of the compiled loop (the iteration in flight is dropped,
+    every finished one is stored). Second: stop at once.
 
     A KeyboardInterrupt raised wherever the signal lands (e.g. inside a garbage-collection
     callback, where Python ignores it) could be lost; a flag checked between iterations cannot.
@@ -152,7 +178,7 @@ def _deferred_interrupt():
         if requested:
             raise KeyboardInterrupt
         requested.append(signum)
-        err.print("stopping after the current iteration is stored (Ctrl-C again to stop now)", highlight=False)
+        _say("stopping: the unfinished iteration is dropped, every finished one is stored", stderr=True)
 
     previous = signal.signal(signal.SIGINT, handler)
     try:
@@ -165,7 +191,7 @@ def _deferred_interrupt():
 @_guard
 def simulate(
     ctx: typer.Context,
-    method: Annotated[str, typer.Option("--method", "-m", help="controller: c1, c2 or c3")] = "c3",
+    method: Annotated[str, typer.Option("--method", "-m", help=f"controller: {', '.join(REGISTRY)}")] = "c3",
     iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations (default: the experiment's)")] = None,
     config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
     out_path: Annotated[Optional[Path], typer.Option("--out", "-o", help="HDF5 store (default: results/<experiment>/<method>.h5)")] = None,
@@ -182,9 +208,9 @@ def simulate(
     if len(names) != 1:
         raise CliError("--method takes one method; use `ilcforce compare --methods ...` for several")
     cfg = _load(config, seed, iters, sets)
-    path = out_path if out_path is not None else default_store_path(results, cfg, names[0])
+    path = out_path if out_path is not None else default_store_path(results, cfg, names[0], _variant(seed, sets))
     summary = _run_one(cfg, names[0], path, overwrite=overwrite, resume=resume, command=_command_line(ctx))
-    table = Table(title=f"{cfg.experiment.name} / {names[0]}  ->  {path}")
+    table = _table(f"{cfg.experiment.name} / {names[0]}  ->  {path}")
     for col in ("j", "|e_P|_2 (m)", "|e_F|_2 (N)", "H_x (N)", "H_y (N)", "loop fallbacks", "status"):
         table.add_column(col, justify="right")
     for row in summary.rows:
@@ -193,16 +219,16 @@ def simulate(
                       _g(row["chattering_task_x"]), _g(row["chattering_task_y"]), str(row["fallback_count"]), status)
     out.print(table)
     if not summary.rows:
-        out.print(f"nothing to run: {path} already holds iterations 0..{summary.first_iteration - 1}")
+        _say(f"nothing to run: {path} already holds iterations 0..{summary.first_iteration - 1}")
     if summary.diverged:
-        out.print(f"[red]{names[0]} diverged[/]; later iterations were not run (the store records where).")
+        _say(f"{names[0]} diverged; later iterations were not run (the store records where).")
 
 
 @app.command()
 @_guard
 def compare(
     ctx: typer.Context,
-    methods: Annotated[str, typer.Option("--methods", help="comma-separated methods")] = "c1,c2,c3",
+    methods: Annotated[str, typer.Option("--methods", help=f"comma-separated methods from {', '.join(REGISTRY)}")] = ",".join(PAPER_METHODS),
     config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
     iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations")] = None,
     seed: Annotated[Optional[int], typer.Option("--seed", help="random seed")] = None,
@@ -219,17 +245,10 @@ def compare(
     cfg = _load(config, seed, iters, sets)
     metrics_by_method = {}
     for name in names:
-        path = default_store_path(results, cfg, name)
-        action = "run"
-        if path.exists() and not overwrite:
-            provenance = store.read_provenance(path)
-            state = provenance.get("run_state")
-            if provenance.get("config_json") != cfg.to_json():
-                raise CliError(f"{path} holds a run with a different configuration; pass --overwrite to rerun it")
-            action = "keep" if state in ("complete", "diverged") else "resume"
+        path = default_store_path(results, cfg, name, _variant(seed, sets))
+        action, replace = _compare_action(cfg, name, path, overwrite)
         if action != "keep":
-            _run_one(cfg, name, path, overwrite=overwrite and path.exists(), resume=action == "resume",
-                     command=_command_line(ctx))
+            _run_one(cfg, name, path, overwrite=replace, resume=action == "resume", command=_command_line(ctx))
         metrics_by_method[name] = store.read_metrics(path)
     frame = comparison_frame(metrics_by_method)
     units = dict(frame.attrs.get("units", {}))
@@ -238,15 +257,42 @@ def compare(
     _print_frame(frame.T, f"{cfg.experiment.name}: same seed {cfg.experiment.seed}, same disturbance and noise", units)
 
 
+def _table(title: str) -> Table:
+    """A rich table whose title is shown literally (a path may contain [brackets]); ASCII
+    borders when the output encoding cannot show box-drawing characters."""
+    encoding = (out.encoding or "").lower().replace("-", "")
+    return Table(title=escape(title), box=HEAVY_HEAD if encoding.startswith("utf") else ASCII)
+
+
+def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str, bool]:
+    """("keep" | "resume" | "run", replace?) for one method's store, by the same-run policy."""
+    from ilcforce import samerun, store
+
+    if not path.exists() and not path.is_symlink():
+        return "run", False
+    provenance = store.read_provenance(path)
+    keys = samerun.differences(samerun.stored_config(provenance), cfg.to_dict(), method)
+    if keys:
+        if not overwrite:
+            raise CliError(f"{path} holds a {method} run with a different configuration: "
+                           f"{samerun.describe(samerun.stored_config(provenance), cfg.to_dict(), keys)}; "
+                           "pass --overwrite to rerun it")
+        return "run", True
+    done = store.iterations(path)
+    finished = provenance.get("run_state") == "diverged" or (
+        provenance.get("run_state") == "complete" and len(done) >= cfg.experiment.iterations)
+    return ("keep" if finished else "resume"), False
+
+
 def _print_frame(frame, title: str, units: dict[str, str]) -> None:
     """One row per quantity, one column per method (narrow enough for a terminal)."""
-    table = Table(title=title)
+    table = _table(title)
     table.add_column("")
     for col in frame.columns:
         table.add_column(str(col), justify="right")
     for idx, row in frame.iterrows():
         label = f"{idx} ({units[idx]})" if units.get(idx) not in (None, "", "-") else str(idx)
-        table.add_row(label, *(_g(v) for v in row.tolist()))
+        table.add_row(escape(label), *(_g(v) for v in row.tolist()))
     out.print(table)
 
 
@@ -267,10 +313,10 @@ def report(
         raise CliError(f"--jobs must be >= 0 (0: one per CPU), got {jobs}")
     summary = write_report(results, target, jobs=jobs or os.cpu_count() or 1)
     for warning in summary.warnings:
-        err.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
+        _say(f"warning: {warning}", stderr=True)
     if not summary.experiments:
         raise CliError(f"no usable ilcforce stores under {results}")
-    out.print(f"report for {', '.join(summary.experiments)} written to {target}/index.md")
+    _say(f"report for {', '.join(summary.experiments)} written to {target}/index.md")
 
 
 @app.command()
@@ -282,8 +328,8 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="HDF5 stores to ch
     for path in paths:
         store.validate(path)
         prov = store.read_provenance(path)
-        out.print(f"{path}: ok ({prov.get('experiment')}/{prov.get('method')}, "
-                  f"{len(store.iterations(path))} iterations, {prov.get('run_state')})")
+        _say(f"{path}: ok ({prov.get('experiment')}/{prov.get('method')}, "
+             f"{len(store.iterations(path))} iterations, {prov.get('run_state')})")
 
 
 def _fail_plain(message: str) -> None:
@@ -407,7 +453,7 @@ def export(
 @app.command()
 def version() -> None:
     """Print the ilcforce version."""
-    out.print(f"ilcforce {__version__}")
+    _say(f"ilcforce {__version__}")
 
 
 def main() -> None:

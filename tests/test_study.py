@@ -147,13 +147,13 @@ def test_tidy_frame_columns_and_memory_norms(tmp_path):
     c3 = frame[frame["method"] == "c3"]
     c1 = frame[frame["method"] == "c1"]
     # C3 learns: its Theta_hat memory is nonzero and grows from iteration 0 on; C1 has no memory
-    assert (c3["memory_rms_theta_hat"] > 0).all()
-    assert c1["memory_rms_theta_hat"].isna().all()
+    assert (c3["memory_norm_theta_hat"] > 0).all()
+    assert c1["memory_norm_theta_hat"].isna().all()
     assert frame["seed"].dtype == np.int64 and frame["iteration"].dtype == np.int64
 
 
 def test_memory_norm_is_rms_of_the_learned_memory(tmp_path):
-    """memory_rms_* = sqrt(mean_k |m(t_k)|^2) of the memory the run store keeps for that iteration."""
+    """memory_norm_* = sqrt(mean_k |m(t_k)|^2) of the memory the run store keeps for that iteration."""
     study = small_study(seeds=[3], methods=("c3",))
     run_study(study, tmp_path, workers=1, keep_stores=True)
     frame = read_study(tmp_path / "studies" / "tiny.h5").metrics
@@ -162,7 +162,7 @@ def test_memory_norm_is_rms_of_the_learned_memory(tmp_path):
         memory = store.read_memory(kept, j)
         for name, array in memory.items():
             expected = np.sqrt(np.mean(np.sum(np.square(array.reshape(len(array), -1)), axis=1)))
-            assert frame.loc[j, f"memory_rms_{name}"] == pytest.approx(expected, rel=1e-12)
+            assert frame.loc[j, f"memory_norm_{name}"] == pytest.approx(expected, rel=1e-12)
     # the kept run store holds the same metrics as the study
     np.testing.assert_array_equal(store.read_metrics(kept)["force_error_2norm"].to_numpy(),
                                   frame["force_error_2norm"].to_numpy())

@@ -1,0 +1,117 @@
+"""No accuracy change: a short run of the paper's setup stores exactly the numbers it stored before.
+
+Speed work (lazy imports, parallel ``compare``, cheaper HDF5 writes, compiled tau_d) must not change
+a single stored number. ``tests/data/reference_run.npz`` holds every numeric (and string) dataset of
+the stores that ``ilcforce compare`` writes for c1, c2, c3 over a shrunk paper setup (3 iterations,
+a 0.2 s reference, the m3 perturbation from iteration 2 so both the nominal and the perturbed plant
+are exercised), as produced by the code at commit 0550c53 (before the speed work). The test runs the
+real entry point in a fresh process and compares every reference dataset with ``np.array_equal``
+(NaN equal to NaN where the reference has NaN): bit for bit, no tolerance.
+
+If a number changes on purpose (a fix to the physics, a new definition), regenerate the reference
+deliberately, from the commit that makes the change, and say so in that commit:
+
+    git worktree add /tmp/ref-tree <commit>
+    NUMBA_CACHE_DIR=$PWD/.venv/numba-cache PYTHONPATH=/tmp/ref-tree \\
+        .venv/bin/python tests/test_reference_run.py tests/data/reference_run.npz
+    git worktree remove /tmp/ref-tree
+
+(``PYTHONPATH`` makes the subprocess import ilcforce from that tree; the script checks it did.)
+A dataset that only moved in the store's layout is mapped in ``RENAMED`` instead; never loosen the
+comparison.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+REFERENCE = Path(__file__).parent / "data" / "reference_run.npz"
+METHODS = ("c1", "c2", "c3")
+#: The shrunk paper setup: few iterations and a short reference keep the test and the file small.
+ARGS = ("compare", "--methods", ",".join(METHODS), "--iters", "3",
+        "--set", "reference.duration=0.2", "--set", "plant.perturbation.from_iteration=2")
+#: reference key -> key in today's stores, for datasets that only moved (none yet).
+RENAMED: dict[str, str] = {}
+
+
+def _run(results: Path, cwd: Path | None = None) -> None:
+    proc = subprocess.run([sys.executable, "-m", "ilcforce", *ARGS, "--results", str(results)],
+                          capture_output=True, text=True, cwd=cwd, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+
+
+def _stored_numbers(results: Path) -> dict[str, np.ndarray]:
+    """Every dataset of every method's store, keyed ``<method>/<dataset path>``."""
+    import h5py
+
+    numbers: dict[str, np.ndarray] = {}
+    for method in METHODS:
+        with h5py.File(results / "paper" / f"{method}.h5", "r") as handle:
+            def visit(name, item, method=method):
+                if isinstance(item, h5py.Dataset):
+                    value = item[()]
+                    if value.dtype.kind in "OS":
+                        value = np.array([v.decode() if isinstance(v, bytes) else str(v) for v in value.ravel()])
+                    numbers[f"{method}/{name}"] = value
+            handle.visititems(visit)
+    return numbers
+
+
+def _equal(expected: np.ndarray, actual: np.ndarray) -> bool:
+    if expected.dtype.kind == "f":
+        return np.array_equal(expected, actual, equal_nan=True)
+    return np.array_equal(expected, actual)
+
+
+def test_every_stored_number_matches_the_reference(tmp_path):
+    reference = np.load(REFERENCE, allow_pickle=False)
+    _run(tmp_path)
+    stored = _stored_numbers(tmp_path)
+    assert len(reference.files) > 100  # logs, memories, metrics and reference of 3 methods x 3 iterations
+    missing = [k for k in reference.files if RENAMED.get(k, k) not in stored]
+    assert not missing, f"datasets of the reference run no longer stored: {missing[:10]}"
+    differ = [k for k in reference.files
+              if reference[k].dtype != stored[RENAMED.get(k, k)].dtype and reference[k].dtype.kind != "U"
+              or not _equal(reference[k], stored[RENAMED.get(k, k)])]
+    assert not differ, f"{len(differ)} datasets differ from the reference run, e.g. {differ[:10]}"
+
+
+def test_the_reference_covers_what_a_run_stores():
+    reference = np.load(REFERENCE, allow_pickle=False)
+    for method in METHODS:
+        keys = [k for k in reference.files if k.startswith(method + "/")]
+        assert any("/log/" in k for k in keys) and any(k.startswith(f"{method}/reference/") for k in keys)
+        assert any("/memory/" in k for k in keys) == (method != "c1")  # C1 learns nothing
+        assert any(k.startswith(f"{method}/metrics/") for k in keys)
+        assert any(k.startswith(f"{method}/iterations/0002/") for k in keys)  # the perturbed plant
+
+
+def _write(target: Path) -> None:
+    """Run the shrunk setup with whatever ilcforce PYTHONPATH selects and save every dataset."""
+    import tempfile
+
+    target = target.resolve()
+    with tempfile.TemporaryDirectory() as tmp:  # run outside any tree, so PYTHONPATH decides
+        probe = subprocess.run([sys.executable, "-c", "import ilcforce; print(ilcforce.__file__)"],
+                               capture_output=True, text=True, check=True, cwd=tmp)
+        source = Path(probe.stdout.strip()).parent.parent
+        wanted = os.environ.get("PYTHONPATH", "").split(os.pathsep)[0]
+        if not wanted or source.resolve() != Path(wanted).resolve():
+            pytest.exit(f"ilcforce imports from {source}, not from PYTHONPATH={wanted!r}", 2)
+        print(f"ilcforce from {source}")
+        _run(Path(tmp) / "results", cwd=Path(tmp))
+        numbers = _stored_numbers(Path(tmp) / "results")
+    np.savez_compressed(target, **numbers)
+    print(f"{len(numbers)} datasets -> {target} ({target.stat().st_size / 1e6:.2f} MB)")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) != 2:
+        pytest.exit("usage: PYTHONPATH=<tree> python tests/test_reference_run.py tests/data/reference_run.npz", 2)
+    _write(Path(sys.argv[1]))
