@@ -3,7 +3,7 @@
 One row per (setting..., seed, method, iteration). Columns, in order: the swept config keys
 (named by their key, e.g. ``simulation.sample_time``; none without a sweep), ``seed``, ``method``,
 ``iteration``, then the metric columns of :data:`ilcforce.metrics.METRIC_COLUMNS` in their order,
-then any further columns (a study's ``memory_rms_*``). A run store is the one-setting, one-seed
+then any further columns (a study's ``memory_norm_*``). A run store is the one-setting, one-seed
 case. Failed cells have no rows (see :attr:`StudyResults.cells`).
 """
 
