@@ -311,12 +311,14 @@ def report(
     target = out_dir if out_dir is not None else results / "report"
     if jobs < 0:
         raise CliError(f"--jobs must be >= 0 (0: one per CPU), got {jobs}")
-    summary = write_report(results, target, jobs=jobs or os.cpu_count() or 1)
+    summary = write_report(results, target, jobs=jobs or os.cpu_count() or 1,
+                           progress=lambda text: _say(f"report: {text}", stderr=True))
     for warning in summary.warnings:
         _say(f"warning: {warning}", stderr=True)
-    if not summary.experiments:
+    if not summary.experiments and not summary.studies:
         raise CliError(f"no usable ilcforce stores under {results}")
-    _say(f"report for {', '.join(summary.experiments)} written to {target}/index.md")
+    done = [*summary.experiments, *(f"study {name}" for name in summary.studies)]
+    _say(f"report for {', '.join(done)} written to {target}/index.md")
 
 
 @app.command()
