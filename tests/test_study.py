@@ -19,7 +19,7 @@ from ilcforce.metrics import METRIC_COLUMNS
 from ilcforce.study import (StudyError, StudyStoreError, build_study, export, load_study, read_study,
                             run_study, tidy_metrics)
 from ilcforce.study.spec import parse_seeds
-from ilcforce.study.store import StudyStore, read_tables
+from ilcforce.store.study import StudyStore, read_tables
 
 SMALL = {"experiment.iterations": 3, "reference.duration": 0.2}
 

@@ -106,7 +106,7 @@ def test_driver_killed_mid_study_rerun_completes_identically(tmp_path):
         driver.wait(timeout=30)
     finally:
         _stop(driver)
-    from ilcforce.study.store import read_tables
+    from ilcforce.store.study import read_tables
 
     _header, _metrics, cells = read_tables(results / "studies" / "tiny.h5")
     stored = len(cells)

@@ -32,7 +32,7 @@ from pathlib import Path
 
 from ilcforce.study.cell import run_cell
 from ilcforce.study.spec import Cell, Study, StudyError
-from ilcforce.study.store import DONE, FAILED, StudyStore
+from ilcforce.store.study import DONE, FAILED, StudyStore
 
 #: Seconds allowed to reach a remote scheduler, and then for a first worker to be there.
 CONNECT_TIMEOUT = 10.0

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.metrics import METRIC_COLUMNS
-from ilcforce.study.store import StudyStoreError, is_study_store, read_tables
+from ilcforce.store.study import StudyStoreError, is_study_store, read_tables
 
 _INT_COLUMNS = ("seed", "iteration", "fallback_count")
 

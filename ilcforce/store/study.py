@@ -1,4 +1,4 @@
-"""The study store, ``results/studies/<name>.h5``: the only module of ``ilcforce.study`` touching h5py.
+"""The study store, ``results/studies/<name>.h5`` (part of the store package, the only one touching h5py).
 
 Only the driver writes it. Durability without ever writing an HDF5 file in place:
 
