@@ -54,11 +54,11 @@ METRIC_COLUMNS: dict[str, tuple[str, str]] = {
     "fallback_count": ("-", "control samples where the implicit acceleration scheme reused the previous acceleration"),
     "diverged_time": ("s", "time at which the watchdog stopped the iteration; NaN if complete"),
     "position_error_2norm": ("m", "paper's 2-norm sqrt(sum_k |e_P(t_k)|^2) over the log grid"),
-    "position_error_l2": ("m", "L2 norm sqrt(dt sum_k |e_P(t_k)|^2) over the log grid (unit m s^1/2)"),
+    "position_error_l2": ("m s^1/2", "L2 norm sqrt(dt sum_k |e_P(t_k)|^2) over the log grid (unit m s^1/2)"),
     "position_error_rms": ("m", "RMS sqrt(mean_k |e_P(t_k)|^2) over the log grid"),
     "position_error_max": ("m", "max_k |e_P(t_k)| (Euclidean norm per sample)"),
     "force_error_2norm": ("N", "paper's 2-norm sqrt(sum_k |e_F(t_k)|^2) over the log grid"),
-    "force_error_l2": ("N", "L2 norm sqrt(dt sum_k |e_F(t_k)|^2) over the log grid (unit N s^1/2)"),
+    "force_error_l2": ("N s^1/2", "L2 norm sqrt(dt sum_k |e_F(t_k)|^2) over the log grid (unit N s^1/2)"),
     "force_error_rms": ("N", "RMS sqrt(mean_k |e_F(t_k)|^2) over the log grid"),
     "force_error_max": ("N", "max_k |e_F(t_k)| (Euclidean norm per sample)"),
     "chattering_task_x": ("N", "H: population std over the log grid of desired_task_input - task_input, x axis"),
@@ -77,6 +77,21 @@ del _name, _unit, _what
 
 #: Start of the "settled" window of H (s): after the start transient of every iteration.
 SETTLED_FROM = 0.02
+
+#: Version of the metric definitions. The store's ``/metrics`` is a cache of
+#: :func:`iteration_metrics` tagged with this version: a store whose cache has another version, or
+#: lacks a column of :data:`METRIC_COLUMNS`, has its table recomputed from the stored logs on read.
+#: Bump it when the definition of an existing column changes; adding a column needs no bump.
+METRICS_VERSION = 1
+
+#: Column kinds other than float: "int" or "str".
+METRIC_KINDS: dict[str, str] = {"iteration": "int", "status": "str", "fallback_count": "int"}
+
+
+def column_kind(column: str) -> str:
+    """``"int"``, ``"str"`` or ``"float"``: the type of a metric column's values."""
+    return METRIC_KINDS.get(column, "float")
+
 
 _NORM_KINDS = ("2norm", "l2", "rms", "max")
 

@@ -25,25 +25,27 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from ilcforce.controllers import REGISTRY
 from ilcforce.records import STATUS_COMPLETE
 from ilcforce.report import paper
 
-#: Colours stay with the method across every figure ("C<n>" is the n-th colour of the style's cycle).
-METHOD_COLORS = {"c1": "C0", "c2": "C1", "c3": "C2"}
-METHOD_LABELS = {"c1": "C1 (SMC)", "c2": "C2 (ILC)", "c3": "C3 (ILC + SMC)"}
+#: Colours and labels come from the method registry (``MethodSpec.color``, ``.label``) and stay with
+#: the method across every figure ("C<n>" is the n-th colour of the style's cycle).
 
 #: Fig. 5 shows these iterations (Section 4.2.1).
 TRACKING_ITERATIONS = (0, 5, 10, 15)
 
 
 def _color(method: str) -> str | None:
-    return METHOD_COLORS.get(method)
+    spec = REGISTRY.get(method)
+    return spec.color if spec is not None else None
 
 
 def _label(method: str, labels: Mapping[str, str] | None = None) -> str:
     if labels and method in labels:
         return labels[method]
-    return METHOD_LABELS.get(method, method)
+    spec = REGISTRY.get(method)
+    return spec.label if spec is not None else method
 
 
 def method_label(method: str) -> str:

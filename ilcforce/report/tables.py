@@ -17,12 +17,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ilcforce.controllers import PAPER_METHODS, REGISTRY
 from ilcforce.metrics import convergence_iteration
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
 from ilcforce.report import paper
 
-#: Methods in the order the paper lists them; other method names follow, sorted.
-METHOD_ORDER = ("c1", "c2", "c3")
+#: The paper's methods in the paper's order (the registry's ``in_paper`` specs); the report expects them.
+METHOD_ORDER = PAPER_METHODS
 
 #: Last iteration that may be the convergence iteration j̄, and the window whose median defines
 #: "converged" (SPEC section 6: first j <= 9 within 1.5x the median of iterations 5..9).
@@ -54,10 +55,10 @@ COLUMN_UNITS = {
 
 
 def ordered_methods(methods: Iterable[str]) -> list[str]:
-    """``methods`` sorted as c1, c2, c3 first, then any other name alphabetically."""
+    """``methods`` in registry order (the paper's c1, c2, c3 first), then unregistered names sorted."""
     names = set(methods)
-    known = [m for m in METHOD_ORDER if m in names]
-    return known + sorted(names - set(METHOD_ORDER))
+    known = [m for m in REGISTRY if m in names]
+    return known + sorted(names - set(REGISTRY))
 
 
 # ---------------------------------------------------------------------------------------------
