@@ -23,6 +23,7 @@ from ilcforce.controllers import LEARNS, PAPER_METHODS, REGISTRY
 from ilcforce.controllers.base import GAIN_SPECIFIC, gain_layout
 from ilcforce.experiment import make_controller, run_method
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
+from ilcforce.study.spec import is_study_file
 
 METHODS = list(REGISTRY)
 
@@ -32,6 +33,8 @@ def _plant_experiments() -> dict[str, Path]:
     files = sorted(Path("experiments").glob("*.toml"), key=lambda p: (p.name != "paper.toml", p.name))
     found: dict[str, Path] = {}
     for path in files:
+        if is_study_file(path):  # a study file names an experiment; it is not one
+            continue
         model = str(getattr(load_config(path).plant, "model", "fivebar"))
         found.setdefault(model, path)
     return found
