@@ -8,13 +8,13 @@ Python API::
     frame = tidy_metrics("results/studies/paper-mc.h5")   # same table as `ilcforce export`
 
 Modules: :mod:`~ilcforce.study.spec` (the study file), :mod:`~ilcforce.study.cell` (one cell, the
-worker's job), :mod:`~ilcforce.study.runner` (the driver, Dask), :mod:`~ilcforce.study.store` (the
-study store; the only module here touching h5py), :mod:`~ilcforce.study.tidy` (reading, export).
+worker's job), :mod:`~ilcforce.study.runner` (the driver, Dask), :mod:`~ilcforce.store.study` (the
+study store, in the store package: only the store touches h5py), :mod:`~ilcforce.study.tidy` (reading, export).
 """
 
 from ilcforce.study.runner import StudyRunError, run_study, store_path
 from ilcforce.study.spec import Cell, Setting, Study, StudyError, build_study, load_study
-from ilcforce.study.store import StudyStoreError
+from ilcforce.store.study import StudyStoreError
 from ilcforce.study.tidy import ExportError, StudyResults, export, read_study, tidy_metrics
 
 __all__ = ["Cell", "ExportError", "Setting", "Study", "StudyError", "StudyResults", "StudyRunError",
