@@ -78,6 +78,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=7, help="repetitions per figure (median reported)")
     parser.add_argument("--study-repeat", type=int, default=3, help="repetitions of the full paper study")
+    parser.add_argument("--mc-seeds", type=int, default=100, help="seeds of the paper's Monte Carlo study (0: skip)")
+    parser.add_argument("--speedup-seeds", type=int, default=10, help="seeds of the 1 -> 2 worker study (0: skip)")
     args = parser.parse_args(argv)
     config = default_config()
     steps = config.n_control - 1
@@ -111,6 +113,14 @@ def main(argv: list[str] | None = None) -> None:
         size = sum(f.stat().st_size for f in Path(tmp).glob("*.h5"))
     print(f"  paper study, c1+c2+c3 x {config.experiment.iterations} iterations with HDF5 : {t:8.2f} s wall "
           f"(median of {args.study_repeat}; stores {size / 1e6:.0f} MB)")
+    study_figures(args)
+
+
+def study_figures(args) -> None:
+    """The studies' speed and scale figures (``ilcforce.study.bench``)."""
+    from ilcforce.study import bench as study_bench
+
+    study_bench.main(mc_seeds=args.mc_seeds, speedup_seeds=args.speedup_seeds, repeat=args.study_repeat)
 
 
 if __name__ == "__main__":

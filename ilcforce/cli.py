@@ -261,7 +261,8 @@ def _table(title: str) -> Table:
     """A rich table whose title is shown literally (a path may contain [brackets]); ASCII
     borders when the output encoding cannot show box-drawing characters."""
     encoding = (out.encoding or "").lower().replace("-", "")
-    return Table(title=escape(title), box=HEAVY_HEAD if encoding.startswith("utf") else ASCII)
+    shown = title.encode(out.encoding or "utf-8", "replace").decode(out.encoding or "utf-8", "replace")
+    return Table(title=escape(shown), box=HEAVY_HEAD if encoding.startswith("utf") else ASCII)
 
 
 def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str, bool]:
@@ -311,12 +312,14 @@ def report(
     target = out_dir if out_dir is not None else results / "report"
     if jobs < 0:
         raise CliError(f"--jobs must be >= 0 (0: one per CPU), got {jobs}")
-    summary = write_report(results, target, jobs=jobs or os.cpu_count() or 1)
+    summary = write_report(results, target, jobs=jobs or os.cpu_count() or 1,
+                           progress=lambda text: _say(f"report: {text}", stderr=True))
     for warning in summary.warnings:
         _say(f"warning: {warning}", stderr=True)
-    if not summary.experiments:
+    if not summary.experiments and not summary.studies:
         raise CliError(f"no usable ilcforce stores under {results}")
-    _say(f"report for {', '.join(summary.experiments)} written to {target}/index.md")
+    done = [*summary.experiments, *(f"study {name}" for name in summary.studies)]
+    _say(f"report for {', '.join(done)} written to {target}/index.md")
 
 
 @app.command()
@@ -378,6 +381,8 @@ class _StudyProgress:
             self.bar.update(self.task, completed=p.finished + p.failed, failed=p.failed, last=p.last[:60])
             return
         now = self._time()
+        if p.last == "":
+            self._started = now
         done = p.finished + p.failed
         if p.last == "" or done == p.total or now >= self._next_line:
             self._next_line = now + 10.0
@@ -404,6 +409,7 @@ def study(
     replace_stale: Annotated[bool, typer.Option("--replace-stale", help="start over when the stored study has other settings or came from other simulation code, instead of refusing")] = False,
     keep_stores: Annotated[bool, typer.Option("--keep-stores", help="also write each cell's full run store under <results>/studies/<name>/cells/")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress output")] = False,
+    timeout: Annotated[float, typer.Option("--timeout", help="seconds allowed to reach --scheduler")] = 10.0,
 ) -> None:
     """Run a study (seeds x settings x methods) on Dask; finished cells are stored and never rerun."""
     from ilcforce.study import load_study, run_study
@@ -413,7 +419,7 @@ def study(
         with _StudyProgress(spec.name, quiet) as progress:
             summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
                                 overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
-                                command=_command_line(ctx), progress=progress)
+                                command=_command_line(ctx), progress=progress, timeout=timeout)
     except _study_errors() as exc:
         _fail_plain(str(exc) or type(exc).__name__)
     except KeyboardInterrupt:

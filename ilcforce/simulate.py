@@ -159,7 +159,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     log = np.full((n_log, loop.LOG_WIDTH), np.nan)
     carry = loop.new_carry(theta0, (0.0, 0.0))
     true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
-    args = (controller.law, true_k.accel, nominal_k.kin, nominal_k.task, true_robot.packed, nominal_robot.packed,
+    args = (controller.law, true_k.accel, nominal_k.kin, nominal_k.task, true_robot.address, nominal_robot.address,
             wall, np.ascontiguousarray(controller.gains(), dtype=np.float64), mem_prev, mem_new, ref, dist,
             np.ascontiguousarray(inputs.draws.sensor), fset, iset, log, carry)
     chunk = chunk_steps if chunk_steps is not None else max(1, CHUNK_RK4_STEPS // s.substeps)
@@ -196,23 +196,18 @@ def desired_inputs(plant, wall: Wall, reference_log: np.ndarray) -> tuple[np.nda
     desired contact force, so the wall's reaction -w F_d is balanced. ``reference_log`` is (n, 12);
     returns two (n, 2) arrays (N m, N).
     """
+    from ilcforce import loop  # compiled on first use only
+    from ilcforce.plants import UnreachableError
+
     robot = make_plant(plant)
-    n = reference_log.shape[0]
-    tau_d = np.empty((n, 2))
-    task_d = np.empty((n, 2))
-    for i in range(n):
-        pos = reference_log[i, 0:2]
-        vel = reference_log[i, 2:4]
-        acc = reference_log[i, 4:6]
-        force = wall.sign * reference_log[i, 6:8]
-        theta = robot.inverse_kinematics(pos)
-        J = robot.jacobian(theta)
-        dtheta = np.linalg.solve(J, vel)
-        dJ = robot.jacobian_derivative(theta, dtheta)
-        ddtheta = np.linalg.solve(J, acc - dJ @ dtheta)
-        tau = robot.inverse_dynamics(theta, dtheta, ddtheta, force_on_end_effector=-force)
-        tau_d[i] = tau
-        task_d[i] = np.linalg.solve(J.T, tau)
+    kernels = robot.kernels()
+    ref = np.ascontiguousarray(reference_log, dtype=np.float64)
+    tau_d = np.empty((ref.shape[0], 2))
+    task_d = np.empty((ref.shape[0], 2))
+    bad = loop.desired_kernel(kernels.dyn, kernels.ik, robot.address, ref, float(wall.sign), tau_d, task_d)
+    if bad >= 0:
+        raise UnreachableError(f"the desired pose ({ref[bad, 0]:.6g}, {ref[bad, 1]:.6g}) m is not reachable "
+                               f"in {robot.working_mode}")
     return tau_d, task_d
 
 

@@ -102,7 +102,7 @@ def test_poses_outside_working_mode_raise():
     for theta in ((0.3, -0.5), (0.3, 0.0), (0.3, 3.5)):  # float pi is just inside (sin > 0)
         with pytest.raises(UnreachableError):
             arm.forward_kinematics(theta)
-        assert arm.kernels().accel(arm.packed, theta[0], theta[1], 0.0, 0.0)[0] == 0.0
+        assert arm.kernels().accel(arm.address, theta[0], theta[1], 0.0, 0.0)[0] == 0.0
 
 
 # --- 3. gravity ------------------------------------------------------------------------------------
@@ -240,7 +240,7 @@ def test_task_model_is_eq4_and_kernels_agree(arm, point):
     C = Ji.T @ (Cq - Dq @ Ji @ dJ) @ Ji
     np.testing.assert_allclose(arm.task_inertia(theta), D, rtol=0, atol=1e-12 * np.linalg.norm(D))
     np.testing.assert_allclose(arm.task_coriolis(theta, dtheta), C, rtol=0, atol=1e-12 * np.linalg.norm(C))
-    out = arm.kernels().accel(arm.packed, theta[0], theta[1], dtheta[0], dtheta[1])
+    out = arm.kernels().accel(arm.address, theta[0], theta[1], dtheta[0], dtheta[1])
     b = Cq @ dtheta + arm.gravity(theta)
     np.testing.assert_allclose(out[9:11], b, rtol=0, atol=1e-13 * np.linalg.norm(b))
     np.testing.assert_allclose([[out[11], out[12]], [out[12], out[13]]], np.linalg.inv(Dq), rtol=1e-12)

@@ -271,3 +271,45 @@ def test_interrupted_then_resumed_run_is_bit_identical(tmp_path, short_config, m
         ma, mb = store.read_memory(tmp_path / "whole.h5", j), store.read_memory(tmp_path / "cut.h5", j)
         for key in ma:
             np.testing.assert_array_equal(ma[key], mb[key], err_msg=f"{model}: memory {key} of {j}")
+
+
+def _desired_inputs_reference(params, wall, ref):
+    """The readable reference for tau_d: the public plant API and numpy solves, sample by sample."""
+    from ilcforce.plants import make_plant
+
+    robot = make_plant(params)
+    tau_d, task_d = np.empty((ref.shape[0], 2)), np.empty((ref.shape[0], 2))
+    for i, row in enumerate(ref):
+        theta = robot.inverse_kinematics(row[0:2])
+        J = robot.jacobian(theta)
+        dtheta = np.linalg.solve(J, row[2:4])
+        ddtheta = np.linalg.solve(J, row[4:6] - robot.jacobian_derivative(theta, dtheta) @ dtheta)
+        tau_d[i] = robot.inverse_dynamics(theta, dtheta, ddtheta, force_on_end_effector=-wall.sign * row[6:8])
+        task_d[i] = np.linalg.solve(J.T, tau_d[i])
+    return tau_d, task_d
+
+
+@pytest.mark.parametrize("model", PLANTS)
+def test_compiled_desired_inputs_match_the_readable_reference(short_config, model):
+    """The compiled tau_d against numpy's solves through the public API, bit for bit: the kernel
+    makes the same LAPACK solves and BLAS products in the same order (numba calls the LAPACK/BLAS
+    numpy uses), so stored tau_d and H are those of the readable loop (tests/test_reference_run.py)."""
+    from ilcforce.simulate import desired_inputs
+
+    config = _plant_config(short_config, model)
+    ref = config.reference_samples()[::config.simulation.log_every]
+    fast = desired_inputs(config.plant.true_plant(0), config.wall, ref)
+    slow = _desired_inputs_reference(config.plant.true_plant(0), config.wall, ref)
+    for a, b, name in zip(fast, slow, ("tau_d", "J^-T tau_d")):
+        np.testing.assert_array_equal(a, b, err_msg=f"{model}: {name}")
+
+
+def test_desired_inputs_refuse_an_unreachable_reference(short_config):
+    from ilcforce.plants import UnreachableError
+    from ilcforce.simulate import desired_inputs
+
+    config = short_config()
+    ref = config.reference_samples()[::config.simulation.log_every].copy()
+    ref[5, 0] = 5.0  # 5 m away: outside every working mode
+    with pytest.raises(UnreachableError, match="not reachable"):
+        desired_inputs(config.plant.true_plant(0), config.wall, ref)
