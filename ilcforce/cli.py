@@ -185,7 +185,7 @@ def _run_several(config, jobs) -> None:
         err.print("stopping after the current iteration is stored (Ctrl-C again to stop now)", highlight=False)
 
     try:
-        outcomes = run_parallel(config, jobs, progress=tick, on_interrupt=stopping)
+        outcomes = run_parallel(config, jobs, progress=tick, on_interrupt=stopping, meanwhile=_import_for_table)
     finally:
         progress.stop()
     failed = [o for o in outcomes.values() if o.status == "error"]
@@ -310,6 +310,11 @@ def compare(
     if "method" in frame.columns:
         frame = frame.set_index("method")
     _print_frame(frame.T, _comparison_title(cfg), units)
+
+
+def _import_for_table() -> None:
+    """What compare needs after the runs (pandas, the report's tables), imported while workers run."""
+    import ilcforce.report.tables  # noqa: F401
 
 
 def _comparison_title(cfg) -> str:

@@ -54,10 +54,12 @@ Progress = Callable[[str, int, str, dict], None]
 
 
 def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
-                 on_interrupt: Callable[[], None] | None = None) -> dict[str, Outcome]:
+                 on_interrupt: Callable[[], None] | None = None,
+                 meanwhile: Callable[[], None] | None = None) -> dict[str, Outcome]:
     """Run every job in a forked worker; return each method's :class:`Outcome` when all have ended.
 
-    ``on_interrupt()`` is called in the parent at the first Ctrl-C (e.g. to say what happens next).
+    ``on_interrupt()`` is called in the parent at the first Ctrl-C (e.g. to say what happens next);
+    ``meanwhile()`` once all workers have started (e.g. imports the parent needs afterwards).
     """
     import ilcforce.experiment  # noqa: F401  (loaded before the fork, so the workers inherit it)
 
@@ -86,6 +88,8 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
             worker.start()
             writer.close()  # the worker holds the only write end: its exit is seen as end of file
             workers[job.method], readers[reader] = worker, job.method
+        if meanwhile is not None:
+            meanwhile()
         while readers:
             for reader in connection.wait(list(readers), timeout=0.5):
                 method = readers[reader]

@@ -91,11 +91,13 @@ from datetime import datetime, timezone
 from pathlib import Path
 from time import sleep
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # pandas is imported by the readers that build frames: writing a run needs none
+    import pandas as pd
 
 import ilcforce
 from ilcforce.metrics import METRIC_COLUMNS, iteration_metrics
@@ -527,6 +529,8 @@ def read_metrics(path: str | os.PathLike[str]) -> pd.DataFrame:
         for column, values in columns.items()
         if column != "iteration"
     }
+    import pandas as pd
+
     frame = pd.DataFrame(data, index=pd.Index(np.asarray(sorted(rows), dtype=np.int64), name="iteration"))
     frame["status"] = frame["status"].astype(str)
     for column in _INT_METRICS:
@@ -566,6 +570,8 @@ def _frame_from_group(
                 data[name] = values[:, column]
         for name in names:
             units[name] = unit
+    import pandas as pd
+
     frame = pd.DataFrame(data, index=pd.Index(time, name="time"))
     frame.attrs["units"] = units
     return frame
