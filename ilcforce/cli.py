@@ -200,7 +200,8 @@ def _run_several(config, jobs) -> None:
 
 @contextlib.contextmanager
 def _deferred_interrupt():
-    """First Ctrl-C: finish storing the iteration in flight, then stop. Second: stop at once.
+    """First Ctrl-C: stop within one chunk of the compiled loop (the iteration in flight is dropped,
+    every finished one is stored). Second: stop at once.
 
     A KeyboardInterrupt raised wherever the signal lands (e.g. inside a garbage-collection
     callback, where Python ignores it) could be lost; a flag checked between iterations cannot.
@@ -214,7 +215,7 @@ def _deferred_interrupt():
         if requested:
             raise KeyboardInterrupt
         requested.append(signum)
-        err.print("stopping after the current iteration is stored (Ctrl-C again to stop now)", highlight=False)
+        err.print("stopping: the unfinished iteration is dropped, every finished one is stored", highlight=False)
 
     previous = signal.signal(signal.SIGINT, handler)
     try:

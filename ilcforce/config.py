@@ -8,7 +8,9 @@ two agree.
 TOML layout (every table and key optional; see ``experiments/paper.toml``)::
 
     [experiment]  name, description, seed, iterations
-    [plant]       L1 ... I4 (Table 1)     [plant.perturbation]  parameter, factor, from_iteration
+    [plant]       model ("fivebar" | "serial2r")
+    [plant.fivebar]  L1 ... I4 (Table 1)   [plant.serial2r]  L1 ... I2, g (SPEC 8)
+    [plant.perturbation]  parameter, factor, from_iteration
     [wall]        position, stiffness, force_sign
     [reference]   duration, x_amplitude, ...
     [simulation]  sample_time, substeps, log_every, acceleration, filter_hz, torque_bound, initial_position
@@ -33,7 +35,9 @@ import numpy as np
 from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.base import check_vector
 from ilcforce.noise import NoiseModel
-from ilcforce.plant import PARAM_NAMES, FiveBar, FiveBarParams, UnreachableError
+from ilcforce.plants import MODELS, UnreachableError, make_plant
+from ilcforce.plants.fivebar import FiveBarParams
+from ilcforce.plants.serial2r import Serial2RParams
 from ilcforce.simulate import SimulationSettings, force_axis
 from ilcforce.task import Reference, Wall
 
@@ -62,14 +66,11 @@ class ExperimentInfo:
 class Perturbation:
     """The true plant's parameter change (Section 4.1: m3 x 1.4 from j = 10); the nominal model never changes."""
 
-    parameter: str = "m3"  # one of the plant parameter names
+    parameter: str = ""  # one of the plant model's parameter names; "" = the model's default (m3, or m2 for serial2r)
     factor: float = 1.4  # multiplier applied to the true plant
     from_iteration: int = 10  # first iteration with the changed plant
 
     def __post_init__(self) -> None:
-        if self.parameter not in PARAM_NAMES:
-            raise ValueError(f"plant.perturbation.parameter must be one of {', '.join(PARAM_NAMES)}, "
-                             f"got {self.parameter!r}")
         if not (math.isfinite(self.factor) and self.factor > 0):
             raise ValueError(f"plant.perturbation.factor must be finite and positive, got {self.factor!r}")
         if self.from_iteration < 0:
@@ -77,16 +78,46 @@ class Perturbation:
 
 
 @dataclass(frozen=True)
-class PlantConfig(FiveBarParams):
-    """Nominal link parameters (Table 1) and the true plant's perturbation."""
+class PlantConfig:
+    """The robot (``model``), each model's nominal parameters, and the true plant's perturbation.
 
+    Only the selected model's table is used; the other keeps its defaults.
+    """
+
+    model: str = "fivebar"  # a key of ilcforce.plants.MODELS
+    fivebar: FiveBarParams = field(default_factory=FiveBarParams)  # SPEC section 1, Table 1
+    serial2r: Serial2RParams = field(default_factory=Serial2RParams)  # SPEC section 8
     perturbation: Perturbation = field(default_factory=Perturbation)
 
-    def true_plant(self, iteration: int) -> FiveBarParams:
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ValueError(f"plant.model must be one of {', '.join(MODELS)}, got {self.model!r}")
+        names = tuple(f.name for f in dataclasses.fields(self.nominal()))
+        p = self.perturbation
+        if p.parameter == "":  # the model's default perturbation (SPEC sections 1 and 8)
+            object.__setattr__(self, "perturbation", dataclasses.replace(p, parameter=MODELS[self.model][3]))
+        elif p.parameter not in names:
+            raise ValueError(f"plant.perturbation.parameter must be one of {', '.join(names)} for "
+                             f"plant.model = {self.model!r}, got {p.parameter!r}")
+
+    def nominal(self):
+        """The nominal parameters of the selected model (what the controllers' model uses)."""
+        return getattr(self, self.model)
+
+    def links(self):
+        """Alias of :meth:`nominal` (the name used before the plant interface)."""
+        return self.nominal()
+
+    def true_plant(self, iteration: int):
         """The plant integrated in iteration j (perturbed from ``from_iteration`` on)."""
-        nominal = self.links()
+        nominal = self.nominal()
         p = self.perturbation
         return nominal.scaled(p.parameter, p.factor) if iteration >= p.from_iteration else nominal
+
+    @property
+    def has_gravity(self) -> bool:
+        """True if the selected robot has a gravity vector (C3 then learns Theta's G block)."""
+        return make_plant(self.nominal()).has_gravity
 
 
 @dataclass(frozen=True)
@@ -259,9 +290,9 @@ def _check_consistency(config: Config) -> None:
     t = np.linspace(0.0, config.reference.duration, 401)
     poses = config.reference.sample(t, config.wall)[:, 0:2]
     start = np.asarray(config.simulation.initial_position)
-    for label, params in (("nominal", config.plant.links()),
+    for label, params in (("nominal", config.plant.nominal()),
                           ("perturbed", config.plant.true_plant(config.plant.perturbation.from_iteration))):
-        robot = FiveBar(params)
+        robot = make_plant(params)
         for pos in (start, *poses):
             try:
                 robot.inverse_kinematics(pos)

@@ -56,7 +56,8 @@ def make_controller(config: Config, method: str):
     if method not in REGISTRY:
         raise UnknownMethodError(f"unknown method {method!r}; choose one of {', '.join(REGISTRY)}")
     cls, _gains_cls = REGISTRY[method]
-    return cls(config.n_control, config.surface, config.wall.sign, config.gains[method])
+    return cls(config.n_control, config.surface, config.wall.sign, config.gains[method],
+               gravity=config.plant.has_gravity)
 
 
 def reference_log(config: Config) -> dict[str, np.ndarray]:
@@ -73,10 +74,13 @@ def reference_log(config: Config) -> dict[str, np.ndarray]:
     return {k: np.ascontiguousarray(v) for k, v in out.items()}
 
 
-def simulate_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None):
+def simulate_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None,
+                        stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None):
     """Yield the :class:`IterationRecord` of iterations ``first .. iterations - 1`` in order.
 
     Stops after a diverged iteration. ``memory`` (a stored learned state) seeds iteration ``first``.
+    ``stop_requested`` and ``chunk_steps`` go to :func:`~ilcforce.simulate.run_iteration` (an
+    iteration in flight is abandoned with KeyboardInterrupt within one chunk of the request).
     """
     controller = make_controller(config, method)
     if memory:
@@ -94,7 +98,7 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
             selection=config.surface.selection,
         )
         mem_prev, mem_new = controller.begin_iteration(j)
-        record = run_iteration(inputs, controller, mem_prev, mem_new)
+        record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps)
         controller.end_iteration(record.status == STATUS_COMPLETE)
         if true_plant not in desired_cache:
             desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
@@ -108,12 +112,13 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
 
 def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
                command: str = "", progress: Callable[[IterationRecord, dict], None] | None = None,
-               stop_requested: Callable[[], bool] | None = None) -> RunSummary:
+               stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None) -> RunSummary:
     """Run ``method`` over the experiment's iterations and store every iteration in ``out``.
 
     ``progress(record, metrics_row)`` is called after each stored iteration. If
-    ``stop_requested()`` turns true (e.g. Ctrl-C), the run stops after the iteration it is on has
-    been stored, by raising KeyboardInterrupt; the store is left "partial", ready for ``resume``.
+    ``stop_requested()`` turns true (e.g. Ctrl-C), the run stops within one chunk of the compiled
+    loop (a fraction of a second), abandoning the iteration in flight, by raising KeyboardInterrupt;
+    every finished iteration is stored and the store is left "partial", ready for ``resume``.
     Raises ``ilcforce.store.StoreError`` for store problems (existing result, concurrent writer, ...).
     """
     make_controller(config, method)  # fail on a bad method before touching any file
@@ -131,7 +136,7 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
             return RunSummary(Path(out), method, first, (), STATUS_DIVERGED)
         memory = writer.resume_memory() if first > 0 else None
         status = STATUS_COMPLETE
-        for record in simulate_iterations(config, method, first, memory):
+        for record in simulate_iterations(config, method, first, memory, stop_requested, chunk_steps):
             writer.append(record)
             row = metrics.iteration_metrics(record)
             rows.append(row)

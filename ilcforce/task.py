@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 FORCE_SIGNS = {"applied": 1.0, "paper": -1.0}
 
@@ -26,6 +27,20 @@ REF_FORCE = 6  # F_d (x, y), N
 REF_FORCE_RATE = 8  # dF_d/dt, N/s
 REF_FORCE_ACCEL = 10  # d2F_d/dt2, N/s^2
 REF_WIDTH = 12
+
+
+@njit(cache=True, error_model="numpy")
+def wall_force(y, ye, ke, w):
+    """The wall's contact law, its one definition: F_y = K_e max(0, w (y - y_e)) (N), the force the
+    end-effector applies at height y (m) (SPEC section 2; the robot feels -w F_y)."""
+    pen = w * (y - ye)
+    return ke * pen if pen > 0.0 else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def wall_stiffness(y, ye, ke, w):
+    """dF_y/dy of :func:`wall_force`: w K_e in contact, 0 out of it (the stiffness relation of SPEC 4)."""
+    return w * ke if w * (y - ye) > 0.0 else 0.0
 
 
 @dataclass(frozen=True)
@@ -51,7 +66,9 @@ class Wall:
 
     def contact_force(self, y: np.ndarray) -> np.ndarray:
         """Measured-convention contact force F_y (N) for end-effector heights y (m); any shape."""
-        return self.stiffness * np.maximum(0.0, self.sign * (np.asarray(y, dtype=np.float64) - self.position))
+        y = np.asarray(y, dtype=np.float64)
+        out = np.array([wall_force(v, self.position, self.stiffness, self.sign) for v in y.ravel()])
+        return out.reshape(y.shape)
 
     def pose_for_force(self, force: np.ndarray) -> np.ndarray:
         """The height y (m) at which the wall's force equals ``force`` (N) >= 0."""

@@ -24,7 +24,7 @@ def test_spec_defaults():
     assert c.wall.force_sign == "applied"  # erratum 1
     assert len(c.gains["c3"].gamma) == 8  # erratum 3
     assert c.simulation.acceleration == "implicit"  # erratum 4
-    assert c.plant.true_plant(9).m3 == c.plant.m3 and c.plant.true_plant(10).m3 == pytest.approx(1.4 * 0.2611)
+    assert c.plant.true_plant(9).m3 == c.plant.fivebar.m3 and c.plant.true_plant(10).m3 == pytest.approx(1.4 * 0.2611)
 
 
 @pytest.mark.parametrize("path", EXPERIMENTS, ids=[p.stem for p in EXPERIMENTS])
@@ -45,8 +45,13 @@ BAD = [
     ({"c1": {"k": [1.0]}}, "c1.k must have 2 entries"),
     ({"wall": {"stiffness": "stiff"}}, "wall.stiffness must be a number"),
     ({"wall": {"stiffness": float("inf")}}, "wall.stiffness must be finite"),
-    ({"plant": {"m3": -1.0}}, "plant.m3 must be finite and positive"),
-    ({"plant": {"L1": 0.0}}, "plant.L1 must be finite and positive"),
+    ({"plant": {"fivebar": {"m3": -1.0}}}, "plant.fivebar.m3 must be finite and positive"),
+    ({"plant": {"fivebar": {"L1": 0.0}}}, "plant.fivebar.L1 must be finite and positive"),
+    ({"plant": {"serial2r": {"m2": 0.0}}}, "plant.serial2r.m2 must be finite and positive"),
+    ({"plant": {"serial2r": {"g": -9.81}}}, "plant.serial2r.g must be finite and >= 0"),
+    ({"plant": {"model": "scara"}}, "plant.model must be one of fivebar, serial2r"),
+    ({"plant": {"model": "serial2r", "perturbation": {"parameter": "m3"}}},
+     "plant.perturbation.parameter must be one of L1, L2"),
     ({"simulation": {"sample_time": 3e-4}}, "does not divide the horizon"),
     ({"simulation": {"log_every": 7}}, "log_every = 7 does not divide"),
     ({"simulation": {"substeps": 0}}, "simulation.substeps must be an integer >= 1"),

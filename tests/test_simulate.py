@@ -12,7 +12,7 @@ from scipy.integrate import solve_ivp
 from ilcforce.controllers.base import (DIAG_SIGMA, LAW_SIGNATURE, MEAS_ACCEL, MEAS_DTHETA,
                                        MEAS_FORCE_ACCEL, MEAS_THETA, MemoryController)
 from ilcforce.noise import draw_iteration
-from ilcforce.plant import FiveBar
+from ilcforce.plants.fivebar import FiveBar
 from ilcforce.simulate import IterationInputs, run_iteration
 
 # Joint-space PD holding the pose that presses 10 mm into the wall (a smooth case: always in contact).
@@ -193,3 +193,81 @@ def test_implicit_scheme_solves_the_algebraic_loop(short_config):
                                config.wall.stiffness * a_given[in_contact], rtol=1e-12,
                                err_msg="ddF != K_e ddy in contact")
     assert record.fallback_count == 0
+
+
+# --- every plant: determinism, chunking, Ctrl-C, resume -------------------------------------------
+
+PLANTS = ["fivebar", "serial2r"]
+
+
+def _plant_config(short_config, model, **overrides):
+    return short_config(**{"plant.model": model, **overrides})
+
+
+@pytest.mark.parametrize("model", PLANTS)
+@pytest.mark.parametrize("method", ["c1", "c2", "c3"])
+def test_every_plant_is_deterministic_and_chunking_changes_no_bit(short_config, model, method):
+    """Same inputs, same bits; and the compiled loop's chunking (it returns to Python every
+    chunk_steps samples and resumes from its carry vector) leaves every number unchanged."""
+    from ilcforce.experiment import make_controller
+
+    config = _plant_config(short_config, model)
+    records = []
+    for chunk in (None, None, 1, 7, 10 ** 9):
+        controller = make_controller(config, method)
+        mem_prev, mem_new = controller.begin_iteration(0)
+        record = run_iteration(_inputs(config), controller, mem_prev, mem_new, chunk_steps=chunk)
+        records.append((record, controller.unfinished_state()))
+    first, memory = records[0]
+    assert first.status == "complete", first.diverged_reason
+    for record, mem in records[1:]:
+        assert record.fallback_count == first.fallback_count
+        for name in first.log:
+            np.testing.assert_array_equal(record.log[name], first.log[name], err_msg=f"{model}/{method}: {name}")
+        for key in memory:
+            np.testing.assert_array_equal(mem[key], memory[key], err_msg=f"{model}/{method}: memory {key}")
+
+
+def test_stop_request_takes_effect_within_a_chunk(short_config):
+    """Ctrl-C (issue 8, fault 11): run_iteration checks stop_requested between chunks and
+    abandons the iteration at once, however long it is."""
+    config = short_config(**{"simulation.substeps": 50})
+    calls = []
+
+    def stop():
+        calls.append(1)
+        return len(calls) >= 2
+
+    controller = _TestController(config.n_control, zero_law)
+    mem_prev, mem_new = controller.begin_iteration(0)
+    with pytest.raises(KeyboardInterrupt):
+        run_iteration(_inputs(config), controller, mem_prev, mem_new, stop_requested=stop, chunk_steps=100)
+    assert len(calls) == 2, "the iteration went on after the stop request"
+
+
+@pytest.mark.parametrize("model", PLANTS)
+def test_interrupted_then_resumed_run_is_bit_identical(tmp_path, short_config, model):
+    """A run stopped mid-iteration (stop_requested between chunks), then resumed, stores exactly
+    the numbers of an uninterrupted run, on every plant."""
+    from ilcforce import store
+    from ilcforce.experiment import run_method
+
+    config = _plant_config(short_config, model)
+    run_method(config, "c3", tmp_path / "whole.h5")
+    checks = []
+
+    def stop_in_iteration_1():
+        checks.append(1)
+        # iteration 0 (2001 samples, chunks of 500): 4 checks between chunks + 1 after it is stored;
+        # the 7th check is inside iteration 1, which is abandoned
+        return len(checks) > 6
+    with pytest.raises(KeyboardInterrupt):
+        run_method(config, "c3", tmp_path / "cut.h5", stop_requested=stop_in_iteration_1, chunk_steps=500)
+    assert store.iterations(tmp_path / "cut.h5") != store.iterations(tmp_path / "whole.h5")
+    run_method(config, "c3", tmp_path / "cut.h5", resume=True)
+    for j in store.iterations(tmp_path / "whole.h5"):
+        a, b = store.read_iteration(tmp_path / "whole.h5", j), store.read_iteration(tmp_path / "cut.h5", j)
+        np.testing.assert_array_equal(a.to_numpy(), b.to_numpy(), err_msg=f"{model}: iteration {j}")
+        ma, mb = store.read_memory(tmp_path / "whole.h5", j), store.read_memory(tmp_path / "cut.h5", j)
+        for key in ma:
+            np.testing.assert_array_equal(ma[key], mb[key], err_msg=f"{model}: memory {key} of {j}")

@@ -44,7 +44,8 @@ MEAS_FORCE_RATE = 16  # dF/dt estimate (x, y), N/s
 MEAS_FORCE_ACCEL = 18  # d2F/dt2 estimate (x, y), N/s^2
 MEAS_TASK_INERTIA = 20  # nominal D at the measured state: D00, D01, D11 (only if requested)
 MEAS_TASK_CORIOLIS = 23  # nominal C at the measured state: C00, C01, C10, C11 (only if requested)
-MEAS_WIDTH = 27
+MEAS_TASK_GRAVITY = 27  # nominal G = J^-T G_q at the measured angles: Gx, Gy (only if requested)
+MEAS_WIDTH = 29
 
 DIAG_SIGMA = 0
 DIAG_WIDTH = 2
@@ -139,7 +140,7 @@ class Controller(Protocol):
     name: str
     #: the compiled law, a numba dispatcher with LAW_SIGNATURE
     law: object
-    #: True if the law reads MEAS_TASK_INERTIA / MEAS_TASK_CORIOLIS (the simulator fills them)
+    #: True if the law reads MEAS_TASK_INERTIA / _CORIOLIS / _GRAVITY (the simulator fills them)
     uses_nominal_dynamics: bool
 
     def gains(self) -> np.ndarray:

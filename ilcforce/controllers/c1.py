@@ -1,8 +1,8 @@
 """C1: traditional sliding mode control with a nominal model (eq. 26, SPEC section 3).
 
 tau_j = J^T (k sigma_j + alpha sgn(sigma_j) + Xi_nom^T Psi_j + w F_j), with
-Xi_nom^T Psi_j = D_nom psi1 + C_nom (dP + sigma) (eqs. 11-12 with G = 0), D_nom and C_nom the nominal
-task-space model at the measured state. Memoryless: nothing is learned between iterations.
+Xi_nom^T Psi_j = D_nom psi1 + C_nom (dP + sigma) + G_nom (eqs. 11-12), D_nom, C_nom and G_nom the
+nominal task-space model at the measured state (G_nom = 0 for the five-bar). Memoryless: nothing is learned between iterations.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from numba import njit
 
 from ilcforce.controllers.base import (
     GAIN_FEEDFORWARD_SIGN, GAIN_SPECIFIC, LAW_SIGNATURE, MEAS_FORCE, MEAS_TASK_CORIOLIS,
-    MEAS_TASK_INERTIA, DIAG_SIGMA, MemoryController, check_vector, joint_torque, pack_common_gains,
+    MEAS_TASK_GRAVITY, MEAS_TASK_INERTIA, DIAG_SIGMA, MemoryController, check_vector, joint_torque, pack_common_gains,
     sgn, surface_terms,
 )
 
@@ -44,9 +44,9 @@ def c1_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     C01 = meas[MEAS_TASK_CORIOLIS + 1]
     C10 = meas[MEAS_TASK_CORIOLIS + 2]
     C11 = meas[MEAS_TASK_CORIOLIS + 3]
-    # Xi_nom^T Psi = D psi1 + C (dP + sigma)                                      eqs. (11)-(12)
-    mx = D00 * p1x + D01 * p1y + C00 * p2x + C01 * p2y
-    my = D01 * p1x + D11 * p1y + C10 * p2x + C11 * p2y
+    # Xi_nom^T Psi = D psi1 + C (dP + sigma) + G                                  eqs. (11)-(12)
+    mx = D00 * p1x + D01 * p1y + C00 * p2x + C01 * p2y + meas[MEAS_TASK_GRAVITY]
+    my = D01 * p1x + D11 * p1y + C10 * p2x + C11 * p2y + meas[MEAS_TASK_GRAVITY + 1]
     alpha = gains[g + 2]
     # eq. (26), with +w F (erratum 1)
     ux = gains[g] * sx + alpha * sgn(sx) + mx + w * meas[MEAS_FORCE]
@@ -63,7 +63,8 @@ class C1Controller(MemoryController):
     uses_nominal_dynamics = True
     memory_layout = {}
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C1Gains):
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C1Gains, gravity: bool = False):
+        # the nominal G arrives in meas (MEAS_TASK_GRAVITY, zero without gravity): nothing to switch
         super().__init__(n_control)
         self._gains = np.array(pack_common_gains(surface, wall_sign) + [*gains.k, gains.alpha])
 

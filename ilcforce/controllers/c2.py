@@ -51,7 +51,7 @@ class C2Controller(MemoryController):
     uses_nominal_dynamics = False
     memory_layout = {"v": (0, 2, "N m")}
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains):
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains, gravity: bool = False):
         super().__init__(n_control)
         self._gains = np.array(pack_common_gains(surface, wall_sign) + [*gains.k])
 

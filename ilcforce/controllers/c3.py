@@ -4,8 +4,12 @@ tau_j = J^T (k sigma_j + Phi_j^T Theta_hat_j + w F_j + alpha_hat_j sgn(sigma_j))
 Theta_hat_j(t) = Theta_hat_{j-1}(t) + Gamma Phi_j(t) sigma_j(t),    Theta_hat_{-1} = 0
 alpha_hat_j(t) = alpha_hat_{j-1}(t) + eta sigma_j(t)^T sgn(sigma_j(t)),  alpha_hat_{-1} = 0
 
-With G = 0 (erratum 3): Psi = [psi1; dP + sigma] in R^4, Phi = blockdiag(Psi, Psi) in R^(8x2),
-Theta = [D11 D12 C11 C12 D21 D22 C21 C22], so Phi^T Theta = D psi1 + C (dP + sigma).
+With G = 0 (erratum 3, the five-bar): Psi = [psi1; dP + sigma] in R^4, Phi = blockdiag(Psi, Psi) in
+R^(8x2), Theta = [D11 D12 C11 C12 D21 D22 C21 C22], so Phi^T Theta = D psi1 + C (dP + sigma).
+With a plant that has gravity (SPEC 8, decided from the plant): the paper's full form, eqs. (12)-(13),
+Psi = [psi1; dP + sigma; 1 1] in R^6 (Xi = [D C G]^T in R^(3n x n), G's block applied to the ones
+vector), Theta = [D11 D12 C11 C12 G11 G12 D21 D22 C21 C22 G21 G22] in R^12 = R^(3n^2), so
+Phi^T Theta = D psi1 + C (dP + sigma) + G 1, and the learned G_i1 + G_i2 estimates the task gravity G_i.
 """
 
 from __future__ import annotations
@@ -30,11 +34,19 @@ class C3Gains:
     k: tuple[float, float] = (10.0, 100.0)  # feedback gain diagonal, N s/m
     eta: float = 5.0  # learning rate of the switching gain
     gamma: tuple[float, ...] = (4e3, 40.0, 1e4, 1e4, 1e3, 1e3, 1e4, 1e4)  # Gamma diagonal, Theta order
+    # Gamma for Theta's G block (G11 G12 G21 G22), used only with a plant that has gravity (SPEC 8
+    # gives no value): the paper's D21/D22 gains. Each G entry adds gamma * sigma to the
+    # current-iteration feedback: Ts * 2 gamma / lambda_min(D) = 0.67 on the 2R arm's path
+    # (lambda_min(D) = 0.30 kg, Ts = 0.1 ms), below the sampled loop's limit 2; 3e3 diverges at once
+    gamma_gravity: tuple[float, float, float, float] = (1e3, 1e3, 1e3, 1e3)
     psi_acceleration: str = "measured"  # "measured": S ddP in Psi (the paper); "desired": S ddP_d
 
     def __post_init__(self) -> None:
         check_vector("c3.k", self.k, 2)
         check_vector("c3.gamma", self.gamma, 8)
+        check_vector("c3.gamma_gravity", self.gamma_gravity, 4)
+        if min(self.gamma_gravity) < 0:
+            raise ValueError("c3.gamma_gravity must be non-negative (Gamma is positive semi-definite)")
         if not (np.isfinite(self.eta) and self.eta >= 0):
             raise ValueError(f"c3.eta must be finite and >= 0, got {self.eta!r}")
         if min(self.gamma) < 0:
@@ -47,26 +59,27 @@ class C3Gains:
 @njit(LAW_SIGNATURE, cache=True, error_model="numpy")
 def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     g = GAIN_SPECIFIC
-    psi_desired = gains[g + 11] > 0.5
+    na = (mem_prev.shape[1] - 1) // 2  # Psi's length: 4 (G = 0) or 6 (with the G block)
+    psi_desired = gains[g + 3 + 2 * na] > 0.5
     sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, psi_desired)
     w = gains[GAIN_FEEDFORWARD_SIGN]
-    # Theta_hat_j = Theta_hat_{j-1} + Gamma Phi sigma: rows 0-3 see Psi sigma_x, rows 4-7 Psi sigma_y
+    # Theta_hat_j = Theta_hat_{j-1} + Gamma Phi sigma: rows 0..na-1 see Psi sigma_x, the next na Psi sigma_y
     mx = 0.0  # (Phi^T Theta_hat_j)_x
     my = 0.0  # (Phi^T Theta_hat_j)_y
-    for r in range(4):
-        psi = p1x if r == 0 else (p1y if r == 1 else (p2x if r == 2 else p2y))
+    for r in range(na):
+        psi = p1x if r == 0 else (p1y if r == 1 else (p2x if r == 2 else (p2y if r == 3 else 1.0)))  # eq. (12)
         th_x = mem_prev[k, r] + gains[g + 3 + r] * psi * sx  # eq. (14), Theta update
-        th_y = mem_prev[k, 4 + r] + gains[g + 7 + r] * psi * sy
+        th_y = mem_prev[k, na + r] + gains[g + 3 + na + r] * psi * sy
         mx += th_x * psi
         my += th_y * psi
         if write:
             mem_new[k, r] = th_x
-            mem_new[k, 4 + r] = th_y
+            mem_new[k, na + r] = th_y
     sgx = sgn(sx)
     sgy = sgn(sy)
-    alpha = mem_prev[k, 8] + gains[g + 2] * (sx * sgx + sy * sgy)  # eq. (14), alpha update
+    alpha = mem_prev[k, 2 * na] + gains[g + 2] * (sx * sgx + sy * sgy)  # eq. (14), alpha update
     if write:
-        mem_new[k, 8] = alpha
+        mem_new[k, 2 * na] = alpha
     # eq. (14), control law with +w F (erratum 1)
     ux = gains[g] * sx + mx + w * meas[MEAS_FORCE] + alpha * sgx
     uy = gains[g + 1] * sy + my + w * meas[MEAS_FORCE + 1] + alpha * sgy
@@ -81,11 +94,19 @@ class C3Controller(MemoryController):
     law = staticmethod(c3_law)
     uses_nominal_dynamics = False
     memory_layout = {"theta_hat": (0, 8, "mixed: kg (D entries), kg/s (C entries)"), "alpha_hat": (8, 9, "N")}
+    #: Theta's entries in memory order (G = 0)
+    theta_names = ("D11", "D12", "C11", "C12", "D21", "D22", "C21", "C22")
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains):
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains, gravity: bool = False):
+        gamma = list(gains.gamma)
+        if gravity:  # the full Theta of eq. (13), decided by the plant (SPEC 8)
+            self.memory_layout = {"theta_hat": (0, 12, "mixed: kg (D entries), kg/s (C entries), N (G entries)"),
+                                  "alpha_hat": (12, 13, "N")}
+            self.theta_names = ("D11", "D12", "C11", "C12", "G11", "G12", "D21", "D22", "C21", "C22", "G21", "G22")
+            gamma = gamma[0:4] + list(gains.gamma_gravity[0:2]) + gamma[4:8] + list(gains.gamma_gravity[2:4])
         super().__init__(n_control)
         self._gains = np.array(pack_common_gains(surface, wall_sign)
-                               + [*gains.k, gains.eta, *gains.gamma, PSI_ACCELERATION[gains.psi_acceleration]])
+                               + [*gains.k, gains.eta, *gamma, PSI_ACCELERATION[gains.psi_acceleration]])
 
     def gains(self) -> np.ndarray:
         return self._gains

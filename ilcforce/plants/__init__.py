@@ -1,0 +1,47 @@
+"""Plants behind one interface (``ilcforce.plants.base``): ``[plant] model`` picks one of :data:`MODELS`.
+
+Each model is its own module, imported only when used, so numba loads only the kernels of the
+robot a command runs. Nothing outside this package knows which robot it simulates: it asks
+:func:`plant_class` for the class and uses the :class:`~ilcforce.plants.base.Plant` API and kernels.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from ilcforce.plants.base import Plant, PlantKernels, UnreachableError
+
+#: model name -> (module, plant class, parameters class, default perturbed parameter)
+MODELS = {
+    "fivebar": ("ilcforce.plants.fivebar", "FiveBar", "FiveBarParams", "m3"),
+    "serial2r": ("ilcforce.plants.serial2r", "Serial2R", "Serial2RParams", "m2"),
+}
+
+
+def _module(model: str):
+    if model not in MODELS:
+        raise ValueError(f"plant.model must be one of {', '.join(MODELS)}, got {model!r}")
+    return importlib.import_module(MODELS[model][0])
+
+
+def plant_class(model: str) -> type[Plant]:
+    """The :class:`Plant` subclass of ``model``."""
+    return getattr(_module(model), MODELS[model][1])
+
+
+def params_class(model: str) -> type:
+    """The parameters dataclass of ``model``."""
+    return getattr(_module(model), MODELS[model][2])
+
+
+def param_names(model: str) -> tuple[str, ...]:
+    return _module(model).PARAM_NAMES
+
+
+def make_plant(params) -> Plant:
+    """The plant object for a parameters instance of any model."""
+    return plant_class(params.model)(params)
+
+
+__all__ = ["MODELS", "Plant", "PlantKernels", "UnreachableError", "plant_class", "params_class",
+           "param_names", "make_plant"]

@@ -1,0 +1,216 @@
+"""The one interface every plant implements (compiled kernels + the checked public API).
+
+Compiled kernels
+----------------
+The simulation loop calls a plant only through numba first-class function pointers with the fixed
+signatures below (as it calls control laws, ``ilcforce.controllers.base.LAW_TYPE``), so the loop is
+compiled once for every plant. Every kernel takes the plant's packed parameter vector ``p`` and
+scalars, allocates nothing, and returns a tuple of floats whose first entry ``ok`` is 1.0, or 0.0
+(the rest NaN or meaningless) when the pose is outside the plant's working mode:
+
+* ``kin(p, th1, th2)`` -> (ok, Px, Py, J00, J01, J10, J11)                       :data:`KIN_TYPE`
+* ``accel(p, th1, th2, d1, d2)`` -> (ok, Px, Py, J00, J01, J10, J11, dJv_x, dJv_y, b1, b2,
+  Mi00, Mi01, Mi11) with b = Cq dtheta + G_q, dJv = dJ dtheta, Mi = Dq^-1, i.e. forward dynamics
+  ddtheta = Mi (tau + J^T f - b) as an affine map of the generalised force (eq. 1)  :data:`ACCEL_TYPE`
+* ``task(p, th1, th2, d1, d2)`` -> (ok, Px, Py, vx, vy, J00, J01, J10, J11, D00, D01, D11,
+  C00, C01, C10, C11, Gx, Gy): the task-space model of eq. (4) with G = J^-T G_q     :data:`TASK_TYPE`
+* ``dyn(p, th1, th2, d1, d2)`` -> (ok, Px, Py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+  Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, Gq1, Gq2): the joint-space model      :data:`DYN_TYPE`
+* ``ik(p, Px, Py)`` -> (ok, th1, th2): inverse kinematics in the working mode       :data:`IK_TYPE`
+
+A plant module exposes them lazily through :meth:`Plant.kernels` so that numba compiles or loads
+only the kernels of the plant a command uses.
+
+Public API
+----------
+:class:`Plant` implements the same checked methods for every robot on single samples (numpy arrays
+of shape (2,) or (2, 2), SI units); a subclass provides its parameters class and kernels.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import types
+
+__all__ = ["UnreachableError", "PlantKernels", "Plant", "KIN_TYPE", "ACCEL_TYPE", "TASK_TYPE", "DYN_TYPE",
+           "IK_TYPE", "check_pair"]
+
+_P = types.float64[::1]
+_F = types.float64
+KIN_SIGNATURE = types.UniTuple(_F, 7)(_P, _F, _F)
+ACCEL_SIGNATURE = types.UniTuple(_F, 14)(_P, _F, _F, _F, _F)
+TASK_SIGNATURE = types.UniTuple(_F, 18)(_P, _F, _F, _F, _F)
+DYN_SIGNATURE = types.UniTuple(_F, 20)(_P, _F, _F, _F, _F)
+IK_SIGNATURE = types.UniTuple(_F, 3)(_P, _F, _F)
+KIN_TYPE = types.FunctionType(KIN_SIGNATURE)
+ACCEL_TYPE = types.FunctionType(ACCEL_SIGNATURE)
+TASK_TYPE = types.FunctionType(TASK_SIGNATURE)
+DYN_TYPE = types.FunctionType(DYN_SIGNATURE)
+IK_TYPE = types.FunctionType(IK_SIGNATURE)
+
+
+class UnreachableError(ValueError):
+    """A point or pose outside the plant's working mode."""
+
+
+class PlantKernels(NamedTuple):
+    """The compiled kernels of one plant (numba dispatchers with the signatures above)."""
+
+    kin: object
+    accel: object
+    task: object
+    dyn: object
+    ik: object
+
+
+def check_pair(name: str, value) -> tuple[float, float]:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != (2,):
+        raise ValueError(f"{name} must have shape (2,), got {arr.shape}")
+    return float(arr[0]), float(arr[1])
+
+
+class Plant:
+    """A 2-DOF manipulator behind the common interface. Subclasses set ``params_class``,
+    ``working_mode`` (words for error messages) and implement :meth:`kernels`."""
+
+    params_class: type = object
+    working_mode = "the working mode"
+    #: True if the plant's gravity vector G_q can be non-zero (C3 then learns Theta's G block)
+    has_gravity = False
+
+    def __init__(self, params=None):
+        self.params = params if params is not None else self.params_class()
+        self._p = self.params.as_array()
+
+    @staticmethod
+    def kernels() -> PlantKernels:
+        raise NotImplementedError
+
+    @property
+    def packed(self) -> np.ndarray:
+        """The packed parameter vector for the compiled kernels."""
+        return self._p
+
+    def _outside(self, th1, th2):
+        return UnreachableError(f"joint angles ({th1:.6g}, {th2:.6g}) rad are outside {self.working_mode}")
+
+    def _kin(self, theta):
+        th1, th2 = check_pair("theta", theta)
+        out = self.kernels().kin(self._p, th1, th2)
+        if not out[0]:
+            raise self._outside(th1, th2)
+        return out
+
+    def _dyn(self, theta, dtheta):
+        th1, th2 = check_pair("theta", theta)
+        d1, d2 = check_pair("dtheta", dtheta)
+        out = self.kernels().dyn(self._p, th1, th2, d1, d2)
+        if not out[0]:
+            raise self._outside(th1, th2)
+        return out
+
+    def _task(self, theta, dtheta):
+        th1, th2 = check_pair("theta", theta)
+        d1, d2 = check_pair("dtheta", dtheta)
+        out = self.kernels().task(self._p, th1, th2, d1, d2)
+        if not out[0]:
+            raise self._outside(th1, th2)
+        return out
+
+    # --- kinematics ----------------------------------------------------------------------
+    def forward_kinematics(self, theta) -> np.ndarray:
+        """End-effector position P (m), shape (2,), of joint angles theta (rad)."""
+        out = self._kin(theta)
+        return np.array([out[1], out[2]])
+
+    def inverse_kinematics(self, position) -> np.ndarray:
+        """Joint angles (rad) in the working mode for end-effector position P (m); raises if unreachable."""
+        px, py = check_pair("position", position)
+        k = self.kernels()
+        ok, th1, th2 = k.ik(self._p, px, py)
+        fk = k.kin(self._p, th1, th2) if ok else (0.0,)
+        # the angles must map back to P in the working mode (e.g. the five-bar's lower assembly
+        # has elbows-out angles whose forward kinematics is another point)
+        if not fk[0] or math.hypot(fk[1] - px, fk[2] - py) > 1e-9:
+            raise UnreachableError(f"point ({px:.6g}, {py:.6g}) m is not reachable in {self.working_mode}")
+        return np.array([th1, th2])
+
+    def jacobian(self, theta) -> np.ndarray:
+        """J with dP/dt = J dtheta, shape (2, 2), m/rad."""
+        out = self._kin(theta)
+        return np.array([[out[3], out[4]], [out[5], out[6]]])
+
+    def jacobian_derivative(self, theta, dtheta) -> np.ndarray:
+        """dJ/dt along dtheta, shape (2, 2)."""
+        out = self._dyn(theta, dtheta)
+        return np.array([[out[7], out[8]], [out[9], out[10]]])
+
+    # --- joint-space model (eq. 1) -------------------------------------------------------
+    def joint_inertia(self, theta) -> np.ndarray:
+        """Dq(theta), shape (2, 2), kg m^2."""
+        out = self._dyn(theta, (0.0, 0.0))
+        return np.array([[out[11], out[12]], [out[12], out[13]]])
+
+    def joint_coriolis(self, theta, dtheta) -> np.ndarray:
+        """Cq(theta, dtheta), shape (2, 2), kg m^2 / s; dDq/dt - 2 Cq is skew-symmetric."""
+        out = self._dyn(theta, dtheta)
+        return np.array([[out[14], out[15]], [out[16], out[17]]])
+
+    def gravity(self, theta) -> np.ndarray:
+        """G_q(theta), shape (2,), N m (zero for a plant moving in a horizontal plane)."""
+        out = self._dyn(theta, (0.0, 0.0))
+        return np.array([out[18], out[19]])
+
+    # --- task-space model (eq. 4) --------------------------------------------------------
+    def task_inertia(self, theta) -> np.ndarray:
+        """D = J^-T Dq J^-1 (eq. 4), shape (2, 2), kg."""
+        out = self._task(theta, (0.0, 0.0))
+        return np.array([[out[9], out[10]], [out[10], out[11]]])
+
+    def task_coriolis(self, theta, dtheta) -> np.ndarray:
+        """C = -J^-T Dq J^-1 dJ J^-1 + J^-T Cq J^-1 (eq. 4), shape (2, 2), kg / s."""
+        out = self._task(theta, dtheta)
+        return np.array([[out[12], out[13]], [out[14], out[15]]])
+
+    def task_gravity(self, theta) -> np.ndarray:
+        """G = J^-T G_q (eq. 4), shape (2,), N."""
+        out = self._task(theta, (0.0, 0.0))
+        return np.array([out[16], out[17]])
+
+    # --- dynamics ------------------------------------------------------------------------
+    def inverse_dynamics(self, theta, dtheta, ddtheta, force_on_end_effector=(0.0, 0.0)) -> np.ndarray:
+        """tau = Dq ddtheta + Cq dtheta + G_q - J^T f (N m), f the force on the robot (eq. 1)."""
+        out = self._dyn(theta, dtheta)
+        Dq = np.array([[out[11], out[12]], [out[12], out[13]]])
+        Cq = np.array([[out[14], out[15]], [out[16], out[17]]])
+        J = np.array([[out[3], out[4]], [out[5], out[6]]])
+        f = np.asarray(force_on_end_effector, dtype=np.float64)
+        tau = Dq @ np.asarray(ddtheta, float) + Cq @ np.asarray(dtheta, float) - J.T @ f
+        if self.has_gravity:
+            tau = tau + np.array([out[18], out[19]])
+        return tau
+
+    def forward_dynamics(self, theta, dtheta, tau, force_on_end_effector=(0.0, 0.0)) -> np.ndarray:
+        """ddtheta (rad/s^2) from Dq ddtheta + Cq dtheta + G_q = tau + J^T f, f the force on the robot."""
+        th1, th2 = check_pair("theta", theta)
+        d1, d2 = check_pair("dtheta", dtheta)
+        t1, t2 = check_pair("tau", tau)
+        fx, fy = check_pair("force_on_end_effector", force_on_end_effector)
+        self._kin(theta)
+        out = self.kernels().accel(self._p, th1, th2, d1, d2)
+        r1 = t1 + out[3] * fx + out[5] * fy - out[9]
+        r2 = t2 + out[4] * fx + out[6] * fy - out[10]
+        return np.array([out[11] * r1 + out[12] * r2, out[12] * r1 + out[13] * r2])
+
+    def kinetic_energy(self, theta, dtheta) -> float:
+        """T = dtheta^T Dq dtheta / 2 (J)."""
+        d = np.asarray(dtheta, dtype=np.float64)
+        return 0.5 * float(d @ self.joint_inertia(theta) @ d)
+
+    def potential_energy(self, theta) -> float:
+        """V(theta) with G_q = dV/dtheta (J); 0 for a plant without gravity."""
+        return 0.0

@@ -1,0 +1,402 @@
+"""The five-bar parallel manipulator of the paper's Section 4.1 (SPEC section 1).
+
+Two layers (the plant interface of ``ilcforce.plants.base``):
+
+* compiled kernels (``_kinematics``, ``_dynamics``, ...): scalar numba functions taking the packed
+  parameter vector from :meth:`FiveBarParams.as_array` and returning tuples. They allocate nothing,
+  so the simulation loop can call them four times per RK4 step. :func:`kernels` wraps them in the
+  interface's fixed signatures (compiled or loaded from numba's cache on first use only).
+* :class:`FiveBar`: the readable, checked public API on single samples, returning numpy arrays of
+  shape (2,) or (2, 2) in SI units (shared with every plant through :class:`Plant`), plus the
+  passive-link angles.
+
+Geometry. Base joints B1 = (0, 0) and B2 = (L5, 0). theta1 and theta2 are the absolute angles of
+links 1 and 2 from +x. Link 3 joins the tip E1 of link 1 to the end-effector P, link 4 the tip E2 of
+link 2 to P. phi3 and phi4 are the absolute angles of links 3 and 4 (passive). Working mode
+"elbows out": E1 left of P - B1, E2 right of P - B2; P is the circle intersection to the left of
+E1 -> E2.
+
+Dynamics. The open tree q' = (theta1, theta2, phi3, phi4) has the inertia matrix M(q') and the
+Christoffel Coriolis matrix C'(q', dq'). The loop closure E1 + L3 e(phi3) = E2 + L4 e(phi4) gives
+dq' = rho dtheta with rho = [I; R], R = d phi / d theta. The actuated-joint model is then
+
+    Dq = rho^T M rho,   Cq = rho^T (M drho + C' rho)                     (eq. 1, G_q = 0)
+    Dq ddtheta + Cq dtheta = tau + J^T f                                  (f: force on the robot)
+
+and in task space (eq. 4) D = J^-T Dq J^-1, C = J^-T (Cq - Dq J^-1 dJ) J^-1. With this Cq,
+dDq/dt - 2 Cq is skew-symmetric (property P2), and so is dD/dt - 2 C.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import numbers
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+from numba import njit
+
+from ilcforce.plants.base import (
+    ACCEL_SIGNATURE, DYN_SIGNATURE, IK_SIGNATURE, KIN_SIGNATURE, TASK_SIGNATURE, Plant, PlantKernels,
+    UnreachableError, check_pair as _pair,
+)
+
+__all__ = ["FiveBarParams", "FiveBar", "UnreachableError", "PARAM_NAMES"]
+
+#: Order of the packed parameter vector used by the compiled kernels.
+PARAM_NAMES = (
+    "L1", "L2", "L3", "L4", "L5",
+    "Lc1", "Lc2", "Lc3", "Lc4",
+    "m1", "m2", "m3", "m4",
+    "I1", "I2", "I3", "I4",
+)
+
+
+@dataclass(frozen=True)
+class FiveBarParams:
+    """Link parameters (Table 1). Lengths in m, masses in kg, centroidal inertias in kg m^2.
+
+    ``Lci`` is measured from link i's proximal joint (B1, B2, E1, E2) to its centre of mass.
+    """
+
+    model: ClassVar[str] = "fivebar"  # the plants.MODELS key
+
+    L1: float = 0.2794  # link 1 (actuated, at B1), m
+    L2: float = 0.2794  # link 2 (actuated, at B2), m
+    L3: float = 0.3048  # link 3 (E1 to P), m
+    L4: float = 0.3048  # link 4 (E2 to P), m
+    L5: float = 0.3048  # base, distance B1 to B2, m
+    Lc1: float = 0.1466  # m
+    Lc2: float = 0.1410  # m
+    Lc3: float = 0.1581  # m
+    Lc4: float = 0.1467  # m
+    m1: float = 0.2451  # kg
+    m2: float = 0.2352  # kg
+    m3: float = 0.2611  # kg
+    m4: float = 0.2611  # kg
+    I1: float = 2.779e-3  # kg m^2
+    I2: float = 2.607e-3  # kg m^2
+    I3: float = 3.476e-3  # kg m^2
+    I4: float = 3.476e-3  # kg m^2
+
+    def __post_init__(self) -> None:
+        for name in PARAM_NAMES:
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Real) or isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"plant.fivebar.{name} must be a number, got {value!r}")
+            if not math.isfinite(value) or value <= 0:
+                raise ValueError(f"plant.fivebar.{name} must be finite and positive, got {value!r}")
+            object.__setattr__(self, name, float(value))  # numpy scalars become plain floats
+
+    def as_array(self) -> np.ndarray:
+        """Packed float64 vector in :data:`PARAM_NAMES` order, for the compiled kernels."""
+        return np.array([getattr(self, name) for name in PARAM_NAMES], dtype=np.float64)
+
+    def scaled(self, name: str, factor: float) -> "FiveBarParams":
+        """A copy with parameter ``name`` multiplied by ``factor`` (e.g. m3 x 1.4)."""
+        if name not in PARAM_NAMES:
+            raise ValueError(f"unknown plant parameter {name!r}; expected one of {', '.join(PARAM_NAMES)}")
+        return replace(self, **{name: getattr(self, name) * factor})
+
+    def links(self) -> "FiveBarParams":
+        """Just the link parameters, as a plain :class:`FiveBarParams`."""
+        return FiveBarParams(**{name: getattr(self, name) for name in PARAM_NAMES})
+
+
+# --------------------------------------------------------------------------------------------
+# Compiled kernels. p is the packed parameter vector; everything else is a scalar.
+# --------------------------------------------------------------------------------------------
+
+
+@njit(cache=True, error_model="numpy")
+def _kinematics(p, th1, th2):
+    """Forward kinematics with the loop-closure Jacobian.
+
+    Returns (ok, Px, Py, u3x, u3y, u4x, u4y, R00, R01, R10, R11, J00, J01, J10, J11), where
+    u3 = (cos phi3, sin phi3), u4 likewise, R = d(phi3, phi4)/d(theta1, theta2) and J = dP/dtheta.
+    ``ok`` is False (and the rest NaN) when the pose is outside the elbows-out working mode.
+    """
+    L1, L2, L3, L4, L5 = p[0], p[1], p[2], p[3], p[4]
+    c1, s1 = math.cos(th1), math.sin(th1)
+    c2, s2 = math.cos(th2), math.sin(th2)
+    e1x, e1y = L1 * c1, L1 * s1
+    e2x, e2y = L5 + L2 * c2, L2 * s2
+    dx, dy = e2x - e1x, e2y - e1y
+    r2 = dx * dx + dy * dy
+    r = math.sqrt(r2)
+    a = (L3 * L3 - L4 * L4 + r2) / (2.0 * r)
+    h2 = L3 * L3 - a * a
+    nan = math.nan
+    if not (h2 > 0.0):
+        return (False, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan)
+    h = math.sqrt(h2)
+    # circle intersection to the left of E1 -> E2 (the upper assembly)
+    px = e1x + (a * dx - h * dy) / r
+    py = e1y + (a * dy + h * dx) / r
+    # elbows out: E1 left of P - B1, E2 right of P - B2
+    if px * e1y - py * e1x <= 0.0 or (px - L5) * e2y - py * (e2x - L5) >= 0.0:
+        return (False, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan, nan)
+    u3x, u3y = (px - e1x) / L3, (py - e1y) / L3
+    u4x, u4y = (px - e2x) / L4, (py - e2y) / L4
+    # loop closure, differentiated: A dphi = B dtheta with
+    # A = [L3 e_perp(phi3), -L4 e_perp(phi4)], B = [-L1 e_perp(theta1), L2 e_perp(theta2)]
+    a11, a21 = -L3 * u3y, L3 * u3x
+    a12, a22 = L4 * u4y, -L4 * u4x
+    b11, b21 = L1 * s1, -L1 * c1
+    b12, b22 = -L2 * s2, L2 * c2
+    det = a11 * a22 - a12 * a21
+    R00 = (a22 * b11 - a12 * b21) / det
+    R01 = (a22 * b12 - a12 * b22) / det
+    R10 = (a11 * b21 - a21 * b11) / det
+    R11 = (a11 * b22 - a21 * b12) / det
+    # P = E1 + L3 u3  =>  dP = L1 e_perp(theta1) dtheta1 + L3 e_perp(phi3) dphi3
+    J00 = -L1 * s1 - L3 * u3y * R00
+    J01 = -L3 * u3y * R01
+    J10 = L1 * c1 + L3 * u3x * R00
+    J11 = L3 * u3x * R01
+    return (True, px, py, u3x, u3y, u4x, u4y, R00, R01, R10, R11, J00, J01, J10, J11)
+
+
+@njit(cache=True, error_model="numpy")
+def _dynamics(p, th1, th2, dth1, dth2):
+    """Joint-space model terms at (theta, dtheta).
+
+    Returns (ok, Px, Py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+             Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11).
+    """
+    (ok, px, py, u3x, u3y, u4x, u4y, R00, R01, R10, R11,
+     J00, J01, J10, J11) = _kinematics(p, th1, th2)
+    L1, L2, L3, L4 = p[0], p[1], p[2], p[3]
+    Lc1, Lc2, Lc3, Lc4 = p[5], p[6], p[7], p[8]
+    m1, m2, m3, m4 = p[9], p[10], p[11], p[12]
+    I1, I2, I3, I4 = p[13], p[14], p[15], p[16]
+    c1, s1 = math.cos(th1), math.sin(th1)
+    c2, s2 = math.cos(th2), math.sin(th2)
+    # passive rates
+    dph3 = R00 * dth1 + R01 * dth2
+    dph4 = R10 * dth1 + R11 * dth2
+    # open-tree inertia (order theta1, theta2, phi3, phi4); cos/sin of theta - phi
+    M11 = I1 + m1 * Lc1 * Lc1 + m3 * L1 * L1
+    M22 = I2 + m2 * Lc2 * Lc2 + m4 * L2 * L2
+    M33 = I3 + m3 * Lc3 * Lc3
+    M44 = I4 + m4 * Lc4 * Lc4
+    k3 = m3 * L1 * Lc3
+    k4 = m4 * L2 * Lc4
+    M13 = k3 * (c1 * u3x + s1 * u3y)
+    M24 = k4 * (c2 * u4x + s2 * u4y)
+    sn13 = s1 * u3x - c1 * u3y  # sin(theta1 - phi3)
+    sn24 = s2 * u4x - c2 * u4y  # sin(theta2 - phi4)
+    # Dq = rho^T M rho, rho = [[1, 0], [0, 1], [R00, R01], [R10, R11]]
+    Dq00 = M11 + 2.0 * M13 * R00 + M33 * R00 * R00 + M44 * R10 * R10
+    Dq01 = M13 * R01 + M24 * R10 + M33 * R00 * R01 + M44 * R10 * R11
+    Dq11 = M22 + 2.0 * M24 * R11 + M33 * R01 * R01 + M44 * R11 * R11
+    # dR = A^-1 (dB - dA R)
+    a11, a21 = -L3 * u3y, L3 * u3x
+    a12, a22 = L4 * u4y, -L4 * u4x
+    det = a11 * a22 - a12 * a21
+    db11, db21 = L1 * dth1 * c1, L1 * dth1 * s1
+    db12, db22 = -L2 * dth2 * c2, -L2 * dth2 * s2
+    da11, da21 = -L3 * dph3 * u3x, -L3 * dph3 * u3y
+    da12, da22 = L4 * dph4 * u4x, L4 * dph4 * u4y
+    w11 = db11 - (da11 * R00 + da12 * R10)
+    w12 = db12 - (da11 * R01 + da12 * R11)
+    w21 = db21 - (da21 * R00 + da22 * R10)
+    w22 = db22 - (da21 * R01 + da22 * R11)
+    dR00 = (a22 * w11 - a12 * w21) / det
+    dR01 = (a22 * w12 - a12 * w22) / det
+    dR10 = (a11 * w21 - a21 * w11) / det
+    dR11 = (a11 * w22 - a21 * w12) / det
+    # Cq = rho^T M drho + rho^T C' rho, with C'[th1, ph3] = k3 sn13 dph3, C'[ph3, th1] = -k3 sn13 dth1
+    # (and the same pattern for theta2 / phi4)
+    # M drho, drho = [[0, 0], [0, 0], [dR00, dR01], [dR10, dR11]]
+    Md_0j0 = M13 * dR00
+    Md_0j1 = M13 * dR01
+    Md_1j0 = M24 * dR10
+    Md_1j1 = M24 * dR11
+    Md_2j0 = M33 * dR00
+    Md_2j1 = M33 * dR01
+    Md_3j0 = M44 * dR10
+    Md_3j1 = M44 * dR11
+    # C' rho
+    g3 = k3 * sn13
+    g4 = k4 * sn24
+    Cr_0j0 = g3 * dph3 * R00
+    Cr_0j1 = g3 * dph3 * R01
+    Cr_1j0 = g4 * dph4 * R10
+    Cr_1j1 = g4 * dph4 * R11
+    Cr_2j0 = -g3 * dth1
+    Cr_2j1 = 0.0
+    Cr_3j0 = 0.0
+    Cr_3j1 = -g4 * dth2
+    X0j0 = Md_0j0 + Cr_0j0
+    X0j1 = Md_0j1 + Cr_0j1
+    X1j0 = Md_1j0 + Cr_1j0
+    X1j1 = Md_1j1 + Cr_1j1
+    X2j0 = Md_2j0 + Cr_2j0
+    X2j1 = Md_2j1 + Cr_2j1
+    X3j0 = Md_3j0 + Cr_3j0
+    X3j1 = Md_3j1 + Cr_3j1
+    Cq00 = X0j0 + R00 * X2j0 + R10 * X3j0
+    Cq01 = X0j1 + R00 * X2j1 + R10 * X3j1
+    Cq10 = X1j0 + R01 * X2j0 + R11 * X3j0
+    Cq11 = X1j1 + R01 * X2j1 + R11 * X3j1
+    # dJ from J = [L1 e_perp(th1), 0] + L3 e_perp(phi3) R[0, :]
+    dJ00 = -L1 * c1 * dth1 + L3 * (-dph3 * u3x * R00 - u3y * dR00)
+    dJ01 = L3 * (-dph3 * u3x * R01 - u3y * dR01)
+    dJ10 = -L1 * s1 * dth1 + L3 * (-dph3 * u3y * R00 + u3x * dR00)
+    dJ11 = L3 * (-dph3 * u3y * R01 + u3x * dR01)
+    return (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+            Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11)
+
+
+@njit(cache=True, error_model="numpy")
+def _task_model(p, th1, th2, dth1, dth2):
+    """Task-space model (eq. 4) at (theta, dtheta).
+
+    Returns (ok, Px, Py, vx, vy, J00, J01, J10, J11, D00, D01, D11, C00, C01, C10, C11).
+    """
+    (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+     Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11) = _dynamics(p, th1, th2, dth1, dth2)
+    det = J00 * J11 - J01 * J10
+    # Ji = J^-1
+    Ji00, Ji01, Ji10, Ji11 = J11 / det, -J01 / det, -J10 / det, J00 / det
+    vx = J00 * dth1 + J01 * dth2
+    vy = J10 * dth1 + J11 * dth2
+    # D = Ji^T Dq Ji
+    T00 = Dq00 * Ji00 + Dq01 * Ji10
+    T01 = Dq00 * Ji01 + Dq01 * Ji11
+    T10 = Dq01 * Ji00 + Dq11 * Ji10
+    T11 = Dq01 * Ji01 + Dq11 * Ji11
+    D00 = Ji00 * T00 + Ji10 * T10
+    D01 = Ji00 * T01 + Ji10 * T11
+    D11 = Ji01 * T01 + Ji11 * T11
+    # C = Ji^T (Cq - Dq Ji dJ) Ji
+    K00 = dJ00 * Ji00 + dJ01 * Ji10  # dJ Ji
+    K01 = dJ00 * Ji01 + dJ01 * Ji11
+    K10 = dJ10 * Ji00 + dJ11 * Ji10
+    K11 = dJ10 * Ji01 + dJ11 * Ji11
+    Q00 = Cq00 * Ji00 + Cq01 * Ji10 - (T00 * K00 + T01 * K10)  # Cq Ji - Dq Ji dJ Ji
+    Q01 = Cq00 * Ji01 + Cq01 * Ji11 - (T00 * K01 + T01 * K11)
+    Q10 = Cq10 * Ji00 + Cq11 * Ji10 - (T10 * K00 + T11 * K10)
+    Q11 = Cq10 * Ji01 + Cq11 * Ji11 - (T10 * K01 + T11 * K11)
+    C00 = Ji00 * Q00 + Ji10 * Q10
+    C01 = Ji00 * Q01 + Ji10 * Q11
+    C10 = Ji01 * Q00 + Ji11 * Q10
+    C11 = Ji01 * Q01 + Ji11 * Q11
+    return (ok, px, py, vx, vy, J00, J01, J10, J11, D00, D01, D11, C00, C01, C10, C11)
+
+
+@njit(cache=True, error_model="numpy")
+def _inverse_kinematics(p, px, py):
+    """Elbows-out inverse kinematics. Returns (ok, theta1, theta2)."""
+    L1, L2, L3, L4, L5 = p[0], p[1], p[2], p[3], p[4]
+    r1 = math.hypot(px, py)
+    r2 = math.hypot(px - L5, py)
+    if r1 == 0.0 or r2 == 0.0:
+        return (False, math.nan, math.nan)
+    c_a = (L1 * L1 + r1 * r1 - L3 * L3) / (2.0 * L1 * r1)
+    c_b = (L2 * L2 + r2 * r2 - L4 * L4) / (2.0 * L2 * r2)
+    if not (-1.0 < c_a < 1.0) or not (-1.0 < c_b < 1.0):
+        return (False, math.nan, math.nan)
+    th1 = math.atan2(py, px) + math.acos(c_a)
+    th2 = math.atan2(py, px - L5) - math.acos(c_b)
+    return (True, th1, th2)
+
+
+@njit(cache=True, error_model="numpy")
+def _accel_terms(p, th1, th2, dth1, dth2):
+    """Forward dynamics as an affine map of the generalised force.
+
+    Dq ddtheta + Cq dtheta = tau + J^T f  =>  ddtheta = Dq^-1 (tau + J^T f - Cq dtheta).
+    Returns (ok, Px, Py, J00, J01, J10, J11, dJv_x, dJv_y, b1, b2, Mi00, Mi01, Mi11) with
+    b = Cq dtheta, dJv = dJ dtheta (so ddP = J ddtheta + dJv) and Mi = Dq^-1 (symmetric).
+    """
+    (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+     Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11) = _dynamics(p, th1, th2, dth1, dth2)
+    det = Dq00 * Dq11 - Dq01 * Dq01
+    Mi00, Mi01, Mi11 = Dq11 / det, -Dq01 / det, Dq00 / det
+    b1 = Cq00 * dth1 + Cq01 * dth2
+    b2 = Cq10 * dth1 + Cq11 * dth2
+    dJvx = dJ00 * dth1 + dJ01 * dth2
+    dJvy = dJ10 * dth1 + dJ11 * dth2
+    return (ok, px, py, J00, J01, J10, J11, dJvx, dJvy, b1, b2, Mi00, Mi01, Mi11)
+
+
+# --------------------------------------------------------------------------------------------
+# The plant interface's kernels (ilcforce.plants.base), compiled on first use.
+# --------------------------------------------------------------------------------------------
+
+
+def _kin_kernel(p, th1, th2):
+    out = _kinematics(p, th1, th2)
+    return (1.0 if out[0] else 0.0, out[1], out[2], out[11], out[12], out[13], out[14])
+
+
+def _accel_kernel(p, th1, th2, d1, d2):
+    (ok, px, py, J00, J01, J10, J11, dJvx, dJvy, b1, b2, Mi00, Mi01, Mi11) = _accel_terms(p, th1, th2, d1, d2)
+    # G_q = 0 (horizontal plane): b = Cq dtheta
+    return (1.0 if ok else 0.0, px, py, J00, J01, J10, J11, dJvx, dJvy, b1, b2, Mi00, Mi01, Mi11)
+
+
+def _task_kernel(p, th1, th2, d1, d2):
+    (ok, px, py, vx, vy, J00, J01, J10, J11, D00, D01, D11,
+     C00, C01, C10, C11) = _task_model(p, th1, th2, d1, d2)
+    return (1.0 if ok else 0.0, px, py, vx, vy, J00, J01, J10, J11, D00, D01, D11, C00, C01, C10, C11, 0.0, 0.0)
+
+
+def _dyn_kernel(p, th1, th2, d1, d2):
+    (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+     Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11) = _dynamics(p, th1, th2, d1, d2)
+    return (1.0 if ok else 0.0, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+            Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, 0.0, 0.0)
+
+
+def _ik_kernel(p, px, py):
+    ok, th1, th2 = _inverse_kinematics(p, px, py)
+    return (1.0 if ok else 0.0, th1, th2)
+
+
+@functools.cache
+def kernels() -> PlantKernels:
+    """The five-bar's interface kernels (compiled, or loaded from numba's cache, on first call)."""
+    def jit(sig, fn):
+        return njit(sig, cache=True, error_model="numpy")(fn)
+    return PlantKernels(kin=jit(KIN_SIGNATURE, _kin_kernel), accel=jit(ACCEL_SIGNATURE, _accel_kernel),
+                        task=jit(TASK_SIGNATURE, _task_kernel), dyn=jit(DYN_SIGNATURE, _dyn_kernel),
+                        ik=jit(IK_SIGNATURE, _ik_kernel))
+
+
+# --------------------------------------------------------------------------------------------
+# Public, checked API on single samples.
+# --------------------------------------------------------------------------------------------
+
+
+class FiveBar(Plant):
+    """The five-bar manipulator with parameters ``params`` (SPEC section 1), G_q = 0.
+
+    All methods take and return numpy arrays: joint vectors (theta1, theta2) of shape (2,),
+    task vectors (x, y) of shape (2,), matrices of shape (2, 2). SI units throughout.
+    """
+
+    params_class = FiveBarParams
+    working_mode = "the elbows-out working mode"
+    has_gravity = False
+    kernels = staticmethod(kernels)
+
+    def passive_angles(self, theta) -> np.ndarray:
+        """Absolute angles (phi3, phi4) of the passive links 3 and 4 (rad)."""
+        th1, th2 = _pair("theta", theta)
+        out = _kinematics(self._p, th1, th2)
+        if not out[0]:
+            raise self._outside(th1, th2)
+        return np.array([math.atan2(out[4], out[3]), math.atan2(out[6], out[5])])
+
+    def passive_jacobian(self, theta) -> np.ndarray:
+        """R = d(phi3, phi4) / d(theta1, theta2), shape (2, 2)."""
+        th1, th2 = _pair("theta", theta)
+        out = _kinematics(self._p, th1, th2)
+        if not out[0]:
+            raise self._outside(th1, th2)
+        return np.array([[out[7], out[8]], [out[9], out[10]]])

@@ -1,0 +1,209 @@
+"""The serial 2R arm in a vertical plane (SPEC section 8): the paper's n-DOF form with gravity.
+
+theta1 is the absolute angle of link 1 from +x at the base joint (0, 0); theta2 the angle of link 2
+relative to link 1. P = (L1 c1 + L2 c12, L1 s1 + L2 s12). Working mode: theta2 in (0, pi), i.e.
+sin(theta2) > 0 ("elbow up" for a tip to the right of the base). Gravity g acts along -y.
+
+Lagrangian model (Spong, Hutchinson & Vidyasagar, Robot Modeling and Control, section 7.4.2 form),
+with Lci measured from link i's proximal joint and Ii centroidal:
+
+    Dq = [[a + 2 b c2, d + b c2], [d + b c2, d]],  a = I1 + I2 + m1 Lc1^2 + m2 (L1^2 + Lc2^2),
+                                                   b = m2 L1 Lc2,  d = I2 + m2 Lc2^2
+    Cq = [[-h dth2, -h (dth1 + dth2)], [h dth1, 0]],  h = b s2      (Christoffel form: dDq - 2 Cq skew)
+    G_q = g [(m1 Lc1 + m2 L1) c1 + m2 Lc2 c12, m2 Lc2 c12]
+    Dq ddtheta + Cq dtheta + G_q = tau + J^T f                     (eq. 1, f the force on the robot)
+
+Task space per eq. (4): D = J^-T Dq J^-1, C = J^-T (Cq - Dq J^-1 dJ) J^-1, G = J^-T G_q.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import numbers
+from dataclasses import dataclass, replace
+from typing import ClassVar
+
+import numpy as np
+from numba import njit
+
+from ilcforce.plants.base import (
+    ACCEL_SIGNATURE, DYN_SIGNATURE, IK_SIGNATURE, KIN_SIGNATURE, TASK_SIGNATURE, Plant, PlantKernels,
+)
+
+__all__ = ["Serial2RParams", "Serial2R", "PARAM_NAMES"]
+
+#: Order of the packed parameter vector used by the compiled kernels.
+PARAM_NAMES = ("L1", "L2", "Lc1", "Lc2", "m1", "m2", "I1", "I2", "g")
+
+
+@dataclass(frozen=True)
+class Serial2RParams:
+    """Link parameters (SPEC section 8). Lengths in m, masses in kg, centroidal inertias in kg m^2,
+    g in m/s^2 (>= 0; 0 turns gravity off)."""
+
+    model: ClassVar[str] = "serial2r"  # the plants.MODELS key
+
+    L1: float = 0.35  # link 1, m
+    L2: float = 0.30  # link 2, m
+    Lc1: float = 0.175  # base joint to link 1's centre of mass, m
+    Lc2: float = 0.15  # elbow to link 2's centre of mass, m
+    m1: float = 1.2  # kg
+    m2: float = 0.9  # kg
+    I1: float = 1.225e-2  # kg m^2
+    I2: float = 6.75e-3  # kg m^2
+    g: float = 9.81  # gravity along -y, m/s^2
+
+    def __post_init__(self) -> None:
+        for name in PARAM_NAMES:
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Real) or isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"plant.serial2r.{name} must be a number, got {value!r}")
+            if not math.isfinite(value) or value < 0 or (value == 0 and name != "g"):
+                raise ValueError(f"plant.serial2r.{name} must be finite and "
+                                 f"{'>= 0' if name == 'g' else 'positive'}, got {value!r}")
+            object.__setattr__(self, name, float(value))
+
+    def as_array(self) -> np.ndarray:
+        """Packed float64 vector in :data:`PARAM_NAMES` order, for the compiled kernels."""
+        return np.array([getattr(self, name) for name in PARAM_NAMES], dtype=np.float64)
+
+    def scaled(self, name: str, factor: float) -> "Serial2RParams":
+        """A copy with parameter ``name`` multiplied by ``factor`` (e.g. m2 x 1.4)."""
+        if name not in PARAM_NAMES:
+            raise ValueError(f"unknown plant parameter {name!r}; expected one of {', '.join(PARAM_NAMES)}")
+        return replace(self, **{name: getattr(self, name) * factor})
+
+
+# --------------------------------------------------------------------------------------------
+# Compiled kernels. p is the packed parameter vector; everything else is a scalar.
+# --------------------------------------------------------------------------------------------
+
+
+@njit(cache=True, error_model="numpy")
+def _dynamics(p, th1, th2, d1, d2):
+    """Joint-space model; returns the DYN tuple of ilcforce.plants.base (ok as 1.0 / 0.0)."""
+    L1, L2, Lc1, Lc2, m1, m2, I1, I2, g = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8]
+    c1, s1 = math.cos(th1), math.sin(th1)
+    c2, s2 = math.cos(th2), math.sin(th2)
+    c12, s12 = math.cos(th1 + th2), math.sin(th1 + th2)
+    ok = 1.0 if s2 > 0.0 else 0.0  # working mode theta2 in (0, pi)
+    px = L1 * c1 + L2 * c12
+    py = L1 * s1 + L2 * s12
+    J00 = -L1 * s1 - L2 * s12
+    J01 = -L2 * s12
+    J10 = L1 * c1 + L2 * c12
+    J11 = L2 * c12
+    w1 = d1
+    w12 = d1 + d2
+    dJ00 = -L1 * c1 * w1 - L2 * c12 * w12
+    dJ01 = -L2 * c12 * w12
+    dJ10 = -L1 * s1 * w1 - L2 * s12 * w12
+    dJ11 = -L2 * s12 * w12
+    a = I1 + I2 + m1 * Lc1 * Lc1 + m2 * (L1 * L1 + Lc2 * Lc2)
+    b = m2 * L1 * Lc2
+    d = I2 + m2 * Lc2 * Lc2
+    Dq00 = a + 2.0 * b * c2
+    Dq01 = d + b * c2
+    Dq11 = d
+    h = b * s2
+    Cq00 = -h * d2
+    Cq01 = -h * (d1 + d2)
+    Cq10 = h * d1
+    Cq11 = 0.0
+    G2 = g * m2 * Lc2 * c12
+    G1 = g * (m1 * Lc1 + m2 * L1) * c1 + G2
+    return (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+            Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2)
+
+
+def _kin_kernel(p, th1, th2):
+    L1, L2 = p[0], p[1]
+    c1, s1 = math.cos(th1), math.sin(th1)
+    c12, s12 = math.cos(th1 + th2), math.sin(th1 + th2)
+    ok = 1.0 if math.sin(th2) > 0.0 else 0.0
+    return (ok, L1 * c1 + L2 * c12, L1 * s1 + L2 * s12,
+            -L1 * s1 - L2 * s12, -L2 * s12, L1 * c1 + L2 * c12, L2 * c12)
+
+
+def _accel_kernel(p, th1, th2, d1, d2):
+    (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+     Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = _dynamics(p, th1, th2, d1, d2)
+    det = Dq00 * Dq11 - Dq01 * Dq01
+    b1 = Cq00 * d1 + Cq01 * d2 + G1
+    b2 = Cq10 * d1 + Cq11 * d2 + G2
+    return (ok, px, py, J00, J01, J10, J11, dJ00 * d1 + dJ01 * d2, dJ10 * d1 + dJ11 * d2, b1, b2,
+            Dq11 / det, -Dq01 / det, Dq00 / det)
+
+
+def _task_kernel(p, th1, th2, d1, d2):
+    (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+     Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = _dynamics(p, th1, th2, d1, d2)
+    det = J00 * J11 - J01 * J10
+    Ji00, Ji01, Ji10, Ji11 = J11 / det, -J01 / det, -J10 / det, J00 / det  # J^-1
+    # D = Ji^T Dq Ji                                                                  eq. (4)
+    T00 = Dq00 * Ji00 + Dq01 * Ji10
+    T01 = Dq00 * Ji01 + Dq01 * Ji11
+    T10 = Dq01 * Ji00 + Dq11 * Ji10
+    T11 = Dq01 * Ji01 + Dq11 * Ji11
+    D00 = Ji00 * T00 + Ji10 * T10
+    D01 = Ji00 * T01 + Ji10 * T11
+    D11 = Ji01 * T01 + Ji11 * T11
+    # C = Ji^T (Cq - Dq Ji dJ) Ji                                                     eq. (4)
+    K00 = dJ00 * Ji00 + dJ01 * Ji10
+    K01 = dJ00 * Ji01 + dJ01 * Ji11
+    K10 = dJ10 * Ji00 + dJ11 * Ji10
+    K11 = dJ10 * Ji01 + dJ11 * Ji11
+    Q00 = Cq00 * Ji00 + Cq01 * Ji10 - (T00 * K00 + T01 * K10)
+    Q01 = Cq00 * Ji01 + Cq01 * Ji11 - (T00 * K01 + T01 * K11)
+    Q10 = Cq10 * Ji00 + Cq11 * Ji10 - (T10 * K00 + T11 * K10)
+    Q11 = Cq10 * Ji01 + Cq11 * Ji11 - (T10 * K01 + T11 * K11)
+    C00 = Ji00 * Q00 + Ji10 * Q10
+    C01 = Ji00 * Q01 + Ji10 * Q11
+    C10 = Ji01 * Q00 + Ji11 * Q10
+    C11 = Ji01 * Q01 + Ji11 * Q11
+    # G = Ji^T G_q                                                                    eq. (4)
+    Gx = Ji00 * G1 + Ji10 * G2
+    Gy = Ji01 * G1 + Ji11 * G2
+    return (ok, px, py, J00 * d1 + J01 * d2, J10 * d1 + J11 * d2, J00, J01, J10, J11,
+            D00, D01, D11, C00, C01, C10, C11, Gx, Gy)
+
+
+def _dyn_kernel(p, th1, th2, d1, d2):
+    return _dynamics(p, th1, th2, d1, d2)
+
+
+def _ik_kernel(p, px, py):
+    """theta2 = acos(c2) in (0, pi); theta1 = atan2(y, x) - atan2(L2 s2, L1 + L2 c2)."""
+    L1, L2 = p[0], p[1]
+    c2 = (px * px + py * py - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
+    if not (-1.0 < c2 < 1.0):
+        return (0.0, math.nan, math.nan)
+    th2 = math.acos(c2)
+    th1 = math.atan2(py, px) - math.atan2(L2 * math.sin(th2), L1 + L2 * c2)
+    return (1.0, th1, th2)
+
+
+@functools.cache
+def kernels() -> PlantKernels:
+    """The 2R arm's interface kernels (compiled, or loaded from numba's cache, on first call)."""
+    def jit(sig, fn):
+        return njit(sig, cache=True, error_model="numpy")(fn)
+    return PlantKernels(kin=jit(KIN_SIGNATURE, _kin_kernel), accel=jit(ACCEL_SIGNATURE, _accel_kernel),
+                        task=jit(TASK_SIGNATURE, _task_kernel), dyn=jit(DYN_SIGNATURE, _dyn_kernel),
+                        ik=jit(IK_SIGNATURE, _ik_kernel))
+
+
+class Serial2R(Plant):
+    """The serial 2R arm with parameters ``params`` (SPEC section 8), gravity along -y."""
+
+    params_class = Serial2RParams
+    working_mode = "the working mode theta2 in (0, pi)"
+    has_gravity = True
+    kernels = staticmethod(kernels)
+
+    def potential_energy(self, theta) -> float:
+        """V = g (m1 Lc1 s1 + m2 (L1 s1 + Lc2 s12)) (J), zero at y = 0."""
+        th1, th2 = (float(v) for v in np.asarray(theta, dtype=np.float64))
+        pr = self.params
+        return pr.g * (pr.m1 * pr.Lc1 * math.sin(th1) + pr.m2 * (pr.L1 * math.sin(th1) + pr.Lc2 * math.sin(th1 + th2)))
