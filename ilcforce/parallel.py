@@ -61,8 +61,7 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
     ``on_interrupt()`` is called in the parent at the first Ctrl-C (e.g. to say what happens next);
     ``meanwhile()`` once all workers have started (e.g. imports the parent needs afterwards).
     """
-    import ilcforce.experiment  # noqa: F401  (loaded before the fork, so the workers inherit it)
-
+    _preload(config, [job.method for job in jobs])
     context = multiprocessing.get_context("fork")
     workers: dict[str, multiprocessing.process.BaseProcess] = {}
     readers: dict[object, str] = {}  # one pipe per worker: a killed worker cannot block another's
@@ -115,6 +114,23 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
                 worker.terminate()
                 worker.join()
     return outcomes
+
+
+def _preload(config, methods: Sequence[str]) -> None:
+    """Import and load in the parent what every worker would otherwise load for itself.
+
+    Forked workers inherit the imported modules and numba's loaded kernels (the simulation loop,
+    the plant's kernels, each method's law), so each pays for none of them again.
+    """
+    from ilcforce import experiment, loop  # noqa: F401  (loop: the compiled simulation loop)
+    from ilcforce.plants import make_plant
+    from ilcforce.simulate import desired_inputs
+
+    robot = make_plant(config.plant.links())
+    robot.kernels()
+    for method in methods:
+        experiment.make_controller(config, method).law  # noqa: B018  (the law's kernel)
+    desired_inputs(config.plant.links(), config.wall, config.reference_samples()[:1])  # its kernels
 
 
 def _collect_dead(workers: dict, outcomes: dict[str, Outcome]) -> None:
