@@ -9,7 +9,8 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 RESULTS ?= results
 EXPERIMENTS := paper noise-free realistic ts-1ms long-run
-METHODS := c1 c2 c3
+# every registered method (ilcforce/controllers/__init__.py); evaluated only by targets that need it
+METHODS = $(shell $(PY) -m ilcforce.controllers)
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 # numba keeps compiled kernels here so that only the first run pays for compilation
 export NUMBA_CACHE_DIR ?= $(CURDIR)/.venv/numba-cache
@@ -33,7 +34,7 @@ test-slow: $(STAMP) ## run only the slow paper-level regression studies
 bench: $(STAMP) ## print speed figures (medians over repeated runs)
 	$(PY) -m ilcforce.bench
 
-STORES := $(foreach e,$(EXPERIMENTS),$(foreach m,$(METHODS),$(RESULTS)/$(e)/$(m).h5))
+STORES = $(foreach e,$(EXPERIMENTS),$(foreach m,$(METHODS),$(RESULTS)/$(e)/$(m).h5))
 
 SOURCES := $(shell find ilcforce -name '*.py' -o -name '*.mplstyle')
 
@@ -43,9 +44,9 @@ $(RESULTS)/%.h5: $(STAMP) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).to
 	$(VENV)/bin/ilcforce simulate --config experiments/$(word 1,$(subst /, ,$*)).toml \
 	    --method $(word 2,$(subst /, ,$*)) --out $@ --overwrite
 
-stores: $(STORES)
+stores: $(STAMP) $$(STORES)
 
-reproduce: $(STAMP) ## run every experiment in experiments/ for c1, c2, c3 (in parallel), then write the report
+reproduce: $(STAMP) ## run every experiment in experiments/ for every registered method (in parallel), then write the report
 	$(MAKE) --no-print-directory -j $(JOBS) -O stores
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
 	@echo "report: $(RESULTS)/report/index.md"

@@ -19,6 +19,7 @@ import numpy as np
 from numba import njit
 
 from ilcforce.config import default_config
+from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.base import LAW_SIGNATURE, MemoryController
 from ilcforce.experiment import make_controller, run_method
 from ilcforce.noise import draw_iteration
@@ -93,7 +94,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"  plant evaluation (Dq^-1, Cq dtheta, J, dJ dtheta) : {t / n * 1e6:8.3f} us   (first call {first:.2f} s)")
 
     rows = [("RK4 control step, zero-torque controller", ZeroController(config.n_control))]
-    for method in ("c1", "c2", "c3"):
+    for method in REGISTRY:  # every registered method
         rows.append((f"full control step, {method} (implicit scheme)", make_controller(config, method)))
     for label, controller in rows:
         run = _iteration_runner(config, controller)

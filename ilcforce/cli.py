@@ -12,6 +12,7 @@ import os
 import math
 import shlex
 import signal
+import sys
 import threading
 from pathlib import Path
 from typing import Annotated, Optional
@@ -19,6 +20,7 @@ from typing import Annotated, Optional
 import typer
 
 from ilcforce import __version__
+from ilcforce.controllers import PAPER_METHODS, REGISTRY
 
 # Only what every command needs is imported here: `ilcforce --help` and one-line input errors must
 # not pay for rich's consoles and tables, pandas, numba's kernels, h5py or matplotlib (issue 12;
@@ -57,8 +59,21 @@ class CliError(Exception):
     """Bad input found by the CLI itself."""
 
 
+def _say(text: str, *, stderr: bool = False) -> None:
+    """One plain line: never markup, never wrapped, never a UnicodeEncodeError (unencodable
+    characters are replaced under an ASCII locale)."""
+    stream = sys.stderr if stderr else sys.stdout
+    encoding = getattr(stream, "encoding", None) or "utf-8"
+    line = " ".join(str(text).split()) if "\n" in str(text) else str(text)
+    try:
+        stream.write(line.encode(encoding, "replace").decode(encoding, "replace") + "\n")
+        stream.flush()
+    except (OSError, ValueError):
+        pass
+
+
 def _fail(message: str, code: int = 2) -> None:
-    err.print(f"[bold red]error:[/] {message}", highlight=False, soft_wrap=True)
+    _say(f"error: {message}", stderr=True)
     raise typer.Exit(code)
 
 
@@ -76,7 +91,7 @@ def _guard(func):
         except (ConfigError, StoreError, UnknownMethodError, CliError) as exc:
             _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
         except KeyboardInterrupt:
-            err.print("interrupted: every finished iteration is stored; continue with --resume", highlight=False)
+            _say("interrupted: every finished iteration is stored; continue with --resume", stderr=True)
             raise typer.Exit(130)
         except OSError as exc:
             _fail(f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": "))
@@ -99,9 +114,17 @@ def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], set
     return load_config(config, overrides)
 
 
-def _methods(text: str) -> list[str]:
-    from ilcforce.controllers import REGISTRY
+def _variant(seed: Optional[int], sets: Optional[list[str]]) -> dict[str, object]:
+    """The overrides that make a variant (its own results folder): every --set, and --seed."""
+    from ilcforce.config import parse_override
 
+    overrides = dict(parse_override(s) for s in (sets or []))
+    if seed is not None:
+        overrides["experiment.seed"] = seed
+    return overrides
+
+
+def _methods(text: str) -> list[str]:
     names = [m.strip().lower() for m in text.split(",") if m.strip()]
     if not names:
         raise CliError("--methods is empty; e.g. --methods c1,c2,c3")
@@ -215,7 +238,7 @@ def _deferred_interrupt():
         if requested:
             raise KeyboardInterrupt
         requested.append(signum)
-        err.print("stopping: the unfinished iteration is dropped, every finished one is stored", highlight=False)
+        _say("stopping: the unfinished iteration is dropped, every finished one is stored", stderr=True)
 
     previous = signal.signal(signal.SIGINT, handler)
     try:
@@ -228,7 +251,7 @@ def _deferred_interrupt():
 @_guard
 def simulate(
     ctx: typer.Context,
-    method: Annotated[str, typer.Option("--method", "-m", help="controller: c1, c2 or c3")] = "c3",
+    method: Annotated[str, typer.Option("--method", "-m", help=f"controller: {', '.join(REGISTRY)}")] = "c3",
     iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations (default: the experiment's)")] = None,
     config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
     out_path: Annotated[Optional[Path], typer.Option("--out", "-o", help="HDF5 store (default: results/<experiment>/<method>.h5)")] = None,
@@ -245,11 +268,9 @@ def simulate(
     if len(names) != 1:
         raise CliError("--method takes one method; use `ilcforce compare --methods ...` for several")
     cfg = _load(config, seed, iters, sets)
-    path = out_path if out_path is not None else default_store_path(results, cfg, names[0])
+    path = out_path if out_path is not None else default_store_path(results, cfg, names[0], _variant(seed, sets))
     summary = _run_one(cfg, names[0], path, overwrite=overwrite, resume=resume, command=_command_line(ctx))
-    from rich.table import Table
-
-    table = Table(title=f"{cfg.experiment.name} / {names[0]}  ->  {path}")
+    table = _table(f"{cfg.experiment.name} / {names[0]}  ->  {path}")
     for col in ("j", "|e_P|_2 (m)", "|e_F|_2 (N)", "H_x (N)", "H_y (N)", "loop fallbacks", "status"):
         table.add_column(col, justify="right")
     for row in summary.rows:
@@ -258,16 +279,16 @@ def simulate(
                       _g(row["chattering_task_x"]), _g(row["chattering_task_y"]), str(row["fallback_count"]), status)
     out.print(table)
     if not summary.rows:
-        out.print(f"nothing to run: {path} already holds iterations 0..{summary.first_iteration - 1}")
+        _say(f"nothing to run: {path} already holds iterations 0..{summary.first_iteration - 1}")
     if summary.diverged:
-        out.print(f"[red]{names[0]} diverged[/]; later iterations were not run (the store records where).")
+        _say(f"{names[0]} diverged; later iterations were not run (the store records where).")
 
 
 @app.command()
 @_guard
 def compare(
     ctx: typer.Context,
-    methods: Annotated[str, typer.Option("--methods", help="comma-separated methods")] = "c1,c2,c3",
+    methods: Annotated[str, typer.Option("--methods", help=f"comma-separated methods from {', '.join(REGISTRY)}")] = ",".join(PAPER_METHODS),
     config: Annotated[Optional[Path], typer.Option("--config", "-c", help="experiment TOML (default: the paper's setup)")] = None,
     iters: Annotated[Optional[int], typer.Option("--iters", "-n", help="number of iterations")] = None,
     seed: Annotated[Optional[int], typer.Option("--seed", help="random seed")] = None,
@@ -285,19 +306,12 @@ def compare(
 
     names = _methods(methods)
     cfg = _load(config, seed, iters, sets)
-    paths = {name: default_store_path(results, cfg, name) for name in names}
+    paths = {name: default_store_path(results, cfg, name, _variant(seed, sets)) for name in names}
     jobs = []
     for name, path in paths.items():
-        action = "run"
-        if path.exists() and not overwrite:
-            provenance = store.read_provenance(path)
-            state = provenance.get("run_state")
-            if provenance.get("config_json") != cfg.to_json():
-                raise CliError(f"{path} holds a run with a different configuration; pass --overwrite to rerun it")
-            action = "keep" if state in ("complete", "diverged") else "resume"
+        action, replace = _compare_action(cfg, name, path, overwrite)
         if action != "keep":
-            jobs.append(Job(name, path, overwrite=overwrite and path.exists(), resume=action == "resume",
-                            command=_command_line(ctx)))
+            jobs.append(Job(name, path, overwrite=replace, resume=action == "resume", command=_command_line(ctx)))
     if len(jobs) == 1:
         job = jobs[0]
         _run_one(cfg, job.method, job.path, overwrite=job.overwrite, resume=job.resume, command=job.command)
@@ -324,17 +338,48 @@ def _comparison_title(cfg) -> str:
     return f"{exp.name}: {exp.description} (seed {exp.seed}, {exp.iterations} iterations)"
 
 
-def _print_frame(frame, title: str, units: dict[str, str]) -> None:
-    """One row per quantity, one column per method (narrow enough for a terminal)."""
+def _table(title: str):
+    """A rich table whose title is shown literally (a path may contain [brackets]); ASCII
+    borders when the output encoding cannot show box-drawing characters."""
+    from rich.box import ASCII, HEAVY_HEAD
+    from rich.markup import escape
     from rich.table import Table
 
-    table = Table(title=title)
+    encoding = (out.encoding or "").lower().replace("-", "")
+    return Table(title=escape(title), box=HEAVY_HEAD if encoding.startswith("utf") else ASCII)
+
+
+def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str, bool]:
+    """("keep" | "resume" | "run", replace?) for one method's store, by the same-run policy."""
+    from ilcforce import samerun, store
+
+    if not path.exists() and not path.is_symlink():
+        return "run", False
+    provenance = store.read_provenance(path)
+    keys = samerun.differences(samerun.stored_config(provenance), cfg.to_dict(), method)
+    if keys:
+        if not overwrite:
+            raise CliError(f"{path} holds a {method} run with a different configuration: "
+                           f"{samerun.describe(samerun.stored_config(provenance), cfg.to_dict(), keys)}; "
+                           "pass --overwrite to rerun it")
+        return "run", True
+    done = store.iterations(path)
+    finished = provenance.get("run_state") == "diverged" or (
+        provenance.get("run_state") == "complete" and len(done) >= cfg.experiment.iterations)
+    return ("keep" if finished else "resume"), False
+
+
+def _print_frame(frame, title: str, units: dict[str, str]) -> None:
+    """One row per quantity, one column per method (narrow enough for a terminal)."""
+    from rich.markup import escape
+
+    table = _table(title)
     table.add_column("")
     for col in frame.columns:
         table.add_column(str(col), justify="right")
     for idx, row in frame.iterrows():
         label = f"{idx} ({units[idx]})" if units.get(idx) not in (None, "", "-") else str(idx)
-        table.add_row(label, *(_g(v) for v in row.tolist()))
+        table.add_row(escape(label), *(_g(v) for v in row.tolist()))
     out.print(table)
 
 
@@ -355,10 +400,10 @@ def report(
         raise CliError(f"--jobs must be >= 0 (0: one per CPU), got {jobs}")
     summary = write_report(results, target, jobs=jobs or os.cpu_count() or 1)
     for warning in summary.warnings:
-        err.print(f"[yellow]warning:[/] {warning}", highlight=False, soft_wrap=True)
+        _say(f"warning: {warning}", stderr=True)
     if not summary.experiments:
         raise CliError(f"no usable ilcforce stores under {results}")
-    out.print(f"report for {', '.join(summary.experiments)} written to {target}/index.md")
+    _say(f"report for {', '.join(summary.experiments)} written to {target}/index.md")
 
 
 @app.command()
@@ -370,14 +415,130 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="HDF5 stores to ch
     for path in paths:
         store.validate(path)
         prov = store.read_provenance(path)
-        out.print(f"{path}: ok ({prov.get('experiment')}/{prov.get('method')}, "
-                  f"{len(store.iterations(path))} iterations, {prov.get('run_state')})")
+        _say(f"{path}: ok ({prov.get('experiment')}/{prov.get('method')}, "
+             f"{len(store.iterations(path))} iterations, {prov.get('run_state')})")
+
+
+def _fail_plain(message: str) -> None:
+    """One line on stderr, exit 2; the message is printed as is (no rich markup)."""
+    from rich.text import Text
+
+    err.print(Text.assemble(("error:", "bold red"), " ", " ".join(str(message).split())), soft_wrap=True)
+    raise typer.Exit(2)
+
+
+def _study_errors():
+    from ilcforce.study import ExportError, StudyError, StudyRunError, StudyStoreError
+
+    return (StudyError, StudyStoreError, StudyRunError, ExportError)
+
+
+class _StudyProgress:
+    """Progress over cells: a rich bar with ETA on a terminal, a line every ~10% otherwise."""
+
+    def __init__(self, name: str, quiet: bool) -> None:
+        import time
+
+        self.name, self.quiet, self._time = name, quiet, time.monotonic
+        self.bar = None
+        self._next_line = 0.0
+        self._started = self._time()
+
+    def __enter__(self):
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                                   TimeRemainingColumn)
+
+        if not self.quiet and err.is_terminal:
+            self.bar = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                TextColumn("cells, {task.fields[failed]} failed"), TimeElapsedColumn(),
+                                TextColumn("ETA"), TimeRemainingColumn(), TextColumn("{task.fields[last]}"),
+                                console=err.console(), transient=False)
+            self.bar.__enter__()
+            self.task = None
+        return self
+
+    def __call__(self, p) -> None:
+        if self.quiet:
+            return
+        if self.bar is not None:
+            if self.task is None:
+                self.task = self.bar.add_task(self.name, total=p.total, completed=p.finished, failed=0, last="")
+            self.bar.update(self.task, completed=p.finished + p.failed, failed=p.failed, last=p.last[:60])
+            return
+        now = self._time()
+        done = p.finished + p.failed
+        if p.last == "" or done == p.total or now >= self._next_line:
+            self._next_line = now + 10.0
+            elapsed = now - self._started
+            ran = done - (p.total - p.to_run)
+            eta = f", ETA {elapsed / ran * (p.total - done):.0f} s" if ran > 0 and done < p.total else ""
+            err.print(f"{self.name}: {done}/{p.total} cells, {p.failed} failed, {elapsed:.0f} s{eta}",
+                      highlight=False, markup=False)
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.__exit__(*exc)
+
+
+@app.command()
+def study(
+    ctx: typer.Context,
+    file: Annotated[Path, typer.Argument(help="study file (TOML with a [study] table; see README)")],
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://HOST:8786")] = None,
+    workers: Annotated[Optional[int], typer.Option("--workers", help="local worker processes (default: one per core; 1 runs in this process without Dask)")] = None,
+    results: Annotated[Path, typer.Option("--results", help="results folder; the study store is <results>/studies/<name>.h5")] = Path("results"),
+    resume: Annotated[bool, typer.Option("--resume", help="continue a stored study (refused if there is none); a plain rerun continues too")] = False,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="discard the stored study and run every cell again")] = False,
+    replace_stale: Annotated[bool, typer.Option("--replace-stale", help="start over when the stored study has other settings or came from other simulation code, instead of refusing")] = False,
+    keep_stores: Annotated[bool, typer.Option("--keep-stores", help="also write each cell's full run store under <results>/studies/<name>/cells/")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress output")] = False,
+) -> None:
+    """Run a study (seeds x settings x methods) on Dask; finished cells are stored and never rerun."""
+    from ilcforce.study import load_study, run_study
+
+    try:
+        spec = load_study(file)
+        with _StudyProgress(spec.name, quiet) as progress:
+            summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
+                                overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
+                                command=_command_line(ctx), progress=progress)
+    except _study_errors() as exc:
+        _fail_plain(str(exc) or type(exc).__name__)
+    except KeyboardInterrupt:
+        err.print("interrupted: every finished cell is stored; rerun the same command to continue", highlight=False)
+        raise typer.Exit(130)
+    for cell, message in summary.failed[:10]:
+        err.print(f"warning: cell {cell.method} seed {cell.seed} setting {cell.setting} failed twice: {message}",
+                  highlight=False, markup=False, soft_wrap=True)
+    if not quiet:
+        where = summary.scheduler if summary.workers == 0 else f"{summary.scheduler}, {summary.workers} worker(s)"
+        out.print(f"{spec.name}: {summary.total} cells ({summary.skipped} already stored, {summary.ran} run, "
+                  f"{len(summary.failed)} failed) in {summary.wall_time:.1f} s on {where} -> {summary.path}",
+                  highlight=False, markup=False, soft_wrap=True)
+
+
+@app.command()
+def export(
+    store_path: Annotated[Path, typer.Argument(help="a study store (results/studies/<name>.h5) or a run store")],
+    out_path: Annotated[Path, typer.Option("--out", "-o", help="output table (.csv)")],
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing output file")] = False,
+) -> None:
+    """Write a store's metrics as one tidy table: one row per (setting, seed, method, iteration)."""
+    from ilcforce.study import export as export_table
+
+    try:
+        path, rows = export_table(store_path, out_path, overwrite=overwrite)
+    except _study_errors() as exc:
+        _fail_plain(str(exc) or type(exc).__name__)
+    except OSError as exc:
+        _fail_plain(f"{exc.filename or out_path}: {exc.strerror or exc}")
+    out.print(f"{rows} rows written to {path}", highlight=False, markup=False)
 
 
 @app.command()
 def version() -> None:
     """Print the ilcforce version."""
-    out.print(f"ilcforce {__version__}")
+    _say(f"ilcforce {__version__}")
 
 
 def main() -> None:

@@ -16,7 +16,7 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
     [simulation]  sample_time, substeps, log_every, acceleration, filter_hz, torque_bound, initial_position
     [noise]       disturbance_amplitude, ..., encoder, joint_rate, force_sensor
     [surface]     selection, lambda_p, lambda_f1, lambda_f2          (eq. 8, shared by all methods)
-    [c1] [c2] [c3]                                                   (each method's own gains)
+    [c1] [c2] [c3] [smc-bl] ... one per registered method            (each method's own gains)
 """
 
 from __future__ import annotations
@@ -136,7 +136,7 @@ class SurfaceGains:
 
 
 def _default_gains() -> dict[str, object]:
-    return {name: gains_cls() for name, (_cls, gains_cls) in REGISTRY.items()}
+    return {name: spec.gains_class() for name, spec in REGISTRY.items()}
 
 
 @dataclass(frozen=True)
@@ -202,22 +202,95 @@ def _did_you_mean(key: str, options) -> str:
     return f" (did you mean {close[0]!r}?)" if close else ""
 
 
+# ------------------------------------------------------------------------------------------------
+# valid ranges: every field has one, checked before any work (issue 8, fault 5)
+# ------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class Range:
+    """The valid interval of a numeric field: low/high with open or closed ends."""
+
+    low: float
+    high: float
+    low_open: bool = False
+    high_open: bool = False
+
+    def contains(self, value: float) -> bool:
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def __str__(self) -> str:
+        return f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
+
+
+#: Ranges by dotted key; ``section.*`` covers a whole section, list entries use their list's key.
+#: A field without an entry gets the default of its type (:data:`DEFAULT_RANGES`). Helpers adding
+#: a config field add its range here when the default does not fit.
+RANGES: dict[str, Range] = {
+    "experiment.seed": Range(0, 2**63 - 1),
+    "experiment.iterations": Range(1, 100_000),
+    "reference.duration": Range(0, 600, low_open=True),
+    "simulation.sample_time": Range(1e-6, 0.1),
+    "simulation.substeps": Range(1, 100_000),
+    "simulation.log_every": Range(1, 10_000_000),
+    "simulation.filter_hz": Range(0, 1e7, low_open=True),
+    "simulation.torque_bound": Range(0, 1e12, low_open=True),
+    "wall.stiffness": Range(0, 1e12, low_open=True),
+    "noise.*": Range(0, 1e6),
+    "plant.perturbation.factor": Range(0, 1e6, low_open=True),
+    "plant.perturbation.from_iteration": Range(0, 100_000),
+}
+#: Any other number: finite, magnitude at most 1e12 (floats) / 1e9 (integers).
+DEFAULT_RANGES = {float: Range(-1e12, 1e12), int: Range(-10**9, 10**9)}
+#: Strings: printable (newlines and tabs allowed), at most this many characters.
+MAX_STRING = 4000
+#: Resource limits of one run, checked before it starts.
+MAX_RUN_BYTES = 2 * 1024**3  # working memory of one iteration (arrays on the control grid)
+MAX_STEPS_PER_ITERATION = 10**9  # integrator steps (control samples x substeps)
+
+
+def range_of(path: str, kind: type) -> Range:
+    """The valid range of the field at dotted ``path`` (list indices ignored)."""
+    key = path.split("[", 1)[0]
+    if key in RANGES:
+        return RANGES[key]
+    parts = key.split(".")
+    for cut in range(len(parts) - 1, 0, -1):
+        wildcard = ".".join(parts[:cut]) + ".*"
+        if wildcard in RANGES:
+            return RANGES[wildcard]
+    return DEFAULT_RANGES[kind]
+
+
+def _in_range(path: str, value, kind: type):
+    valid = range_of(path, kind)
+    if not valid.contains(value):
+        raise ConfigError(f"{path} must be in {valid}, got {value!r}")
+    return value
+
+
 def _coerce(path: str, value, annotation):
     origin = typing.get_origin(annotation)
     if annotation is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{path} must be a number, got {value!r}")
-        value = float(value)
+            raise ConfigError(f"{path} must be a number, got {_short(value)}")
+        try:
+            value = float(value)
+        except OverflowError:
+            raise ConfigError(f"{path} must be finite, got {_short(value)}") from None
         if not math.isfinite(value):
             raise ConfigError(f"{path} must be finite, got {value!r}")
-        return value
+        return _in_range(path, value, float)
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{path} must be an integer, got {value!r}")
-        return value
+            raise ConfigError(f"{path} must be an integer, got {_short(value)}")
+        return _in_range(path, value, int)
     if annotation is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{path} must be a string, got {value!r}")
+            raise ConfigError(f"{path} must be a string, got {_short(value)}")
+        if len(value) > MAX_STRING or not value.replace("\n", " ").replace("\t", " ").isprintable():
+            raise ConfigError(f"{path} must be at most {MAX_STRING} printable characters, got {_short(value)}")
         return value
     if origin is tuple:
         args = typing.get_args(annotation)
@@ -231,6 +304,12 @@ def _coerce(path: str, value, annotation):
             items = [_coerce(f"{path}[{i}]", v, a) for i, (v, a) in enumerate(zip(value, args))]
         return tuple(items)
     raise TypeError(f"unsupported annotation {annotation!r} at {path}")
+
+
+def _short(value) -> str:
+    """repr of a value, cut to 60 characters (a 400-digit number stays readable)."""
+    text = repr(value) if not isinstance(value, int) or abs(value) < 10**40 else f"an integer with {len(str(abs(value)))} digits"
+    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def _build(cls, data, path: str, base=None):
@@ -267,7 +346,7 @@ def config_from_dict(data: dict) -> Config:
         if key in sections:
             kwargs[key] = _build(type(getattr(default, key)), value, key)
         elif key in REGISTRY:
-            gains[key] = _build(REGISTRY[key][1], value, key)
+            gains[key] = _build(REGISTRY[key].gains_class, value, key)
         else:
             raise ConfigError(f"unknown section [{key}]{_did_you_mean(key, [*sections, *REGISTRY])}")
     try:
@@ -278,14 +357,34 @@ def config_from_dict(data: dict) -> Config:
     return config
 
 
+def run_footprint(config: Config) -> tuple[int, int]:
+    """(bytes of working memory, integrator steps) one iteration needs, estimated from the grid.
+
+    Per control sample: the reference (12 floats), the learned memory (old and new, up to 2 x 16),
+    the noise draws (about 10), the raw log before decimation (about 40): about 100 float64.
+    """
+    sim = config.simulation
+    n_control = config.reference.duration / sim.sample_time + 1
+    return int(n_control * 100 * 8), int(n_control * sim.substeps)
+
+
 def _check_consistency(config: Config) -> None:
-    """Cross-field checks, all before any simulation starts."""
+    """Cross-field checks, all before any simulation starts (resources first: cheap to compute)."""
+    if config.reference.duration <= 0:
+        raise ConfigError(f"reference.duration must be positive, got {config.reference.duration}")
+    needed, steps = run_footprint(config)
+    if needed > MAX_RUN_BYTES:
+        raise ConfigError(f"a run would need about {needed / 1024**3:.3g} GiB of memory per iteration "
+                          f"(reference.duration / simulation.sample_time = "
+                          f"{config.reference.duration / config.simulation.sample_time:.3g} samples); the limit is "
+                          f"{MAX_RUN_BYTES / 1024**3:g} GiB")
+    if steps > MAX_STEPS_PER_ITERATION:
+        raise ConfigError(f"an iteration would take {steps:.3g} integrator steps (samples x simulation.substeps); "
+                          f"the limit is {MAX_STEPS_PER_ITERATION:.0e}")
     try:
         config.n_log  # Ts divides the horizon, log_every divides the step count
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    if config.reference.duration <= 0:
-        raise ConfigError(f"reference.duration must be positive, got {config.reference.duration}")
     # the reference must stay in the reachable, elbows-out workspace of the nominal and true plants
     t = np.linspace(0.0, config.reference.duration, 401)
     poses = config.reference.sample(t, config.wall)[:, 0:2]
@@ -336,8 +435,12 @@ def load_config(path: Path | str | None = None, overrides: dict[str, object] | N
     data: dict = {}
     if path is not None:
         path = Path(path)
-        if not path.is_file():
+        if not path.exists():
             raise ConfigError(f"config file {path} does not exist")
+        if path.is_dir():
+            raise ConfigError(f"config file {path} is a directory, not a TOML file")
+        if not path.is_file():
+            raise ConfigError(f"config file {path} is not a regular file (a FIFO or device?)")
         try:
             text = path.read_text(encoding="utf-8")
         except (OSError, UnicodeDecodeError) as exc:

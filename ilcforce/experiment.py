@@ -16,13 +16,14 @@ depends on (seed, j) only, the result is bit-identical to an uninterrupted run.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ilcforce import metrics
+from ilcforce import samerun
 from ilcforce.config import Config
 from ilcforce.controllers import REGISTRY
 from ilcforce.noise import draw_iteration
@@ -55,9 +56,9 @@ def make_controller(config: Config, method: str):
     """Instantiate the registered controller ``method`` with the experiment's gains."""
     if method not in REGISTRY:
         raise UnknownMethodError(f"unknown method {method!r}; choose one of {', '.join(REGISTRY)}")
-    cls, _gains_cls = REGISTRY[method]
+    cls = REGISTRY[method].controller_class
     return cls(config.n_control, config.surface, config.wall.sign, config.gains[method],
-               gravity=config.plant.has_gravity)
+               gravity=config.plant.has_gravity, sample_time=config.simulation.sample_time)
 
 
 def reference_log(config: Config) -> dict[str, np.ndarray]:
@@ -74,13 +75,23 @@ def reference_log(config: Config) -> dict[str, np.ndarray]:
     return {k: np.ascontiguousarray(v) for k, v in out.items()}
 
 
+def memory_labels(controller) -> dict[str, tuple[str, ...]]:
+    """Column labels of each learned-memory matrix (from the controller's memory layout)."""
+    labels = getattr(controller, "learned_labels", None)
+    return dict(labels()) if callable(labels) else {}
+
+
 def simulate_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None,
-                        stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None):
+                        stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
+                        desired_cache: dict | None = None):
     """Yield the :class:`IterationRecord` of iterations ``first .. iterations - 1`` in order.
 
     Stops after a diverged iteration. ``memory`` (a stored learned state) seeds iteration ``first``.
     ``stop_requested`` and ``chunk_steps`` go to :func:`~ilcforce.simulate.run_iteration` (an
     iteration in flight is abandoned with KeyboardInterrupt within one chunk of the request).
+    ``desired_cache`` (true plant -> tau_d arrays) may be shared by callers that run many cells of
+    the same wall, reference and grids (a study's worker); it must only ever hold entries computed
+    for that same (wall, reference, sample_time, log_every).
     """
     controller = make_controller(config, method)
     if memory:
@@ -88,7 +99,8 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     reference = config.reference_samples()
     ref_log = reference[:: config.simulation.log_every]
     nominal = config.plant.links()
-    desired_cache: dict = {}
+    if desired_cache is None:
+        desired_cache = {}
     for j in range(first, config.experiment.iterations):
         true_plant = config.plant.true_plant(j)
         inputs = IterationInputs(
@@ -99,20 +111,22 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
         )
         mem_prev, mem_new = controller.begin_iteration(j)
         record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps)
-        controller.end_iteration(record.status == STATUS_COMPLETE)
+        controller.end_iteration(record)  # between-iteration learning sees the finished iteration
         if true_plant not in desired_cache:
             desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
         # a diverged iteration stores the memory it was writing (NaN where it never got)
         memory_now = (controller.learned_state() if record.status == STATUS_COMPLETE
                       else controller.unfinished_state())
-        yield complete_record(record, desired_cache[true_plant], memory_now, controller.learned_units())
+        completed = complete_record(record, desired_cache[true_plant], memory_now, controller.learned_units())
+        yield dataclasses.replace(completed, memory_labels=memory_labels(controller))
         if record.status == STATUS_DIVERGED:
             return
 
 
 def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
                command: str = "", progress: Callable[[IterationRecord, dict], None] | None = None,
-               stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None) -> RunSummary:
+               stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
+               desired_cache: dict | None = None) -> RunSummary:
     """Run ``method`` over the experiment's iterations and store every iteration in ``out``.
 
     ``progress(record, metrics_row)`` is called after each stored iteration. If
@@ -127,7 +141,8 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
         out, experiment=config.experiment.name, method=method, config_toml=config.to_toml(),
         config_json=config.to_json(), seed=config.experiment.seed, command=command,
         n_iterations=config.experiment.iterations, reference=reference_log(config),
-        overwrite=overwrite, resume=resume,
+        control_time=config.control_times(), overwrite=overwrite, resume=resume,
+        same_run=samerun.same_run_check(config.to_dict(), method),
     )
     with writer:
         first = writer.last_complete_iteration + 1
@@ -136,9 +151,9 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
             return RunSummary(Path(out), method, first, (), STATUS_DIVERGED)
         memory = writer.resume_memory() if first > 0 else None
         status = STATUS_COMPLETE
-        for record in simulate_iterations(config, method, first, memory, stop_requested, chunk_steps):
-            writer.append(record)
-            row = metrics.iteration_metrics(record)
+        for record in simulate_iterations(config, method, first, memory, stop_requested, chunk_steps,
+                                          desired_cache=desired_cache):
+            row = writer.append(record)  # the store computes the metrics row once
             rows.append(row)
             if progress is not None:
                 progress(record, row)
@@ -150,7 +165,10 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     return RunSummary(Path(out), method, first, tuple(rows), status)
 
 
-def default_store_path(results_dir: Path, config: Config, method: str) -> Path:
-    """``results/<experiment>/<method>.h5``."""
-    return Path(results_dir) / config.experiment.name / f"{method}.h5"
+def default_store_path(results_dir: Path, config: Config, method: str,
+                       overrides: dict[str, object] | None = None) -> Path:
+    """``results/<experiment>/<method>.h5``; with ``--set`` overrides, the variant's own folder
+    (:func:`ilcforce.samerun.variant_folder`)."""
+    folder = samerun.variant_folder(config.experiment.name, overrides or {})
+    return Path(results_dir) / folder / f"{method}.h5"
 

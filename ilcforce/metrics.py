@@ -18,7 +18,18 @@ setup) from ``record.log``:
 
 * chattering ``H`` (Table 3): the population standard deviation (ddof = 0) over the log grid of
   ``Delta = desired - applied`` input, in task space per axis (``desired_task_input -
-  task_input``, N) and in joint space per joint (``desired_torque - torque``, N m).
+  task_input``, N) and in joint space per joint (``desired_torque - torque``, N m), in three
+  forms, each its own column:
+
+  - ``chattering_<axis>``: over the whole grid (SPEC section 6, today's definition);
+  - ``chattering_<axis>_no_t0``: without the t = 0 sample. Every iteration starts at rest while
+    the reference asks for dF_yd/dt(0) = 5 pi + 5 N/s, so ``Delta(0)`` is a start mismatch that no
+    learning can remove; this form shows how much of H that one sample is;
+  - ``chattering_<axis>_settled``: over ``t >= settled_from`` only (default
+    :data:`SETTLED_FROM` = 20 ms), after the start transient.
+
+* learned-memory norms (:func:`memory_norms`, not a store column: each method has its own
+  memory): the RMS over the control grid of each memory block's per-sample Euclidean norm.
 
 A **diverged** iteration (status ``"diverged"``; its logs are NaN after the divergence time)
 gets NaN for every norm and every ``H``: a norm over a truncated trajectory is not comparable
@@ -28,7 +39,8 @@ with one over the full trajectory. It keeps ``status``, ``diverged_time`` and
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import math
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -42,11 +54,11 @@ METRIC_COLUMNS: dict[str, tuple[str, str]] = {
     "fallback_count": ("-", "control samples where the implicit acceleration scheme reused the previous acceleration"),
     "diverged_time": ("s", "time at which the watchdog stopped the iteration; NaN if complete"),
     "position_error_2norm": ("m", "paper's 2-norm sqrt(sum_k |e_P(t_k)|^2) over the log grid"),
-    "position_error_l2": ("m", "L2 norm sqrt(dt sum_k |e_P(t_k)|^2) over the log grid (unit m s^1/2)"),
+    "position_error_l2": ("m s^1/2", "L2 norm sqrt(dt sum_k |e_P(t_k)|^2) over the log grid (unit m s^1/2)"),
     "position_error_rms": ("m", "RMS sqrt(mean_k |e_P(t_k)|^2) over the log grid"),
     "position_error_max": ("m", "max_k |e_P(t_k)| (Euclidean norm per sample)"),
     "force_error_2norm": ("N", "paper's 2-norm sqrt(sum_k |e_F(t_k)|^2) over the log grid"),
-    "force_error_l2": ("N", "L2 norm sqrt(dt sum_k |e_F(t_k)|^2) over the log grid (unit N s^1/2)"),
+    "force_error_l2": ("N s^1/2", "L2 norm sqrt(dt sum_k |e_F(t_k)|^2) over the log grid (unit N s^1/2)"),
     "force_error_rms": ("N", "RMS sqrt(mean_k |e_F(t_k)|^2) over the log grid"),
     "force_error_max": ("N", "max_k |e_F(t_k)| (Euclidean norm per sample)"),
     "chattering_task_x": ("N", "H: population std over the log grid of desired_task_input - task_input, x axis"),
@@ -54,6 +66,32 @@ METRIC_COLUMNS: dict[str, tuple[str, str]] = {
     "chattering_joint_1": ("N m", "H: population std over the log grid of desired_torque - torque, joint 1"),
     "chattering_joint_2": ("N m", "H: population std over the log grid of desired_torque - torque, joint 2"),
 }
+# The two further forms of H, same units, appended after today's columns (older stores lack them;
+# the store's /metrics is a cache recomputed from the logs).
+for _name in ("chattering_task_x", "chattering_task_y", "chattering_joint_1", "chattering_joint_2"):
+    _unit = METRIC_COLUMNS[_name][0]
+    _what = METRIC_COLUMNS[_name][1].removeprefix("H: population std over the log grid of ")
+    METRIC_COLUMNS[f"{_name}_no_t0"] = (_unit, f"H without the t = 0 sample: std over t_k > 0 of {_what}")
+    METRIC_COLUMNS[f"{_name}_settled"] = (_unit, f"H settled: std over t_k >= 20 ms (SETTLED_FROM) of {_what}")
+del _name, _unit, _what
+
+#: Start of the "settled" window of H (s): after the start transient of every iteration.
+SETTLED_FROM = 0.02
+
+#: Version of the metric definitions. The store's ``/metrics`` is a cache of
+#: :func:`iteration_metrics` tagged with this version: a store whose cache has another version, or
+#: lacks a column of :data:`METRIC_COLUMNS`, has its table recomputed from the stored logs on read.
+#: Bump it when the definition of an existing column changes; adding a column needs no bump.
+METRICS_VERSION = 1
+
+#: Column kinds other than float: "int" or "str".
+METRIC_KINDS: dict[str, str] = {"iteration": "int", "status": "str", "fallback_count": "int"}
+
+
+def column_kind(column: str) -> str:
+    """``"int"``, ``"str"`` or ``"float"``: the type of a metric column's values."""
+    return METRIC_KINDS.get(column, "float")
+
 
 _NORM_KINDS = ("2norm", "l2", "rms", "max")
 
@@ -95,7 +133,7 @@ def error_norms(error: np.ndarray, dt: float) -> dict[str, float]:
     }
 
 
-def iteration_metrics(record: IterationRecord) -> dict[str, object]:
+def iteration_metrics(record: IterationRecord, *, settled_from: float = SETTLED_FROM) -> dict[str, object]:
     """One metrics row for one iteration, keys and order exactly :data:`METRIC_COLUMNS`.
 
     Parameters
@@ -104,6 +142,9 @@ def iteration_metrics(record: IterationRecord) -> dict[str, object]:
         Its ``log`` must hold ``time`` (n_log,) and ``position_error``, ``force_error``,
         ``task_input``, ``desired_task_input``, ``torque``, ``desired_torque`` (n_log, 2), with
         n_log >= 2 on a uniform grid.
+    settled_from : float
+        Start (s, >= 0, measured from the first log sample) of the window of the ``_settled``
+        form of H; a window with fewer than 2 samples gives NaN.
 
     Returns
     -------
@@ -144,11 +185,42 @@ def iteration_metrics(record: IterationRecord) -> dict[str, object]:
     # Table 3: H = std over the log grid of Delta = tau_d - tau (ddof = 0), task and joint space.
     task_delta = signals["desired_task_input"] - signals["task_input"]
     joint_delta = signals["desired_torque"] - signals["torque"]
-    for column, axis in enumerate(TASK_AXES):
-        row[f"chattering_task_{axis}"] = float(np.std(task_delta[:, column]))
-    for column, axis in enumerate(JOINT_AXES):
-        row[f"chattering_joint_{axis}"] = float(np.std(joint_delta[:, column]))
+    if not (math.isfinite(settled_from) and settled_from >= 0):
+        raise ValueError(f"settled_from must be a finite time >= 0 s, got {settled_from!r}")
+    settled = (time - time[0]) >= settled_from - 1e-9 * dt  # grid times carry rounding; dt-relative slack
+    for name, delta, axes in (("task", task_delta, TASK_AXES), ("joint", joint_delta, JOINT_AXES)):
+        for column, axis in enumerate(axes):
+            row[f"chattering_{name}_{axis}"] = float(np.std(delta[:, column]))
+            row[f"chattering_{name}_{axis}_no_t0"] = float(np.std(delta[1:, column]))
+            row[f"chattering_{name}_{axis}_settled"] = (
+                float(np.std(delta[settled, column])) if np.count_nonzero(settled) >= 2 else float("nan"))
     return {name: row[name] for name in METRIC_COLUMNS}
+
+
+def memory_norms(memory: Mapping[str, np.ndarray]) -> dict[str, float]:
+    """The norm of each learned-memory block, for growth tests over iterations.
+
+    Parameters
+    ----------
+    memory : mapping name -> ndarray, shape (n_control,) or (n_control, width)
+        A controller's ``learned_state()`` (or a record's ``memory``), control grid first.
+
+    Returns
+    -------
+    dict
+        ``memory_norm_<name>`` -> ``sqrt(mean_k |m(t_k)|^2)``, the RMS over the control grid of
+        the per-sample Euclidean norm, in the block's unit (mixed for Theta_hat: it is a size,
+        for growth rates). NaN when the block holds a non-finite value (a diverged iteration).
+    """
+    out = {}
+    for name, block in memory.items():
+        values = np.asarray(block, dtype=np.float64)
+        values = values.reshape(values.shape[0], -1) if values.ndim else values.reshape(1, 1)
+        if values.size == 0 or not np.all(np.isfinite(values)):
+            out[f"memory_norm_{name}"] = float("nan")
+        else:
+            out[f"memory_norm_{name}"] = float(np.sqrt(np.mean(np.sum(np.square(values), axis=1))))
+    return out
 
 
 def convergence_iteration(

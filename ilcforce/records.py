@@ -84,6 +84,9 @@ class IterationRecord:
         (n_control, ...) on the control grid. Units are in ``memory_units``.
     memory_units : dict[str, str]
         Unit string for each entry of ``memory``.
+    memory_labels : dict[str, tuple[str, ...]]
+        Column labels of each (n_control, width) memory entry, e.g. Theta_hat's
+        ``("D11", "D12", "C11", "C12", ...)``; optional (from the controller's memory layout).
     """
 
     iteration: int
@@ -94,6 +97,7 @@ class IterationRecord:
     log: dict[str, np.ndarray]
     memory: dict[str, np.ndarray] = field(default_factory=dict)
     memory_units: dict[str, str] = field(default_factory=dict)
+    memory_labels: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
     @property
     def diverged(self) -> bool:

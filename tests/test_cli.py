@@ -11,6 +11,7 @@ from ilcforce import store
 from ilcforce.cli import app
 
 SHORT = ["--set", "reference.duration=0.2"]
+VARIANT = "paper--reference.duration=0.2"  # --set runs write to a results folder of their own
 
 
 @pytest.fixture
@@ -41,7 +42,7 @@ def test_simulate_writes_a_valid_store(runner, tmp_path):
 def test_default_output_path_and_existing_result(runner, tmp_path):
     args = ["simulate", "-m", "c1", "-n", "1", "--results", str(tmp_path), *SHORT]
     assert runner.invoke(app, args).exit_code == 0
-    path = tmp_path / "paper" / "c1.h5"
+    path = tmp_path / VARIANT / "c1.h5"
     assert path.is_file()
     before = path.read_bytes()
     _one_clear_line(runner.invoke(app, args), "--overwrite replaces it")
@@ -150,7 +151,7 @@ def test_bad_store_files(runner, tmp_path):
 def test_report_skips_bad_files_with_a_warning(runner, tmp_path):
     results = tmp_path / "results"
     assert runner.invoke(app, ["simulate", "-m", "c1", "-n", "1", "--results", str(results), *SHORT]).exit_code == 0
-    (results / "paper" / "c2.h5").write_bytes(b"not hdf5 at all")
+    (results / VARIANT / "c2.h5").write_bytes(b"not hdf5 at all")
     result = runner.invoke(app, ["report", "--results", str(results), "--out", str(tmp_path / "rep")])
     assert result.exit_code == 0, result.output
     assert "Traceback" not in result.output

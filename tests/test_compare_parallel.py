@@ -21,12 +21,22 @@ from ilcforce import store
 
 METHODS = ("c1", "c2", "c3")
 SHORT = ("--set", "reference.duration=0.2")
+#: Interrupted runs use the paper's full 2 s horizon and many iterations, so they are still running
+#: when the test interrupts them (a short horizon finishes 200 iterations before the first poll).
+LONG = "200"
 
 
-def _compare(results, iters: str) -> subprocess.Popen:
+def _compare(results, iters: str, *extra: str) -> subprocess.Popen:
     cmd = [sys.executable, "-m", "ilcforce", "compare", "--methods", ",".join(METHODS), "-n", iters,
-           "--results", str(results), *SHORT]
+           "--results", str(results), *extra]
     return subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _store(results, method: str):
+    """The one store of ``method`` under ``results`` (a run with --set lives in a variant folder)."""
+    found = sorted(results.rglob(f"{method}.h5"))
+    assert len(found) == 1, found
+    return found[0]
 
 
 def _wait_until_every_store_has(proc, results, n: int, timeout: float = 120.0) -> None:
@@ -64,7 +74,7 @@ def _workers(parent_pid: int) -> list[int]:
 
 def test_ctrl_c_leaves_every_store_partial_and_valid_then_compare_resumes(tmp_path):
     results = tmp_path / "results"
-    proc = _compare(results, "200")
+    proc = _compare(results, LONG)
     _wait_until_every_store_has(proc, results, 1)
     proc.send_signal(signal.SIGINT)  # to the parent only: it passes the interrupt on to its workers
     _, stderr = proc.communicate(timeout=120)
@@ -76,8 +86,8 @@ def test_ctrl_c_leaves_every_store_partial_and_valid_then_compare_resumes(tmp_pa
         store.validate(path)
         assert store.read_provenance(path)["run_state"] == "partial"
         stored[method] = len(store.iterations(path))
-        assert 1 <= stored[method] < 200  # stopped early, after at least the iteration waited for
-    again = _compare(results, "200")
+        assert 1 <= stored[method] < int(LONG)  # stopped early, after at least the iteration waited for
+    again = _compare(results, LONG)
     _wait_until_every_store_has(again, results, max(stored.values()) + 1)  # resumed, not restarted
     again.send_signal(signal.SIGINT)
     again.communicate(timeout=120)
@@ -90,7 +100,7 @@ def test_ctrl_c_leaves_every_store_partial_and_valid_then_compare_resumes(tmp_pa
 
 def test_a_killed_worker_is_one_line_and_exit_2(tmp_path):
     results = tmp_path / "results"
-    proc = _compare(results, "200")
+    proc = _compare(results, LONG)
     _wait_until_every_store_has(proc, results, 1)
     victim = _workers(proc.pid)
     assert len(victim) == len(METHODS), victim  # one worker process per method
@@ -107,13 +117,13 @@ def test_a_killed_worker_is_one_line_and_exit_2(tmp_path):
 
 def test_compare_runs_only_what_is_missing(tmp_path):
     results = tmp_path / "results"
-    first = _compare(results, "2")
+    first = _compare(results, "2", *SHORT)
     out, err = first.communicate(timeout=300)
     assert first.returncode == 0, err
     assert "paper: The paper's setup" in out  # the title comes from the experiment
-    before = {m: (results / "paper" / f"{m}.h5").stat().st_mtime_ns for m in METHODS}
-    second = _compare(results, "2")
+    before = {m: _store(results, m).stat().st_mtime_ns for m in METHODS}
+    second = _compare(results, "2", *SHORT)
     out2, err2 = second.communicate(timeout=300)
     assert second.returncode == 0, err2
-    assert before == {m: (results / "paper" / f"{m}.h5").stat().st_mtime_ns for m in METHODS}
+    assert before == {m: _store(results, m).stat().st_mtime_ns for m in METHODS}
     assert out2 == out

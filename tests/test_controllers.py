@@ -220,3 +220,128 @@ def test_memory_round_trip(method):
     controller.restore(stored)
     for key, value in controller.learned_state().items():
         np.testing.assert_array_equal(value, stored[key], err_msg=f"{method} memory {key} not restored exactly")
+
+
+# ---------------------------------------------------------------------------------------------
+# the methods beyond the paper, each against its own readable reference
+# ---------------------------------------------------------------------------------------------
+
+def _task_model(meas):
+    D = np.array([[meas[20], meas[21]], [meas[21], meas[22]]])
+    C = meas[23:27].reshape(2, 2)
+    return D, C
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_smc_bl_matches_eq26_with_a_boundary_layer(seed):
+    """sat(sigma / phi) for sgn(sigma) (Slotine & Li 1991, eq. 7.30); everything else is eq. (26)."""
+    config, meas, ref, _ = _law_inputs(seed, 0)
+    controller = make_controller(config, "smc-bl")
+    g = config.gains["smc-bl"]
+    sigma, psi = _reference_surface(meas, ref[4], config)
+    D, C = _task_model(meas)
+    J = meas[10:14].reshape(2, 2)
+    sat = np.clip(sigma / np.array(g.phi), -1.0, 1.0)
+    u = np.diag(g.k) @ sigma + g.alpha * sat + D @ psi[:2] + C @ psi[2:] + meas[4:6]
+    tau = controller.law(4, 0.0, meas, ref, controller.gains(), np.zeros((N, 0)), np.zeros((N, 0)), True,
+                         np.zeros(DIAG_WIDTH))
+    np.testing.assert_allclose(tau, J.T @ u, rtol=1e-12, atol=1e-14, err_msg="SMC-BL differs from eq. (26) with sat")
+
+
+def test_smc_bl_is_c1_outside_its_boundary_layer():
+    """With phi far below |sigma|, sat(sigma / phi) = sgn(sigma): the torque is C1's, bit for bit."""
+    from dataclasses import replace
+
+    config, meas, ref, _ = _law_inputs(0, 0)
+    sigma, _ = _reference_surface(meas, ref[4], config)
+    assert np.all(np.abs(sigma) > 1e-12), "the random state must be off the surface"
+    bl = replace(config.gains["smc-bl"], k=config.gains["c1"].k, alpha=config.gains["c1"].alpha, phi=(1e-300, 1e-300))
+    config = replace(config, gains={**config.gains, "smc-bl": bl})
+    args = (4, 0.0, meas, ref)
+    tail = (np.zeros((N, 0)), np.zeros((N, 0)), False, np.zeros(DIAG_WIDTH))
+    c1 = make_controller(config, "c1")
+    blc = make_controller(config, "smc-bl")
+    assert blc.law(*args, blc.gains(), *tail) == c1.law(*args, c1.gains(), *tail)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_c3_leak_matches_eq14_with_leakage_and_bound(seed):
+    """Theta_hat_j = (1 - lambda) Theta_hat_{j-1} + Gamma Phi sigma; alpha_hat_j capped at alpha_max."""
+    from dataclasses import replace
+
+    config, meas, ref, mem_prev = _law_inputs(seed, 9)
+    mem_prev[4, 8] = 0.5  # above the default bound 0.1 N: the cap must act
+    g = config.gains["c3-leak"]
+    controller = make_controller(config, "c3-leak")
+    sigma, psi = _reference_surface(meas, ref[4], config)
+    Phi = np.zeros((8, 2))
+    Phi[0:4, 0] = psi
+    Phi[4:8, 1] = psi
+    keep = 1.0 - g.leakage
+    theta = keep * mem_prev[4, :8] + np.diag(g.gamma) @ Phi @ sigma
+    alpha = min(g.alpha_max, keep * mem_prev[4, 8] + g.eta * sigma @ np.sign(sigma))
+    assert alpha == g.alpha_max
+    J = meas[10:14].reshape(2, 2)
+    u = np.diag(g.k) @ sigma + Phi.T @ theta + meas[4:6] + alpha * np.sign(sigma)
+    mem_new = np.zeros((N, 9))
+    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
+    np.testing.assert_allclose(tau, J.T @ u, rtol=1e-11, atol=1e-13, err_msg="C3-leak torque")
+    np.testing.assert_allclose(mem_new[4, :8], theta, rtol=1e-12, err_msg="leaky Theta_hat update")
+    assert mem_new[4, 8] == alpha
+    # lambda = 0 and an unreachable bound give the paper's C3 bit for bit
+    off = replace(g, leakage=0.0, alpha_max=1e300)
+    config = replace(config, gains={**config.gains, "c3-leak": off})
+    leak, c3 = make_controller(config, "c3-leak"), make_controller(config, "c3")
+    mem_a, mem_b = np.zeros((N, 9)), np.zeros((N, 9))
+    ta = leak.law(4, 0.0, meas, ref, leak.gains(), mem_prev, mem_a, True, np.zeros(DIAG_WIDTH))
+    tb = c3.law(4, 0.0, meas, ref, c3.gains(), mem_prev, mem_b, True, np.zeros(DIAG_WIDTH))
+    assert ta == tb
+    np.testing.assert_array_equal(mem_a, mem_b)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_sl_adapt_matches_the_slotine_li_adaptation(seed):
+    """Theta_hat(t_k) = Theta_hat(t_{k-1}) + Ts Gamma_a Phi sigma (this iteration's row k - 1), and the
+    previous iteration's memory is never read (no iteration memory)."""
+    config, meas, ref, mem_prev = _law_inputs(seed, 8)
+    g = config.gains["sl-adapt"]
+    ts = config.simulation.sample_time
+    controller = make_controller(config, "sl-adapt")
+    sigma, psi = _reference_surface(meas, ref[4], config)
+    Phi = np.zeros((8, 2))
+    Phi[0:4, 0] = psi
+    Phi[4:8, 1] = psi
+    rng = np.random.default_rng(seed + 100)
+    mem_new = rng.normal(0.0, 1.0, (N, 8))  # row 3: Theta_hat(t_3) written at the previous sample
+    theta = mem_new[3] + ts * np.diag(g.gamma) @ Phi @ sigma
+    J = meas[10:14].reshape(2, 2)
+    u = np.diag(g.k) @ sigma + Phi.T @ theta + meas[4:6]
+    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
+    np.testing.assert_allclose(tau, J.T @ u, rtol=1e-11, atol=1e-13, err_msg="SL-adapt torque")
+    np.testing.assert_allclose(mem_new[4], theta, rtol=1e-12, err_msg="SL-adapt Theta_hat update")
+    tau_other = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev * 7.0 + 1.0, mem_new, False,
+                               np.zeros(DIAG_WIDTH))
+    assert tau_other == tau, "SL-adapt must not read the previous iteration's memory"
+    # k = 0 starts from Theta_hat = 0 whatever the buffer holds
+    sigma0, psi0 = _reference_surface(meas, ref[0], config)
+    Phi0 = np.zeros((8, 2))
+    Phi0[0:4, 0] = psi0
+    Phi0[4:8, 1] = psi0
+    theta0 = ts * np.diag(g.gamma) @ Phi0 @ sigma0
+    mem0 = np.full((N, 8), 5.0)
+    controller.law(0, 0.0, meas, ref, controller.gains(), mem_prev, mem0, True, np.zeros(DIAG_WIDTH))
+    np.testing.assert_allclose(mem0[0], theta0, rtol=1e-12, atol=1e-300)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_pd_ilc_law_is_pd_feedback_plus_last_iterations_feedforward(seed):
+    """tau = v_j + J^T k sigma + J^T F; the law writes v_j + J^T L sigma for the Q filter to finish."""
+    config, meas, ref, mem_prev = _law_inputs(seed, 2)
+    g = config.gains["pd-ilc"]
+    controller = make_controller(config, "pd-ilc")
+    sigma, _ = _reference_surface(meas, ref[4], config)
+    J = meas[10:14].reshape(2, 2)
+    mem_new = np.zeros((N, 2))
+    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
+    np.testing.assert_allclose(tau, mem_prev[4] + J.T @ (np.diag(g.k) @ sigma + meas[4:6]), rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(mem_new[4], mem_prev[4] + J.T @ np.diag(g.learning) @ sigma, rtol=1e-12, atol=1e-14)

@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pytest
 
-from ilcforce.metrics import METRIC_COLUMNS, convergence_iteration, error_norms, iteration_metrics
+from ilcforce.metrics import METRIC_COLUMNS, convergence_iteration, error_norms, iteration_metrics, memory_norms
 from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 
 RTOL = 1e-12  # a few rounded float64 operations on O(1) numbers
@@ -54,11 +54,17 @@ def test_metric_columns_order_and_units():
         "position_error_2norm", "position_error_l2", "position_error_rms", "position_error_max",
         "force_error_2norm", "force_error_l2", "force_error_rms", "force_error_max",
         "chattering_task_x", "chattering_task_y", "chattering_joint_1", "chattering_joint_2",
+        # the two further forms of H come after today's columns, so older stores' columns stay a prefix
+        "chattering_task_x_no_t0", "chattering_task_x_settled", "chattering_task_y_no_t0",
+        "chattering_task_y_settled", "chattering_joint_1_no_t0", "chattering_joint_1_settled",
+        "chattering_joint_2_no_t0", "chattering_joint_2_settled",
     ]
     units = {name: unit for name, (unit, _description) in METRIC_COLUMNS.items()}
     assert units["diverged_time"] == "s"
-    assert {units[f"position_error_{k}"] for k in ("2norm", "l2", "rms", "max")} == {"m"}
-    assert {units[f"force_error_{k}"] for k in ("2norm", "l2", "rms", "max")} == {"N"}
+    assert {units[f"position_error_{k}"] for k in ("2norm", "rms", "max")} == {"m"}
+    assert {units[f"force_error_{k}"] for k in ("2norm", "rms", "max")} == {"N"}
+    # the grid-independent L2 norm carries the square root of time (issue 8, section 2)
+    assert units["position_error_l2"] == "m s^1/2" and units["force_error_l2"] == "N s^1/2"
     assert units["chattering_task_x"] == units["chattering_task_y"] == "N"
     assert units["chattering_joint_1"] == units["chattering_joint_2"] == "N m"
 
@@ -235,3 +241,44 @@ def test_convergence_rejects_bad_arguments(kwargs, argument):
 def test_convergence_rejects_2d_norms():
     with pytest.raises(ValueError, match="norms"):
         convergence_iteration(np.ones((10, 2)))
+
+
+def test_three_forms_of_chattering_hand_computed():
+    # 101 samples on [0, 0.1] s (dt = 1 ms). Delta on task x: a spike of 10 at t = 0, then +-1
+    # alternating; t >= 20 ms starts at sample 20.
+    n = 101
+    delta = np.where(np.arange(n) % 2 == 0, 1.0, -1.0)
+    delta[0] = 10.0
+    desired = np.zeros((n, 2))
+    desired[:, 0] = delta
+    row = iteration_metrics(make_record(n, 0.1, desired_task_input=desired))
+    assert math.isclose(row["chattering_task_x"], float(np.std(delta)), rel_tol=RTOL)
+    # without t = 0: samples 1..100, 50 of -1 and 50 of +1 -> std exactly 1
+    assert math.isclose(row["chattering_task_x_no_t0"], 1.0, rel_tol=RTOL)
+    # settled: samples 20..100, 41 of +1 and 40 of -1 -> mean 1/81, std sqrt(1 - 1/81^2)
+    assert math.isclose(row["chattering_task_x_settled"], math.sqrt(1 - 1 / 81**2), rel_tol=RTOL)
+    assert row["chattering_task_x"] > 1.0  # the spike alone inflates the whole-grid form
+    assert row["chattering_task_y_settled"] == 0.0
+
+
+def test_settled_window_is_a_parameter():
+    n = 101
+    desired = np.zeros((n, 2))
+    desired[50:, 1] = np.where(np.arange(51) % 2 == 0, 2.0, -2.0)  # +-2 from t = 50 ms on
+    desired[:50, 1] = 5.0
+    row = iteration_metrics(make_record(n, 0.1, desired_task_input=desired), settled_from=0.05)
+    # 26 of +2 and 25 of -2 -> mean 2/51, std 2 sqrt(1 - 1/51^2)
+    assert math.isclose(row["chattering_task_y_settled"], 2 * math.sqrt(1 - 1 / 51**2), rel_tol=RTOL)
+    with pytest.raises(ValueError, match="settled_from"):
+        iteration_metrics(make_record(n, 0.1), settled_from=-1.0)
+    # a window beyond the end has fewer than 2 samples: NaN, not a zero that looks like no chattering
+    assert math.isnan(iteration_metrics(make_record(n, 0.1), settled_from=1.0)["chattering_task_x_settled"])
+
+
+def test_memory_norms_hand_computed():
+    memory = {"v": np.array([[3.0, 4.0], [0.0, 0.0]]), "alpha_hat": np.array([2.0, 2.0]),
+              "broken": np.array([[1.0], [np.nan]])}
+    norms = memory_norms(memory)
+    assert math.isclose(norms["memory_norm_v"], math.sqrt(25 / 2), rel_tol=RTOL)  # sqrt(mean(25, 0))
+    assert math.isclose(norms["memory_norm_alpha_hat"], 2.0, rel_tol=RTOL)
+    assert math.isnan(norms["memory_norm_broken"])  # a diverged iteration's unfinished memory

@@ -22,7 +22,7 @@ from matplotlib.figure import Figure
 from ilcforce.records import LOG_SIGNALS, IterationRecord
 from ilcforce.report import build, claims, figures, paper, tables
 from ilcforce.report.build import ReportSummary, write_report
-from ilcforce.store import StoreWriter, read_metrics
+from ilcforce.store import SCHEMA_VERSION, StoreWriter, read_metrics
 
 N_LOG = 21  # log samples over [0, 2] s (0.1 s spacing): small, but every code path is the same
 LOG_EVERY = 10
@@ -334,97 +334,150 @@ def metrics_frame(
 
 
 def good_case(**overrides: pd.DataFrame) -> dict[str, pd.DataFrame]:
-    """Every claim holds: j̄ as published, C3 45% below C2, jumps at 10, C1 chatters 2x C3."""
+    """Every claim holds: j̄ as published, C3 45% below C2, jumps at 10, H(C1)/H(C3) 1.67 and 2.44."""
     case = {
-        "c1": metrics_frame([1e-3] * 10 + [1.2e-3] * 10, [10.0] * 10 + [11.0] * 10, (0.06, 0.05)),
+        "c1": metrics_frame([1e-3] * 10 + [1.2e-3] * 10, [10.0] * 10 + [11.0] * 10, (0.06, 0.05)),  # 0.06/0.0359, 0.05/0.0205
         "c2": metrics_frame(sequence(3, 1e-5), sequence(2, 0.1), (0.05, 0.04)),
-        "c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.03, 0.02)),
+        "c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.0359, 0.0205)),
     }
     case.update(overrides)
     return case
 
 
 def verdicts(case: dict[str, pd.DataFrame], **kwargs: int) -> dict[int, str]:
-    frame = claims.judge_claims(case, **kwargs)
-    assert set(frame["verdict"]) <= set(claims.VERDICTS)
-    return dict(zip(frame["claim"], frame["verdict"], strict=True))
+    summary = claims.claim_summary(claims.judge_claims(case, **kwargs))
+    assert set(summary["verdict"]) <= set(claims.VERDICTS)
+    return dict(zip(summary["claim"], summary["verdict"], strict=True))
+
+
+def part_verdicts(case: dict[str, pd.DataFrame], claim: int, **kwargs: int) -> dict[str, str]:
+    parts = claims.judge_claims(case, **kwargs)
+    mine = parts[parts["claim"] == claim]
+    return dict(zip(mine["part"], mine["part_verdict"], strict=True))
 
 
 def test_all_claims_hold_on_the_good_case() -> None:
-    frame = claims.judge_claims(good_case())
-    assert list(frame.columns) == ["claim", "statement", "paper", "ours", "verdict", "rule"]
-    assert list(frame["verdict"]) == ["holds"] * 5, frame[["claim", "ours"]].to_string()
-    assert frame["rule"].str.len().min() > 40, "every claim states its rule"
+    parts = claims.judge_claims(good_case())
+    summary = claims.claim_summary(parts)
+    assert list(summary["verdict"]) == ["holds"] * 5, parts[["claim", "part", "median", "part_verdict"]].to_string()
+    assert summary["rule"].str.len().min() > 40, "every claim states its rule"
+    assert set(parts["role"]) == {"central", "secondary", "shown"}
+    # every judged part has a statistic and a frequency over the one seed
+    judged = parts[parts["role"] != "shown"]
+    assert (judged["evaluable"] == 1).all() and (judged["passed"] == 1).all()
+    assert list(summary["frequency"]) == ["holds in 1 of 1 seed"] * 5
 
 
 @pytest.mark.parametrize(
     ("claim", "overrides", "expected"),
     [
-        # Claim 1: C2 worse than C1 in position only -> 3 of 4 comparisons.
-        (1, {"c2": metrics_frame([1.0] * 20, sequence(2, 0.1))}, "in part"),
+        # Claim 1: all four comparisons are central; C2 worse than C1 in position alone fails it.
+        (1, {"c2": metrics_frame([1.0] * 20, sequence(2, 0.1))}, "fails"),
         (1, {"c1": metrics_frame([1e-9] * 20, [1e-9] * 20)}, "fails"),
-        # Claim 2: force ratio 0.604 (the paper's own Table 2 numbers) -> position only.
+        # Claim 2 with the paper's own Table 2: force 0.058 / 0.096 = 0.604 is not 40% below -> fails.
         (2, {"c2": metrics_frame(sequence(3, 7.6e-6), sequence(2, 0.096)),
-             "c3": metrics_frame(sequence(4, 4.3e-6), sequence(3, 0.058))}, "in part"),
+             "c3": metrics_frame(sequence(4, 4.3e-6), sequence(3, 0.058))}, "fails"),
         (2, {"c3": metrics_frame(sequence(4, 1e-5), sequence(3, 0.1))}, "fails"),
-        # Claim 3: C3's j̄ off by 3 on both -> 2 of 4 within +-1; all off -> fails.
-        (3, {"c3": metrics_frame(sequence(7, 5.5e-6), sequence(6, 0.055))}, "in part"),
-        (3, {"c2": metrics_frame(sequence(7, 1e-5), sequence(6, 0.1)),
-             "c3": metrics_frame(sequence(7, 5.5e-6), sequence(7, 0.055))}, "fails"),
-        # Claim 4: C1 degrades 3x -> 8 of 10 parts; nothing as claimed -> fails.
+        # Claim 3: C3's j̄ off by 3 -> a central part fails.
+        (3, {"c3": metrics_frame(sequence(7, 5.5e-6), sequence(6, 0.055))}, "fails"),
+        # Claim 4: C1 degrades 3x (not 'slightly', a secondary part) -> in part; C2, C3 never
+        # converge again (central) -> fails.
         (4, {"c1": metrics_frame([1e-3] * 10 + [3e-3] * 10, [10.0] * 10 + [30.0] * 10)}, "in part"),
-        (4, {"c1": metrics_frame([1e-3] * 10 + [3e-3] * 10, [10.0] * 10 + [30.0] * 10),
-             "c2": metrics_frame(sequence(3, 1e-5, jump=1.9, settle=2.0), sequence(2, 0.1, jump=1.9, settle=2.0)),
-             "c3": metrics_frame(sequence(4, 5.5e-6, jump=1.9, settle=2.0), sequence(3, 0.055, jump=1.9, settle=2.0))},
-         "fails"),
-        # Claim 5: C3 chatters more in X only -> in part; on both -> fails.
-        (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.07, 0.02))}, "in part"),
-        (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.07, 0.06))}, "fails"),
+        (4, {"c2": metrics_frame(sequence(3, 1e-5, settle=2.0), sequence(2, 0.1, settle=2.0)),
+             "c3": metrics_frame(sequence(4, 5.5e-6, settle=2.0), sequence(3, 0.055, settle=2.0))}, "fails"),
+        # Claim 5: direction right but the Y ratio 2.0 is not within x1.1 of 2.44 -> in part;
+        # C3 chatters more in X -> fails.
+        (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.0359, 0.025))}, "in part"),
+        (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.07, 0.0205))}, "fails"),
     ],
 )
 def test_claim_verdict_rules(claim: int, overrides: dict[str, pd.DataFrame], expected: str) -> None:
-    judgement = claims.judge_claim(claim, good_case(**overrides))
-    assert judgement.verdict == expected, f"claim {claim}: {judgement.ours}"
+    case = good_case(**overrides)
+    assert verdicts(case)[claim] == expected, part_verdicts(case, claim)
+
+
+def test_in_part_never_when_a_central_part_fails() -> None:
+    """The issue's case: claim 4 with C1 degrading strongly and no reconvergence was 'in part'."""
+    case = good_case(
+        c1=metrics_frame([1e-3] * 10 + [9.3e-3] * 10, [10.0] * 10 + [30.0] * 10),
+        c2=metrics_frame(sequence(3, 1e-5, settle=2.0), sequence(2, 0.1, settle=2.0)),
+        c3=metrics_frame(sequence(4, 5.5e-6, settle=2.0), sequence(3, 0.055, settle=2.0)))
+    parts = part_verdicts(case, 4)
+    assert parts["c2_strong_position"] == "holds" and parts["c2_again_position"] == "fails"
+    assert verdicts(case)[4] == "fails"
+    assert claims.claim_verdict({"a": "holds", "b": "fails"}, {"a": "central", "b": "central"}) == "fails"
+    assert claims.claim_verdict({"a": "holds", "b": "fails"}, {"a": "central", "b": "secondary"}) == "in part"
+
+
+def test_claim2_is_judged_at_jbar_with_windows_and_margin_beside() -> None:
+    parts = claims.judge_claims(good_case()).set_index("part")
+    c2 = claims.judge_claims(good_case())
+    two = c2[c2["claim"] == 2].set_index("part")
+    # good case: C3 settles at 5.5e-6 from j̄ = 4, C2 at 1e-5 from j̄ = 3 -> 0.55 at j̄
+    np.testing.assert_allclose(two.at["position_jbar", "median"], 0.55, rtol=1e-12)
+    np.testing.assert_allclose(two.at["position_margin", "median"], 0.6 - 0.55, rtol=1e-9)
+    np.testing.assert_allclose(two.at["position_5_9", "median"], 0.55, rtol=1e-12)
+    assert two.at["position_15_19", "role"] == "shown"
+    assert len(parts) == len(claims.PARTS)
+
+
+def test_seeds_give_frequencies_and_intervals() -> None:
+    """Three seeds, C3 40% below C2 in two of them: the part holds in 2 of 3 (majority)."""
+    frames = []
+    for seed, c3_level in ((0, 5.5e-6), (1, 5.0e-6), (2, 2e-5)):
+        case = good_case(c3=metrics_frame(sequence(4, c3_level), sequence(3, 0.055), (0.0359, 0.0219)))
+        tidy = claims.tidy_from_methods(case, seed=seed)
+        frames.append(tidy)
+    parts = claims.judge_claims_over_seeds(pd.concat(frames, ignore_index=True))
+    row = parts[(parts["claim"] == 2) & (parts["part"] == "position_jbar")].iloc[0]
+    assert (row["passed"], row["evaluable"], row["n_seeds"]) == (2, 3, 3)
+    assert row["part_verdict"] == "holds"
+    assert row["median"] == pytest.approx(0.55) and row["low"] <= 0.55 <= row["high"]
+    assert 0 < row["share_low"] < 2 / 3 < row["share_high"] <= 1
+    assert "holds in 2" in row["claim_frequency"] and "fails in 1" in row["claim_frequency"]
+    jbar_row = parts[(parts["claim"] == 3) & (parts["part"] == "c3_position")].iloc[0]
+    assert jbar_row["distribution"] == "4: 3", "claim 3 reports the distribution of j̄ over seeds"
 
 
 def test_divergence_of_an_asserted_method_fails_only_the_claims_that_read_it() -> None:
-    case = good_case(c3=metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.03, 0.02), diverged_at=12))
-    result = claims.judge_claims(case).set_index("claim")
-    assert result.loc[[1, 2, 3], "verdict"].tolist() == ["holds"] * 3, "C3 ran cleanly up to j = 11"
-    for number in (4, 5):
-        assert result.at[number, "verdict"] == "fails"
-        assert "c3 diverged at iteration 12" in result.at[number, "ours"], "the divergence is named"
+    case = good_case(c3=metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.0359, 0.0219), diverged_at=12))
+    result = verdicts(case)
+    assert [result[n] for n in (1, 2, 3)] == ["holds"] * 3, "C3 ran cleanly up to j = 11"
+    assert result[4] == "fails" and result[5] == "fails"
+    parts = claims.judge_claims(case)
+    assert parts[parts["claim"] == 5]["notes"].str.contains("c3 diverged at iteration 12").any(), "named"
 
 
 def test_early_divergence_fails_the_early_claims() -> None:
     case = good_case(c2=metrics_frame(sequence(3, 1e-5), sequence(2, 0.1), diverged_at=4))
-    assert verdicts(case) == {1: "fails", 2: "holds", 3: "fails", 4: "fails", 5: "holds"}
+    result = verdicts(case)
+    assert result[1] == "fails" and result[3] == "fails" and result[4] == "fails"
+    assert result[5] == "holds", "claim 5 does not read C2"
 
 
 def test_diverged_baseline_counts_as_worse() -> None:
     case = good_case(c1=metrics_frame([1e-3] * 20, [10.0] * 20, diverged_at=5))
-    result = claims.judge_claims(case).set_index("claim")
-    assert result.at[1, "verdict"] == "holds", "a baseline that diverged tracks worse"
-    assert "c1 diverged" in result.at[1, "ours"]
-    assert result.at[4, "verdict"] == "fails", "claim 4 asserts C1 degrades only slightly"
-    assert result.at[5, "verdict"] == "not evaluable", "no H for C1 at j = 19"
+    result = verdicts(case)
+    assert result[1] == "holds", "a baseline that diverged tracks worse"
+    assert result[5] == "not evaluable", "no H for C1 at j = 19"
 
 
 def test_missing_method_is_not_evaluable() -> None:
     case = good_case()
     del case["c2"]
-    assert verdicts(case) == {1: "not evaluable", 2: "not evaluable", 3: "not evaluable", 4: "not evaluable", 5: "holds"}
+    assert verdicts(case) == {1: "not evaluable", 2: "not evaluable", 3: "not evaluable", 4: "not evaluable",
+                              5: "holds"}
     assert verdicts({}) == dict.fromkeys(range(1, 6), "not evaluable")
 
 
 def test_perturbation_iteration_is_a_parameter() -> None:
     shifted = {
-        "c1": metrics_frame([1e-3] * 20, [10.0] * 20, (0.06, 0.05)),
+        "c1": metrics_frame([1e-3] * 20, [10.0] * 20, (0.06, 0.0534)),
         "c2": metrics_frame(sequence(3, 1e-5, p=8), sequence(2, 0.1, p=8), (0.05, 0.04)),
-        "c3": metrics_frame(sequence(4, 5.5e-6, p=8), sequence(3, 0.055, p=8), (0.03, 0.02)),
+        "c3": metrics_frame(sequence(4, 5.5e-6, p=8), sequence(3, 0.055, p=8), (0.0359, 0.0219)),
     }
-    assert claims.judge_claim(4, shifted, perturbation_iteration=8).verdict == "holds"
-    assert claims.judge_claim(4, shifted, perturbation_iteration=10).verdict != "holds"
+    assert verdicts(shifted, perturbation_iteration=8)[4] == "holds"
+    assert verdicts(shifted, perturbation_iteration=10)[4] != "holds"
 
 
 def test_perturbation_iteration_from_config() -> None:
@@ -438,8 +491,9 @@ def test_perturbation_iteration_from_config() -> None:
 def test_claims_on_the_synthetic_store(metrics_by_method: dict[str, pd.DataFrame]) -> None:
     """The store reproduces the paper's numbers, so its verdicts are the paper's own data's."""
     result = verdicts(metrics_by_method)
-    # Claim 2 is "in part": the paper's own force numbers are 0.058 / 0.096 = 0.604, a 39.6% cut.
-    assert result == {1: "holds", 2: "in part", 3: "holds", 4: "holds", 5: "holds"}
+    # Claim 2 is read at j̄, where the store's norms are 1.04x (C2 force) and 1.03x (C3 force) the
+    # paper's: 0.0597 / 0.0998 = 0.598 < 0.6 holds (the paper's own 0.604 fails, test above).
+    assert result == {1: "holds", 2: "holds", 3: "holds", 4: "holds", 5: "holds"}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -547,7 +601,7 @@ REPORT_HEADINGS = (
     "## Table 3",
     "## Comparison of the methods",
     "## The paper's claims",
-    "### Verdict rules",
+    "### How the verdicts are reached",
     "## Divergence",
     "## Implicit-loop fallbacks",
     "## Figures",
@@ -586,7 +640,7 @@ def test_write_report_end_to_end(report: ReportSummary) -> None:
     table2 = pd.read_csv(directory / "table2.csv").set_index("method")
     assert table2.at["c3", "position_error_2norm"] == pytest.approx(POSITION["c3"][4], rel=RTOL)
     claims_csv = pd.read_csv(directory / "claims.csv")
-    assert list(claims_csv["verdict"]) == ["holds", "in part", "holds", "holds", "holds"]
+    assert list(claims_csv["verdict"]) == ["holds", "holds", "holds", "holds", "holds"]
 
 
 def test_write_report_twice_is_identical(results_dir: Path, report: ReportSummary, tmp_path: Path) -> None:
@@ -647,11 +701,12 @@ def test_degraded_experiment_reports_what_it_can(tmp_path: Path) -> None:
         assert warning in report, "every warning is also in the report"
     result = pd.read_csv(tmp_path / "out" / "degraded" / "claims.csv").set_index("claim")
     assert result.at[1, "verdict"] == "not evaluable", "C1 missing"
-    assert result.at[2, "verdict"] == "in part", "C2 and C3 ran through j = 9 (paper's numbers: in part)"
+    assert result.at[2, "verdict"] == "holds", "C2 and C3 ran through j = 9 (read at j̄: 0.598 < 0.6)"
     assert result.at[3, "verdict"] == "holds"
     assert result.at[4, "verdict"] == "fails", "C3 diverged: a divergence settles it although C1 is missing"
     assert result.at[5, "verdict"] == "fails"
-    assert "c3 diverged at iteration 12" in result.at[5, "ours"]
+    parts = pd.read_csv(tmp_path / "out" / "degraded" / "claim_parts.csv")
+    assert parts[parts["claim"] == 5]["notes"].fillna("").str.contains("c3 diverged at iteration 12").any()
     # The figures that need only C3 or the metrics are still drawn.
     for stem in ("fig3_position_error_norm", "fig_alpha_hat", "fig6_input_x"):
         assert (tmp_path / "out" / "degraded" / f"{stem}.png").is_file(), stem
@@ -669,7 +724,10 @@ def _copy_stores(source: Path, target: Path, methods: tuple[str, ...] = ("c1", "
         (target / f"{method}.h5").write_bytes((source / f"{method}.h5").read_bytes())
 
 
-@pytest.mark.parametrize(("version", "reported"), [("1.9", True), ("2.0", False)])
+_MAJOR = int(SCHEMA_VERSION.split(".")[0])
+
+
+@pytest.mark.parametrize(("version", "reported"), [(f"{_MAJOR}.99", True), (f"{_MAJOR + 1}.0", False)])
 def test_newer_schema_gives_one_warning(results_dir: Path, tmp_path: Path, version: str, reported: bool) -> None:
     """A newer minor version is read with a warning; a newer major version is skipped with one."""
     import h5py  # only to fake a store written by a newer ilcforce
@@ -704,4 +762,5 @@ def test_zero_norms_do_not_divide_by_zero() -> None:
     result = verdicts(good_case(c2=zero, c3=zero))
     assert result[1] == "holds", "zero error beats C1"
     assert result[2] == "fails", "0 / 0 is not a 40% reduction"
-    assert result[5] == "holds", "H(C1) / 0 is infinite, above 1"
+    # H(C1) / 0 is infinite: above 1 (direction holds) but not near 2.44 (magnitude fails)
+    assert result[5] == "in part", "H(C1) / 0 is infinite, above 1 and far from the paper's ratio"

@@ -12,8 +12,9 @@ A controller has two halves:
   controller could read (layout below); ``ref`` (n_control, 12) the reference (``ilcforce.task``
   column layout) of which the law reads row k; ``gains`` the controller's packed gains;
   ``mem_prev`` (n_control, width) the learned memory of iteration j - 1 and ``mem_new`` that of
-  iteration j (written only when ``write`` is True); ``diag`` (:data:`DIAG_WIDTH`,) receives
-  sigma for logging. The return value is the joint torque (N m).
+  iteration j (row k written only when ``write`` is True; rows before k, written at earlier samples
+  of this iteration, may be read: that is how a law adapts within an iteration); ``diag``
+  (:data:`DIAG_WIDTH`,) receives sigma for logging. The return value is the joint torque (N m).
 
   The law never integrates anything and never sees the true plant. It must be a polynomial of
   degree at most 2 in the acceleration ``meas[MEAS_ACCEL + force axis]`` (with
@@ -22,15 +23,28 @@ A controller has two halves:
   checks this for every registered law.
 
 * a Python **object** implementing :class:`Controller`: it packs the gains, owns the learned memory
-  between iterations, and names it for the store.
+  between iterations, and names it for the store. Its ``end_iteration(record)`` receives the
+  finished iteration's :class:`~ilcforce.records.IterationRecord`, so a law may learn between
+  iterations (trial to trial) as well as at each sample.
+
+Gains are packed by name: :func:`gain_indices` derives each field's index in the packed vector from
+the gains dataclass (shared prefix first, then the dataclass fields in declaration order), and
+:func:`pack_gains` fills the vector in the same order, so a law reads ``gains[ETA]``, never a
+hand-counted offset. A law is compiled only when first used (:class:`compiled_law`), so importing a
+method module loads no kernel.
 """
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+import dataclasses
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 from numba import njit, types
+
+if TYPE_CHECKING:
+    from ilcforce.records import IterationRecord
 
 # --- measurement vector handed to a law (filled by the simulator) ----------------------------
 MEAS_THETA = 0  # measured joint angles theta1, theta2 (rad)
@@ -133,6 +147,87 @@ def pack_common_gains(surface, wall_sign: float) -> list[float]:
     return [float(v) for v in values]
 
 
+def _field_width(value) -> int:
+    return len(value) if isinstance(value, tuple) else 1
+
+
+def gain_layout(gains_cls, derived: tuple[str, ...] = ()) -> dict[str, slice]:
+    """Where each gain lives in the packed vector: field name -> slice.
+
+    The fields of ``gains_cls`` (a dataclass whose defaults fix each field's width) follow the
+    shared prefix in declaration order; ``derived`` names one-number entries the controller
+    computes (e.g. the sample time) and appends after them.
+    """
+    default = gains_cls()
+    layout, start = {}, GAIN_SPECIFIC
+    for f in dataclasses.fields(gains_cls):
+        width = _field_width(getattr(default, f.name))
+        layout[f.name] = slice(start, start + width)
+        start += width
+    for name in derived:
+        layout[name] = slice(start, start + 1)
+        start += 1
+    return layout
+
+
+def gain_indices(gains_cls, *names: str, derived: tuple[str, ...] = ()) -> tuple[int, ...]:
+    """First index of each named gain, for module-level constants a compiled law reads.
+
+    ``names`` must list every field of ``gains_cls`` and then every ``derived`` entry, in order, so
+    that a field added to the dataclass cannot be forgotten by the law module.
+    """
+    layout = gain_layout(gains_cls, derived)
+    if tuple(layout) != names:
+        raise TypeError(f"{gains_cls.__name__}: gain names {names} must be the fields then the derived "
+                        f"entries, in order: {tuple(layout)}")
+    return tuple(layout[n].start for n in names)
+
+
+def pack_gains(surface, wall_sign: float, gains, *, encode: Mapping[str, Mapping[str, float]] | None = None,
+               derived: Mapping[str, float] | None = None) -> np.ndarray:
+    """The packed gain vector of :func:`gain_layout`: shared prefix, the dataclass fields, ``derived``.
+
+    ``encode`` maps a text field to its number (e.g. ``{"psi_acceleration": {"measured": 0.0, ...}}``).
+    A field whose width differs from the dataclass default's raises ValueError naming it (the law's
+    indices would be wrong).
+    """
+    encode = encode or {}
+    derived = dict(derived or {})
+    layout = gain_layout(type(gains), tuple(derived))
+    values = pack_common_gains(surface, wall_sign)
+    for f in dataclasses.fields(gains):
+        value = getattr(gains, f.name)
+        if f.name in encode:
+            value = encode[f.name][value]
+        width = layout[f.name].stop - layout[f.name].start
+        if _field_width(value) != width:
+            raise ValueError(f"{f.name} must have {width} entries for this law, got {_field_width(value)}")
+        values += [float(v) for v in value] if isinstance(value, tuple) else [float(value)]
+    values += [float(v) for v in derived.values()]
+    return np.array(values, dtype=np.float64)
+
+
+class compiled_law:  # noqa: N801 (used as a decorator-like descriptor)
+    """A law function compiled with :data:`LAW_SIGNATURE` on first access, then cached.
+
+    ``law = compiled_law(my_law)`` as a controller class attribute: ``Controller.law`` and
+    ``controller.law`` return the numba dispatcher, so only the methods a process runs load (or
+    compile) their kernels. numba's on-disk cache works as with the decorator.
+    """
+
+    def __init__(self, py_func: Callable):
+        self.py_func = py_func
+        self._dispatcher = None
+
+    def dispatcher(self):
+        if self._dispatcher is None:
+            self._dispatcher = njit(LAW_SIGNATURE, cache=True, error_model="numpy")(self.py_func)
+        return self._dispatcher
+
+    def __get__(self, obj, owner=None):
+        return self.dispatcher()
+
+
 @runtime_checkable
 class Controller(Protocol):
     """What the iteration loop needs from a method. See the module docstring."""
@@ -149,8 +244,8 @@ class Controller(Protocol):
     def begin_iteration(self, iteration: int) -> tuple[np.ndarray, np.ndarray]:
         """Memory buffers (mem_prev, mem_new) for iteration j, each (n_control, width)."""
 
-    def end_iteration(self, completed: bool) -> None:
-        """After iteration j: its memory becomes the one iteration j + 1 learns from."""
+    def end_iteration(self, record: IterationRecord) -> None:
+        """After iteration j, given its record: the memory iteration j + 1 learns from is made."""
 
     def learned_state(self) -> dict[str, np.ndarray]:
         """Named copies of the memory after the last finished iteration (control grid)."""
@@ -170,7 +265,8 @@ class MemoryController:
 
     Subclasses set ``name``, ``law``, ``uses_nominal_dynamics``, ``memory_layout``
     (name -> (first column, last column + 1, unit); a one-column block is stored as a vector)
-    and implement ``gains()``.
+    and implement ``gains()``. ``sample_time`` (s) is the control period, for laws that integrate
+    or filter over time.
     """
 
     name = ""
@@ -178,9 +274,10 @@ class MemoryController:
     uses_nominal_dynamics = False
     memory_layout: dict[str, tuple[int, int, str]] = {}
 
-    def __init__(self, n_control: int):
+    def __init__(self, n_control: int, sample_time: float = float("nan")):
         width = max((stop for _, stop, _ in self.memory_layout.values()), default=0)
         self.n_control = int(n_control)
+        self.sample_time = float(sample_time)
         self._prev = np.zeros((self.n_control, width))  # memory of j - 1 (zero before j = 0)
         self._new = np.zeros((self.n_control, width))
 
@@ -188,8 +285,9 @@ class MemoryController:
         self._new[...] = np.nan  # every sample is written by the law; NaN marks an unreached one
         return self._prev, self._new
 
-    def end_iteration(self, completed: bool) -> None:
-        if completed:
+    def end_iteration(self, record: IterationRecord) -> None:
+        """A complete iteration's memory becomes the one iteration j + 1 reads (no-op if diverged)."""
+        if not record.diverged:
             self._prev, self._new = self._new, self._prev
 
     def _named(self, memory: np.ndarray) -> dict[str, np.ndarray]:
@@ -208,6 +306,15 @@ class MemoryController:
 
     def learned_units(self) -> dict[str, str]:
         return {key: unit for key, (_a, _b, unit) in self.memory_layout.items()}
+
+    #: optional column labels of a memory block: name -> one label per column
+    memory_labels: dict[str, tuple[str, ...]] = {}
+
+    def learned_labels(self) -> dict[str, tuple[str, ...]]:
+        """Column labels of each multi-column memory block (those given in ``memory_labels``)."""
+        return {key: tuple(labels) for key, labels in self.memory_labels.items()
+                if key in self.memory_layout
+                and len(labels) == self.memory_layout[key][1] - self.memory_layout[key][0]}
 
     def restore(self, memory: dict[str, np.ndarray]) -> None:
         for key, (start, stop, _unit) in self.memory_layout.items():

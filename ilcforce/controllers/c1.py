@@ -13,9 +13,9 @@ import numpy as np
 from numba import njit
 
 from ilcforce.controllers.base import (
-    GAIN_FEEDFORWARD_SIGN, GAIN_SPECIFIC, LAW_SIGNATURE, MEAS_FORCE, MEAS_TASK_CORIOLIS,
-    MEAS_TASK_GRAVITY, MEAS_TASK_INERTIA, DIAG_SIGMA, MemoryController, check_vector, joint_torque, pack_common_gains,
-    sgn, surface_terms,
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MEAS_TASK_CORIOLIS, MEAS_TASK_GRAVITY,
+    MEAS_TASK_INERTIA, MemoryController, check_vector, compiled_law, gain_indices, joint_torque,
+    pack_gains, sgn, surface_terms,
 )
 
 
@@ -32,11 +32,12 @@ class C1Gains:
             raise ValueError(f"c1.alpha must be finite and >= 0, got {self.alpha!r}")
 
 
-@njit(LAW_SIGNATURE, cache=True, error_model="numpy")
-def c1_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, False)
-    g = GAIN_SPECIFIC
-    w = gains[GAIN_FEEDFORWARD_SIGN]
+K, ALPHA = gain_indices(C1Gains, "k", "alpha")
+
+
+@njit(cache=True, error_model="numpy")
+def nominal_model_force(meas, p1x, p1y, p2x, p2y):
+    """Xi_nom^T Psi = D_nom psi1 + C_nom (dP + sigma) + G_nom, the nominal model's task force (N), per axis."""
     D00 = meas[MEAS_TASK_INERTIA]
     D01 = meas[MEAS_TASK_INERTIA + 1]
     D11 = meas[MEAS_TASK_INERTIA + 2]
@@ -47,10 +48,17 @@ def c1_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     # Xi_nom^T Psi = D psi1 + C (dP + sigma) + G                                  eqs. (11)-(12)
     mx = D00 * p1x + D01 * p1y + C00 * p2x + C01 * p2y + meas[MEAS_TASK_GRAVITY]
     my = D01 * p1x + D11 * p1y + C10 * p2x + C11 * p2y + meas[MEAS_TASK_GRAVITY + 1]
-    alpha = gains[g + 2]
+    return mx, my
+
+
+def c1_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+    sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, False)
+    w = gains[GAIN_FEEDFORWARD_SIGN]
+    mx, my = nominal_model_force(meas, p1x, p1y, p2x, p2y)
+    alpha = gains[ALPHA]
     # eq. (26), with +w F (erratum 1)
-    ux = gains[g] * sx + alpha * sgn(sx) + mx + w * meas[MEAS_FORCE]
-    uy = gains[g + 1] * sy + alpha * sgn(sy) + my + w * meas[MEAS_FORCE + 1]
+    ux = gains[K] * sx + alpha * sgn(sx) + mx + w * meas[MEAS_FORCE]
+    uy = gains[K + 1] * sy + alpha * sgn(sy) + my + w * meas[MEAS_FORCE + 1]
     diag[DIAG_SIGMA] = sx
     diag[DIAG_SIGMA + 1] = sy
     return joint_torque(meas, ux, uy)
@@ -58,15 +66,15 @@ def c1_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
 
 class C1Controller(MemoryController):
     name = "c1"
-    title = "C1: sliding mode control with nominal model (eq. 26)"
-    law = staticmethod(c1_law)
+    law = compiled_law(c1_law)
     uses_nominal_dynamics = True
     memory_layout = {}
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C1Gains, gravity: bool = False):
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C1Gains, *, gravity: bool = False,
+                 sample_time: float = float("nan")):
         # the nominal G arrives in meas (MEAS_TASK_GRAVITY, zero without gravity): nothing to switch
-        super().__init__(n_control)
-        self._gains = np.array(pack_common_gains(surface, wall_sign) + [*gains.k, gains.alpha])
+        super().__init__(n_control, sample_time)
+        self._gains = pack_gains(surface, wall_sign, gains)
 
     def gains(self) -> np.ndarray:
         return self._gains

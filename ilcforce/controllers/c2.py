@@ -9,11 +9,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
 
 from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, GAIN_SPECIFIC, LAW_SIGNATURE, MEAS_FORCE, MemoryController,
-    check_vector, joint_torque, pack_common_gains, surface_terms,
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law,
+    gain_indices, joint_torque, pack_gains, surface_terms,
 )
 
 
@@ -27,12 +26,13 @@ class C2Gains:
         check_vector("c2.k", self.k, 2)
 
 
-@njit(LAW_SIGNATURE, cache=True, error_model="numpy")
+(K,) = gain_indices(C2Gains, "k")
+
+
 def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)
-    g = GAIN_SPECIFIC
     w = gains[GAIN_FEEDFORWARD_SIGN]
-    lx, ly = joint_torque(meas, gains[g] * sx, gains[g + 1] * sy)
+    lx, ly = joint_torque(meas, gains[K] * sx, gains[K + 1] * sy)
     v1 = mem_prev[k, 0] + lx  # eq. (27), v_j = v_{j-1} + J^T k sigma_j
     v2 = mem_prev[k, 1] + ly
     if write:
@@ -46,14 +46,14 @@ def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
 
 class C2Controller(MemoryController):
     name = "c2"
-    title = "C2: traditional ILC (eq. 27)"
-    law = staticmethod(c2_law)
+    law = compiled_law(c2_law)
     uses_nominal_dynamics = False
     memory_layout = {"v": (0, 2, "N m")}
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains, gravity: bool = False):
-        super().__init__(n_control)
-        self._gains = np.array(pack_common_gains(surface, wall_sign) + [*gains.k])
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains, *, gravity: bool = False,
+                 sample_time: float = float("nan")):
+        super().__init__(n_control, sample_time)
+        self._gains = pack_gains(surface, wall_sign, gains)
 
     def gains(self) -> np.ndarray:
         return self._gains

@@ -20,8 +20,8 @@ import numpy as np
 from numba import njit
 
 from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, GAIN_SPECIFIC, LAW_SIGNATURE, MEAS_FORCE, MemoryController,
-    check_vector, joint_torque, pack_common_gains, sgn, surface_terms,
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law,
+    gain_indices, joint_torque, pack_gains, sgn, surface_terms,
 )
 
 PSI_ACCELERATION = {"measured": 0.0, "desired": 1.0}
@@ -56,11 +56,28 @@ class C3Gains:
                              f"got {self.psi_acceleration!r}")
 
 
-@njit(LAW_SIGNATURE, cache=True, error_model="numpy")
-def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    g = GAIN_SPECIFIC
+K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG = gain_indices(
+    C3Gains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration")
+
+
+@njit(cache=True, error_model="numpy")
+def gamma_entry(gains, axis, r):
+    """Gamma's diagonal entry for Theta row r (0..na-1) of task axis ``axis`` (0 = x, 1 = y).
+
+    Rows 0-3 are the D and C entries (``gamma``, Theta order), rows 4-5 the G block
+    (``gamma_gravity``: G11 G12 for x, G21 G22 for y), present only with gravity."""
+    if r < 4:
+        return gains[GAMMA + 4 * axis + r]
+    return gains[GAMMA_GRAVITY + 2 * axis + r - 4]
+
+
+@njit(cache=True, error_model="numpy")
+def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_max):
+    """Eq. (14) at sample k, with the previous iteration's memory scaled by ``keep`` and alpha_hat_j
+    capped at ``alpha_max``. The paper's C3 is keep = 1, alpha_max = inf (both then exact no-ops);
+    C3-leak (``c3_leak``) uses keep = 1 - leakage and a finite bound."""
     na = (mem_prev.shape[1] - 1) // 2  # Psi's length: 4 (G = 0) or 6 (with the G block)
-    psi_desired = gains[g + 3 + 2 * na] > 0.5
+    psi_desired = gains[PSI_ACCELERATION_FLAG] > 0.5
     sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, psi_desired)
     w = gains[GAIN_FEEDFORWARD_SIGN]
     # Theta_hat_j = Theta_hat_{j-1} + Gamma Phi sigma: rows 0..na-1 see Psi sigma_x, the next na Psi sigma_y
@@ -68,8 +85,8 @@ def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     my = 0.0  # (Phi^T Theta_hat_j)_y
     for r in range(na):
         psi = p1x if r == 0 else (p1y if r == 1 else (p2x if r == 2 else (p2y if r == 3 else 1.0)))  # eq. (12)
-        th_x = mem_prev[k, r] + gains[g + 3 + r] * psi * sx  # eq. (14), Theta update
-        th_y = mem_prev[k, na + r] + gains[g + 3 + na + r] * psi * sy
+        th_x = keep * mem_prev[k, r] + gamma_entry(gains, 0, r) * psi * sx  # eq. (14), Theta update
+        th_y = keep * mem_prev[k, na + r] + gamma_entry(gains, 1, r) * psi * sy
         mx += th_x * psi
         my += th_y * psi
         if write:
@@ -77,36 +94,45 @@ def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
             mem_new[k, na + r] = th_y
     sgx = sgn(sx)
     sgy = sgn(sy)
-    alpha = mem_prev[k, 2 * na] + gains[g + 2] * (sx * sgx + sy * sgy)  # eq. (14), alpha update
+    alpha = keep * mem_prev[k, 2 * na] + gains[ETA] * (sx * sgx + sy * sgy)  # eq. (14), alpha update
+    if alpha > alpha_max:  # (a NaN stays NaN, so the watchdog still sees a divergence)
+        alpha = alpha_max
     if write:
         mem_new[k, 2 * na] = alpha
     # eq. (14), control law with +w F (erratum 1)
-    ux = gains[g] * sx + mx + w * meas[MEAS_FORCE] + alpha * sgx
-    uy = gains[g + 1] * sy + my + w * meas[MEAS_FORCE + 1] + alpha * sgy
+    ux = gains[K] * sx + mx + w * meas[MEAS_FORCE] + alpha * sgx
+    uy = gains[K + 1] * sy + my + w * meas[MEAS_FORCE + 1] + alpha * sgy
     diag[DIAG_SIGMA] = sx
     diag[DIAG_SIGMA + 1] = sy
     return joint_torque(meas, ux, uy)
 
 
+def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0, np.inf)
+
+
 class C3Controller(MemoryController):
     name = "c3"
-    title = "C3: ILC based on sliding mode (eq. 14), the paper's method"
-    law = staticmethod(c3_law)
+    law = compiled_law(c3_law)
     uses_nominal_dynamics = False
     memory_layout = {"theta_hat": (0, 8, "mixed: kg (D entries), kg/s (C entries)"), "alpha_hat": (8, 9, "N")}
     #: Theta's entries in memory order (G = 0)
     theta_names = ("D11", "D12", "C11", "C12", "D21", "D22", "C21", "C22")
 
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains, gravity: bool = False):
-        gamma = list(gains.gamma)
-        if gravity:  # the full Theta of eq. (13), decided by the plant (SPEC 8)
+    @property
+    def memory_labels(self) -> dict[str, tuple[str, ...]]:
+        """Theta_hat's column labels for the store (D11 D12 C11 C12 ...; G entries with gravity)."""
+        return {"theta_hat": tuple(self.theta_names)}
+
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains, *, gravity: bool = False,
+                 sample_time: float = float("nan")):
+        if gravity:  # the full Theta of eq. (13), decided by the plant (SPEC 8); the law reads na from the memory width
             self.memory_layout = {"theta_hat": (0, 12, "mixed: kg (D entries), kg/s (C entries), N (G entries)"),
                                   "alpha_hat": (12, 13, "N")}
             self.theta_names = ("D11", "D12", "C11", "C12", "G11", "G12", "D21", "D22", "C21", "C22", "G21", "G22")
-            gamma = gamma[0:4] + list(gains.gamma_gravity[0:2]) + gamma[4:8] + list(gains.gamma_gravity[2:4])
-        super().__init__(n_control)
-        self._gains = np.array(pack_common_gains(surface, wall_sign)
-                               + [*gains.k, gains.eta, *gamma, PSI_ACCELERATION[gains.psi_acceleration]])
+        super().__init__(n_control, sample_time)
+        # gains by name: gamma_gravity is packed whether or not the plant has gravity (fixed layout)
+        self._gains = pack_gains(surface, wall_sign, gains, encode={"psi_acceleration": PSI_ACCELERATION})
 
     def gains(self) -> np.ndarray:
         return self._gains

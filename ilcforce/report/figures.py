@@ -25,23 +25,54 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from ilcforce.controllers import REGISTRY
 from ilcforce.records import STATUS_COMPLETE
 from ilcforce.report import paper
 
-#: Colours stay with the method across every figure ("C<n>" is the n-th colour of the style's cycle).
-METHOD_COLORS = {"c1": "C0", "c2": "C1", "c3": "C2"}
-METHOD_LABELS = {"c1": "C1 (SMC)", "c2": "C2 (ILC)", "c3": "C3 (ILC + SMC)"}
+#: Colours and labels come from the method registry (``MethodSpec.color``, ``.label``) and stay with
+#: the method across every figure ("C<n>" is the n-th colour of the style's cycle).
 
 #: Fig. 5 shows these iterations (Section 4.2.1).
 TRACKING_ITERATIONS = (0, 5, 10, 15)
 
 
 def _color(method: str) -> str | None:
-    return METHOD_COLORS.get(method)
+    spec = REGISTRY.get(method)
+    return spec.color if spec is not None else None
 
 
-def _label(method: str) -> str:
-    return METHOD_LABELS.get(method, method)
+def _label(method: str, labels: Mapping[str, str] | None = None) -> str:
+    if labels and method in labels:
+        return labels[method]
+    spec = REGISTRY.get(method)
+    return spec.label if spec is not None else method
+
+
+def method_label(method: str) -> str:
+    """The method's plain figure label (the report appends law differences and flags)."""
+    return _label(method)
+
+
+#: Time from which the y range of input plots is set: the t = 0 start mismatch stays off scale.
+RANGE_FROM = 0.02
+
+
+def _range_without_start(ax: Axes, series: Sequence[tuple[np.ndarray, np.ndarray]]) -> str:
+    """Set ax's y range from the samples at t >= RANGE_FROM; return a note on what is off scale."""
+    inside = [np.asarray(v, dtype=float)[np.asarray(t) >= RANGE_FROM] for t, v in series]
+    inside = [v[np.isfinite(v)] for v in inside]
+    values = np.concatenate(inside) if inside else np.array([])
+    if values.size == 0:
+        return ""
+    low, high = float(values.min()), float(values.max())
+    pad = 0.08 * (high - low) if high > low else max(abs(high), 1e-12) * 0.1
+    ax.set_ylim(low - pad, high + pad)
+    outside = [float(np.nanmax(np.abs(np.asarray(v, dtype=float)[np.asarray(t) < RANGE_FROM])))
+               for t, v in series if np.any(np.asarray(t) < RANGE_FROM)]
+    peak = max(outside, default=0.0)
+    if peak > max(abs(low), abs(high)) + pad:
+        return f"off scale before t = {RANGE_FROM * 1e3:.0f} ms: |value| up to {peak:.3g}"
+    return ""
 
 
 @contextlib.contextmanager
@@ -84,31 +115,32 @@ def plot_error_norms(
     *,
     perturbation_iteration: int | None = paper.PERTURBATION_ITERATION,
     ylabel: str = "",
+    labels: Mapping[str, str] | None = None,
 ) -> list[Artist]:
     """Figs. 3, 4: ``metrics[column]`` (an error 2-norm) against iteration j for every method, log y.
 
-    Only complete iterations are drawn; a method that diverged is labelled with the iteration.
-    A vertical dashed line marks ``perturbation_iteration`` (None: no line).
+    Only complete iterations are drawn; a method that diverged is labelled with the iteration and
+    marked by a dotted vertical line in its colour with the word "diverged" (not a marker, which
+    would read as a data point). A grey dashed line marks ``perturbation_iteration`` (None: none).
     """
     artists: list[Artist] = []
     for method, metrics in metrics_by_method.items():
         complete = metrics["status"].astype(str).to_numpy() == STATUS_COMPLETE
         j = np.asarray(metrics.index.to_numpy()[complete], dtype=float)
         values = np.asarray(metrics[column].to_numpy()[complete], dtype=float)
-        label = _label(method)
+        label = _label(method, labels)
         diverged = metrics.index[metrics["status"].astype(str).to_numpy() != STATUS_COMPLETE]
         if len(diverged):
             label += f", diverged at j = {int(diverged[0])}"
         (line,) = ax.plot(j, values, marker="o", color=_color(method), label=label)
         artists.append(line)
-        finite = np.isfinite(values)
-        if len(diverged) and finite.any():
-            # A cross at the diverged iteration, at the height of the last finite norm.
-            artists += ax.plot(
-                [float(diverged[0])], [values[finite][-1]], marker="X", markersize=9, linestyle="none",
-                color=line.get_color(),
-            )
-    if any(np.any(np.asarray(line.get_ydata(), dtype=float) > 0) for line in artists):
+        if len(diverged):
+            where = float(diverged[0])
+            artists.append(ax.axvline(where, color=line.get_color(), linestyle=":", linewidth=1.5))
+            artists.append(ax.text(where, 0.98, " diverged", transform=ax.get_xaxis_transform(), rotation=90,
+                                   va="top", ha="right", fontsize="small", color=line.get_color()))
+    if any(np.any(np.asarray(line.get_ydata(), dtype=float) > 0) for line in artists if hasattr(line, "get_marker")
+           and line.get_marker() == "o"):
         ax.set_yscale("log")
     if perturbation_iteration is not None:
         artists.append(ax.axvline(perturbation_iteration, color="0.4", linestyle="--", linewidth=1.0, label="m3 x 1.4"))
@@ -124,15 +156,17 @@ def plot_tracking_error(
     frames_by_iteration: Mapping[int, pd.DataFrame],
     column: str,
     *,
-    ylabel: str = "",
+    ylabel: str | None = None,
     title: str = "",
 ) -> list[Artist]:
-    """Fig. 5: one error signal (e.g. ``position_error_x``) against time, one line per iteration."""
+    """Fig. 5: one error signal (e.g. ``position_error_x``) against time, one line per iteration.
+
+    ``ylabel``: None labels the axis with ``column``; "" leaves it unlabelled (a shared axis)."""
     artists: list[Artist] = []
     for j, frame in sorted(frames_by_iteration.items()):
         artists += ax.plot(_time(frame), frame[column], label=f"j = {j}")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(ylabel or column)
+    ax.set_ylabel(column if ylabel is None else ylabel)
     if title:
         ax.set_title(title)
     if artists:
@@ -140,14 +174,15 @@ def plot_tracking_error(
     return artists
 
 
-def _input_label(method: str, iterations: Mapping[str, int] | None) -> str:
+def _input_label(method: str, iterations: Mapping[str, int] | None, labels: Mapping[str, str] | None = None) -> str:
     if iterations is None or method not in iterations:
-        return _label(method)
-    return f"{_label(method)}, j = {iterations[method]}"
+        return _label(method, labels)
+    return f"{_label(method, labels)}, j = {iterations[method]}"
 
 
 def plot_task_input(
-    ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None
+    ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None,
+    labels: Mapping[str, str] | None = None,
 ) -> list[Artist]:
     """Figs. 6 (a), 7 (a): task-space input F_E along ``axis`` ("x" or "y") against time, per method.
 
@@ -157,7 +192,8 @@ def plot_task_input(
     artists: list[Artist] = []
     for method, frame in frames_by_method.items():
         artists += ax.plot(
-            _time(frame), frame[f"task_input_{axis}"], color=_color(method), label=_input_label(method, iterations)
+            _time(frame), frame[f"task_input_{axis}"], color=_color(method),
+            label=_input_label(method, iterations, labels)
         )
     for frame in list(frames_by_method.values())[:1]:
         artists += ax.plot(
@@ -171,14 +207,15 @@ def plot_task_input(
 
 
 def plot_input_deviation(
-    ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None
+    ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None,
+    labels: Mapping[str, str] | None = None,
 ) -> list[Artist]:
     """Figs. 6 (b), 7 (b): Delta = desired_task_input - task_input along ``axis`` against time."""
     artists: list[Artist] = []
     for method, frame in frames_by_method.items():
         delta = frame[f"desired_task_input_{axis}"] - frame[f"task_input_{axis}"]
         artists += ax.plot(
-            _time(frame), delta, color=_color(method), label=_input_label(method, iterations), linewidth=0.8
+            _time(frame), delta, color=_color(method), label=_input_label(method, iterations, labels), linewidth=0.8
         )
     ax.set_xlabel("time (s)")
     ax.set_ylabel(rf"$\Delta\tau$ {axis.upper()} (N)")
@@ -249,43 +286,76 @@ def figure_error_norm(
     ylabel: str,
     *,
     perturbation_iteration: int | None,
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
     """Figs. 3, 4: one error 2-norm against iteration for every method."""
-    fig = Figure()
+    fig = Figure(layout="constrained")
     ax = fig.subplots()
-    plot_error_norms(ax, metrics_by_method, column, perturbation_iteration=perturbation_iteration, ylabel=ylabel)
+    plot_error_norms(ax, metrics_by_method, column, perturbation_iteration=perturbation_iteration, ylabel=ylabel,
+                     labels=labels)
     return fig
 
 
-def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]]) -> Figure:
+def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]], *,
+                          labels: Mapping[str, str] | None = None) -> Figure:
     """Fig. 5: position error X (top row) and force error Y (bottom row), one column per method.
 
     ``frames[method][j]`` is the iteration frame of iteration j (j in 0, 5, 10, 15 where run).
+    Each row shares its y axis across methods, so a method with a 100x smaller error looks 100x
+    smaller (the paper's panels each had their own scale).
     """
     methods = list(frames)
     n = max(1, len(methods))
-    fig = Figure(figsize=(3.2 * n, 5.0))
-    axes = np.atleast_2d(fig.subplots(2, n, sharex=True, squeeze=False))
+    fig = Figure(figsize=(3.4 * n, 5.4), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(2, n, sharex=True, sharey="row", squeeze=False))
     for k, method in enumerate(methods):
         plot_tracking_error(
-            axes[0, k], frames[method], "position_error_x", ylabel="position error X (m)", title=_label(method)
+            axes[0, k], frames[method], "position_error_x", ylabel="position error X (m)" if k == 0 else "",
+            title=_label(method, labels)
         )
-        plot_tracking_error(axes[1, k], frames[method], "force_error_y", ylabel="force error Y (N)")
+        plot_tracking_error(axes[1, k], frames[method], "force_error_y", ylabel="force error Y (N)" if k == 0 else "")
         axes[0, k].set_xlabel("")
     return fig
 
 
 def figure_input(
-    frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None
+    frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None,
+    labels: Mapping[str, str] | None = None,
 ) -> Figure:
-    """Figs. 6 (``axis="x"``), 7 (``"y"``): (a) control input, (b) Delta tau, C1 and C3 at j = 19."""
-    fig = Figure(figsize=(6.4, 5.0))
-    ax_input, ax_delta = fig.subplots(2, 1, sharex=True)
-    plot_task_input(ax_input, frames_by_method, axis, iterations=iterations)
-    plot_input_deviation(ax_delta, frames_by_method, axis, iterations=iterations)
-    ax_input.set_xlabel("")
-    ax_input.set_title(f"(a) control input, {axis.upper()}")
-    ax_delta.set_title(rf"(b) $\Delta\tau$, {axis.upper()}")
+    """Figs. 6 (``axis="x"``), 7 (``"y"``): (a) control input, (b) Delta tau, C1 and C3 at j = 19.
+
+    One row per method (they no longer hide each other), (a) and (b) side by side, each panel on
+    its own scale (C1's Delta tau is about ten times C3's; compare the values, and H in Table 3).
+    The y range is set from
+    t >= RANGE_FROM, so the start mismatch at t = 0 does not flatten the rest; what lies off
+    scale is written in the panel.
+    """
+    methods = list(frames_by_method)
+    n = max(1, len(methods))
+    fig = Figure(figsize=(9.0, 2.6 * n + 0.6), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(n, 2, sharex=True, squeeze=False))
+    for k, method in enumerate(methods):
+        one = {method: frames_by_method[method]}
+        named = {method: _label(method, labels)}
+        ax_input, ax_delta = axes[k]
+        plot_task_input(ax_input, one, axis, iterations=iterations, labels=named)
+        plot_input_deviation(ax_delta, one, axis, iterations=iterations, labels=named)
+        frame = frames_by_method[method]
+        t = _time(frame)
+        for ax, series in (
+            (ax_input, [(t, frame[f"task_input_{axis}"]), (t, frame[f"desired_task_input_{axis}"])]),
+            (ax_delta, [(t, frame[f"desired_task_input_{axis}"] - frame[f"task_input_{axis}"])]),
+        ):
+            note = _range_without_start(ax, series)
+            if note:
+                ax.text(0.01, 0.02, note, transform=ax.transAxes, ha="left", va="bottom", fontsize="x-small",
+                        bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
+                ax.legend(loc="upper right")
+        if k < n - 1:
+            ax_input.set_xlabel("")
+            ax_delta.set_xlabel("")
+    axes[0, 0].set_title(f"(a) control input, {axis.upper()}")
+    axes[0, 1].set_title(rf"(b) $\Delta\tau$, {axis.upper()}")
     return fig
 
 

@@ -17,12 +17,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ilcforce.controllers import PAPER_METHODS, REGISTRY
 from ilcforce.metrics import convergence_iteration
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
 from ilcforce.report import paper
 
-#: Methods in the order the paper lists them; other method names follow, sorted.
-METHOD_ORDER = ("c1", "c2", "c3")
+#: The paper's methods in the paper's order (the registry's ``in_paper`` specs); the report expects them.
+METHOD_ORDER = PAPER_METHODS
 
 #: Last iteration that may be the convergence iteration j̄, and the window whose median defines
 #: "converged" (SPEC section 6: first j <= 9 within 1.5x the median of iterations 5..9).
@@ -32,6 +33,9 @@ JBAR_FACTOR = 1.5
 
 #: Iterations at which the comparison frame samples the error 2-norms.
 COMPARISON_ITERATIONS = (0, 9, 10, 19)
+
+#: Suffixes of the two further forms of H (without t = 0; settled from 20 ms), see ilcforce.metrics.
+H_FORMS = ("_no_t0", "_settled")
 
 #: Units of the columns these tables produce; the Markdown renderer appends them to headers.
 COLUMN_UNITS = {
@@ -46,14 +50,15 @@ COLUMN_UNITS = {
     "chattering_joint_1": "N m",
     "chattering_joint_2": "N m",
     "diverged_time": "s",
+    **{f"chattering_task_{axis}{form}": "N" for axis in ("x", "y") for form in ("_no_t0", "_settled")},
 }
 
 
 def ordered_methods(methods: Iterable[str]) -> list[str]:
-    """``methods`` sorted as c1, c2, c3 first, then any other name alphabetically."""
+    """``methods`` in registry order (the paper's c1, c2, c3 first), then unregistered names sorted."""
     names = set(methods)
-    known = [m for m in METHOD_ORDER if m in names]
-    return known + sorted(names - set(METHOD_ORDER))
+    known = [m for m in REGISTRY if m in names]
+    return known + sorted(names - set(REGISTRY))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -174,7 +179,9 @@ def table3(
     ``iteration`` is the one actually read: j = 19 if complete, else that method's last complete
     iteration (the caller reports the substitution). Columns: ``method``, ``iteration``,
     ``chattering_task_x``, ``chattering_task_x_paper``, ``chattering_task_y``,
-    ``chattering_task_y_paper`` (N), ``chattering_joint_1``, ``chattering_joint_2`` (N m).
+    ``chattering_task_y_paper`` (N), ``chattering_joint_1``, ``chattering_joint_2`` (N m), then
+    the two other forms of H in task space, ``chattering_task_<axis>_no_t0`` and ``_settled``
+    (NaN when the store predates them).
     """
     rows = []
     for method in ordered_methods(metrics_by_method):
@@ -186,6 +193,8 @@ def table3(
             column = f"chattering_task_{axis}"
             row[column] = math.nan if j is None else value_at(metrics, column, j)
             row[f"{column}_paper"] = math.nan if published is None else getattr(published, f"task_{axis}")
+            for form in H_FORMS:
+                row[f"{column}{form}"] = math.nan if j is None else value_at(metrics, f"{column}{form}", j)
         for axis in ("1", "2"):
             column = f"chattering_joint_{axis}"
             row[column] = math.nan if j is None else value_at(metrics, column, j)
@@ -199,7 +208,7 @@ def table3(
         "chattering_task_y_paper",
         "chattering_joint_1",
         "chattering_joint_2",
-    ]
+    ] + [f"chattering_task_{axis}{form}" for axis in ("x", "y") for form in H_FORMS]
     frame = pd.DataFrame(rows, columns=columns)
     frame["iteration"] = frame["iteration"].astype("Int64")
     frame.attrs["units"] = {c: COLUMN_UNITS[c] for c in columns if c in COLUMN_UNITS}

@@ -1,0 +1,132 @@
+"""Report sections shared by single-run and study reports: claims part by part, learning
+stability, method labels that say when a law differs from the paper's, the experiment's own
+description, and the findings section the README copies.
+
+Pure text from DataFrames; never reads files.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import math
+from collections.abc import Mapping
+
+import pandas as pd
+
+from ilcforce.report import claims as claims_module
+from ilcforce.report import stability
+from ilcforce.report.tables import markdown_table
+
+#: Settings under which a method's law is not the paper's: (method, config section, key, paper value).
+PAPER_LAW = (("c3", "c3", "psi_acceleration", "measured"), ("c1", "wall", "force_sign", "applied"),
+             ("c2", "wall", "force_sign", "applied"), ("c3", "wall", "force_sign", "applied"))
+
+
+def config_of(provenance: Mapping[str, object]) -> dict:
+    """The stored JSON configuration of a run (empty when absent or unreadable)."""
+    try:
+        loaded = json.loads(str(provenance.get("config_json", "")))
+    except ValueError:
+        return {}
+    return loaded if isinstance(loaded, dict) else {}
+
+
+def description(config: Mapping[str, object]) -> str:
+    """The experiment's own one-line description from its configuration ("" when absent)."""
+    experiment = config.get("experiment", {})
+    return str(experiment.get("description", "")) if isinstance(experiment, dict) else ""
+
+
+def law_differences(method: str, config: Mapping[str, object]) -> list[str]:
+    """How ``method``'s law under ``config`` differs from the paper's, e.g. ["psi_acceleration = desired"]."""
+    found = []
+    for name, section, key, paper_value in PAPER_LAW:
+        values = config.get(section, {})
+        if name == method and isinstance(values, dict) and key in values and values[key] != paper_value:
+            found.append(f"{section}.{key} = {values[key]!r}, not the paper's {paper_value!r}")
+    return found
+
+
+def method_label(method: str, config: Mapping[str, object], flags: Mapping[str, str] | None = None) -> str:
+    """``c3`` -> ``c3 [law differs from the paper: ...] (unstable learning)`` as it applies."""
+    text = method
+    differences = law_differences(method, config)
+    if differences:
+        text += " [law differs from the paper: " + "; ".join(differences) + "]"
+    if flags and method in flags:
+        text += f" ({stability.UNSTABLE})"
+    return text
+
+
+def _interval(row) -> str:
+    if not math.isfinite(row.median):
+        return "–"
+    if row.low == row.high == row.median:
+        return f"{row.median:.3g}"
+    return f"{row.median:.3g} [{row.low:.3g}, {row.high:.3g}]"
+
+
+def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
+    """The claims section: one summary table, then each claim's parts with frequencies and intervals."""
+    summary = claims_module.claim_summary(parts)
+    n = int(parts["n_seeds"].iloc[0]) if len(parts) else 0
+    lines = [f"Judged over {n} seed{'s' if n != 1 else ''}. Each number is the median over seeds with its "
+             "95% percentile-bootstrap interval; each frequency counts the seeds where the part passes "
+             "(95% Wilson interval in brackets). With one seed there is no interval.", ""]
+    lines.append(markdown_table(summary[["claim", "verdict", "frequency", "statement"]]))
+    if flags:
+        lines += ["Methods flagged for unstable learning (see Learning stability): "
+                  + "; ".join(f"{m}: {text}" for m, text in flags.items()) + ".", ""]
+    for claim in claims_module.CLAIMS:
+        mine = parts[parts["claim"] == claim.number] if len(parts) else parts
+        lines += [f"### Claim {claim.number}: {claim.statement}", "",
+                  f"Verdict: **{summary.loc[summary['claim'] == claim.number, 'verdict'].iloc[0]}**. "
+                  f"Paper: {claim.paper} Parts: {claim.rule}", ""]
+        rows = []
+        for row in mine.itertuples(index=False):
+            judged = row.role != claims_module.SHOWN
+            rows.append({
+                "part": row.part_text, "role": row.role, "statistic": row.statistic,
+                "median [95%]": _interval(row), "over seeds": row.distribution,
+                "passes": (f"{row.passed} of {row.evaluable} [{row.share_low:.2f}, {row.share_high:.2f}]"
+                           if judged and row.evaluable else "–"),
+                "verdict": row.part_verdict, "note": row.notes,
+            })
+        if rows:
+            lines.append(markdown_table(pd.DataFrame(rows)))
+    lines += ["### How the verdicts are reached", "", _RULE_TEXT, ""]
+    return lines
+
+
+_RULE_TEXT = (
+    "A part passes or fails in each seed by its stated threshold (a part that needs a method which diverged "
+    "within the iterations it reads fails; a baseline that diverged counts as an infinite norm). Over seeds "
+    "a part holds when it passes in a strict majority of the seeds where it is evaluable. A claim fails when "
+    "any central part fails; otherwise it is not evaluable when a central part is; otherwise it holds when "
+    "every secondary part holds, and holds in part when a secondary part fails. Shown parts are printed, "
+    "never judged. The claim's frequency applies the same rule to each seed."
+)
+
+
+def stability_markdown(growth: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
+    """The learning-stability section: the stated test, the rates, and the flags."""
+    text = stability.__doc__.split("The test\n--------\n", 1)[-1].strip()
+    lines = [re.sub(r":\w+:`([^`]+)`", r"`\1`", text).replace("``", "`"), ""]
+    if growth.empty:
+        return lines + ["No growth rate could be fitted (too few complete iterations).", ""]
+    table = pd.DataFrame({
+        "method": growth["method"], "quantity": [stability.short_name(q) for q in growth["quantity"]],
+        "window": growth["window"],
+        "rate per iteration [95%]": [f"{r.rate:.4g} [{r.rate_low:.4g}, {r.rate_high:.4g}]" if r.fitted > 1
+                                     else f"{r.rate:.4g}" for r in growth.itertuples(index=False)],
+        "seeds growing": [f"{r.growing} of {r.fitted}" for r in growth.itertuples(index=False)],
+        "grows": ["yes" if g else "no" for g in growth["grows"]],
+    })
+    lines.append(markdown_table(table))
+    if flags:
+        lines += [f"* **{m}**: {text}" for m, text in flags.items()]
+    else:
+        lines.append("* No method is flagged: nothing grows in a majority of seeds.")
+    lines.append("")
+    return lines

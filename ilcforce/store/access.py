@@ -1,0 +1,240 @@
+"""The public readers: validate, provenance, metrics, iterations, memory, reference, find_stores."""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import h5py
+import numpy as np
+
+if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports none (issue 12)
+    import pandas as pd
+
+from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
+from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS
+from ilcforce.store import schema
+from ilcforce.store.read import (attr, cached_metrics, checked_data, control_length, frame_from_group, group_for,
+                                 is_complete, iteration_attrs, metrics_rows, open_store, provenance_of,
+                                 py, read_log, read_memory_group, record_from_group, require_dataset, require_group, scan)
+from ilcforce.store.safeio import StoreError
+
+
+def validate(path: str | os.PathLike[str]) -> None:
+    """Check that ``path`` is a readable ilcforce store; raise StoreError (one line) if not.
+
+    Reads every byte of every dataset (so every checksum is verified) and checks the kind of
+    every attribute and the type and shape of every dataset a reader uses: the header
+    (:data:`~ilcforce.store.schema.ROOT_ATTRIBUTES`), ``/reference``, every complete iteration
+    (attributes, log, memory, units) and, when current, the ``/metrics`` cache (one row per
+    complete iteration). A stale metrics cache is not an error: readers recompute it.
+    """
+    with open_store(path) as (handle, checked, major):
+        layout = scan(handle, checked, major)
+        reference = require_group(handle, "reference", checked)
+        for name, (axes, _unit, _description) in REFERENCE_SIGNALS.items():
+            require_dataset(reference, name, schema.signal_shape(axes, layout.n_log), checked)[()]
+        n_control = control_length(handle, checked)
+        if n_control is not None:
+            handle[schema.CONTROL_TIME][()]
+        for j in layout.complete:
+            group = handle[layout.groups[j]]
+            iteration_attrs(group, j, checked)
+            read_log(group, layout.n_log, checked, major)
+            for name, dataset in read_memory_group(group, checked, n_control).items():
+                checked_data(group, f"memory/{name}", dataset, checked, major)
+        _check_units(handle, checked)
+        columns = cached_metrics(handle, checked)
+        if columns is not None:  # a current cache must agree with the logs it was computed from
+            for k, j in enumerate(columns["iteration"]):
+                j = int(j)
+                if j not in layout.groups:
+                    continue
+                fresh = iteration_metrics(record_from_group(handle[layout.groups[j]], j, layout.n_log, checked, major))
+                for column, value in fresh.items():
+                    cached = columns[column][k]
+                    same = (str(cached) == str(value) if column_kind(column) == "str"
+                            else np.array_equal(np.float64(cached), np.float64(value), equal_nan=True))
+                    if not same:
+                        raise StoreError(f"{checked}: /metrics/{column} of iteration {j} is {cached!r} but the stored "
+                                         f"log gives {value!r}")
+
+
+def _check_units(handle: h5py.File, path: Path) -> None:
+    """Every dataset a reader uses has a string ``units`` attribute."""
+    problems: list[str] = []
+
+    def visit(name: str, item: Any) -> None:
+        if isinstance(item, h5py.Dataset):
+            parts = name.split("/")
+            if parts[0] == "iterations" and len(parts) > 1:
+                group = handle.get(f"iterations/{parts[1]}")
+                if not isinstance(group, h5py.Group) or not is_complete(group):
+                    return
+            if not schema.kind_matches(item.attrs.get("units"), "str"):
+                problems.append(item.name)
+
+    handle.visititems(visit)
+    if problems:
+        raise StoreError(f"{path}: dataset {problems[0]} has no 'units' attribute ({len(problems)} without units)")
+
+
+def iterations(path: str | os.PathLike[str]) -> list[int]:
+    """Complete iterations stored in ``path``, ascending."""
+    with open_store(path) as (handle, checked, major):
+        return list(scan(handle, checked, major).complete)
+
+
+def read_provenance(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Root attributes as python types (str, int, float, bool, list), :data:`ROOT_ATTRS` first.
+
+    ``run_state`` "running" with no live writer reads as "partial" (the writer was killed).
+    """
+    with open_store(path) as (handle, checked, major):
+        scan(handle, checked, major)
+        return provenance_of(handle, checked)
+
+
+def read_metrics(path: str | os.PathLike[str]) -> pd.DataFrame:
+    """The metrics table of the complete iterations.
+
+    Returns
+    -------
+    DataFrame
+        Indexed by ``iteration`` (int), ascending; columns :data:`ilcforce.metrics.METRIC_COLUMNS`
+        except ``iteration``, in that order (``status`` str, ``fallback_count`` int, the rest
+        float). ``df.attrs["units"]`` maps column -> unit (``"-"`` for dimensionless),
+        ``df.attrs["descriptions"]`` column -> description. Taken from the store's ``/metrics``
+        cache when it is current, else computed from the stored logs.
+    """
+    with open_store(path) as (handle, checked, major):
+        layout = scan(handle, checked, major)
+        rows = metrics_rows(handle, checked, layout)
+    return metrics_frame(rows)
+
+
+def metrics_frame(rows: dict[int, dict[str, object]]) -> pd.DataFrame:
+    """The metrics DataFrame of :func:`read_metrics` from rows keyed by iteration."""
+    order = sorted(rows)
+    data = {}
+    for column in METRIC_COLUMNS:
+        if column == "iteration":
+            continue
+        values = [rows[j][column] for j in order]
+        kind = column_kind(column)
+        dtype = {"int": np.int64, "str": object, "float": np.float64}[kind]
+        data[column] = np.asarray([str(v) for v in values] if kind == "str" else values, dtype=dtype)
+    import pandas as pd
+
+    frame = pd.DataFrame(data, index=pd.Index(np.asarray(order, dtype=np.int64), name="iteration"))
+    if "status" in frame:
+        frame["status"] = frame["status"].astype(str)
+    frame.attrs["units"] = {c: METRIC_COLUMNS[c][0] for c in frame.columns}
+    frame.attrs["descriptions"] = {c: METRIC_COLUMNS[c][1] for c in frame.columns}
+    frame.attrs["metrics_version"] = METRICS_VERSION
+    return frame
+
+
+def read_iteration(path: str | os.PathLike[str], j: int) -> pd.DataFrame:
+    """The logged trajectories of iteration ``j``.
+
+    Returns
+    -------
+    DataFrame, shape (n_log, 32)
+        Index ``time`` (s): the iteration's logged time; samples after a divergence (NaN in the
+        log) take the log-grid time from ``/reference/time`` so the index has no gaps. One
+        column per signal axis of :data:`~ilcforce.records.LOG_SIGNALS`, named
+        ``<signal>_<axis>`` (``position_x``, ``torque_1``) or ``<signal>`` for a scalar signal.
+        ``df.attrs``: ``units`` (column -> unit, including ``time``), ``iteration``,
+        ``status``, ``fallback_count``, ``diverged_time`` (s), ``diverged_reason``.
+    """
+    with open_store(path) as (handle, checked, major):
+        layout = scan(handle, checked, major)
+        group = handle[group_for(layout, int(j), checked)]
+        attrs = iteration_attrs(group, int(j), checked)
+        log = require_group(group, "log", checked)
+        time = checked_data(group, "log/time", require_dataset(log, "time", (layout.n_log,), checked), checked, major)
+        reference_time = handle["reference/time"][()]
+        time = np.where(np.isfinite(time), time, reference_time)
+        frame = frame_from_group(log, LOG_SIGNALS, time, layout.n_log, checked, (group, "log/", major))
+    for key in ("iteration", "status", "fallback_count", "diverged_time", "diverged_reason"):
+        frame.attrs[key] = attrs[key]
+    return frame
+
+
+def read_memory(path: str | os.PathLike[str], j: int) -> dict[str, np.ndarray]:
+    """Learned memory stored with iteration ``j`` (the memory iteration j + 1 starts from).
+
+    Returns name -> float64 array, shape (n_control, ...), exact copies; empty for a
+    memoryless controller.
+    """
+    with open_store(path) as (handle, checked, major):
+        layout = scan(handle, checked, major)
+        group = handle[group_for(layout, int(j), checked)]
+        datasets = read_memory_group(group, checked, control_length(handle, checked))
+        return {name: np.array(checked_data(group, f"memory/{name}", d, checked, major), dtype=np.float64)
+                for name, d in datasets.items()}
+
+
+def read_memory_info(path: str | os.PathLike[str], j: int) -> dict[str, dict[str, Any]]:
+    """Per memory entry of iteration ``j``: ``units`` and ``columns`` (labels, or None)."""
+    with open_store(path) as (handle, checked, major):
+        layout = scan(handle, checked, major)
+        group = handle[group_for(layout, int(j), checked)]
+        datasets = read_memory_group(group, checked, control_length(handle, checked))
+        out = {}
+        for name, dataset in datasets.items():
+            columns = dataset.attrs.get("columns")
+            out[name] = {"units": str(py(dataset.attrs.get("units", ""))),
+                         "columns": [str(c) for c in py(columns)] if columns is not None else None}
+        return out
+
+
+def read_memory_units(path: str | os.PathLike[str], j: int) -> dict[str, str]:
+    """Units of the learned memory stored with iteration ``j``: name -> unit."""
+    return {name: info["units"] for name, info in read_memory_info(path, j).items()}
+
+
+def read_reference(path: str | os.PathLike[str]) -> pd.DataFrame:
+    """The reference trajectories: DataFrame indexed by ``time`` (s), columns
+    ``<signal>_<axis>`` of :data:`~ilcforce.records.REFERENCE_SIGNALS` (e.g.
+    ``position_desired_x``), ``df.attrs["units"]`` column -> unit. Shape (n_log, 8)."""
+    with open_store(path) as (handle, checked, major):
+        layout = scan(handle, checked, major)
+        reference = require_group(handle, "reference", checked)
+        return frame_from_group(reference, REFERENCE_SIGNALS, reference["time"][()], layout.n_log, checked)
+
+
+def read_control_time(path: str | os.PathLike[str]) -> np.ndarray | None:
+    """The control grid (s) of a schema-2 store; None for older stores."""
+    with open_store(path) as (handle, checked, major):
+        if control_length(handle, checked) is None:
+            return None
+        return np.array(handle[schema.CONTROL_TIME][()], dtype=np.float64)
+
+
+def find_stores(results_dir: str | os.PathLike[str]) -> dict[str, dict[str, Path]]:
+    """Every ``results_dir/<experiment>/<method>.h5``: experiment -> method -> path, sorted.
+
+    Only regular files named ``*.h5`` count (lock files, journals, leftover copies and
+    anything else are skipped). The files are not opened (use :func:`validate`). Names are
+    compared literally, never as glob patterns. StoreError if ``results_dir`` is not a directory.
+    """
+    root = Path(results_dir)
+    if not root.is_dir():
+        raise StoreError(f"{root}: results directory does not exist or is not a directory")
+    found: dict[str, dict[str, Path]] = {}
+    for experiment_dir in sorted(p for p in root.iterdir() if p.is_dir()):
+        methods = {}
+        for entry in sorted(experiment_dir.iterdir()):
+            try:
+                regular = stat.S_ISREG(entry.stat().st_mode)
+            except OSError:
+                continue
+            if regular and entry.suffix == ".h5" and not entry.name.startswith("."):
+                methods[entry.stem] = entry
+        if methods:
+            found[experiment_dir.name] = methods
+    return found

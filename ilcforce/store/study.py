@@ -1,0 +1,408 @@
+"""The study store, ``results/studies/<name>.h5`` (part of the store package, the only one touching h5py).
+
+Only the driver writes it. Durability without ever writing an HDF5 file in place:
+
+1. A finished (or failed) cell is committed at once as one small JSON record in the journal
+   ``<name>.h5.journal/<setting>-<seed>-<method>.json`` (written to a temporary name, fsynced,
+   renamed: a record is whole or absent).
+2. Every few seconds, and at the end, the journal is **consolidated** into ``<name>.h5``: the file
+   is copied, the new rows appended to the copy, the copy fsynced and renamed over the original.
+   The HDF5 file is therefore always a complete older or newer version, never half written.
+3. Readers take the HDF5 file plus the journal records not yet in it.
+
+So ``kill -9`` of the driver loses only the cells in flight; a rerun skips every committed cell.
+A lock (``flock`` on ``<name>.h5.lock``, opened without following links and never truncated)
+refuses a second driver on the same study.
+
+Layout (schema ``ilcforce.study`` 1.0)::
+
+    /             attrs: schema, schema_version, name, description, study_toml, definition_json,
+                         fingerprint, created, sessions_json
+    /settings     datasets (n_settings,): config_json, label, values_json (swept key -> value, JSON)
+    /metrics      one dataset per column, (n_rows,): setting, seed, method, iteration, then the
+                  metric columns of the cells' rows (status, ..., memory_rms_*)
+    /cells        one dataset per column, (n_records,): setting, seed, method, state ('done' or
+                  'failed'), attempts, message, elapsed, worker; a later record of a cell wins
+"""
+
+from __future__ import annotations
+
+import fcntl
+import json
+import math
+import os
+import shutil
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pandas as pd
+
+SCHEMA_NAME = "ilcforce.study"
+SCHEMA_VERSION = "1.0"
+CELL_COLUMNS = ("setting", "seed", "method", "state", "attempts", "message", "elapsed", "worker")
+KEY_COLUMNS = ("setting", "seed", "method")
+DONE, FAILED = "done", "failed"
+_STRING = h5py.string_dtype("utf-8")
+_CHUNK = 1024
+
+
+class StudyStoreError(Exception):
+    """A study store that cannot be used (locked, foreign, damaged, a different study); one line."""
+
+
+def journal_dir(path: Path) -> Path:
+    return Path(f"{path}.journal")
+
+
+def _lock_path(path: Path) -> Path:
+    return Path(f"{path}.lock")
+
+
+def is_study_store(path: Path) -> bool:
+    """True if ``path`` is an HDF5 file carrying the study schema (never raises)."""
+    try:
+        with h5py.File(path, "r") as handle:
+            return handle.attrs.get("schema") == SCHEMA_NAME
+    except Exception:  # noqa: BLE001 - any unreadable file is "not a study store"
+        return False
+
+
+# ------------------------------------------------------------------------------------------------
+# reading
+
+
+def _column(dataset: h5py.Dataset) -> np.ndarray:
+    if h5py.check_string_dtype(dataset.dtype) is not None:
+        return np.asarray(dataset.asstr()[()], dtype=object)
+    return dataset[()]
+
+
+def _table(group: h5py.Group) -> pd.DataFrame:
+    n = int(group.attrs.get("n_rows", 0))
+    data = {}
+    for name in json.loads(group.attrs.get("columns_json", "[]")):
+        values = _column(group[name])
+        if values.shape != (n,):
+            raise StudyStoreError(f"{group.file.filename}: /{group.name.strip('/')}/{name} has {values.shape[0]} "
+                                  f"rows, expected {n}")
+        data[name] = values
+    return pd.DataFrame(data)
+
+
+def _journal_records(path: Path) -> list[dict]:
+    records = []
+    folder = journal_dir(path)
+    if not folder.is_dir():
+        return records
+    for item in sorted(folder.iterdir()):
+        if item.suffix != ".json" or item.name.startswith("."):
+            continue
+        try:
+            record = json.loads(item.read_text(encoding="utf-8"))
+            if not all(k in record for k in (*KEY_COLUMNS, "state", "rows")):
+                continue
+        except (OSError, ValueError, UnicodeDecodeError):
+            continue  # a damaged record: its cell runs again
+        record["_file"] = item
+        records.append(record)
+    return records
+
+
+def read_header(path: Path) -> dict:
+    """Root attributes and the settings table of a study store; StudyStoreError if not one."""
+    try:
+        with h5py.File(path, "r") as handle:
+            if handle.attrs.get("schema") != SCHEMA_NAME:
+                raise StudyStoreError(f"{path}: not an ilcforce study store")
+            version = str(handle.attrs.get("schema_version", ""))
+            if version.split(".")[0] != SCHEMA_VERSION.split(".")[0]:
+                raise StudyStoreError(f"{path}: study store schema {version!r}; this ilcforce reads {SCHEMA_VERSION}")
+            attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in handle.attrs.items()}
+            settings = _table(handle["settings"])
+    except StudyStoreError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as exc:
+        raise StudyStoreError(f"{path}: not a readable ilcforce study store ({' '.join(str(exc).split())})") from None
+    attrs["settings"] = settings
+    return attrs
+
+
+def read_tables(path: Path) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
+    """(header, metrics, cells) of a study store, journal records included.
+
+    ``metrics`` has the raw columns (``setting`` index, ``seed``, ``method``, ``iteration``, metric
+    columns); ``cells`` one row per cell, its latest record.
+    """
+    header = read_header(path)
+    try:
+        with h5py.File(path, "r") as handle:
+            metrics = _table(handle["metrics"])
+            cells = _table(handle["cells"])
+    except StudyStoreError:
+        raise
+    except (OSError, KeyError, ValueError, TypeError) as exc:
+        raise StudyStoreError(f"{path}: damaged study store ({' '.join(str(exc).split())})") from None
+    done = set(_keys(cells[cells["state"] == DONE])) if len(cells) else set()
+    extra_rows, extra_cells = [], []
+    for record in _journal_records(path):
+        key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
+        if record["state"] == DONE and key in done:
+            continue  # consolidated already (killed between the rename and the journal cleanup)
+        extra_cells.append({c: record.get(c) for c in CELL_COLUMNS})
+        if record["state"] == DONE:
+            extra_rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
+    if extra_cells:
+        cells = pd.concat([cells, pd.DataFrame(extra_cells)], ignore_index=True)
+    if extra_rows:
+        metrics = pd.concat([metrics, pd.DataFrame(extra_rows)], ignore_index=True)
+    if len(cells):
+        cells = cells.drop_duplicates(list(KEY_COLUMNS), keep="last").reset_index(drop=True)
+    return header, metrics, cells
+
+
+def _keys(frame: pd.DataFrame):
+    if not len(frame):
+        return iter(())
+    return zip(frame["setting"].astype(int), frame["seed"].astype(int), frame["method"].astype(str))
+
+
+# ------------------------------------------------------------------------------------------------
+# writing (the driver only)
+
+
+def _append(group: h5py.Group, rows: list[dict]) -> None:
+    """Append ``rows`` (dicts) to the column datasets of ``group``; new columns are back-filled."""
+    if not rows:
+        return
+    n_old = int(group.attrs.get("n_rows", 0))
+    columns = json.loads(group.attrs.get("columns_json", "[]"))
+    for row in rows:
+        for name in row:
+            if name not in columns and not name.startswith("_"):
+                columns.append(name)
+    n_new = n_old + len(rows)
+    for name in columns:
+        values = [row.get(name) for row in rows]
+        if name not in group:
+            sample = next((v for v in values if v is not None), None)
+            if isinstance(sample, str):
+                dtype, fill = _STRING, ""
+            elif isinstance(sample, (bool, np.bool_)):
+                dtype, fill = np.int8, -1
+            elif isinstance(sample, (int, np.integer)):
+                dtype, fill = np.int64, -1
+            else:
+                dtype, fill = np.float64, math.nan
+            dataset = group.create_dataset(name, shape=(n_old,), maxshape=(None,), dtype=dtype,
+                                           chunks=(_CHUNK,), fletcher32=dtype is not _STRING,
+                                           fillvalue=fill)
+            dataset.attrs["fill"] = fill
+        dataset = group[name]
+        fill = dataset.attrs["fill"]
+        if h5py.check_string_dtype(dataset.dtype) is not None:
+            array = np.asarray(["" if v is None else str(v) for v in values], dtype=object)
+        else:
+            array = np.asarray([fill if v is None else v for v in values], dtype=dataset.dtype)
+        dataset.resize((n_new,))
+        dataset[n_old:n_new] = array
+    group.attrs["n_rows"] = n_new
+    group.attrs["columns_json"] = json.dumps(columns)
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _write_json_atomic(path: Path, data: dict) -> None:
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    with open(tmp, "w", encoding="utf-8") as handle:
+        json.dump(data, handle)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)
+
+
+class StudyStore:
+    """The driver's handle on a study store: lock, compatibility check, journal, consolidation.
+
+    Parameters
+    ----------
+    path : Path
+        ``results/studies/<name>.h5``.
+    header : dict
+        Root attributes for a new store: ``name``, ``description``, ``study_toml``,
+        ``definition_json``, ``fingerprint``; plus ``settings``: a list of dicts with
+        ``config_json``, ``label``, ``values_json``.
+    session : dict
+        Provenance of this run (command, scheduler, workers, versions), appended to ``sessions_json``.
+    overwrite : bool
+        Start over: an existing study store (and its journal) is replaced. Never replaces a file
+        that is not a study store.
+    replace_stale : bool
+        Start over when the stored study has different settings or was made by different code,
+        instead of refusing.
+    require_existing : bool
+        ``--resume``: refuse when there is no store to continue.
+    """
+
+    def __init__(self, path: Path, *, header: dict, session: dict, overwrite: bool = False,
+                 replace_stale: bool = False, require_existing: bool = False,
+                 consolidate_every: float = 2.0) -> None:
+        self.path = Path(path)
+        self._header = header
+        self._session = dict(session)
+        self._pending: list[dict] = []
+        self.consolidate_every = consolidate_every
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._lock_fd = self._lock()
+        try:
+            self._prepare(overwrite, replace_stale, require_existing)
+        except BaseException:
+            self.close()
+            raise
+        self.done: set[tuple[int, int, str]] = set()
+        self.failed: dict[tuple[int, int, str], str] = {}
+        _header, _metrics, cells = read_tables(self.path)
+        if len(cells):
+            for key, state, message in zip(_keys(cells), cells["state"], cells["message"]):
+                if state == DONE:
+                    self.done.add(key)
+                else:
+                    self.failed[key] = str(message)
+        self._pending = [r for r in _journal_records(self.path)]
+        self._last = 0.0
+
+    # -- setup --------------------------------------------------------------------------------
+
+    def _lock(self) -> int:
+        lock = _lock_path(self.path)
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+        except OSError as exc:
+            raise StudyStoreError(f"{lock}: cannot open the study's lock file ({exc.strerror})") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise StudyStoreError(f"{self.path}: another ilcforce study is writing this store") from None
+        return fd
+
+    def _prepare(self, overwrite: bool, replace_stale: bool, require_existing: bool) -> None:
+        path = self.path
+        if os.path.lexists(path) and (path.is_symlink() or not path.is_file()):
+            raise StudyStoreError(f"{path}: exists and is not a regular file; refusing to touch it")
+        if not path.exists():
+            if require_existing:
+                raise StudyStoreError(f"{path}: no study store to resume (run without --resume to start it)")
+            self._clear_journal()
+            self._create()
+            return
+        if not is_study_store(path):
+            raise StudyStoreError(f"{path}: exists and is not an ilcforce study store; refusing to replace it "
+                                  "(move it away)")
+        header = read_header(path)
+        reason = None
+        if header.get("definition_json") != self._header["definition_json"]:
+            reason = "its study has different settings (sweep, fixed values or experiment)"
+        elif header.get("fingerprint") != self._header["fingerprint"]:
+            reason = "its cells were computed by different simulation code"
+        if overwrite or (reason and replace_stale):
+            self._clear_journal()
+            self._create()
+        elif reason:
+            raise StudyStoreError(f"{path}: {reason}; pass --overwrite to start the study over")
+
+    def _clear_journal(self) -> None:
+        folder = journal_dir(self.path)
+        if folder.is_dir() and not folder.is_symlink():
+            for item in folder.iterdir():
+                if item.is_file() and (item.suffix == ".json" or ".tmp-" in item.name):
+                    item.unlink()
+
+    def _create(self) -> None:
+        tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        with h5py.File(tmp, "w") as handle:
+            handle.attrs["schema"] = SCHEMA_NAME
+            handle.attrs["schema_version"] = SCHEMA_VERSION
+            for key in ("name", "description", "study_toml", "definition_json", "fingerprint", "created"):
+                handle.attrs[key] = str(self._header.get(key, ""))
+            handle.attrs["sessions_json"] = "[]"
+            _append(handle.create_group("settings"), list(self._header["settings"]))
+            handle.create_group("metrics").attrs["n_rows"] = 0
+            handle.create_group("cells").attrs["n_rows"] = 0
+        _fsync(tmp)
+        os.replace(tmp, self.path)
+
+    # -- committing ---------------------------------------------------------------------------
+
+    def commit(self, record: dict, now: float) -> None:
+        """Commit one cell's record (``setting``, ``seed``, ``method``, ``state``, ``attempts``,
+        ``message``, ``elapsed``, ``worker``, ``rows``) to the journal; consolidate if due."""
+        folder = journal_dir(self.path)
+        folder.mkdir(exist_ok=True)
+        target = folder / f"{record['setting']}-{record['seed']}-{record['method']}.json"
+        _write_json_atomic(target, record)
+        self._pending.append({**record, "_file": target})
+        key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
+        if record["state"] == DONE:
+            self.done.add(key)
+            self.failed.pop(key, None)
+        else:
+            self.failed[key] = str(record.get("message", ""))
+        if now - self._last >= self.consolidate_every:
+            self.consolidate(now)
+
+    def consolidate(self, now: float = 0.0) -> None:
+        """Fold the journal into the HDF5 file (copy, append, fsync, rename), then clear it."""
+        self._last = now
+        header = read_header(self.path)
+        _h, _m, stored = read_tables_consolidated(self.path)
+        done = set(_keys(stored[stored["state"] == DONE])) if len(stored) else set()
+        cells, rows = [], []
+        for record in self._pending:
+            key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
+            if record["state"] == DONE and key in done:
+                continue
+            cells.append({c: record.get(c) for c in CELL_COLUMNS})
+            if record["state"] == DONE:
+                rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
+        sessions = json.loads(header.get("sessions_json", "[]"))
+        if not sessions or sessions[-1].get("id") != self._session.get("id"):
+            sessions.append(self._session)
+        else:
+            sessions[-1] = self._session
+        tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        shutil.copyfile(self.path, tmp)
+        with h5py.File(tmp, "a") as handle:
+            _append(handle["cells"], cells)
+            _append(handle["metrics"], rows)
+            handle.attrs["sessions_json"] = json.dumps(sessions)
+        _fsync(tmp)
+        os.replace(tmp, self.path)
+        for record in self._pending:
+            try:
+                record["_file"].unlink()
+            except FileNotFoundError:
+                pass
+        self._pending = []
+
+    def update_session(self, **fields) -> None:
+        self._session.update(fields)
+
+    def close(self) -> None:
+        if getattr(self, "_lock_fd", None) is not None:
+            fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
+            os.close(self._lock_fd)
+            self._lock_fd = None
+
+
+def read_tables_consolidated(path: Path) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
+    """Like :func:`read_tables` without the journal (what the HDF5 file itself holds)."""
+    header = read_header(path)
+    with h5py.File(path, "r") as handle:
+        return header, _table(handle["metrics"]), _table(handle["cells"])

@@ -1,0 +1,488 @@
+"""StoreWriter: one run into one store, one atomic commit per iteration (see :mod:`.commit`)."""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+import subprocess
+from collections.abc import Callable, Mapping
+from datetime import datetime, timezone
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import h5py
+import numpy as np
+
+import ilcforce
+from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
+from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
+from ilcforce.store import commit, schema
+from ilcforce.store.read import check_header, open_store, py
+from ilcforce.store.template import IterationTemplate
+from ilcforce.store.safeio import (StoreError, StoreExistsError, acquire_writer_lock, journal_path, one_line,
+                                   os_reason, repair_interrupted_commit, tmp_path)
+
+_METRICS_CHUNK = 64  # rows per chunk of a /metrics column
+
+#: A check of a stored run before resuming it: given its provenance, raise StoreError if it is
+#: not the same run (the experiment layer's same-run policy supplies it).
+SameRunCheck = Callable[[dict[str, Any]], None]
+
+
+def utc_now() -> str:
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
+
+
+def git_state() -> tuple[str, bool]:
+    """(``git rev-parse HEAD``, tree has uncommitted changes) of the package's checkout; ("", False)."""
+    where = Path(__file__).resolve().parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True,
+                              timeout=10, check=False)
+        commit_id = head.stdout.strip()
+        if head.returncode != 0 or not commit_id or any(c not in "0123456789abcdef" for c in commit_id):
+            return "", False
+        status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
+                                capture_output=True, text=True, timeout=10, check=False)
+        return commit_id, bool(status.stdout.strip()) if status.returncode == 0 else False
+    except (OSError, subprocess.SubprocessError, ValueError):
+        return "", False
+
+
+def _signal_array(arrays: Mapping[str, np.ndarray], argument: str, name: str,
+                  axes: tuple[str, ...] | None, n: int) -> np.ndarray:
+    if name not in arrays:
+        raise ValueError(f"{argument} is missing signal {name!r}")
+    array = np.ascontiguousarray(arrays[name], dtype=np.float64)
+    if array.shape != schema.signal_shape(axes, n):
+        raise ValueError(f"{argument}[{name!r}] has shape {array.shape}, expected {schema.signal_shape(axes, n)}")
+    return array
+
+
+def _dataset(group: h5py.Group, name: str, data: np.ndarray, units: str, description: str,
+             axes: tuple[str, ...] | None = None, columns_attr: str = "axes") -> None:
+    dataset = group.create_dataset(name, data=data, chunks=data.shape, **schema.DATASET_OPTIONS)
+    attrs = dataset.attrs
+    attrs["units"] = units
+    attrs["description"] = description
+    if axes is not None:
+        attrs[columns_attr] = list(axes)
+
+
+def _leaves(value: Any, prefix: str, out: dict[str, Any]) -> dict[str, Any]:
+    if isinstance(value, dict):
+        for key, item in value.items():
+            _leaves(item, f"{prefix}.{key}" if prefix else str(key), out)
+    else:
+        out[prefix] = value
+    return out
+
+
+def _default_same_run(config_json: str) -> SameRunCheck:
+    """Without a policy: the stored configuration must equal this one, key by key, except
+    ``experiment.iterations`` (the experiment layer's policy, :mod:`ilcforce.samerun`, is finer)."""
+    def check(provenance: dict[str, Any]) -> None:
+        try:
+            stored = _leaves(json.loads(str(provenance["config_json"])), "", {})
+            new = _leaves(json.loads(config_json), "", {})
+        except json.JSONDecodeError:
+            raise StoreError("the stored configuration is not valid JSON") from None
+        for leaves in (stored, new):
+            leaves.pop("experiment.iterations", None)
+        keys = sorted(k for k in set(stored) | set(new)
+                      if k not in stored or k not in new or stored[k] != new[k] or type(stored[k]) is not type(new[k]))
+        if keys:
+            raise StoreError(f"configuration differs from the stored run at {', '.join(keys[:6])}"
+                             + (f" and {len(keys) - 6} more" if len(keys) > 6 else ""))
+    return check
+
+
+class StoreWriter:
+    """Writes one run into ``results/<experiment>/<method>.h5``, one atomic commit per iteration.
+
+    Use as a context manager::
+
+        with StoreWriter(path, experiment=..., method=..., config_toml=..., config_json=...,
+                         seed=..., command=..., n_iterations=..., reference=...) as writer:
+            memory = writer.resume_memory()            # {} on a fresh run
+            for j in range(writer.last_complete_iteration + 1, n_iterations):
+                writer.append(simulate_iteration(j, memory))
+            writer.finish("complete")
+
+    Leaving the block without :meth:`finish` (exception, Ctrl-C) sets run_state ``"partial"``.
+    ``same_run`` checks a stored run before ``resume`` continues it (default: the configuration
+    must be equal except ``experiment.iterations``). ``control_time`` is the control grid
+    (stored as ``/control_time``). ``overwrite`` replaces only an ilcforce store; anything else
+    at ``path`` is refused. Raises StoreLockedError / StoreExistsError / StoreError on enter.
+    """
+
+    def __init__(self, path: str | os.PathLike[str], *, experiment: str, method: str, config_toml: str,
+                 config_json: str, seed: int, command: str, n_iterations: int,
+                 reference: dict[str, np.ndarray], control_time: np.ndarray | None = None,
+                 overwrite: bool = False, resume: bool = False, same_run: SameRunCheck | None = None) -> None:
+        self._path = Path(path)
+        if overwrite and resume:
+            raise StoreError(f"{self._path}: --overwrite and --resume are mutually exclusive; choose one")
+        if int(n_iterations) != n_iterations or n_iterations < 0:
+            raise ValueError(f"n_iterations must be an int >= 0, got {n_iterations!r}")
+        self._experiment, self._method = str(experiment), str(method)
+        self._config_toml, self._config_json = str(config_toml), str(config_json)
+        self._seed, self._command, self._n_iterations = int(seed), str(command), int(n_iterations)
+        self._overwrite, self._resume = bool(overwrite), bool(resume)
+        self._same_run = same_run or _default_same_run(self._config_json)
+        if "time" not in reference or np.ndim(reference["time"]) != 1 or np.shape(reference["time"])[0] < 2:
+            raise ValueError("reference['time'] must have shape (n_log,) with n_log >= 2")
+        self._n_log = int(np.shape(reference["time"])[0])
+        unknown = sorted(set(reference) - set(REFERENCE_SIGNALS))
+        if unknown:
+            raise ValueError(f"reference has unknown signal {unknown[0]!r} (not in records.REFERENCE_SIGNALS)")
+        self._reference = {name: _signal_array(reference, "reference", name, axes, self._n_log).copy()
+                           for name, (axes, _u, _d) in REFERENCE_SIGNALS.items()}
+        self._control_time = None if control_time is None else np.ascontiguousarray(control_time, dtype=np.float64)
+        self._lock_fd: int | None = None
+        self._entered = self._finished = self._file_is_ours = self._appended = False
+        self._last = -1
+        self._last_status: str | None = None
+        self._stored_run_state: str | None = None
+        self._created_utc = utc_now()
+        self._git = ("", False)
+        self._template: IterationTemplate | None = None
+        self._rows: list[dict[str, object]] = []
+
+    # -- public ---------------------------------------------------------------------------
+
+    @property
+    def path(self) -> Path:
+        return self._path
+
+    @property
+    def last_complete_iteration(self) -> int:
+        """Last committed (or, on resume, stored) complete iteration; -1 if none."""
+        return self._last
+
+    def resume_memory(self) -> dict[str, np.ndarray]:
+        """Memory stored with the last complete iteration; ``{}`` if none."""
+        self._require_open()
+        if self._last < 0 or not self._file_is_ours:
+            return {}
+        from ilcforce.store.access import read_memory
+        return read_memory(self._path, self._last)
+
+    def stored_status(self) -> str | None:
+        """Status of the last complete iteration; None if none."""
+        return self._last_status
+
+    # -- context --------------------------------------------------------------------------
+
+    def __enter__(self) -> StoreWriter:
+        if self._entered:
+            raise RuntimeError("a StoreWriter can be entered only once")
+        self._make_parent()
+        self._lock_fd = acquire_writer_lock(self._path)
+        try:
+            self._clean_leftovers()
+            self._git = git_state()
+            if os.path.lexists(self._path):
+                if self._resume:
+                    self._load_for_resume()
+                elif self._overwrite:
+                    self._check_replaceable()
+                else:
+                    raise StoreExistsError(f"{self._path} already exists ({self._describe_existing()}); "
+                                           "--overwrite replaces it or --resume continues it")
+        except BaseException:
+            self._release_lock()
+            raise
+        self._entered = True
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        try:
+            if (not self._finished and self._file_is_ours and self._last >= 0
+                    and (self._appended or self._stored_run_state == "running")):
+                now = utc_now()
+
+                def change(handle: h5py.File) -> None:
+                    self._flush_metrics(handle)
+                    self._set_run_state(handle, "partial", now)
+
+                try:
+                    commit.update(self._path, change)
+                except Exception:
+                    if exc_type is None:
+                        raise
+        finally:
+            if self._template is not None:
+                self._template.close()
+                self._template = None
+            self._release_lock()
+            self._entered = False
+
+    # -- writing --------------------------------------------------------------------------
+
+    def append(self, record: IterationRecord) -> dict[str, object]:
+        """Commit one iteration atomically; returns its metrics row. ``record.iteration`` must be the next one."""
+        self._require_open()
+        if self._finished:
+            raise StoreError(f"{self._path}: run already finished; cannot append iteration {record.iteration}")
+        if record.iteration != self._last + 1:
+            raise StoreError(f"{self._path}: cannot append iteration {record.iteration}: the last complete "
+                             f"iteration is {self._last}, so the next must be {self._last + 1}")
+        log, memory, row = self._check_record(record)
+        first_of_session = not self._appended
+        now = utc_now()
+
+        template = self._template_for(record, memory)
+        row = dict(row)
+
+        def write(handle: h5py.File) -> None:
+            name = f"iterations/{record.iteration:04d}"
+            if name in handle:  # an unfinished group left by hand or an old version: replace it
+                del handle[name]
+            group = template.stamp(handle, f"iterations/{record.iteration:04d}", log, memory)
+            attrs = group.attrs
+            attrs["iteration"] = int(record.iteration)
+            attrs["status"] = str(record.status)
+            attrs["diverged_time"] = float(record.diverged_time)
+            attrs["diverged_reason"] = one_line(record.diverged_reason)
+            attrs["fallback_count"] = int(record.fallback_count)
+            if first_of_session:
+                self._write_invocation_attrs(handle)
+            self._set_run_state(handle, "running", now)
+            attrs["complete"] = True
+
+        if self._file_is_ours:
+            commit.update(self._path, write)
+        else:
+            def build(handle: h5py.File) -> None:
+                self._initialise(handle)
+                write(handle)
+            commit.create(self._path, build)
+            self._file_is_ours = True
+        self._appended = True
+        self._last = int(record.iteration)
+        self._last_status = str(record.status)
+        self._rows.append(row)
+        return row
+
+    def _flush_metrics(self, handle: h5py.File) -> None:
+        """Append this session's rows to the /metrics cache (written at finish or stop, not per
+        commit: a run killed before leaves rows missing, which readers compute from the logs)."""
+        metrics = handle.get(schema.METRICS_GROUP)
+        current = (isinstance(metrics, h5py.Group) and metrics.attrs.get("metrics_version") == METRICS_VERSION
+                   and all(isinstance(metrics.get(c), h5py.Dataset) for c in METRIC_COLUMNS))
+        if not current:
+            if schema.METRICS_GROUP in handle:
+                del handle[schema.METRICS_GROUP]
+            self._create_metrics(handle)
+            metrics = handle[schema.METRICS_GROUP]
+        stored = set(int(j) for j in metrics["iteration"][()])
+        rows = [row for row in self._rows if int(row["iteration"]) not in stored]
+        if not rows:
+            return
+        for column in METRIC_COLUMNS:
+            dataset = metrics[column]
+            n = dataset.shape[0]
+            dataset.resize((n + len(rows),))
+            dataset[n:] = [row[column] for row in rows]
+        self._rows = []
+
+    def _template_for(self, record: IterationRecord, memory: dict[str, np.ndarray]) -> IterationTemplate:
+        labels = getattr(record, "memory_labels", None) or {}
+        spec = tuple((key, values.shape, str(record.memory_units[key]),
+                      tuple(str(c) for c in labels[key]) if values.ndim == 2 and labels.get(key) else None)
+                     for key, values in memory.items())
+        if self._template is None or self._template.memory != spec or self._template.n_log != self._n_log:
+            if self._template is not None:
+                self._template.close()
+            self._template = IterationTemplate(self._n_log, spec)
+        return self._template
+
+    def finish(self, status: str) -> None:
+        """Mark the run ``"complete"`` or ``"diverged"`` (committed atomically)."""
+        self._require_open()
+        if status not in (STATUS_COMPLETE, STATUS_DIVERGED):
+            raise ValueError(f"status must be {STATUS_COMPLETE!r} or {STATUS_DIVERGED!r}, got {status!r}")
+        if not self._file_is_ours or self._last < 0:
+            raise StoreError(f"{self._path}: cannot finish a run with no stored iteration")
+        now = utc_now()
+
+        def change(handle: h5py.File) -> None:
+            self._flush_metrics(handle)
+            self._set_run_state(handle, status, now)
+
+        commit.update(self._path, change)
+        self._finished = True
+
+    # -- internals ------------------------------------------------------------------------
+
+    def _require_open(self) -> None:
+        if not self._entered:
+            raise RuntimeError("StoreWriter must be used as a context manager ('with StoreWriter(...) as writer')")
+
+    def _make_parent(self) -> None:
+        parent = self._path.parent
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise StoreError(f"{self._path}: cannot create directory {parent} ({os_reason(error)})") from None
+        if not parent.is_dir():
+            raise StoreError(f"{self._path}: {parent} is not a directory")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise StoreError(f"{self._path}: directory {parent} is not writable")
+
+    def _release_lock(self) -> None:
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)  # closing releases the flock
+            self._lock_fd = None
+
+    def _clean_leftovers(self) -> None:
+        """Undo an interrupted commit; delete this store's leftover copies (we hold the lock).
+
+        Names are matched literally: ``<name>.tmp`` and, from older versions, ``<name>.tmp-<pid>``
+        and ``<name>.tmp-<pid>.prev``. Never a glob: ``c[1].h5`` must not match ``c1.h5``'s files.
+        """
+        if os.path.lexists(journal_path(self._path)) and os.path.lexists(self._path):
+            repair_interrupted_commit(self._path)
+        prefix = self._path.name + ".tmp"
+        try:
+            names = os.listdir(self._path.parent)
+        except OSError:
+            return
+        for name in names:
+            if not name.startswith(prefix):
+                continue
+            rest = name[len(prefix):]
+            if rest.endswith(".prev"):
+                rest = rest[:-5]
+            if rest == "" or (rest.startswith("-") and rest[1:].isdigit()):
+                stale = self._path.parent / name
+                try:
+                    if stat.S_ISREG(os.lstat(stale).st_mode):
+                        os.unlink(stale)
+                except OSError:
+                    pass
+
+    def _check_replaceable(self) -> None:
+        """--overwrite replaces only an ilcforce store: refuse anything else at the path."""
+        info = os.lstat(self._path)
+        if stat.S_ISLNK(info.st_mode):
+            raise StoreError(f"{self._path} is a symbolic link; --overwrite replaces only an ilcforce store file")
+        if not stat.S_ISREG(info.st_mode):
+            raise StoreError(f"{self._path} is not a regular file; --overwrite replaces only an ilcforce store")
+        try:
+            with open_store(self._path):
+                pass
+        except StoreError as error:
+            raise StoreError(f"refusing to overwrite: {error}; --overwrite replaces only an ilcforce store") from None
+
+    def _describe_existing(self) -> str:
+        from ilcforce.store.access import iterations, read_provenance
+        try:
+            provenance = read_provenance(self._path)
+            done = iterations(self._path)
+        except StoreError as error:
+            return f"not a valid store: {error}"
+        return f"run_state {provenance['run_state']!r}, {len(done)} complete iterations"
+
+    def _load_for_resume(self) -> None:
+        from ilcforce.store.access import iterations, read_provenance, read_reference, validate
+        validate(self._path)
+        provenance = read_provenance(self._path)
+        for key, new in (("experiment", self._experiment), ("method", self._method), ("seed", self._seed)):
+            if provenance[key] != new:
+                raise StoreError(f"{self._path}: cannot resume: stored {key} is {provenance[key]!r}, this run has "
+                                 f"{new!r}; use --overwrite to start again")
+        try:
+            self._same_run(provenance)
+        except StoreError as error:
+            raise StoreError(f"{self._path}: cannot resume: {error}; use --overwrite to start again") from None
+        stored_reference = read_reference(self._path)
+        for name, (axes, _unit, _description) in REFERENCE_SIGNALS.items():
+            if name == "time":
+                stored = stored_reference.index.to_numpy(dtype=np.float64)
+            else:
+                columns = [name] if axes is None else [f"{name}_{a}" for a in axes]
+                stored = stored_reference[columns].to_numpy(dtype=np.float64)
+            if stored.shape != self._reference[name].shape or not np.array_equal(stored, self._reference[name],
+                                                                                  equal_nan=True):
+                raise StoreError(f"{self._path}: cannot resume: reference signal {name!r} differs from the stored "
+                                 "one; use --overwrite to start again")
+        done = iterations(self._path)
+        self._file_is_ours = True
+        self._stored_run_state = str(provenance["run_state"])
+        if done:
+            from ilcforce.store.access import read_iteration
+            self._last = done[-1]
+            self._last_status = str(read_iteration(self._path, self._last).attrs["status"])
+
+    def _check_record(self, record: IterationRecord) -> tuple[dict, dict, dict]:
+        if record.status not in (STATUS_COMPLETE, STATUS_DIVERGED):
+            raise ValueError(f"record.status must be {STATUS_COMPLETE!r} or {STATUS_DIVERGED!r}, got {record.status!r}")
+        unknown = sorted(set(record.log) - set(LOG_SIGNALS))
+        if unknown:
+            raise ValueError(f"record.log has unknown signal {unknown[0]!r} (not in records.LOG_SIGNALS)")
+        log = {name: _signal_array(record.log, "record.log", name, axes, self._n_log)
+               for name, (axes, _u, _d) in LOG_SIGNALS.items()}
+        memory: dict[str, np.ndarray] = {}
+        for key, values in record.memory.items():
+            if not key or "/" in key or key == "." or not key.isprintable():
+                raise ValueError(f"record.memory key {key!r} is not a valid dataset name")
+            if key not in record.memory_units:
+                raise ValueError(f"record.memory_units has no unit for memory {key!r}")
+            array = np.ascontiguousarray(values, dtype=np.float64)
+            if array.ndim not in (1, 2):
+                raise ValueError(f"record.memory[{key!r}] must be (n_control,) or (n_control, width), got {array.shape}")
+            if self._control_time is not None and array.shape[0] != self._control_time.shape[0]:
+                raise ValueError(f"record.memory[{key!r}] has {array.shape[0]} samples, the control grid "
+                                 f"{self._control_time.shape[0]}")
+            memory[key] = array
+        return log, memory, iteration_metrics(record)
+
+    def _initialise(self, handle: h5py.File) -> None:
+        attrs = handle.attrs
+        attrs["schema"] = schema.SCHEMA_NAME
+        attrs["schema_version"] = schema.SCHEMA_VERSION
+        attrs["ilcforce_version"] = str(ilcforce.__version__)
+        attrs["git_commit"], attrs["git_dirty"] = self._git[0], bool(self._git[1])
+        attrs["created_utc"] = attrs["updated_utc"] = self._created_utc
+        attrs["experiment"] = self._experiment
+        attrs["method"] = self._method
+        attrs["seed"] = self._seed
+        attrs["run_state"] = "running"
+        self._write_invocation_attrs(handle)
+        reference = handle.create_group("reference")
+        for name, (axes, unit, description) in REFERENCE_SIGNALS.items():
+            _dataset(reference, name, self._reference[name], unit, description, axes)
+        if self._control_time is not None:
+            _dataset(handle, schema.CONTROL_TIME, self._control_time, "s",
+                     "control grid t_k = k Ts: the time axis of every learned memory")
+        handle.create_group("iterations")
+        self._create_metrics(handle)
+
+    def _create_metrics(self, handle: h5py.File) -> None:
+        metrics = handle.create_group(schema.METRICS_GROUP)
+        metrics.attrs["metrics_version"] = METRICS_VERSION
+        metrics.attrs["description"] = ("cache of ilcforce.metrics.iteration_metrics over the stored logs, one row "
+                                        "per committed iteration; recomputed by readers when its version differs")
+        for column, (unit, description) in METRIC_COLUMNS.items():
+            kind = column_kind(column)
+            dtype: Any = {"str": h5py.string_dtype("utf-8", 16), "int": np.int64, "float": np.float64}[kind]
+            dataset = metrics.create_dataset(column, shape=(0,), maxshape=(None,), chunks=(_METRICS_CHUNK,),
+                                             dtype=dtype, **schema.DATASET_OPTIONS)
+            dataset.attrs["units"] = unit
+            dataset.attrs["description"] = description
+
+    def _write_invocation_attrs(self, handle: h5py.File) -> None:
+        handle.attrs["command"] = self._command
+        handle.attrs["config_toml"] = self._config_toml
+        handle.attrs["config_json"] = self._config_json
+        handle.attrs["n_iterations_requested"] = self._n_iterations
+
+    @staticmethod
+    def _set_run_state(handle: h5py.File, state: str, now: str) -> None:
+        handle.attrs["run_state"] = state
+        handle.attrs["updated_utc"] = now

@@ -1,0 +1,108 @@
+"""One cell of a study: (resolved config, method) -> metrics rows. Runs on a Dask worker or in-process.
+
+The cell runs the very functions ``ilcforce simulate`` runs (:func:`ilcforce.experiment.simulate_iterations`
+and :func:`ilcforce.metrics.iteration_metrics`, or :func:`ilcforce.experiment.run_method` itself when
+the run store is kept), so its metrics are bit-identical to a single run of the same (config, seed,
+method). It returns plain data and writes no study file: only the driver writes the study store.
+
+Each row is one iteration: every column of :data:`ilcforce.metrics.METRIC_COLUMNS` plus, per learned
+memory of the method, ``memory_rms_<name>``: the RMS over the control grid of the Euclidean norm
+per sample of the memory after that iteration, ``sqrt(mean_k |m(t_k)|^2)`` in the memory's unit
+(NaN for a diverged iteration, like the other metrics).
+
+tau_d (:func:`ilcforce.simulate.desired_inputs`) depends only on the true plant, the wall, the
+reference and the grids, not on the seed or the method, so each worker process keeps it in a
+small cache keyed by exactly those (a study's 300 cells compute it twice per process, not 600 times).
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from ilcforce import metrics
+from ilcforce.config import Config
+from ilcforce.records import STATUS_DIVERGED, IterationRecord
+
+#: Settings kept in a worker's tau_d cache (each entry is a few hundred kB at most).
+_DESIRED_CACHE_SIZE = 32
+_DESIRED: OrderedDict = OrderedDict()
+
+
+def memory_columns(method: str) -> list[str]:
+    """The memory-norm columns a method's rows carry (``memory_rms_<name>`` per learned memory)."""
+    from ilcforce.controllers import REGISTRY
+
+    return [f"memory_rms_{name}" for name in REGISTRY[method][0].memory_layout]
+
+
+def desired_cache(config: Config) -> dict:
+    """This process's tau_d cache for ``config``'s wall, reference and grids (true plant -> arrays)."""
+    key = (config.wall, config.reference, config.simulation.sample_time, config.simulation.log_every)
+    cache = _DESIRED.get(key)
+    if cache is None:
+        cache = _DESIRED[key] = {}
+        while len(_DESIRED) > _DESIRED_CACHE_SIZE:
+            _DESIRED.popitem(last=False)
+    else:
+        _DESIRED.move_to_end(key)
+    return cache
+
+
+def memory_norms(record: IterationRecord) -> dict[str, float]:
+    """``memory_rms_<name>`` of the memory ``record`` ends with (NaN if the iteration diverged)."""
+    out = {}
+    for name, array in record.memory.items():
+        if record.status == STATUS_DIVERGED:
+            out[f"memory_rms_{name}"] = float("nan")
+            continue
+        values = np.asarray(array, dtype=np.float64).reshape(len(array), -1)
+        out[f"memory_rms_{name}"] = float(np.sqrt(np.mean(np.sum(np.square(values), axis=1))))
+    return out
+
+
+def run_cell(config: Config, method: str, keep_store: str | None = None) -> dict:
+    """Run every iteration of ``method`` under ``config``; return the metrics rows.
+
+    Parameters
+    ----------
+    config : Config
+        The cell's resolved configuration (its ``experiment.seed`` is the cell's seed).
+    method : str
+        A registered method.
+    keep_store : str or None
+        If given, also write the full run store (today's format) at this path, replacing an
+        ilcforce store left there by an earlier attempt.
+
+    Returns
+    -------
+    dict
+        ``rows`` (list of dicts, one per iteration run, keys as described in the module doc),
+        ``elapsed`` (s of wall time in this call), ``worker`` (host:pid).
+    """
+    start = time.perf_counter()
+    rows: list[dict] = []
+    cache = desired_cache(config)
+
+    def collect(record: IterationRecord, row: dict) -> None:
+        rows.append({**row, **memory_norms(record)})
+
+    if keep_store:
+        from ilcforce.experiment import run_method
+
+        path = Path(keep_store)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        run_method(config, method, path, overwrite=path.exists(), command=f"ilcforce study (cell {method}, "
+                   f"seed {config.experiment.seed})", progress=collect, desired_cache=cache)
+    else:
+        from ilcforce.experiment import simulate_iterations
+
+        for record in simulate_iterations(config, method, desired_cache=cache):
+            collect(record, metrics.iteration_metrics(record))
+    return {"rows": rows, "elapsed": time.perf_counter() - start,
+            "worker": f"{socket.gethostname()}:{os.getpid()}"}

@@ -1,0 +1,327 @@
+"""The study driver: runs the cells not yet stored, on Dask or in-process, and writes the study store.
+
+Execution (``workers`` / ``scheduler``):
+
+* ``workers=1`` (and no scheduler): in this process, one cell after another, no Dask at all
+  (debugging, the test suite);
+* default: a Dask ``LocalCluster`` of ``workers`` single-threaded worker processes (one per core);
+* ``scheduler="tcp://HOST:PORT"``: an existing Dask cluster (``dask scheduler`` + ``dask worker``).
+
+Workers return metrics only (:func:`ilcforce.study.cell.run_cell`); the driver is the only writer
+of the study store. At most a few cells per worker are in flight at once, so the driver's and the
+scheduler's memory stay flat in the number of cells. A cell that raises, or whose worker dies, is
+retried once and then recorded as failed with its message; the study goes on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import logging
+import os
+import platform
+import subprocess
+import time
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+from ilcforce.study.cell import run_cell
+from ilcforce.study.spec import Cell, Study, StudyError
+from ilcforce.store.study import DONE, FAILED, StudyStore
+
+#: Seconds allowed to reach a remote scheduler, and then for a first worker to be there.
+CONNECT_TIMEOUT = 10.0
+WORKER_TIMEOUT = 30.0
+#: Cells in flight per worker (keeps every worker busy while the driver commits results).
+IN_FLIGHT_PER_WORKER = 2
+#: Tries per cell: the first run and one retry.
+ATTEMPTS = 2
+#: Source files whose change makes stored cells stale (the simulation, not reporters or CLI).
+_NOT_FINGERPRINTED = ("report/", "cli.py", "bench.py", "store", "study/", "__main__.py")
+
+
+class StudyRunError(Exception):
+    """The study could not run (no scheduler, no workers); one line."""
+
+
+@dataclass(frozen=True)
+class Progress:
+    """What the driver reports after each cell (and once at the start)."""
+
+    total: int  # cells of the study
+    finished: int  # cells stored as done (skipped ones included)
+    failed: int  # cells recorded as failed
+    to_run: int  # cells this run set out to compute
+    last: str  # one line about the cell just stored ("" at the start)
+
+
+@dataclass(frozen=True)
+class StudySummary:
+    """What :func:`run_study` did."""
+
+    path: Path
+    total: int
+    skipped: int  # already stored before this run
+    ran: int  # computed in this run (done or failed)
+    failed: tuple[tuple[Cell, str], ...]  # cells recorded as failed, with their message
+    workers: int
+    scheduler: str
+    wall_time: float
+
+
+def fingerprint() -> str:
+    """sha256 over the simulation's sources (everything but reporters, CLI, benchmarks and stores)."""
+    root = Path(__file__).resolve().parent.parent
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        if rel.startswith(_NOT_FINGERPRINTED) and rel != "study/cell.py":
+            continue
+        digest.update(rel.encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+def _git_commit() -> str:
+    try:
+        result = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
+                                capture_output=True, text=True, timeout=10, check=False)
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    return result.stdout.strip() if result.returncode == 0 else ""
+
+
+def _versions() -> dict:
+    from importlib.metadata import PackageNotFoundError, version
+
+    import ilcforce
+
+    out = {"ilcforce": ilcforce.__version__, "git_commit": _git_commit(), "python": platform.python_version()}
+    for package in ("numpy", "numba", "h5py", "dask", "distributed"):
+        with contextlib.suppress(PackageNotFoundError):
+            out[package] = version(package)
+    return out
+
+
+def store_path(results_dir: Path, name: str) -> Path:
+    return Path(results_dir) / "studies" / f"{name}.h5"
+
+
+def cell_store_path(results_dir: Path, study: Study, cell: Cell) -> Path:
+    """Where ``--keep-stores`` writes a cell's run store (an ``<experiment>/<method>.h5`` layout)."""
+    return (Path(results_dir) / "studies" / study.name / "cells" / f"setting{cell.setting}-seed{cell.seed}"
+            / f"{cell.method}.h5").resolve()
+
+
+def _header(study: Study) -> dict:
+    settings = [{"config_json": s.config.to_json(), "label": s.label(),
+                 "values_json": json.dumps(dict(s.values))} for s in study.settings]
+    return {"name": study.name, "description": study.description, "study_toml": study.source,
+            "definition_json": json.dumps(study.definition(), sort_keys=True), "fingerprint": fingerprint(),
+            "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), "settings": settings}
+
+
+def _one_line(text: object) -> str:
+    return " ".join(str(text).split())[:500]
+
+
+def _describe_failure(exc: BaseException) -> str:
+    if type(exc).__name__ == "KilledWorker":
+        return "the worker process died while running the cell"
+    return _one_line(f"{type(exc).__name__}: {exc}")
+
+
+# ------------------------------------------------------------------------------------------------
+# executors: each yields (cell, attempt, result dict or None, failure message or None)
+
+
+def _run_in_process(jobs, function):
+    for cell, args in jobs:
+        for attempt in range(1, ATTEMPTS + 1):
+            try:
+                yield cell, attempt, function(*args), None
+                break
+            except Exception as exc:  # noqa: BLE001 - a failing cell is recorded, the study goes on
+                if attempt == ATTEMPTS:
+                    yield cell, attempt, None, _describe_failure(exc)
+
+
+@contextlib.contextmanager
+def _quiet_dask():
+    """Dask's own logging stays off the user's terminal (errors still show)."""
+    names = ("distributed", "distributed.scheduler", "distributed.worker", "distributed.nanny",
+             "distributed.core", "distributed.comm", "distributed.client", "bokeh", "tornado")
+    saved = {name: logging.getLogger(name).level for name in names}
+    for name in names:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for name, level in saved.items():
+            logging.getLogger(name).setLevel(level)
+
+
+@contextlib.contextmanager
+def dask_client(workers: int, scheduler: str | None):
+    """A connected ``distributed.Client`` (and its LocalCluster when no scheduler is given)."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    settings = {"distributed.scheduler.allowed-failures": 0,  # a dead worker -> our own retry
+                "distributed.worker.daemon": False,
+                "distributed.admin.system-monitor.gil.enabled": False,
+                "logging.distributed": "error"}
+    with _quiet_dask(), dask.config.set(settings):
+        if scheduler:
+            try:
+                client = Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
+            except (OSError, TimeoutError) as exc:
+                raise StudyRunError(f"cannot reach the Dask scheduler at {scheduler} within "
+                                    f"{CONNECT_TIMEOUT:g} s ({_one_line(exc)[:120]})") from None
+            try:
+                try:
+                    client.wait_for_workers(1, timeout=WORKER_TIMEOUT)
+                except (OSError, TimeoutError):
+                    raise StudyRunError(f"the Dask scheduler at {scheduler} has no worker after "
+                                        f"{WORKER_TIMEOUT:g} s (start one with `dask worker {scheduler}`)") from None
+                yield client
+            finally:
+                client.close()
+            return
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=":0",  # any free port: a second study (or a test) on this machine must not collide on 8787
+                               silence_logs=logging.CRITICAL)
+        try:
+            client = Client(cluster, set_as_default=False)
+            try:
+                yield client
+            finally:
+                client.close()
+        finally:
+            cluster.close()
+
+
+def _run_on_dask(client, jobs, function, in_flight: int):
+    from distributed import as_completed
+
+    pending = iter(jobs)
+    meta = {}
+    queue = as_completed(loop=client.loop)
+
+    def submit(cell, args, attempt):
+        future = client.submit(function, *args, key=f"cell-{cell.key}-try{attempt}-{uuid.uuid4().hex[:8]}",
+                               pure=False, retries=0)
+        meta[future.key] = (cell, args, attempt)
+        queue.add(future)
+
+    for cell, args in pending:
+        submit(cell, args, 1)
+        if len(meta) >= in_flight:
+            break
+    try:
+        for future in queue:
+            cell, args, attempt = meta.pop(future.key)
+            if future.status == "finished":
+                result = future.result()
+                future.release()
+                yield cell, attempt, result, None
+            else:
+                message = _describe_failure(future.exception())
+                future.release()
+                if attempt < ATTEMPTS:
+                    submit(cell, args, attempt + 1)
+                    continue
+                yield cell, attempt, None, message
+            for next_cell, next_args in pending:
+                submit(next_cell, next_args, 1)
+                break
+    finally:
+        for key in list(meta):
+            with contextlib.suppress(Exception):
+                client.cancel(key)
+
+
+# ------------------------------------------------------------------------------------------------
+
+
+def run_study(study: Study, results_dir: Path | str = "results", *, workers: int | None = None,
+              scheduler: str | None = None, resume: bool = False, overwrite: bool = False,
+              replace_stale: bool = False, keep_stores: bool = False, command: str = "",
+              progress: Callable[[Progress], None] | None = None,
+              cell_function: Callable = run_cell) -> StudySummary:
+    """Run every cell of ``study`` not yet in ``results/studies/<name>.h5`` and store it.
+
+    ``workers`` defaults to the number of usable cores; with ``scheduler`` it must be None.
+    ``cell_function(config, method, keep_store_path)`` is :func:`run_cell` (tests inject faults).
+    Raises StudyStoreError (store cannot be used) or StudyRunError (no scheduler / workers) before
+    any cell runs; KeyboardInterrupt after committing every finished cell.
+    """
+    if scheduler and workers is not None:
+        raise StudyError("--workers does not apply with --scheduler (the cluster has its own workers)")
+    if workers is not None and workers < 1:
+        raise StudyError(f"--workers must be >= 1, got {workers}")
+    if workers is None and not scheduler:
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    start = time.perf_counter()
+    path = store_path(results_dir, study.name)
+    session = {"id": uuid.uuid4().hex, "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+               "command": command, "scheduler": scheduler or ("in-process" if workers == 1 else "LocalCluster"),
+               "workers": workers, "host": platform.node(), "versions": _versions()}
+    store = StudyStore(path, header=_header(study), session=session, overwrite=overwrite,
+                       replace_stale=replace_stale, require_existing=resume)
+    try:
+        cells = study.cells()
+        todo = [c for c in cells if (c.setting, c.seed, c.method) not in store.done]
+        skipped = len(cells) - len(todo)
+        jobs = ((c, (study.cell_config(c), c.method,
+                     str(cell_store_path(results_dir, study, c)) if keep_stores else None)) for c in todo)
+        failed_now: list[tuple[Cell, str]] = []
+        ran = 0
+        done_now = [0]
+
+        def report(last: str) -> None:
+            if progress is not None:
+                progress(Progress(len(cells), skipped + done_now[0], len(failed_now), len(todo), last))
+
+        report("")
+        if todo:
+            with contextlib.ExitStack() as stack:
+                if scheduler or workers > 1:
+                    client = stack.enter_context(dask_client(workers or 0, scheduler))
+                    if scheduler:
+                        workers_seen = len(client.scheduler_info().get("workers", {}))
+                        store.update_session(workers=workers_seen)
+                    n_workers = workers or max(1, len(client.scheduler_info().get("workers", {})))
+                    outcomes = _run_on_dask(client, jobs, cell_function, IN_FLIGHT_PER_WORKER * n_workers)
+                else:
+                    outcomes = _run_in_process(jobs, cell_function)
+                try:
+                    for cell, attempt, result, message in outcomes:
+                        ran += 1
+                        record = {"setting": cell.setting, "seed": cell.seed, "method": cell.method,
+                                  "attempts": attempt}
+                        if result is not None:
+                            rows = result["rows"]
+                            record.update(state=DONE, message="", elapsed=float(result["elapsed"]),
+                                          worker=str(result["worker"]), rows=rows)
+                            done_now[0] += 1
+                            status = rows[-1]["status"] if rows else "empty"
+                            last = f"{cell.method} seed {cell.seed} setting {cell.setting}: {status}"
+                        else:
+                            record.update(state=FAILED, message=message, elapsed=float("nan"), worker="", rows=[])
+                            failed_now.append((cell, message))
+                            last = f"{cell.method} seed {cell.seed} setting {cell.setting}: FAILED ({message})"
+                        store.commit(record, time.perf_counter())
+                        report(last)
+                finally:
+                    store.update_session(finished=datetime.now(timezone.utc).isoformat(timespec="seconds"))
+                    store.consolidate(time.perf_counter())
+        return StudySummary(path, len(cells), skipped, ran, tuple(failed_now), workers or 0,
+                            scheduler or ("in-process" if workers == 1 else "LocalCluster"),
+                            time.perf_counter() - start)
+    finally:
+        store.close()
+

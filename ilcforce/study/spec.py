@@ -1,0 +1,304 @@
+"""The study file: what to run, validated in full before any cell runs.
+
+A study is a grid of **settings** (the full factorial of ``[study.sweep]``, each on top of the
+experiment file and ``[study.set]``) times **seeds** times **methods**. One **cell** is (setting,
+seed, method): all iterations of one method, i.e. exactly what ``ilcforce simulate --seed S
+--method M`` with the setting's overrides runs.
+
+File format (TOML)::
+
+    [study]
+    name = "ts-sweep"                        # results/studies/<name>.h5; a plain file name
+    description = "..."                      # optional, shown in the report
+    experiment = "paper.toml"                # optional; relative to the study file (then to the
+                                             #   working directory); the paper's setup if absent
+    methods = ["c1", "c2", "c3"]             # optional; every registered method if absent
+    seeds = "0-99"                           # "a-b" (inclusive) or a list of integers >= 0
+    [study.set]                              # fixed overrides, exactly as --set
+    "experiment.iterations" = 20
+    [study.sweep]                            # full factorial grid; the first key varies slowest
+    "simulation.sample_time" = [1e-4, 2.5e-4, 5e-4, 1e-3]
+
+``experiment.seed`` may not appear in ``set`` or ``sweep``: ``seeds`` owns it.
+Every problem raises :class:`StudyError` with one line naming the key (and the setting).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import itertools
+import math
+import re
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from ilcforce.config import Config, ConfigError, load_config
+
+
+class StudyError(ValueError):
+    """An invalid study file or study request; the message is one line."""
+
+
+#: Keys allowed in the [study] table.
+STUDY_KEYS = ("name", "description", "experiment", "methods", "seeds", "set", "sweep")
+#: A study name becomes a file name under results/studies/: no separators, no leading dot.
+_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
+#: Seeds allowed per study (a guard against "0-99999999999" typos, not a limit of the method).
+MAX_SEEDS = 100_000
+#: Cells allowed per study.
+MAX_CELLS = 1_000_000
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One point of the sweep.
+
+    Attributes
+    ----------
+    index : int
+        Position in the grid (0-based; the first sweep key varies slowest).
+    values : tuple of (key, value)
+        The swept config keys and their values at this point (empty without a sweep).
+    config : Config
+        The resolved, validated configuration; its ``experiment.seed`` is 0 and is replaced per cell.
+    """
+
+    index: int
+    values: tuple[tuple[str, object], ...]
+    config: Config
+
+    def label(self) -> str:
+        """``"simulation.sample_time=0.001"``, or ``"base"`` without a sweep."""
+        return ", ".join(f"{k}={v!r}" for k, v in self.values) or "base"
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One unit of work: all iterations of ``method`` for ``seed`` at setting ``setting``."""
+
+    setting: int
+    seed: int
+    method: str
+
+    @property
+    def key(self) -> str:
+        """Stable text key, also the cell's record name in the study store."""
+        return f"{self.setting}-{self.seed}-{self.method}"
+
+
+@dataclass(frozen=True)
+class Study:
+    """A parsed and validated study file."""
+
+    name: str
+    description: str
+    source: str  # the study file's text (provenance)
+    path: Path | None  # the study file (None for a study built in code)
+    experiment: Path | None  # the experiment file the settings start from (None: the paper's setup)
+    methods: tuple[str, ...]
+    seeds: tuple[int, ...]
+    fixed: dict  # [study.set]: dotted key -> value
+    sweep: dict  # [study.sweep]: dotted key -> tuple of values, in file order
+    settings: tuple[Setting, ...]
+
+    def cells(self) -> list[Cell]:
+        """Every cell, setting-major, then seed, then method."""
+        return [Cell(s.index, seed, m) for s in self.settings for seed in self.seeds for m in self.methods]
+
+    def cell_config(self, cell: Cell) -> Config:
+        """The resolved configuration of ``cell`` (its setting's, with ``experiment.seed`` set)."""
+        config = self.settings[cell.setting].config
+        return dataclasses.replace(config, experiment=dataclasses.replace(config.experiment, seed=cell.seed))
+
+    def definition(self) -> dict:
+        """What identifies the study's settings (stored; a rerun must match it)."""
+        return {"name": self.name, "sweep_keys": list(self.sweep),
+                "settings": [s.config.to_json() for s in self.settings]}
+
+
+def parse_seeds(value) -> tuple[int, ...]:
+    """``"a-b"`` (inclusive, a <= b) or a list of distinct integers >= 0 -> sorted tuple."""
+    if isinstance(value, str):
+        match = re.fullmatch(r"\s*(\d+)\s*-\s*(\d+)\s*", value)
+        if not match:
+            raise StudyError(f"study.seeds must be a range \"a-b\" of integers >= 0 or a list of integers, got {value!r}")
+        first, last = int(match.group(1)), int(match.group(2))
+        if first > last:
+            raise StudyError(f"study.seeds range {value!r} is empty: {first} > {last}")
+        if last - first + 1 > MAX_SEEDS:
+            raise StudyError(f"study.seeds {value!r} asks for {last - first + 1} seeds; at most {MAX_SEEDS}")
+        return tuple(range(first, last + 1))
+    if isinstance(value, list):
+        if not value:
+            raise StudyError("study.seeds is an empty list")
+        for item in value:
+            if isinstance(item, bool) or not isinstance(item, int):
+                raise StudyError(f"study.seeds must hold integers, got {item!r}")
+            if item < 0:
+                raise StudyError(f"study.seeds must be >= 0, got {item}")
+        if len(set(value)) != len(value):
+            dup = next(v for v in value if value.count(v) > 1)
+            raise StudyError(f"study.seeds lists seed {dup} twice")
+        if len(value) > MAX_SEEDS:
+            raise StudyError(f"study.seeds lists {len(value)} seeds; at most {MAX_SEEDS}")
+        return tuple(sorted(value))
+    raise StudyError(f"study.seeds must be a range \"a-b\" or a list of integers, got {value!r}")
+
+
+def _check_name(name) -> str:
+    if not isinstance(name, str) or not name:
+        raise StudyError(f"study.name must be a non-empty string, got {name!r}")
+    if not _NAME.fullmatch(name) or name in (".", ".."):
+        raise StudyError(f"study.name {name!r} is not a plain file name (letters, digits, '.', '_', '-'; "
+                         "no '/' or leading '.'): it would escape the results folder")
+    return name
+
+
+def _check_methods(value) -> tuple[str, ...]:
+    from ilcforce.controllers import REGISTRY
+
+    if value is None:
+        return tuple(REGISTRY)
+    if not isinstance(value, list) or not value:
+        raise StudyError(f"study.methods must be a non-empty list of method names, got {value!r}")
+    names = []
+    for item in value:
+        name = str(item).strip().lower() if isinstance(item, str) else item
+        if name not in REGISTRY:
+            close = difflib.get_close_matches(str(name), list(REGISTRY), n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise StudyError(f"study.methods: unknown method {item!r}{hint}; choose from {', '.join(REGISTRY)}")
+        if name in names:
+            raise StudyError(f"study.methods lists {name!r} twice")
+        names.append(name)
+    return tuple(names)
+
+
+def _check_table(name: str, value) -> dict:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise StudyError(f"study.{name} must be a table of \"section.key\" = value, got {value!r}")
+    for key in value:
+        if isinstance(value[key], dict):
+            raise StudyError(f"study.{name}: write keys as quoted dotted names, e.g. \"{key}.x\" = ..., "
+                             f"not a [study.{name}.{key}] table")
+        if key == "experiment.seed":
+            raise StudyError(f"study.{name}: experiment.seed is set by study.seeds")
+    return dict(value)
+
+
+def _resolve_experiment(value, study_path: Path | None) -> Path | None:
+    if value is None:
+        return None
+    if not isinstance(value, str) or not value:
+        raise StudyError(f"study.experiment must be a path to an experiment TOML file, got {value!r}")
+    candidates = []
+    if study_path is not None and not Path(value).is_absolute():
+        candidates.append(study_path.parent / value)
+    candidates.append(Path(value))
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    tried = " or ".join(str(c) for c in dict.fromkeys(candidates))
+    raise StudyError(f"study.experiment: no experiment file {tried}")
+
+
+def _format_value(value) -> str:
+    return repr(value)
+
+
+def build_study(data: dict, *, source: str = "", path: Path | None = None) -> Study:
+    """Validate a parsed study file (the whole TOML document) and resolve every setting."""
+    if not isinstance(data, dict) or "study" not in data:
+        raise StudyError("a study file needs a [study] table (see `ilcforce study --help`)")
+    extra = [k for k in data if k != "study"]
+    if extra:
+        raise StudyError(f"unknown top-level table [{extra[0]}] in a study file; only [study] (with "
+                         "[study.set] and [study.sweep]) is read")
+    table = data["study"]
+    if not isinstance(table, dict):
+        raise StudyError("[study] must be a table")
+    for key in table:
+        if key not in STUDY_KEYS:
+            close = difflib.get_close_matches(key, STUDY_KEYS, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            raise StudyError(f"unknown key study.{key}{hint}")
+    if "name" not in table:
+        raise StudyError("study.name is missing")
+    if "seeds" not in table:
+        raise StudyError("study.seeds is missing (e.g. seeds = \"0-99\")")
+    name = _check_name(table["name"])
+    description = table.get("description", "")
+    if not isinstance(description, str):
+        raise StudyError(f"study.description must be a string, got {description!r}")
+    methods = _check_methods(table.get("methods"))
+    seeds = parse_seeds(table["seeds"])
+    fixed = _check_table("set", table.get("set"))
+    sweep_raw = _check_table("sweep", table.get("sweep"))
+    sweep: dict[str, tuple] = {}
+    for key, values in sweep_raw.items():
+        if not isinstance(values, list):
+            raise StudyError(f"study.sweep.\"{key}\" must be a list of values, got {values!r}")
+        if not values:
+            raise StudyError(f"study.sweep.\"{key}\" is an empty list")
+        if len(set(map(repr, values))) != len(values):
+            raise StudyError(f"study.sweep.\"{key}\" lists a value twice")
+        if key in fixed:
+            raise StudyError(f"study: {key} is both in [study.set] and [study.sweep]")
+        sweep[key] = tuple(values)
+    n_settings = math.prod(len(v) for v in sweep.values()) if sweep else 1
+    if n_settings * len(seeds) * len(methods) > MAX_CELLS:
+        raise StudyError(f"study has {n_settings * len(seeds) * len(methods)} cells; at most {MAX_CELLS}")
+    experiment = _resolve_experiment(table.get("experiment"), path)
+
+    settings = []
+    grid = itertools.product(*sweep.values()) if sweep else [()]
+    for index, point in enumerate(grid):
+        values = tuple(zip(sweep, point))
+        overrides = {**fixed, **dict(values), "experiment.seed": 0}
+        where = "study.set" if not values else f"setting {index} ({', '.join(f'{k}={_format_value(v)}' for k, v in values)})"
+        try:
+            config = load_config(experiment, overrides)
+        except ConfigError as exc:
+            raise StudyError(f"{where}: {exc}") from None
+        settings.append(Setting(index, values, config))
+    # every seed must be valid for the configuration (e.g. ranges the loader enforces)
+    for seed in {seeds[0], seeds[-1]}:
+        try:
+            load_config(experiment, {**fixed, **dict(settings[0].values), "experiment.seed": seed})
+        except ConfigError as exc:
+            raise StudyError(f"study.seeds: {exc}") from None
+    return Study(name=name, description=description, source=source, path=path, experiment=experiment,
+                 methods=methods, seeds=seeds, fixed=fixed, sweep=sweep, settings=tuple(settings))
+
+
+def load_study(path: Path | str) -> Study:
+    """Read and validate a study file; raises :class:`StudyError` with one line."""
+    path = Path(path)
+    if not path.exists():
+        raise StudyError(f"study file {path} does not exist")
+    if not path.is_file():
+        raise StudyError(f"study file {path} is not a regular file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StudyError(f"study file {path} cannot be read: {exc}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise StudyError(f"study file {path} is not valid TOML: {exc}") from None
+    try:
+        return build_study(data, source=text, path=path)
+    except StudyError as exc:
+        raise StudyError(f"{path}: {exc}") from None
+
+
+def is_study_file(path: Path | str) -> bool:
+    """True if ``path`` is a TOML file with a [study] table (how `make` finds shipped studies)."""
+    try:
+        return "study" in tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return False

@@ -1,0 +1,185 @@
+"""The tidy metrics frame of a study store or of a run store, and its CSV export.
+
+One row per (setting..., seed, method, iteration). Columns, in order: the swept config keys
+(named by their key, e.g. ``simulation.sample_time``; none without a sweep), ``seed``, ``method``,
+``iteration``, then the metric columns of :data:`ilcforce.metrics.METRIC_COLUMNS` in their order,
+then any further columns (a study's ``memory_rms_*``). A run store is the one-setting, one-seed
+case. Failed cells have no rows (see :attr:`StudyResults.cells`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ilcforce.metrics import METRIC_COLUMNS
+from ilcforce.store.study import StudyStoreError, is_study_store, read_tables
+
+_INT_COLUMNS = ("seed", "iteration", "fallback_count")
+
+
+class ExportError(Exception):
+    """A store that cannot be exported, or an output that may not be written; one line."""
+
+
+@dataclass(frozen=True)
+class StudyResults:
+    """Everything a study store holds, as frames.
+
+    Attributes
+    ----------
+    name, description : str
+    study_toml : str
+        The study file as it was run.
+    sweep_keys : list of str
+        Swept config keys, in grid order (first varies slowest).
+    settings : DataFrame
+        One row per setting: ``setting`` (index in the grid), ``label``, the swept keys' values,
+        ``config_json`` (the resolved config; a cell's is this with ``experiment.seed`` = its seed).
+    metrics : DataFrame
+        The tidy metrics frame (module doc).
+    cells : DataFrame
+        One row per stored cell: swept keys, ``seed``, ``method``, ``state`` ("done" / "failed"),
+        ``attempts``, ``message``, ``elapsed`` (s), ``worker``.
+    sessions : list of dict
+        Provenance of every run that wrote the store (command, scheduler, workers, versions).
+    """
+
+    name: str
+    description: str
+    study_toml: str
+    sweep_keys: list
+    settings: pd.DataFrame
+    metrics: pd.DataFrame
+    cells: pd.DataFrame
+    sessions: list
+
+    def setting_metrics(self, setting: int) -> pd.DataFrame:
+        """The tidy rows of one setting (``seed``, ``method``, ``iteration`` + metrics)."""
+        frame = self.metrics
+        for key in self.sweep_keys:
+            frame = frame[frame[key].map(repr) == repr(self.settings.loc[setting, key])]
+        return frame.drop(columns=list(self.sweep_keys)).reset_index(drop=True)
+
+
+def _order(frame: pd.DataFrame, leading: list[str], methods: list[str] | None = None) -> pd.DataFrame:
+    metric_order = [c for c in METRIC_COLUMNS if c != "iteration" and c in frame.columns]
+    rest = sorted(c for c in frame.columns if c not in (*leading, "seed", "method", "iteration", *metric_order))
+    frame = frame[[*leading, "seed", "method", "iteration", *metric_order, *rest]]
+    for column in _INT_COLUMNS:
+        if column in frame.columns and len(frame):
+            frame[column] = frame[column].astype(np.int64)
+    if "status" in frame.columns:
+        frame["status"] = frame["status"].astype(str)
+    return frame
+
+
+def read_study(path: Path | str) -> StudyResults:
+    """Read a study store (consolidated file plus journal); StudyStoreError if it is not one."""
+    path = Path(path)
+    header, raw, cells = read_tables(path)
+    definition = json.loads(header.get("definition_json", "{}"))
+    sweep_keys = list(definition.get("sweep_keys", []))
+    settings = header["settings"].copy()
+    settings.insert(0, "setting", np.arange(len(settings), dtype=np.int64))
+    values = [json.loads(v) for v in settings["values_json"]]
+    for key in sweep_keys:
+        settings[key] = [v.get(key) for v in values]
+    settings = settings.drop(columns=["values_json"]).set_index("setting", drop=False)
+
+    def with_setting_columns(frame: pd.DataFrame) -> pd.DataFrame:
+        frame = frame.copy()
+        index = frame["setting"].astype(np.int64).to_numpy() if len(frame) else np.zeros(0, np.int64)
+        for key in sweep_keys:
+            frame[key] = settings[key].to_numpy()[index] if len(frame) else []
+        return frame
+
+    from ilcforce.controllers import REGISTRY
+
+    registered = list(REGISTRY)
+    methods = sorted(set(raw["method"]) if len(raw) else (),
+                     key=lambda m: (registered.index(m) if m in registered else len(registered), m))
+    metrics = with_setting_columns(raw) if len(raw) else pd.DataFrame(columns=[*sweep_keys, "setting", "seed",
+                                                                               "method", "iteration"])
+    if len(metrics):
+        order = {m: i for i, m in enumerate(methods)}
+        metrics = metrics.assign(_m=metrics["method"].map(order)).sort_values(
+            ["setting", "seed", "_m", "iteration"], kind="stable").drop(columns=["_m"])
+    metrics = _order(metrics.drop(columns=["setting"]), sweep_keys).reset_index(drop=True)
+    if len(cells):
+        cells = with_setting_columns(cells)
+        cells = cells[[*sweep_keys, "setting", "seed", "method", "state", "attempts", "message", "elapsed",
+                       "worker"]].sort_values(["setting", "seed", "method"]).reset_index(drop=True)
+    return StudyResults(name=str(header.get("name", "")), description=str(header.get("description", "")),
+                        study_toml=str(header.get("study_toml", "")), sweep_keys=sweep_keys,
+                        settings=settings, metrics=metrics, cells=cells,
+                        sessions=json.loads(header.get("sessions_json", "[]")))
+
+
+def run_store_metrics(path: Path | str) -> pd.DataFrame:
+    """The tidy frame of one run store (``seed``, ``method``, ``iteration`` + metric columns)."""
+    from ilcforce import store
+
+    provenance = store.read_provenance(path)
+    frame = store.read_metrics(path).reset_index()
+    frame.insert(0, "seed", int(provenance.get("seed", 0)))
+    frame.insert(1, "method", str(provenance.get("method", Path(path).stem)))
+    return _order(frame, []).reset_index(drop=True)
+
+
+def tidy_metrics(path: Path | str) -> pd.DataFrame:
+    """The tidy metrics frame of a study store or a run store (the Python API of ``ilcforce export``).
+
+    Raises ExportError (one line) for a missing, damaged or foreign file.
+    """
+    from ilcforce import store
+
+    path = Path(path)
+    if not path.exists():
+        raise ExportError(f"{path} does not exist")
+    if not path.is_file():
+        raise ExportError(f"{path} is not a regular file")
+    if is_study_store(path):
+        try:
+            return read_study(path).metrics
+        except StudyStoreError as exc:
+            raise ExportError(str(exc)) from None
+    try:
+        store.validate(path)
+        return run_store_metrics(path)
+    except (store.StoreError, OSError, KeyError, ValueError) as exc:
+        raise ExportError(" ".join(str(exc).split()) or f"{path}: not an ilcforce store") from None
+
+
+def export(path: Path | str, out: Path | str, *, overwrite: bool = False) -> tuple[Path, int]:
+    """Write the tidy metrics of ``path`` to ``out`` (``.csv``); returns (out, number of rows).
+
+    Floats are written with Python's shortest round-trip representation, so reading the CSV back
+    gives the stored values bit for bit. An existing ``out`` is replaced only with ``overwrite``
+    and only if it is a regular file; the new file appears atomically (temporary name, rename).
+    """
+    out = Path(out)
+    if out.suffix.lower() != ".csv":
+        hint = " (parquet would need pyarrow, which ilcforce does not install)" if out.suffix.lower() == ".parquet" else ""
+        raise ExportError(f"--out {out}: only .csv is supported{hint}")
+    if os.path.lexists(out):
+        if out.is_symlink() or not out.is_file():
+            raise ExportError(f"--out {out} exists and is not a regular file; refusing to replace it")
+        if not overwrite:
+            raise ExportError(f"--out {out} exists; pass --overwrite to replace it")
+    frame = tidy_metrics(path)
+    if not out.parent.is_dir():
+        raise ExportError(f"--out {out}: folder {out.parent} does not exist")
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    try:
+        frame.to_csv(tmp, index=False)
+        os.replace(tmp, out)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return out, len(frame)

@@ -1,0 +1,122 @@
+"""Helpers shared by the store tests: small records, a writer factory, forged files.
+
+Arrays go through HDF5 as float64 without compression, so every comparison of stored data is
+exact (``assert_array_equal``), not approximate.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcforce import store
+from ilcforce.metrics import METRIC_COLUMNS, iteration_metrics
+from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
+from ilcforce.store import (
+    SCHEMA_NAME,
+    SCHEMA_VERSION,
+    StoreError,
+    StoreExistsError,
+    StoreLockedError,
+    StoreWriter,
+)
+
+N_LOG = 21  # log grid: 0.1 s over 2 s
+N_CONTROL = 201  # control grid: 10 ms over 2 s
+DURATION = 2.0
+CONFIG = {"experiment": {"iterations": 3, "seed": 7}, "run": {"method": "c3"}, "plant": {"m3": 0.5, "scale": [1.0, 2.0]}}
+
+
+def make_reference() -> dict[str, np.ndarray]:
+    """Every REFERENCE_SIGNALS entry on the log grid, distinct values per signal."""
+    time = np.linspace(0.0, DURATION, N_LOG)
+    reference = {"time": time}
+    for k, (name, (axes, _unit, _description)) in enumerate(REFERENCE_SIGNALS.items()):
+        if axes is not None:
+            reference[name] = np.column_stack([np.sin(time + k), np.cos(time * k)])
+    return reference
+
+
+def make_record(
+    j: int,
+    *,
+    status: str = STATUS_COMPLETE,
+    with_memory: bool = True,
+) -> IterationRecord:
+    """A record for iteration j: every LOG_SIGNALS entry, (N_LOG,) or (N_LOG, 2), distinct
+    pseudo-random values; memory (N_CONTROL, 2) and (N_CONTROL,) when ``with_memory``."""
+    rng = np.random.default_rng(1000 + j)
+    time = np.linspace(0.0, DURATION, N_LOG)
+    log = {
+        name: time.copy() if axes is None else rng.standard_normal((N_LOG, len(axes)))
+        for name, (axes, _unit, _description) in LOG_SIGNALS.items()
+    }
+    diverged_time = math.nan
+    if status == STATUS_DIVERGED:
+        diverged_time = 1.05
+        for name in log:
+            log[name][11:] = np.nan
+    memory = {"theta_hat": rng.standard_normal((N_CONTROL, 2)), "alpha_hat": rng.standard_normal(N_CONTROL)} if with_memory else {}
+    units = {"theta_hat": "kg m^2", "alpha_hat": "N"} if with_memory else {}
+    return IterationRecord(
+        iteration=j,
+        status=status,
+        diverged_time=diverged_time,
+        diverged_reason="" if status == STATUS_COMPLETE else "|tau| above 1e3 N m",
+        fallback_count=j,
+        log=log,
+        memory=memory,
+        memory_units=units,
+    )
+
+
+def writer(path: Path, config: dict | None = None, **kwargs) -> StoreWriter:
+    config = CONFIG if config is None else config
+    arguments = dict(
+        experiment="paper",
+        method="c3",
+        config_toml="[run]\nn_iterations = 3\n",
+        config_json=json.dumps(config, sort_keys=True),
+        seed=7,
+        command="ilcforce simulate --config experiments/paper.toml --method c3",
+        n_iterations=config["experiment"]["iterations"],
+        reference=make_reference(),
+    )
+    arguments.update(kwargs)
+    return StoreWriter(path, **arguments)
+
+
+def write_run(path: Path, n: int, *, finish: str | None = STATUS_COMPLETE, **kwargs) -> list[IterationRecord]:
+    """Write iterations 0..n-1, validating the file after every commit and at the end."""
+    records = [make_record(j) for j in range(n)]
+    with writer(path, **kwargs) as w:
+        for record in records:
+            w.append(record)
+            store.validate(path)
+        if finish is not None:
+            w.finish(finish)
+    store.validate(path)
+    return records
+
+
+def assert_one_line_naming(error: pytest.ExceptionInfo, path: Path) -> None:
+    message = str(error.value)
+    assert "\n" not in message and "\r" not in message, f"multi-line message: {message!r}"
+    assert str(path) in message, f"message does not name {path}: {message!r}"
+
+
+@pytest.fixture
+def path(tmp_path: Path) -> Path:
+    return tmp_path / "results" / "paper" / "c3.h5"
+
+
+
+def resumed_config(n_iterations: int) -> dict:
+    config = json.loads(json.dumps(CONFIG))
+    config["experiment"]["iterations"] = n_iterations
+    return config
+

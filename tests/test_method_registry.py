@@ -1,0 +1,200 @@
+"""The method registry and the contract, run over every registered method x every plant.
+
+Gymnasium style: nothing here lists the methods or the plants by hand. Methods come from
+``ilcforce.controllers.REGISTRY``; plants from the experiment files (one per ``[plant] model``
+found in ``experiments/``), so a new method or a new robot is tested as soon as it is registered
+or has an experiment file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from ilcforce import store
+from ilcforce.config import default_config, load_config
+from ilcforce.controllers import LEARNS, PAPER_METHODS, REGISTRY
+from ilcforce.controllers.base import GAIN_SPECIFIC, gain_layout
+from ilcforce.experiment import make_controller, run_method
+from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
+
+METHODS = list(REGISTRY)
+
+
+def _plant_experiments() -> dict[str, Path]:
+    """One experiment file per plant model found in experiments/ (paper.toml first for its plant)."""
+    files = sorted(Path("experiments").glob("*.toml"), key=lambda p: (p.name != "paper.toml", p.name))
+    found: dict[str, Path] = {}
+    for path in files:
+        model = str(getattr(load_config(path).plant, "model", "fivebar"))
+        found.setdefault(model, path)
+    return found
+
+
+PLANTS = _plant_experiments()
+
+
+def _short(path: Path, iterations: int):
+    """That experiment on a 0.2 s horizon (2001 control samples)."""
+    return load_config(path, {"reference.duration": 0.2, "experiment.iterations": iterations})
+
+
+# ---------------------------------------------------------------------------------------------
+# the spec
+# ---------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("method", METHODS)
+def test_spec_is_complete_and_consistent(method):
+    spec = REGISTRY[method]
+    assert spec.name == method and spec.title and spec.label and spec.color and spec.reference
+    assert spec.learns in LEARNS
+    cls = spec.controller_class
+    assert cls.name == method, "the controller names itself as its registry entry"
+    assert dataclasses.is_dataclass(spec.gains_class)
+    assert default_config().gains[method] == spec.gains_class(), "config defaults come from the gains class"
+    if spec.learns == "none":
+        assert spec.memory_layout == {} and not spec.carries_memory, "a fixed law has no memory"
+    else:
+        assert spec.memory_layout, f"{method} learns ({spec.learns}) but has no memory to store"
+
+
+def test_registry_order_and_paper_methods():
+    assert PAPER_METHODS == ("c1", "c2", "c3"), "the report's claims are about the paper's three methods"
+    assert list(REGISTRY)[:3] == list(PAPER_METHODS)
+    colors = [spec.color for spec in REGISTRY.values()]
+    assert len(set(colors)) == len(colors), "each method keeps its own colour"
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_gains_are_packed_by_name(method):
+    """Each gain sits where gain_layout says, whatever its position in the dataclass."""
+    config = default_config()
+    controller = make_controller(config, method)
+    gains = config.gains[method]
+    packed = controller.gains()
+    layout = gain_layout(type(gains))
+    for f in dataclasses.fields(gains):
+        value = getattr(gains, f.name)
+        if isinstance(value, str):
+            continue  # encoded (e.g. psi_acceleration), checked by the law's reference test
+        expected = np.atleast_1d(np.asarray(value, dtype=float))
+        np.testing.assert_array_equal(packed[layout[f.name]], expected, err_msg=f"{method}.{f.name} misplaced")
+    last = max(s.stop for s in layout.values()) if layout else GAIN_SPECIFIC
+    assert packed.size >= last, "packed vector shorter than its layout"
+
+
+def test_registry_import_loads_no_kernel():
+    """``import ilcforce.controllers`` stays cheap: no law module, no numba (the speed issue)."""
+    code = ("import sys, ilcforce.controllers as c; c.REGISTRY; "
+            "print(sorted(m for m in sys.modules if m.startswith('ilcforce.controllers.') or m == 'numba'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", out
+
+
+def test_makefile_method_list_is_the_registry():
+    out = subprocess.run([sys.executable, "-m", "ilcforce.controllers"], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == METHODS
+
+
+def test_report_reads_labels_colours_and_order_from_the_registry():
+    from ilcforce.report import figures, tables
+
+    shuffled = list(reversed(METHODS)) + ["zz-unregistered"]
+    assert tables.ordered_methods(shuffled) == METHODS + ["zz-unregistered"]
+    for name, spec in REGISTRY.items():
+        assert figures._label(name) == spec.label and figures._color(name) == spec.color
+
+
+# ---------------------------------------------------------------------------------------------
+# every method x every plant: runs, determinism, resume bit-identity, store validation
+# ---------------------------------------------------------------------------------------------
+
+def _assert_same_stores(a: Path, b: Path, iterations, why: str) -> None:
+    for j in iterations:
+        np.testing.assert_array_equal(store.read_iteration(a, j).to_numpy(), store.read_iteration(b, j).to_numpy(),
+                                      err_msg=f"iteration {j} logs differ ({why})")
+        ma, mb = store.read_memory(a, j), store.read_memory(b, j)
+        assert set(ma) == set(mb)
+        for key in ma:
+            np.testing.assert_array_equal(ma[key], mb[key], err_msg=f"iteration {j} memory {key} differs ({why})")
+
+
+@pytest.mark.parametrize("plant", sorted(PLANTS))
+@pytest.mark.parametrize("method", METHODS)
+def test_runs_deterministic_resumable_and_valid(tmp_path, method, plant):
+    """Three short iterations straight, and two then a resume to three: identical bits.
+
+    The first two iterations of the second run are a fresh run with the same seed (determinism);
+    its third comes from the stored memory only (resume). Every store the writer made validates.
+    """
+    straight, resumed = tmp_path / "straight.h5", tmp_path / "resumed.h5"
+    summary = run_method(_short(PLANTS[plant], 3), method, straight)
+    assert summary.status == STATUS_COMPLETE, f"{method} on {plant} diverged in a 0.2 s run"
+    run_method(_short(PLANTS[plant], 2), method, resumed)
+    run_method(_short(PLANTS[plant], 3), method, resumed, resume=True)
+    for path in (straight, resumed):
+        store.validate(path)
+        assert store.read_provenance(path)["run_state"] == "complete"
+    assert store.iterations(resumed) == [0, 1, 2]
+    _assert_same_stores(straight, resumed, [0, 1], "same seed")
+    _assert_same_stores(straight, resumed, [2], "resumed from the stored memory")
+
+
+# ---------------------------------------------------------------------------------------------
+# the between-iteration hook
+# ---------------------------------------------------------------------------------------------
+
+def _record(status: str) -> IterationRecord:
+    return IterationRecord(iteration=0, status=status, diverged_time=float("nan"), diverged_reason="",
+                           fallback_count=0, log={})
+
+
+def test_pd_ilc_filters_between_iterations_with_zero_phase_q():
+    """v_{j+1} = Q[v_j + J^T L sigma_j] with Q = butter forwards and backwards.
+
+    Against an independent filter (transfer-function form, scipy.signal.filtfilt): the two agree to
+    roundoff (1e-9 of a unit signal; the sos and ba forms round differently). A 1 Hz sine passes
+    in phase (zero phase: no lag to absorb) and within 1% in amplitude (forwards and backwards the
+    order-2 Butterworth gives |H|^2 = 1 / (1 + (f / fc)^4) = 0.9984 at 1 Hz against 5 Hz); 200 Hz is
+    cut below 1e-4 (the same formula: 1 / (1 + 40^4) = 4e-7).
+    """
+    config = default_config()
+    gains = config.gains["pd-ilc"]
+    controller = make_controller(config, "pd-ilc")
+    t = config.control_times()
+    raw = np.column_stack([np.sin(2 * np.pi * 1.0 * t), np.sin(2 * np.pi * 200.0 * t)])
+    _prev, new = controller.begin_iteration(0)
+    new[...] = raw
+    controller.end_iteration(_record(STATUS_COMPLETE))
+    v = controller.learned_state()["v"]
+    b, a = signal.butter(gains.q_order, gains.q_cutoff, fs=1.0 / config.simulation.sample_time)
+    np.testing.assert_allclose(v, signal.filtfilt(b, a, raw, axis=0), atol=1e-9,
+                               err_msg="Q differs from an independent zero-phase Butterworth")
+    inner = slice(len(t) // 4, 3 * len(t) // 4)  # away from the ends' padding transients
+    np.testing.assert_allclose(v[inner, 0], raw[inner, 0], atol=1e-2, err_msg="1 Hz must pass in phase")
+    assert np.max(np.abs(v[inner, 1])) < 1e-4, "200 Hz must be cut"
+    # a diverged iteration leaves the learned memory alone
+    _prev, new = controller.begin_iteration(1)
+    new[...] = 99.0
+    controller.end_iteration(_record(STATUS_DIVERGED))
+    np.testing.assert_array_equal(controller.learned_state()["v"], v)
+
+
+def test_pd_ilc_learns_between_iterations_on_the_paper_setup(short_config):
+    """Trial-to-trial learning works: the position error falls over iterations (noise-free, so the
+    drop is learning, not luck). The law itself is PD feedback; without the hook v stays 0."""
+    config = short_config("experiments/noise-free.toml", **{"experiment.iterations": 4})
+    from ilcforce.experiment import simulate_iterations
+    from ilcforce.metrics import iteration_metrics
+
+    records = list(simulate_iterations(config, "pd-ilc"))
+    norms = [iteration_metrics(r)["position_error_2norm"] for r in records]
+    assert all(r.status == STATUS_COMPLETE for r in records)
+    assert np.max(np.abs(records[0].memory["v"])) > 0, "the hook made v_1 from iteration 0"
+    assert norms[3] < norms[0] / 3, f"pd-ilc position error norms {norms}"

@@ -1,0 +1,347 @@
+"""Studies: the study file, the driver in-process and on a LocalCluster, the study store, export.
+
+Small on purpose: a 0.2 s horizon (2001 control samples), 3 iterations, 2 seeds.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from ilcforce import store
+from ilcforce.cli import app
+from ilcforce.experiment import run_method
+from ilcforce.metrics import METRIC_COLUMNS
+from ilcforce.study import (StudyError, StudyStoreError, build_study, export, load_study, read_study,
+                            run_study, tidy_metrics)
+from ilcforce.study.spec import parse_seeds
+from ilcforce.store.study import StudyStore, read_tables
+
+SMALL = {"experiment.iterations": 3, "reference.duration": 0.2}
+
+
+def small_study(name="tiny", seeds="0-1", methods=("c1", "c3"), sweep=None, **extra):
+    table = {"name": name, "seeds": seeds, "methods": list(methods), "set": dict(SMALL), **extra}
+    if sweep:
+        table["sweep"] = sweep
+    return build_study({"study": table})
+
+
+def write_study_file(tmp_path, text: str):
+    path = tmp_path / "study.toml"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+TINY_TOML = """
+[study]
+name = "tiny"
+methods = ["c1", "c3"]
+seeds = "0-1"
+[study.set]
+"experiment.iterations" = 3
+"reference.duration" = 0.2
+[study.sweep]
+"c3.eta" = [5.0, 2.0]
+"""
+
+
+# ------------------------------------------------------------------------------------------------
+# the study file
+
+
+def test_seeds_forms():
+    assert parse_seeds("0-3") == (0, 1, 2, 3)
+    assert parse_seeds(" 7 - 7 ") == (7,)
+    assert parse_seeds([5, 1, 3]) == (1, 3, 5)
+
+
+def test_sweep_is_full_factorial_first_key_slowest():
+    study = small_study(sweep={"c3.eta": [5.0, 2.0], "simulation.log_every": [10, 20]})
+    assert [s.values for s in study.settings] == [
+        (("c3.eta", 5.0), ("simulation.log_every", 10)), (("c3.eta", 5.0), ("simulation.log_every", 20)),
+        (("c3.eta", 2.0), ("simulation.log_every", 10)), (("c3.eta", 2.0), ("simulation.log_every", 20))]
+    assert study.settings[3].config.gains["c3"].eta == 2.0
+    assert study.settings[3].config.simulation.log_every == 20
+    assert len(study.cells()) == 4 * 2 * 2
+    cell = study.cells()[-1]
+    assert study.cell_config(cell).experiment.seed == cell.seed == 1
+
+
+@pytest.mark.parametrize("table, message", [
+    ({"sweep": {"simulation.sampel_time": [1e-4]}}, "did you mean 'sample_time'"),
+    ({"sweep": {"simulaton.sample_time": [1e-4]}}, "did you mean 'simulation'"),
+    ({"sweep": {"c3.eta": []}}, "empty list"),
+    ({"seeds": "5-2"}, "empty: 5 > 2"),
+    ({"seeds": "-3-2"}, "range"),
+    ({"seeds": [1, -2]}, ">= 0"),
+    ({"sweep": {"c3.eta": [5.0, -1.0]}}, "setting 1 (c3.eta=-1.0)"),
+    ({"name": "../escape"}, "escape the results folder"),
+    ({"name": ".hidden"}, "escape the results folder"),
+    ({"methods": ["c4"]}, "unknown method"),
+    ({"set": {"experiment.seed": 3}}, "study.seeds"),
+    ({"sweeps": {}}, "did you mean 'sweep'"),
+])
+def test_bad_study_names_the_key(table, message):
+    base = {"name": "bad", "seeds": "0-1", "set": dict(SMALL)}
+    base.update(table)
+    with pytest.raises(StudyError) as info:
+        build_study({"study": base})
+    assert message in str(info.value)
+    assert "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("text, message", [
+    ('[study]\nname = "x"\nseeds = "0-1"\n[study.sweep]\n"c3.etaa" = [1.0]\n', "did you mean 'eta'"),
+    ('[study]\nname = "x"\nseeds = "5-2"\n', "5 > 2"),
+    ('[study]\nname = "a/b"\nseeds = "0-1"\n', "escape the results folder"),
+    ('[study]\nname = "x"\nseeds = "0-1"\n[study.sweep]\n"c3.eta" = []\n', "empty list"),
+    ('[study]\nname = "x"\nseeds = "0-1"\n[study.sweep]\n"simulation.sample_time" = [1e-4, "fast"]\n',
+     "setting 1 (simulation.sample_time='fast')"),
+    ("[study\n", "not valid TOML"),
+])
+def test_cli_bad_study_one_line_exit_2(tmp_path, text, message):
+    path = write_study_file(tmp_path, text)
+    result = CliRunner().invoke(app, ["study", str(path), "--results", str(tmp_path / "r"), "--workers", "1"])
+    assert result.exit_code == 2, result.output
+    assert message in result.output
+    assert result.output.count("\n") == 1, result.output
+    assert not (tmp_path / "r" / "studies").exists(), "nothing may be written for an invalid study"
+
+
+# ------------------------------------------------------------------------------------------------
+# running, the store, bit identity
+
+
+def test_in_process_study_matches_simulate_bit_for_bit(tmp_path):
+    """Every cell's metrics equal those `ilcforce simulate` stores for the same (config, seed, method)."""
+    study = small_study(sweep={"c3.eta": [5.0, 2.0]})
+    summary = run_study(study, tmp_path, workers=1)
+    assert (summary.total, summary.ran, summary.failed) == (8, 8, ())
+    results = read_study(summary.path)
+    for cell in (study.cells()[1], study.cells()[-1], study.cells()[-2]):
+        config = study.cell_config(cell)
+        path = tmp_path / "single" / f"{cell.key}.h5"
+        run_method(config, cell.method, path)
+        single = store.read_metrics(path).reset_index()
+        rows = results.metrics
+        rows = rows[(rows["c3.eta"] == dict(study.settings[cell.setting].values)["c3.eta"])
+                    & (rows["seed"] == cell.seed) & (rows["method"] == cell.method)].reset_index(drop=True)
+        for column in METRIC_COLUMNS:
+            np.testing.assert_array_equal(rows[column].to_numpy(), single[column].to_numpy(),
+                                          err_msg=f"{cell} {column}: a study cell must be bit-identical to simulate")
+
+
+def test_tidy_frame_columns_and_memory_norms(tmp_path):
+    study = small_study(sweep={"c3.eta": [5.0, 2.0]})
+    run_study(study, tmp_path, workers=1)
+    frame = tidy_metrics(tmp_path / "studies" / "tiny.h5")
+    metric_columns = [c for c in METRIC_COLUMNS if c != "iteration"]
+    assert list(frame.columns[:4]) == ["c3.eta", "seed", "method", "iteration"]
+    assert list(frame.columns[4:4 + len(metric_columns)]) == metric_columns
+    assert len(frame) == 2 * 2 * 2 * 3
+    c3 = frame[frame["method"] == "c3"]
+    c1 = frame[frame["method"] == "c1"]
+    # C3 learns: its Theta_hat memory is nonzero and grows from iteration 0 on; C1 has no memory
+    assert (c3["memory_rms_theta_hat"] > 0).all()
+    assert c1["memory_rms_theta_hat"].isna().all()
+    assert frame["seed"].dtype == np.int64 and frame["iteration"].dtype == np.int64
+
+
+def test_memory_norm_is_rms_of_the_learned_memory(tmp_path):
+    """memory_rms_* = sqrt(mean_k |m(t_k)|^2) of the memory the run store keeps for that iteration."""
+    study = small_study(seeds=[3], methods=("c3",))
+    run_study(study, tmp_path, workers=1, keep_stores=True)
+    frame = read_study(tmp_path / "studies" / "tiny.h5").metrics
+    kept = tmp_path / "studies" / "tiny" / "cells" / "setting0-seed3" / "c3.h5"
+    for j in range(3):
+        memory = store.read_memory(kept, j)
+        for name, array in memory.items():
+            expected = np.sqrt(np.mean(np.sum(np.square(array.reshape(len(array), -1)), axis=1)))
+            assert frame.loc[j, f"memory_rms_{name}"] == pytest.approx(expected, rel=1e-12)
+    # the kept run store holds the same metrics as the study
+    np.testing.assert_array_equal(store.read_metrics(kept)["force_error_2norm"].to_numpy(),
+                                  frame["force_error_2norm"].to_numpy())
+
+
+def test_rerun_skips_finished_cells_and_extends_seeds(tmp_path):
+    calls = []
+
+    def counting(config, method, keep):
+        from ilcforce.study.cell import run_cell
+
+        calls.append((config.experiment.seed, method))
+        return run_cell(config, method, keep)
+
+    run_study(small_study(seeds="0-1"), tmp_path, workers=1, cell_function=counting)
+    assert len(calls) == 4
+    again = run_study(small_study(seeds="0-1"), tmp_path, workers=1, cell_function=counting)
+    assert (again.skipped, again.ran, len(calls)) == (4, 0, 4)
+    more = run_study(small_study(seeds="0-2"), tmp_path, workers=1, cell_function=counting)
+    assert (more.skipped, more.ran) == (4, 2)
+    assert calls[4:] == [(2, "c1"), (2, "c3")]
+
+
+def test_changed_settings_are_refused_then_overwritten(tmp_path):
+    run_study(small_study(), tmp_path, workers=1)
+    changed = small_study(sweep={"c3.eta": [1.0]})
+    with pytest.raises(StudyStoreError, match="different settings"):
+        run_study(changed, tmp_path, workers=1)
+    summary = run_study(changed, tmp_path, workers=1, overwrite=True)
+    assert summary.ran == 4 and summary.skipped == 0
+
+
+def test_resume_needs_a_store(tmp_path):
+    with pytest.raises(StudyStoreError, match="no study store to resume"):
+        run_study(small_study(), tmp_path, workers=1, resume=True)
+
+
+def test_foreign_file_is_never_replaced(tmp_path):
+    target = tmp_path / "studies" / "tiny.h5"
+    target.parent.mkdir()
+    target.write_bytes(b"not a store")
+    with pytest.raises(StudyStoreError, match="not an ilcforce study store"):
+        run_study(small_study(), tmp_path, workers=1, overwrite=True)
+    assert target.read_bytes() == b"not a store"
+
+
+def test_failing_cell_is_retried_once_then_recorded(tmp_path):
+    attempts = {}
+
+    def flaky(config, method, keep):
+        from ilcforce.study.cell import run_cell
+
+        key = (config.experiment.seed, method)
+        attempts[key] = attempts.get(key, 0) + 1
+        if method == "c3" and config.experiment.seed == 1:
+            raise RuntimeError("boom\nsecond line")
+        if method == "c1" and config.experiment.seed == 0 and attempts[key] == 1:
+            raise RuntimeError("transient")
+        return run_cell(config, method, keep)
+
+    summary = run_study(small_study(), tmp_path, workers=1, cell_function=flaky)
+    assert attempts[(1, "c3")] == 2 and attempts[(0, "c1")] == 2
+    assert [(c.seed, c.method) for c, _ in summary.failed] == [(1, "c3")]
+    cells = read_study(summary.path).cells
+    failed = cells[cells["state"] == "failed"]
+    assert failed[["seed", "method", "attempts"]].values.tolist() == [[1, "c3", 2]]
+    assert failed["message"].iloc[0] == "RuntimeError: boom second line"
+    retried = cells[(cells["seed"] == 0) & (cells["method"] == "c1")]
+    assert retried[["state", "attempts"]].values.tolist() == [["done", 2]]
+    # a rerun retries only the failed cell
+    again = run_study(small_study(), tmp_path, workers=1)
+    assert (again.skipped, again.ran, again.failed) == (3, 1, ())
+
+
+def test_committed_cells_survive_a_driver_that_never_consolidated(tmp_path):
+    """A cell is durable once committed to the journal, before any consolidation of the HDF5 file."""
+    from ilcforce.study.runner import _header
+
+    study = small_study()
+    path = tmp_path / "studies" / "tiny.h5"
+    writer = StudyStore(path, header=_header(study), session={"id": "a"}, consolidate_every=1e9)
+    record = {"setting": 0, "seed": 1, "method": "c1", "state": "done", "attempts": 1, "message": "",
+              "elapsed": 0.1, "worker": "w", "rows": [{"iteration": 0, "status": "complete", "x": 1.5}]}
+    writer.commit(record, now=1.0)
+    writer.close()  # no consolidate(): as if the driver were killed here
+    _header_read, metrics, cells = read_tables(path)
+    assert metrics[["seed", "method", "iteration", "x"]].values.tolist() == [[1, "c1", 0, 1.5]]
+    reopened = StudyStore(path, header=_header(study), session={"id": "b"})
+    assert reopened.done == {(0, 1, "c1")}
+    reopened.consolidate()
+    reopened.close()
+    assert not list((tmp_path / "studies" / "tiny.h5.journal").glob("*.json"))
+    assert read_tables(path)[1]["x"].tolist() == [1.5]
+
+
+def test_second_driver_is_refused(tmp_path):
+    from ilcforce.study.runner import _header
+
+    study = small_study()
+    first = StudyStore(tmp_path / "s.h5", header=_header(study), session={"id": "a"})
+    try:
+        with pytest.raises(StudyStoreError, match="another ilcforce study"):
+            StudyStore(tmp_path / "s.h5", header=_header(study), session={"id": "b"})
+    finally:
+        first.close()
+
+
+def test_local_cluster_matches_in_process(tmp_path):
+    """Two LocalCluster worker processes give the in-process metrics bit for bit."""
+    study = small_study(sweep={"c3.eta": [5.0, 2.0]})
+    run_study(study, tmp_path / "one", workers=1)
+    summary = run_study(study, tmp_path / "two", workers=2)
+    assert summary.scheduler == "LocalCluster" and summary.failed == ()
+    pd.testing.assert_frame_equal(tidy_metrics(tmp_path / "one" / "studies" / "tiny.h5"),
+                                  tidy_metrics(summary.path), check_exact=True)
+    sessions = read_study(summary.path).sessions
+    assert sessions[-1]["scheduler"] == "LocalCluster" and sessions[-1]["workers"] == 2
+    assert "dask" in sessions[-1]["versions"]
+
+
+# ------------------------------------------------------------------------------------------------
+# CLI and export
+
+
+def test_cli_study_and_export_round_trip(tmp_path):
+    path = write_study_file(tmp_path, TINY_TOML)
+    results = tmp_path / "r"
+    runner = CliRunner()
+    first = runner.invoke(app, ["study", str(path), "--results", str(results), "--workers", "1", "--quiet"])
+    assert first.exit_code == 0, first.output
+    store_file = results / "studies" / "tiny.h5"
+    out = tmp_path / "t.csv"
+    exported = runner.invoke(app, ["export", str(store_file), "--out", str(out)])
+    assert exported.exit_code == 0, exported.output
+    frame = tidy_metrics(store_file)
+    back = pd.read_csv(out)
+    assert list(back.columns) == list(frame.columns)
+    for column in frame.columns:
+        if frame[column].dtype == object:
+            assert back[column].astype(str).tolist() == frame[column].astype(str).tolist()
+        else:  # floats are written with the shortest round-trip repr: bit for bit
+            np.testing.assert_array_equal(back[column].to_numpy(), frame[column].to_numpy(), err_msg=column)
+    refused = runner.invoke(app, ["export", str(store_file), "--out", str(out)])
+    assert refused.exit_code == 2 and "--overwrite" in refused.output
+    parquet = runner.invoke(app, ["export", str(store_file), "--out", str(tmp_path / "t.parquet")])
+    assert parquet.exit_code == 2 and "pyarrow" in parquet.output
+
+
+def test_export_of_a_run_store_is_the_one_seed_case(tmp_path, short_config):
+    config = short_config(**{"experiment.seed": 4})
+    run_method(config, "c2", tmp_path / "c2.h5")
+    frame = tidy_metrics(tmp_path / "c2.h5")
+    assert list(frame.columns[:3]) == ["seed", "method", "iteration"]
+    assert set(frame["seed"]) == {4} and set(frame["method"]) == {"c2"}
+    np.testing.assert_array_equal(frame["position_error_2norm"].to_numpy(),
+                                  store.read_metrics(tmp_path / "c2.h5")["position_error_2norm"].to_numpy())
+    out, rows = export(tmp_path / "c2.h5", tmp_path / "c2.csv")
+    assert rows == 3 and out.is_file()
+
+
+@pytest.mark.parametrize("content", [b"", b"garbage", b"\x89HDF\r\n\x1a\n" + b"\0" * 64])
+def test_export_of_a_foreign_file_is_one_line(tmp_path, content):
+    bad = tmp_path / "bad.h5"
+    bad.write_bytes(content)
+    result = CliRunner().invoke(app, ["export", str(bad), "--out", str(tmp_path / "x.csv")])
+    assert result.exit_code == 2, result.output
+    assert result.output.count("\n") == 1 and "Traceback" not in result.output
+    assert not (tmp_path / "x.csv").exists()
+
+
+def test_study_store_records_provenance(tmp_path):
+    path = write_study_file(tmp_path, TINY_TOML)
+    run_study(load_study(path), tmp_path / "r", workers=1, command="ilcforce study x")
+    results = read_study(tmp_path / "r" / "studies" / "tiny.h5")
+    assert results.study_toml == TINY_TOML
+    assert results.sweep_keys == ["c3.eta"]
+    assert results.settings["c3.eta"].tolist() == [5.0, 2.0]
+    config = json.loads(results.settings.loc[1, "config_json"])
+    assert config["c3"]["eta"] == 2.0 and config["reference"]["duration"] == 0.2
+    session = results.sessions[-1]
+    assert session["command"] == "ilcforce study x" and session["scheduler"] == "in-process"
+    assert {"ilcforce", "numpy", "numba", "h5py", "python"} <= set(session["versions"])
