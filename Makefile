@@ -46,13 +46,33 @@ $(RESULTS)/%.h5: $(STAMP) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).to
 
 stores: $(STAMP) $$(STORES)
 
-reproduce: $(STAMP) ## run every experiment in experiments/ for every registered method (in parallel), then write the report
+# Studies: every experiments/*.toml with a [study] table (its study.name must be the file's stem).
+# A study resumes where it stopped; --replace-stale starts it over only if its settings or the
+# simulation code changed (unchanged cells are kept, so a rerun after a report-only change is quick).
+STUDY_FILES := $(shell grep -l '^\[study\]' experiments/*.toml 2>/dev/null)
+STUDIES := $(patsubst experiments/%.toml,%,$(STUDY_FILES))
+STUDY_STORES := $(foreach s,$(STUDIES),$(RESULTS)/studies/$(s).h5)
+.PRECIOUS: $(RESULTS)/studies/%.h5
+$(RESULTS)/studies/%.h5: $(STAMP) $(SOURCES) experiments/%.toml $(wildcard experiments/*.toml)
+	$(VENV)/bin/ilcforce study experiments/$*.toml --results $(RESULTS) --replace-stale
+	touch $@
+
+studies: $(STUDY_STORES) ## run every study in experiments/ (all cores each, one after another)
+
+reproduce: $(STAMP) ## run every experiment (every registered method, in parallel) and every study in experiments/, then write the report
 	$(MAKE) --no-print-directory -j $(JOBS) -O stores
+	$(MAKE) --no-print-directory studies
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
 	@echo "report: $(RESULTS)/report/index.md"
+
+readme-findings: $(STAMP) ## copy the report's generated findings (results/report/findings.md) into README.md
+	$(PY) -m ilcforce.report.readme update README.md $(RESULTS)/report/findings.md
+
+check-readme: $(STAMP) ## fail when README.md's findings differ from the report's (run after make reproduce)
+	$(PY) -m ilcforce.report.readme check README.md $(RESULTS)/report/findings.md
 
 clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
-.PHONY: help install test test-slow bench stores reproduce clean
+.PHONY: help install test test-slow bench stores studies reproduce readme-findings check-readme clean

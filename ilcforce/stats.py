@@ -19,6 +19,7 @@ the number of values used.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -117,12 +118,14 @@ def format_interval(iv: Interval, digits: int = 3) -> str:
     return f"{iv.estimate:.{digits}g} [{iv.low:.{digits}g}, {iv.high:.{digits}g}]"
 
 
+@functools.lru_cache(maxsize=256)  # scipy's ppf costs ~1 ms a call; a study report asks thousands of times
 def _normal_quantile(p: float) -> float:
     from scipy.stats import norm
 
     return float(norm.ppf(p))
 
 
+@functools.lru_cache(maxsize=256)
 def _t_quantile(p: float, dof: int) -> float:
     from scipy.stats import t
 

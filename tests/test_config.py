@@ -9,7 +9,8 @@ import pytest
 
 from ilcforce.config import ConfigError, config_from_dict, default_config, load_config, parse_override
 
-EXPERIMENTS = sorted(Path("experiments").glob("*.toml"))
+# study files (a [study] table; ilcforce.study) live beside the experiments and are tested in test_study.py
+EXPERIMENTS = sorted(p for p in Path("experiments").glob("*.toml") if "study" not in tomllib.loads(p.read_text()))
 
 
 def test_paper_toml_is_the_embedded_default():

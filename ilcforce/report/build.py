@@ -33,7 +33,7 @@ from matplotlib.figure import Figure
 import ilcforce
 from ilcforce import store
 from ilcforce.report import claims as claims_module
-from ilcforce.report import figures, paper, sections, stability, tables
+from ilcforce.report import figures, paper, readme, sections, stability, tables
 from ilcforce.metrics import memory_norms
 
 #: The methods an experiment is expected to hold.
@@ -75,6 +75,7 @@ class ReportSummary:
     experiments: tuple[str, ...]
     files: tuple[Path, ...]
     warnings: tuple[str, ...]
+    studies: tuple[str, ...] = ()  # studies reported (ilcforce.report.study), the paper's Monte Carlo first
 
     @property
     def index(self) -> Path:
@@ -550,6 +551,8 @@ def _write_experiment(
     written.append(report)
     summary.attrs["description"] = sections.description(experiment.config())
     summary.attrs["flags"] = dict(flags)
+    summary.attrs["parts"] = claims.to_dict("list")
+    summary.attrs["divergence"] = _divergence_lines(experiment, {})
     return written, summary
 
 
@@ -576,7 +579,8 @@ def _report_experiment(name: str, paths: Mapping[str, Path], out_dir: Path, form
 
 
 def write_report(
-    results_dir: Path, out_dir: Path, *, formats: tuple[str, ...] = FIGURE_FORMATS, jobs: int = 1
+    results_dir: Path, out_dir: Path, *, formats: tuple[str, ...] = FIGURE_FORMATS, jobs: int = 1,
+    progress: Callable[[str], None] | None = None,
 ) -> ReportSummary:
     """Write the report for every experiment under ``results_dir`` into ``out_dir``.
 
@@ -602,6 +606,7 @@ def write_report(
     results_dir = Path(results_dir)
     out_dir = Path(out_dir)
     found = store.find_stores(results_dir)
+    found.pop("studies", None)  # results/studies/ holds study stores: reported by ilcforce.report.study below
     warnings: list[str] = _misplaced_files(results_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
@@ -611,9 +616,17 @@ def write_report(
     if jobs > 1 and len(tasks) > 1:
         context = multiprocessing.get_context("fork")  # workers inherit the imported modules
         with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=context) as pool:
-            outcomes = list(pool.map(_report_experiment, *zip(*tasks)))
+            outcomes = []
+            for task, outcome in zip(tasks, pool.map(_report_experiment, *zip(*tasks))):
+                outcomes.append(outcome)
+                if progress is not None:
+                    progress(f"experiment {task[0]} ({len(outcomes)} of {len(tasks)})")
     else:
-        outcomes = [_report_experiment(*task) for task in tasks]
+        outcomes = []
+        for task in tasks:
+            outcomes.append(_report_experiment(*task))
+            if progress is not None:
+                progress(f"experiment {task[0]} ({len(outcomes)} of {len(tasks)})")
     for (name, *_rest), (files, claims, experiment_warns) in zip(tasks, outcomes):
         warnings += experiment_warns
         if claims is None:
@@ -621,14 +634,29 @@ def write_report(
         written += files
         verdicts[name] = claims
         experiment_warnings[name] = experiment_warns
+    from ilcforce.report.study import write_study_reports
+
+    study_reports, study_section = write_study_reports(results_dir, out_dir, formats=tuple(formats),
+                                                       progress=progress)
+    for study_report in study_reports:
+        written += study_report.files
+        warnings += study_report.warnings
     index = out_dir / "index.md"
-    index.write_text(_index_text(results_dir, verdicts, experiment_warnings, warnings), encoding="utf-8")
+    title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
+    index.write_text("\n".join([title, "", *study_section]) + rest, encoding="utf-8")  # studies lead
     written.append(index)
+    findings = out_dir / "findings.md"
+    findings.write_text(readme.findings_markdown({
+        name: {"description": frame.attrs.get("description", ""), "parts": pd.DataFrame(frame.attrs.get("parts", {})),
+               "flags": frame.attrs.get("flags", {}), "divergence": frame.attrs.get("divergence", [])}
+        for name, frame in verdicts.items()}), encoding="utf-8")
+    written.append(findings)
     return ReportSummary(
         out_dir=out_dir,
         experiments=tuple(sorted(verdicts)),
         files=tuple(written),
         warnings=tuple(warnings),
+        studies=tuple(r.name for r in study_reports if r.index_lines),
     )
 
 

@@ -20,7 +20,7 @@ Layout (schema ``ilcforce.study`` 1.0)::
                          fingerprint, created, sessions_json
     /settings     datasets (n_settings,): config_json, label, values_json (swept key -> value, JSON)
     /metrics      one dataset per column, (n_rows,): setting, seed, method, iteration, then the
-                  metric columns of the cells' rows (status, ..., memory_rms_*)
+                  metric columns of the cells' rows (status, ..., memory_norm_*)
     /cells        one dataset per column, (n_records,): setting, seed, method, state ('done' or
                   'failed'), attempts, message, elapsed, worker; a later record of a cell wins
 """

@@ -6,9 +6,9 @@ the run store is kept), so its metrics are bit-identical to a single run of the 
 method). It returns plain data and writes no study file: only the driver writes the study store.
 
 Each row is one iteration: every column of :data:`ilcforce.metrics.METRIC_COLUMNS` plus, per learned
-memory of the method, ``memory_rms_<name>``: the RMS over the control grid of the Euclidean norm
-per sample of the memory after that iteration, ``sqrt(mean_k |m(t_k)|^2)`` in the memory's unit
-(NaN for a diverged iteration, like the other metrics).
+memory of the method, ``memory_norm_<name>`` (:func:`ilcforce.metrics.memory_norms`: the RMS over the
+control grid of the Euclidean norm per sample of the memory after that iteration, NaN when it holds
+a non-finite value, as after a divergence).
 
 tau_d (:func:`ilcforce.simulate.desired_inputs`) depends only on the true plant, the wall, the
 reference and the grids, not on the seed or the method, so each worker process keeps it in a
@@ -34,13 +34,6 @@ _DESIRED_CACHE_SIZE = 32
 _DESIRED: OrderedDict = OrderedDict()
 
 
-def memory_columns(method: str) -> list[str]:
-    """The memory-norm columns a method's rows carry (``memory_rms_<name>`` per learned memory)."""
-    from ilcforce.controllers import REGISTRY
-
-    return [f"memory_rms_{name}" for name in REGISTRY[method][0].memory_layout]
-
-
 def desired_cache(config: Config) -> dict:
     """This process's tau_d cache for ``config``'s wall, reference and grids (true plant -> arrays)."""
     key = (config.wall, config.reference, config.simulation.sample_time, config.simulation.log_every)
@@ -52,18 +45,6 @@ def desired_cache(config: Config) -> dict:
     else:
         _DESIRED.move_to_end(key)
     return cache
-
-
-def memory_norms(record: IterationRecord) -> dict[str, float]:
-    """``memory_rms_<name>`` of the memory ``record`` ends with (NaN if the iteration diverged)."""
-    out = {}
-    for name, array in record.memory.items():
-        if record.status == STATUS_DIVERGED:
-            out[f"memory_rms_{name}"] = float("nan")
-            continue
-        values = np.asarray(array, dtype=np.float64).reshape(len(array), -1)
-        out[f"memory_rms_{name}"] = float(np.sqrt(np.mean(np.sum(np.square(values), axis=1))))
-    return out
 
 
 def run_cell(config: Config, method: str, keep_store: str | None = None) -> dict:
@@ -90,7 +71,7 @@ def run_cell(config: Config, method: str, keep_store: str | None = None) -> dict
     cache = desired_cache(config)
 
     def collect(record: IterationRecord, row: dict) -> None:
-        rows.append({**row, **memory_norms(record)})
+        rows.append({**row, **metrics.memory_norms(record.memory)})
 
     if keep_store:
         from ilcforce.experiment import run_method

@@ -21,6 +21,7 @@ import json
 import logging
 import os
 import platform
+import re
 import subprocess
 import time
 import uuid
@@ -42,6 +43,10 @@ IN_FLIGHT_PER_WORKER = 2
 ATTEMPTS = 2
 #: Source files whose change makes stored cells stale (the simulation, not reporters or CLI).
 _NOT_FINGERPRINTED = ("report/", "cli.py", "bench.py", "store", "study/", "__main__.py")
+
+
+#: A Dask scheduler address: [tcp:// or tls://]HOST:PORT (HOST a name, IPv4 or [IPv6]).
+_ADDRESS = re.compile(r"(?:(?:tcp|tls)://)?(?:[A-Za-z0-9._-]+|\[[0-9A-Fa-f:.]+\]):\d{1,5}")
 
 
 class StudyRunError(Exception):
@@ -165,22 +170,31 @@ def _quiet_dask():
 
 
 @contextlib.contextmanager
-def dask_client(workers: int, scheduler: str | None):
+def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TIMEOUT):
     """A connected ``distributed.Client`` (and its LocalCluster when no scheduler is given)."""
     import dask
     from distributed import Client, LocalCluster
 
-    settings = {"distributed.scheduler.allowed-failures": 0,  # a dead worker -> our own retry
+    # Local cluster only (a remote scheduler keeps its own configuration): a dead worker fails its
+    # task at once (our retry-once applies), and a single-threaded worker holds one task at a time,
+    # so a cell that kills its worker never takes an innocent cell down with it.
+    settings = {"distributed.scheduler.allowed-failures": 0,
+                "distributed.scheduler.worker-saturation": 1.0,
                 "distributed.worker.daemon": False,
                 "distributed.admin.system-monitor.gil.enabled": False,
                 "logging.distributed": "error"}
     with _quiet_dask(), dask.config.set(settings):
         if scheduler:
+            _probe(scheduler, timeout)
+            failure = None
             try:
-                client = Client(scheduler, timeout=CONNECT_TIMEOUT, set_as_default=False)
-            except (OSError, TimeoutError) as exc:
-                raise StudyRunError(f"cannot reach the Dask scheduler at {scheduler} within "
-                                    f"{CONNECT_TIMEOUT:g} s ({_one_line(exc)[:120]})") from None
+                client = Client(scheduler, timeout=timeout, set_as_default=False)
+            except Exception as exc:  # noqa: BLE001 - anything at that address that is not a scheduler
+                failure = f"{type(exc).__name__}: {_one_line(exc)[:120]}"
+            if failure is not None:  # outside the except block, so the failed Client can be collected
+                _forget_failed_client()
+                raise StudyRunError(f"cannot connect to a Dask scheduler at {scheduler} within {timeout:g} s "
+                                    f"({failure})")
             try:
                 try:
                     client.wait_for_workers(1, timeout=WORKER_TIMEOUT)
@@ -192,8 +206,10 @@ def dask_client(workers: int, scheduler: str | None):
                 client.close()
             return
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=":0",  # any free port: a second study (or a test) on this machine must not collide on 8787
-                               silence_logs=logging.CRITICAL)
+                               dashboard_address=None, silence_logs=logging.CRITICAL,
+                               # the scheduler's HTTP endpoint (health, metrics) on a free local port:
+                               # no clash with another cluster on 8787, no "port in use" warning
+                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
         try:
             client = Client(cluster, set_as_default=False)
             try:
@@ -202,6 +218,32 @@ def dask_client(workers: int, scheduler: str | None):
                 client.close()
         finally:
             cluster.close()
+
+
+def _probe(scheduler: str, timeout: float) -> None:
+    """Fail fast, with one line, when nothing listens at the scheduler's address."""
+    import socket
+
+    host, port = scheduler.split("://")[-1].rsplit(":", 1)
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+    except OSError as exc:
+        reason = "timed out" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
+        raise StudyRunError(f"cannot reach the Dask scheduler at {scheduler} within {timeout:g} s ({reason})") from None
+
+
+def _forget_failed_client() -> None:
+    """A Client whose constructor failed tries to close itself when collected and prints a traceback
+    from ``__del__``; collect it now, with that message silenced."""
+    import gc
+    import sys
+
+    hook = sys.unraisablehook
+    sys.unraisablehook = lambda _info: None
+    try:
+        gc.collect()
+    finally:
+        sys.unraisablehook = hook
 
 
 def _run_on_dask(client, jobs, function, in_flight: int):
@@ -250,6 +292,7 @@ def _run_on_dask(client, jobs, function, in_flight: int):
 def run_study(study: Study, results_dir: Path | str = "results", *, workers: int | None = None,
               scheduler: str | None = None, resume: bool = False, overwrite: bool = False,
               replace_stale: bool = False, keep_stores: bool = False, command: str = "",
+              timeout: float = CONNECT_TIMEOUT,
               progress: Callable[[Progress], None] | None = None,
               cell_function: Callable = run_cell) -> StudySummary:
     """Run every cell of ``study`` not yet in ``results/studies/<name>.h5`` and store it.
@@ -261,6 +304,10 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
     """
     if scheduler and workers is not None:
         raise StudyError("--workers does not apply with --scheduler (the cluster has its own workers)")
+    if scheduler is not None and not _ADDRESS.fullmatch(scheduler):
+        raise StudyError(f"--scheduler expects an address like tcp://HOST:PORT, got {scheduler!r}")
+    if not (timeout > 0 and timeout < 3600):
+        raise StudyError(f"--timeout must be between 0 and 3600 s, got {timeout}")
     if workers is not None and workers < 1:
         raise StudyError(f"--workers must be >= 1, got {workers}")
     if workers is None and not scheduler:
@@ -286,11 +333,12 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
             if progress is not None:
                 progress(Progress(len(cells), skipped + done_now[0], len(failed_now), len(todo), last))
 
-        report("")
+        if not todo:
+            report("")
         if todo:
             with contextlib.ExitStack() as stack:
                 if scheduler or workers > 1:
-                    client = stack.enter_context(dask_client(workers or 0, scheduler))
+                    client = stack.enter_context(dask_client(workers or 0, scheduler, timeout))
                     if scheduler:
                         workers_seen = len(client.scheduler_info().get("workers", {}))
                         store.update_session(workers=workers_seen)
@@ -298,6 +346,7 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
                     outcomes = _run_on_dask(client, jobs, cell_function, IN_FLIGHT_PER_WORKER * n_workers)
                 else:
                     outcomes = _run_in_process(jobs, cell_function)
+                report("")  # the workers are there: the clock of the ETA starts now
                 try:
                     for cell, attempt, result, message in outcomes:
                         ran += 1

@@ -3,7 +3,7 @@
 One row per (setting..., seed, method, iteration). Columns, in order: the swept config keys
 (named by their key, e.g. ``simulation.sample_time``; none without a sweep), ``seed``, ``method``,
 ``iteration``, then the metric columns of :data:`ilcforce.metrics.METRIC_COLUMNS` in their order,
-then any further columns (a study's ``memory_rms_*``). A run store is the one-setting, one-seed
+then any further columns (a study's ``memory_norm_*``). A run store is the one-setting, one-seed
 case. Failed cells have no rows (see :attr:`StudyResults.cells`).
 """
 
@@ -58,12 +58,11 @@ class StudyResults:
     metrics: pd.DataFrame
     cells: pd.DataFrame
     sessions: list
+    row_setting: np.ndarray  # the setting index of each row of ``metrics``
 
     def setting_metrics(self, setting: int) -> pd.DataFrame:
         """The tidy rows of one setting (``seed``, ``method``, ``iteration`` + metrics)."""
-        frame = self.metrics
-        for key in self.sweep_keys:
-            frame = frame[frame[key].map(repr) == repr(self.settings.loc[setting, key])]
+        frame = self.metrics[self.row_setting == int(setting)]
         return frame.drop(columns=list(self.sweep_keys)).reset_index(drop=True)
 
 
@@ -110,6 +109,7 @@ def read_study(path: Path | str) -> StudyResults:
         order = {m: i for i, m in enumerate(methods)}
         metrics = metrics.assign(_m=metrics["method"].map(order)).sort_values(
             ["setting", "seed", "_m", "iteration"], kind="stable").drop(columns=["_m"])
+    row_setting = metrics["setting"].to_numpy(dtype=np.int64) if len(metrics) else np.zeros(0, np.int64)
     metrics = _order(metrics.drop(columns=["setting"]), sweep_keys).reset_index(drop=True)
     if len(cells):
         cells = with_setting_columns(cells)
@@ -118,7 +118,7 @@ def read_study(path: Path | str) -> StudyResults:
     return StudyResults(name=str(header.get("name", "")), description=str(header.get("description", "")),
                         study_toml=str(header.get("study_toml", "")), sweep_keys=sweep_keys,
                         settings=settings, metrics=metrics, cells=cells,
-                        sessions=json.loads(header.get("sessions_json", "[]")))
+                        sessions=json.loads(header.get("sessions_json", "[]")), row_setting=row_setting)
 
 
 def run_store_metrics(path: Path | str) -> pd.DataFrame:

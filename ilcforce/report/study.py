@@ -1,0 +1,299 @@
+"""The report of a study (``results/studies/<name>.h5``): every number over seeds, with its interval.
+
+Per setting and method, each key number is the **median over seeds with a 95% percentile-bootstrap
+interval of the median** (:func:`ilcforce.stats.median_interval`). Why this interval: per-seed
+error norms and ratios are skewed and j̄ is discrete, so a normal-theory (mean +- t s) interval
+would be wrong; the percentile bootstrap assumes no shape, and its resampling RNG is seeded, so
+a report is reproducible. Seeds where a number does not exist (a divergence, a missing iteration)
+are dropped and the count ``n`` is shown. Claims are judged seed by seed and summarised as
+frequencies (:func:`ilcforce.report.claims.judge_claims_over_seeds`).
+
+Written to ``<report>/studies/<name>/``: ``report.md``, ``key_numbers_s<k>.csv`` per setting,
+``claims_s<k>.csv``, the figures (:mod:`ilcforce.report.study_figures`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ilcforce.metrics import convergence_iteration
+from ilcforce.records import STATUS_DIVERGED
+from ilcforce.report import paper, tables
+from ilcforce.stats import Interval, format_interval, median_interval
+
+#: Iterations whose error norms are tabulated (clipped to the study's iterations).
+KEY_ITERATIONS = (0, 9, 10, 19)
+#: Windows (inclusive) over which error norms are averaged per seed.
+WINDOWS = ((5, 9), (15, 19))
+NORMS = (("position", "position_error_2norm", "m"), ("force", "force_error_2norm", "N"))
+
+INTERVAL_TEXT = (
+    "Every number is the median over seeds with its 95% percentile-bootstrap interval of the median "
+    "(2000 resamples, fixed RNG seed; `ilcforce.stats.median_interval`) and the number of seeds `n` it "
+    "rests on. Why this interval: per-seed error norms and ratios are skewed and j̄ is discrete, so a "
+    "normal-theory interval would be wrong; the bootstrap needs no shape assumption and is reproducible. "
+    "Seeds where a number does not exist (a divergence before it, a missing iteration) are left out and "
+    "counted in `n`.")
+
+
+@dataclass
+class StudyReport:
+    """What :func:`write_study_report` wrote, and the lines the index shows for it."""
+
+    name: str
+    files: list = field(default_factory=list)
+    warnings: list = field(default_factory=list)
+    index_lines: list = field(default_factory=list)
+
+
+def _per_seed(frame: pd.DataFrame, method: str) -> dict[int, pd.DataFrame]:
+    mine = frame[frame["method"] == method]
+    return {int(seed): f.set_index("iteration").sort_index() for seed, f in mine.groupby("seed")}
+
+
+def _value(metrics: pd.DataFrame, column: str, j: int) -> float:
+    if column not in metrics.columns or j not in metrics.index:
+        return math.nan
+    return float(tables.value_at(metrics, column, j))
+
+
+def _window_mean(metrics: pd.DataFrame, column: str, first: int, last: int) -> float:
+    values = [_value(metrics, column, j) for j in range(first, last + 1)]
+    return float(np.mean(values)) if values and all(math.isfinite(v) for v in values) else math.nan
+
+
+def _diverged_at(metrics: pd.DataFrame) -> float:
+    diverged = metrics.index[metrics["status"].astype(str) == STATUS_DIVERGED]
+    return float(diverged[0]) if len(diverged) else math.nan
+
+
+def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -> dict[str, dict[str, list[float]]]:
+    """quantity -> method -> per-seed values (NaN where the number does not exist) for ONE setting."""
+    last = iterations - 1
+    key_js = sorted({min(j, last) for j in KEY_ITERATIONS})
+    out: dict[str, dict[str, list[float]]] = {}
+
+    def put(quantity: str, method: str, value: float) -> None:
+        out.setdefault(quantity, {}).setdefault(method, []).append(value)
+
+    seeds = {m: _per_seed(frame, m) for m in methods}
+    for method in methods:
+        for seed, metrics in seeds[method].items():
+            for quantity, column, unit in NORMS:
+                for j in key_js:
+                    put(f"{quantity} 2-norm at j = {j} ({unit})", method, _value(metrics, column, j))
+                for first, end in WINDOWS:
+                    if end <= last:
+                        put(f"{quantity} 2-norm, mean j = {first}..{end} ({unit})", method,
+                            _window_mean(metrics, column, first, end))
+                if last >= 9:
+                    norms = [_value(metrics, column, j) for j in range(last + 1)]
+                    jb = convergence_iteration(norms)
+                    put(f"j̄ {quantity}", method, math.nan if jb is None else float(jb))
+            j_h = min(paper.CHATTERING_ITERATION, last)
+            for column in ("chattering_task_x", "chattering_task_y", "chattering_task_x_settled",
+                           "chattering_task_y_settled"):
+                if column in metrics.columns:
+                    put(f"H {column.removeprefix('chattering_task_').replace('_', ' ')} at j = {j_h} (N)", method,
+                        _value(metrics, column, j_h))
+            put("first diverged iteration (diverged seeds only)", method, _diverged_at(metrics))
+    # ratios, seed by seed (common random numbers: the methods of a seed saw the same draws)
+    pairs = []
+    if "c2" in methods and "c3" in methods and last >= 9:
+        for quantity, column, _unit in NORMS:
+            pairs.append((f"C3/C2 {quantity} 2-norm, mean j = 5..9", "c3", "c2",
+                          lambda m, c=column: _window_mean(m, c, 5, 9)))
+    if "c1" in methods and "c3" in methods:
+        j_h = min(paper.CHATTERING_ITERATION, last)
+        for axis in ("x", "y"):
+            pairs.append((f"H(C1)/H(C3) {axis} at j = {j_h}", "c1", "c3",
+                          lambda m, a=axis: _value(m, f"chattering_task_{a}", j_h)))
+    for quantity, top, bottom, get in pairs:
+        for seed in sorted(set(seeds[top]) & set(seeds[bottom])):
+            numerator, denominator = get(seeds[top][seed]), get(seeds[bottom][seed])
+            ratio = numerator / denominator if denominator and math.isfinite(denominator) else math.nan
+            put(quantity, "ratio", ratio)
+    return out
+
+
+def key_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -> pd.DataFrame:
+    """One row per quantity, one column per method (and ``ratio``): "median [low, high] (n = k)"."""
+    numbers = per_seed_numbers(frame, methods, iterations)
+    n_seeds = frame["seed"].nunique()
+    rows = []
+    for quantity, by_method in numbers.items():
+        row = {"quantity": quantity}
+        for method, values in by_method.items():
+            values = np.asarray(values, dtype=float)
+            if quantity.startswith("first diverged"):
+                k = int(np.isfinite(values).sum())
+                row[method] = (f"{k} of {n_seeds} seeds diverged" + (f"; {format_interval(median_interval(values))}"
+                               if k else ""))
+                continue
+            row[method] = _cell(median_interval(values), n_seeds)
+        rows.append(row)
+    columns = ["quantity", *[m for m in methods], *(["ratio"] if any("ratio" in r for r in rows) else [])]
+    return pd.DataFrame(rows).reindex(columns=columns).fillna("-")
+
+
+def _cell(interval: Interval, n_seeds: int) -> str:
+    if interval.n == 0:
+        return "-"
+    text = format_interval(interval)
+    return text if interval.n == n_seeds else f"{text} (n = {interval.n})"
+
+
+def _perturbation(config_json: str) -> int:
+    try:
+        return int(json.loads(config_json)["plant"]["perturbation"]["from_iteration"])
+    except (ValueError, KeyError, TypeError):
+        return paper.PERTURBATION_ITERATION
+
+
+def _iterations(config_json: str) -> int:
+    try:
+        return int(json.loads(config_json)["experiment"]["iterations"])
+    except (ValueError, KeyError, TypeError):
+        return 20
+
+
+def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = ("png", "pdf"),
+                       progress: Callable[[str], None] | None = None) -> StudyReport:
+    """Write the report of the study store ``path`` into ``out_dir/<name>/``. Never raises for a bad store."""
+    from ilcforce.report import claims as claims_module
+    from ilcforce.report import sections, stability, study_figures
+    from ilcforce.study import StudyStoreError, read_study
+
+    report = StudyReport(Path(path).stem)
+    try:
+        results = read_study(path)
+    except (StudyStoreError, OSError, KeyError, ValueError, TypeError) as exc:
+        report.warnings.append(f"study {Path(path).name}: skipped ({' '.join(str(exc).split())})")
+        return report
+    name = results.name or Path(path).stem
+    report.name = name
+    directory = Path(out_dir) / name
+    directory.mkdir(parents=True, exist_ok=True)
+    frame = results.metrics
+    cells = results.cells
+    done = int((cells["state"] == "done").sum()) if len(cells) else 0
+    failed = cells[cells["state"] == "failed"] if len(cells) else cells
+    seeds = sorted(frame["seed"].unique().tolist()) if len(frame) else []
+    methods = tables.ordered_methods(frame["method"].unique().tolist()) if len(frame) else []
+    lines = [f"# Study `{name}`", ""]
+    if results.description:
+        lines += [results.description, ""]
+    lines += [f"{done} cells done, {len(failed)} failed; {len(seeds)} seeds "
+              f"({_seed_text(seeds)}), methods {', '.join(methods) or '-'}, {len(results.settings)} setting(s)"
+              + (f" over {', '.join(results.sweep_keys)}" if results.sweep_keys else "") + ".", "",
+              "## How to read the numbers", "", INTERVAL_TEXT, ""]
+    if len(failed):
+        report.warnings.append(f"study {name}: {len(failed)} cell(s) failed; see its report")
+        lines += ["## Failed cells", "", tables.markdown_table(failed[["setting", "seed", "method", "attempts",
+                                                                         "message"]]), ""]
+    if not len(frame):
+        report.warnings.append(f"study {name}: no finished cell to report")
+    headline = []
+    for setting in results.settings.itertuples(index=False):
+        k = int(setting.setting)
+        mine = results.setting_metrics(k) if len(frame) else frame
+        if not len(mine):
+            continue
+        if progress is not None:
+            progress(f"study {name}: setting {k + 1} of {len(results.settings)}")
+        p = _perturbation(setting.config_json)
+        iterations = _iterations(setting.config_json)
+        title = setting.label if results.sweep_keys else "the study's setting"
+        lines += [f"## Setting {k}: {title}" if results.sweep_keys else "## Results", ""]
+        numbers = key_numbers(mine, methods, iterations)
+        report.files += tables.write_table(numbers, directory, f"key_numbers_s{k}")
+        lines += ["### Key numbers (median [95% interval] over seeds)", "", tables.markdown_table(numbers), ""]
+        growth = stability.learning_growth(mine, perturbation_iteration=p)
+        flags = stability.unstable_methods(growth)
+        parts = claims_module.judge_claims_over_seeds(mine, perturbation_iteration=p)
+        report.files += tables.write_table(parts, directory, f"claims_s{k}")
+        lines += ["### The paper's claims over seeds", ""] + sections.claims_markdown(parts, flags)
+        lines += ["### Learning stability", ""] + sections.stability_markdown(growth, flags)
+        figures = study_figures.norm_band_figures(mine, directory, f"s{k}", formats, flags)
+        report.files += figures
+        lines += ["### Figs. 3 and 4 over seeds", "", study_figures.BAND_CAPTION, ""]
+        lines += [f"![{f.stem}]({f.name})" for f in figures if f.suffix == ".png"] + [""]
+        if k == 0:
+            headline = claims_module.claim_summary(parts)
+    if results.sweep_keys and len(frame):
+        if progress is not None:
+            progress(f"study {name}: sweep figures")
+        sweep_files, sweep_lines = study_figures.sweep_figures(results, directory, formats)
+        report.files += sweep_files
+        lines += ["## Over the sweep", ""] + sweep_lines
+    lines += ["## The study file", "", "```toml", results.study_toml.rstrip(), "```", "",
+              "## Provenance", ""]
+    for session in results.sessions:
+        versions = ", ".join(f"{k} {v}" for k, v in session.get("versions", {}).items() if v)
+        lines.append(f"* {session.get('started', '?')}: `{session.get('command', '')}` on "
+                     f"{session.get('scheduler', '?')} ({session.get('workers', '?')} workers), {versions}")
+    lines.append("")
+    text_path = directory / "report.md"
+    text_path.write_text("\n".join(lines), encoding="utf-8")
+    report.files.append(text_path)
+    report.index_lines = _index_lines(name, results, headline, len(seeds), done, len(failed))
+    return report
+
+
+def _seed_text(seeds: list[int]) -> str:
+    if not seeds:
+        return "none"
+    if seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}-{seeds[-1]}"
+    return ", ".join(map(str, seeds[:10])) + (" ..." if len(seeds) > 10 else "")
+
+
+def _index_lines(name: str, results, headline: pd.DataFrame, n_seeds: int, done: int, failed: int) -> list[str]:
+    lines = [f"### [{name}](studies/{name}/report.md)", ""]
+    if results.description:
+        lines += [results.description, ""]
+    lines += [f"{n_seeds} seeds, {len(results.settings)} setting(s), {done} cells done, {failed} failed.", ""]
+    if len(headline):
+        what = "first setting" if results.sweep_keys else "verdicts over seeds"
+        lines += [f"The paper's claims ({what}):", "",
+                  tables.markdown_table(headline[["claim", "verdict", "frequency", "statement"]]), ""]
+    return lines
+
+
+def find_study_stores(results_dir: Path) -> list[Path]:
+    """``results_dir/studies/*.h5`` (leftover temporary copies skipped), sorted; the paper's Monte
+    Carlo (``paper-mc``) first, as the report leads with it."""
+    folder = Path(results_dir) / "studies"
+    if not folder.is_dir():
+        return []
+    found = [p for p in folder.glob("*.h5") if p.is_file() and not p.name.startswith(".")]
+    return sorted(found, key=lambda p: (p.stem != "paper-mc", p.stem))
+
+
+def write_study_reports(results_dir: Path, out_dir: Path, *, formats: tuple[str, ...] = ("png", "pdf"),
+                        progress: Callable[[str], None] | None = None) -> tuple[list[StudyReport], list[str]]:
+    """Every study's report under ``out_dir/studies/``; returns the reports and the index section."""
+    from ilcforce.report.figures import report_style
+
+    reports = []
+    with report_style():
+        for path in find_study_stores(results_dir):
+            if progress is not None:
+                progress(f"study {path.stem}")
+            reports.append(write_study_report(path, Path(out_dir) / "studies", formats=formats, progress=progress))
+    section = []
+    if reports:
+        section = ["## Studies (over seeds)", "",
+                   "Each study runs its methods over many seeds (and settings); its numbers are medians with "
+                   "95% intervals and its verdicts are frequencies over seeds. Single-run reports follow below.",
+                   ""]
+        for report in reports:
+            section += report.index_lines or [f"### {report.name}", "", "No report (see warnings).", ""]
+    return reports, section

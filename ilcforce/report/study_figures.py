@@ -1,0 +1,233 @@
+"""Figures of a study: Figs. 3 and 4 with bands over seeds, key numbers against a swept value, and
+a heatmap of the first diverged iteration over a 2-D sweep.
+
+Bands: the dark band is the 95% percentile-bootstrap interval of the median over seeds (the
+uncertainty of the line drawn); the light band holds the central 95% of the seeds (2.5th to 97.5th
+percentile: the spread a single seed shows). Seeds without a value (diverged) are left out.
+Figures are built without pyplot and saved here; call inside ``report_style()``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from ilcforce.records import STATUS_DIVERGED
+from ilcforce.report import tables
+from ilcforce.report.figures import _color, _label
+from ilcforce.stats import median_interval
+
+BAND_CAPTION = ("Line: median over seeds. Dark band: 95% percentile-bootstrap interval of that median. "
+                "Light band: central 95% of the seeds (2.5th-97.5th percentile). A seed that diverged "
+                "leaves the median from its divergence on (the legend gives the seeds counted at the end).")
+
+
+def _save(fig: Figure, directory: Path, stem: str, formats: tuple[str, ...]) -> list[Path]:
+    written = []
+    for fmt in formats:
+        path = directory / f"{stem}.{fmt}"
+        fig.savefig(path, format=fmt, metadata={"CreationDate": None} if fmt == "pdf" else None)
+        written.append(path)
+    return written
+
+
+def _bands(values: np.ndarray) -> tuple[float, float, float, float, float, int]:
+    """median, CI low, CI high, 2.5%, 97.5% and n of the finite ``values``."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return (math.nan,) * 5 + (0,)
+    iv = median_interval(finite)
+    lo, hi = np.percentile(finite, [2.5, 97.5])
+    return iv.estimate, iv.low, iv.high, float(lo), float(hi), int(finite.size)
+
+
+def _log_scale(ax, drawn: list[np.ndarray]) -> None:
+    """Log y when every value drawn is positive (a log axis cannot show 0 or an empty plot)."""
+    values = np.concatenate([np.ravel(d) for d in drawn]) if drawn else np.array([])
+    values = values[np.isfinite(values)]
+    if values.size and np.all(values > 0):
+        ax.set_yscale("log")
+
+
+def _band_plot(ax, x, stats, method: str, label: str) -> np.ndarray:
+    stats = np.asarray(stats, dtype=float).reshape(-1, 6)
+    color = _color(method)
+    ax.fill_between(x, stats[:, 3], stats[:, 4], color=color, alpha=0.12, linewidth=0)
+    ax.fill_between(x, stats[:, 1], stats[:, 2], color=color, alpha=0.35, linewidth=0)
+    ax.plot(x, stats[:, 0], marker="o", markersize=3, color=color, label=label)
+    return stats[:, :5]
+
+
+def norm_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: tuple[str, ...],
+                      flags: Mapping[str, str] | None = None) -> list[Path]:
+    """Figs. 3 and 4 of ONE setting: error 2-norm against iteration, median and bands per method."""
+    written = []
+    methods = tables.ordered_methods(frame["method"].unique().tolist())
+    n_seeds = frame["seed"].nunique()
+    for stem, column, ylabel in (("fig3_position_error_norm", "position_error_2norm", "position error 2-norm (m)"),
+                                 ("fig4_force_error_norm", "force_error_2norm", "force error 2-norm (N)")):
+        fig = Figure(figsize=(6.4, 4.0))
+        ax = fig.add_subplot()
+        drawn = []
+        for method in methods:
+            wide = frame[frame["method"] == method].pivot(index="iteration", columns="seed", values=column)
+            wide = wide.sort_index()
+            stats = [_bands(wide.loc[j].to_numpy(dtype=float)) for j in wide.index]
+            n_end = stats[-1][5] if stats else 0
+            label = _label(method) + (" (unstable learning)" if flags and method in flags else "")
+            label += f", {n_end} of {n_seeds} seeds" if n_end != n_seeds else ""
+            drawn.append(_band_plot(ax, wide.index.to_numpy(), stats, method, label))
+        _log_scale(ax, drawn)
+        ax.set_xlabel("iteration j")
+        ax.set_ylabel(ylabel)
+        ax.set_title(f"{'Fig. 3' if stem.startswith('fig3') else 'Fig. 4'} over {n_seeds} seeds")
+        ax.legend(fontsize="small")
+        written += _save(fig, directory, f"{stem}_{tag}", formats)
+    return written
+
+
+def _sweep_numbers(frame: pd.DataFrame, iterations: int) -> dict[str, tuple[str, callable]]:
+    last = iterations - 1
+    first = max(0, last - 4)
+    window = f"mean j = {first}..{last}"
+
+    def window_mean(column):
+        def get(m: pd.DataFrame) -> float:
+            values = [float(m.loc[j, column]) if j in m.index else math.nan for j in range(first, last + 1)]
+            return float(np.mean(values)) if all(math.isfinite(v) for v in values) else math.nan
+        return get
+
+    def at_last(column):
+        return lambda m: float(m.loc[last, column]) if last in m.index and column in m.columns else math.nan
+
+    # the L2 norm (sqrt(dt sum e^2)), not the paper's 2-norm: the 2-norm grows with the number of log
+    # samples, so it would change with a swept sample time or log_every even for the same error
+    return {
+        "position": (f"position error L2, {window} (m s^1/2)", window_mean("position_error_l2")),
+        "force": (f"force error L2, {window} (N s^1/2)", window_mean("force_error_l2")),
+        "chattering_y": (f"H y at j = {last} (N)", at_last("chattering_task_y")),
+    }
+
+
+def _first_diverged(m: pd.DataFrame) -> float:
+    diverged = m.index[m["status"].astype(str) == STATUS_DIVERGED]
+    return float(diverged[0]) if len(diverged) else math.nan
+
+
+def _tag(value) -> str:
+    """A swept value as a label (numpy scalars as their Python value)."""
+    return str(value.item() if isinstance(value, np.generic) else value)
+
+
+def _numeric(values: list) -> bool:
+    return all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+
+
+def _iterations(results) -> int:
+    import json
+
+    try:
+        return int(json.loads(results.settings["config_json"].iloc[0])["experiment"]["iterations"])
+    except (ValueError, KeyError, TypeError, IndexError):
+        return int(results.metrics["iteration"].max()) + 1
+
+
+def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[list[Path], list[str]]:
+    """1-D sweep: key numbers against the swept value with bands; 2-D: heatmaps of the first
+    diverged iteration per method. Returns the files and the report's lines."""
+    keys = list(results.sweep_keys)
+    frame = results.metrics
+    methods = tables.ordered_methods(frame["method"].unique().tolist())
+    iterations = _iterations(results)
+    per_cell: dict[tuple[int, str], dict[int, pd.DataFrame]] = {}
+    for setting in results.settings["setting"]:
+        mine = results.setting_metrics(int(setting))
+        for method in methods:
+            per_cell[(int(setting), method)] = {int(s): f.set_index("iteration").sort_index()
+                                                for s, f in mine[mine["method"] == method].groupby("seed")}
+    files: list[Path] = []
+    lines: list[str] = []
+    divergence_rows = []
+    for k in results.settings["setting"]:
+        row = {key: results.settings.loc[k, key] for key in keys}
+        for method in methods:
+            seeds = per_cell[(int(k), method)]
+            firsts = np.array([_first_diverged(m) for m in seeds.values()])
+            k = int(np.isfinite(firsts).sum())
+            row[method] = (f"j = {int(np.nanmin(firsts))} ({k} of {len(seeds)} seeds)" if k
+                           else f"stable through {iterations - 1} ({len(seeds)} seeds)")
+        divergence_rows.append(row)
+    lines += ["### First diverged iteration (earliest over seeds; how many seeds diverged)", "",
+              tables.markdown_table(pd.DataFrame(divergence_rows)), ""]
+    if len(keys) == 1:
+        key = keys[0]
+        values = [v.item() if isinstance(v, np.generic) else v for v in results.settings[key]]
+        numeric = _numeric(values)
+        x = np.asarray(values, dtype=float) if numeric else np.arange(len(values), dtype=float)
+        numbers = _sweep_numbers(frame, iterations)
+        fig = Figure(figsize=(6.4, 2.8 * len(numbers)))
+        axes = fig.subplots(len(numbers), 1, sharex=True)
+        for ax, (_name, (ylabel, get)) in zip(axes, numbers.items()):
+            drawn = []
+            for method in methods:
+                stats = [_bands(np.array([get(m) for m in per_cell[(k, method)].values()], dtype=float))
+                         for k in range(len(values))]
+                drawn.append(_band_plot(ax, x, stats, method, _label(method)))
+            ax.set_ylabel(ylabel, fontsize="small")
+            _log_scale(ax, drawn)
+        if numeric and min(values) > 0 and max(values) / min(values) >= 10:
+            axes[-1].set_xscale("log")
+        if not numeric:
+            axes[-1].set_xticks(x, [str(v) for v in values])
+        axes[-1].set_xlabel(key)
+        axes[0].legend(fontsize="small")
+        axes[0].set_title(f"key numbers against {key}; seeds that diverged are left out")
+        files += _save(fig, directory, "sweep_key_numbers", formats)
+        lines += ["![sweep_key_numbers](sweep_key_numbers.png)", "", BAND_CAPTION + " Error norms here are the "
+                  "grid-independent L2 norms sqrt(dt sum_k e(t_k)^2): the paper's 2-norm grows with the number of "
+                  "log samples, so it is not comparable across settings whose grids differ.", ""]
+    else:
+        first, second = keys[0], keys[1]
+        v1 = list(dict.fromkeys(_tag(v) for v in results.settings[first]))
+        v2 = list(dict.fromkeys(_tag(v) for v in results.settings[second]))
+        fig = Figure(figsize=(4.2 * len(methods), 3.8))
+        axes = np.atleast_1d(fig.subplots(1, len(methods)))
+        for ax, method in zip(axes, methods):
+            grid = np.full((len(v1), len(v2)), np.nan)
+            text = [["" for _ in v2] for _ in v1]
+            for setting in results.settings.itertuples(index=False):
+                i = v1.index(_tag(results.settings.loc[setting.setting, first]))
+                j = v2.index(_tag(results.settings.loc[setting.setting, second]))
+                seeds = per_cell[(int(setting.setting), method)]
+                firsts = np.array([_first_diverged(m) for m in seeds.values()])
+                k = int(np.isfinite(firsts).sum())
+                if k:
+                    grid[i, j] = np.nanmin(firsts)
+                    text[i][j] = f"j = {int(grid[i, j])}\n{k}/{len(seeds)} seeds"
+                else:
+                    grid[i, j] = iterations  # drawn as "beyond the last iteration"
+                    text[i][j] = f"stable\nthrough {iterations - 1}"
+            image = ax.imshow(grid, origin="lower", aspect="auto", cmap="viridis", vmin=0, vmax=iterations)
+            for i in range(len(v1)):
+                for j in range(len(v2)):
+                    light = grid[i, j] > 0.6 * iterations  # dark text on the bright end of viridis
+                    ax.text(j, i, text[i][j], ha="center", va="center", fontsize="x-small",
+                            color="black" if light else "white")
+            ax.grid(False)
+            ax.set_xticks(range(len(v2)), v2, fontsize="small")
+            ax.set_yticks(range(len(v1)), v1, fontsize="small")
+            ax.set_xlabel(second)
+            ax.set_ylabel(first)
+            ax.set_title(f"{_label(method)}: first diverged iteration", fontsize="small")
+        fig.colorbar(image, ax=list(axes), label="earliest diverged iteration over seeds")
+        files += _save(fig, directory, "sweep_divergence_heatmap", formats)
+        extra = f" ({', '.join(keys[2:])} pooled)" if len(keys) > 2 else ""
+        lines += ["![sweep_divergence_heatmap](sweep_divergence_heatmap.png)", "",
+                  f"Earliest diverged iteration over seeds per cell of the {first} x {second} grid{extra}, "
+                  f"with the number of seeds that diverged; \"stable through N\" where none did.", ""]
+    return files, lines

@@ -1,0 +1,207 @@
+"""Studies under faults: a worker killed mid-cell, the driver killed mid-study, a remote scheduler
+(started here as `dask scheduler` + `dask worker` subprocesses on 127.0.0.1), an unreachable one.
+
+Every subprocess is bounded in time and torn down in a ``finally``.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cloudpickle
+import pandas as pd
+import pytest
+
+from ilcforce.study import run_study, tidy_metrics
+from ilcforce.study.cell import run_cell
+
+from test_study import TINY_TOML, small_study, write_study_file
+
+# The fault-injecting cell functions below run in Dask worker processes that cannot import this
+# test module: ship them by value.
+cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+CLI = [sys.executable, "-m", "ilcforce"]
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _stop(process: subprocess.Popen) -> None:
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(timeout=10)
+
+
+def killing_cell(marker_dir: str):
+    """A cell function whose worker process SIGKILLs itself mid-cell: once for (seed 0, c1), always
+    for (seed 1, c3)."""
+
+    def cell(config, method, keep):
+        seed = config.experiment.seed
+        marker = Path(marker_dir) / f"{seed}-{method}"
+        always = (seed, method) == (1, "c3")
+        if always or ((seed, method) == (0, "c1") and not marker.exists()):
+            marker.write_text("killed")
+            os.kill(os.getpid(), signal.SIGKILL)
+        return run_cell(config, method, keep)
+
+    return cell
+
+
+def test_worker_killed_mid_cell_is_retried_then_recorded(tmp_path):
+    """On a 2-process LocalCluster: a killed worker's cell is retried once, then recorded as failed;
+    every finished cell equals the in-process run bit for bit (the LocalCluster test of the suite)."""
+    study = small_study()
+    reference = run_study(study, tmp_path / "ref", workers=1)
+    (tmp_path / "markers").mkdir()
+    summary = run_study(study, tmp_path / "killed", workers=2, cell_function=killing_cell(str(tmp_path / "markers")))
+    assert [(c.seed, c.method) for c, _ in summary.failed] == [(1, "c3")]
+    assert "worker process died" in summary.failed[0][1]
+    from ilcforce.study import read_study
+
+    table = read_study(summary.path).cells.set_index(["seed", "method"])
+    assert table.loc[(0, "c1"), "state"] == "done" and table.loc[(0, "c1"), "attempts"] == 2
+    assert table.loc[(1, "c3"), "state"] == "failed" and table.loc[(1, "c3"), "attempts"] == 2
+    # the cells that finished are the in-process ones bit for bit
+    ok = tidy_metrics(summary.path)
+    expected = tidy_metrics(reference.path)
+    expected = expected[~((expected["seed"] == 1) & (expected["method"] == "c3"))].reset_index(drop=True)
+    pd.testing.assert_frame_equal(ok, expected, check_exact=True)
+    session = read_study(summary.path).sessions[-1]
+    assert session["scheduler"] == "LocalCluster" and session["workers"] == 2
+    assert "dask" in session["versions"]
+
+
+def test_driver_killed_mid_study_rerun_completes_identically(tmp_path):
+    study_file = write_study_file(tmp_path, TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-5"'))
+    results = tmp_path / "r"
+    journal = results / "studies" / "tiny.h5.journal"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    log = tmp_path / "driver.log"
+    with open(log, "wb") as stderr:
+        driver = subprocess.Popen([*CLI, "study", str(study_file), "--results", str(results), "--workers", "1",
+                                   "--quiet"], env=env, stdout=subprocess.DEVNULL, stderr=stderr)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and driver.poll() is None:
+            if journal.is_dir() and any(p.suffix == ".json" for p in journal.iterdir()):
+                break
+            time.sleep(0.01)
+        assert driver.poll() is None, f"the driver ended before it could be killed: {log.read_text()!r}"
+        driver.send_signal(signal.SIGKILL)
+        driver.wait(timeout=30)
+    finally:
+        _stop(driver)
+    from ilcforce.store.study import read_tables
+
+    _header, _metrics, cells = read_tables(results / "studies" / "tiny.h5")
+    stored = len(cells)
+    assert 1 <= stored < 24, f"{stored} cells stored at the kill: the kill must land mid-study"
+    rerun = subprocess.run([*CLI, "study", str(study_file), "--results", str(results), "--workers", "1"],
+                           capture_output=True, text=True, timeout=300, env=env)
+    assert rerun.returncode == 0, rerun.stderr
+    assert f"({stored} already stored, {24 - stored} run, 0 failed)" in rerun.stdout
+    clean = tmp_path / "clean"
+    run_study(small_study(seeds="0-5", sweep={"c3.eta": [5.0, 2.0]}), clean, workers=1)
+    pd.testing.assert_frame_equal(tidy_metrics(results / "studies" / "tiny.h5"),
+                                  tidy_metrics(clean / "studies" / "tiny.h5"), check_exact=True)
+
+
+def test_remote_scheduler_runs_a_study(tmp_path):
+    port = _free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ}
+    scheduler = subprocess.Popen([sys.executable, "-m", "dask", "scheduler", "--host", "127.0.0.1", "--port",
+                                  str(port), "--no-dashboard"], env=env, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL)
+    worker = None
+    try:
+        deadline = time.monotonic() + 60
+        while True:  # the scheduler takes a few seconds to listen
+            try:
+                socket.create_connection(("127.0.0.1", port), timeout=1).close()
+                break
+            except OSError:
+                assert time.monotonic() < deadline and scheduler.poll() is None, "dask scheduler did not start"
+                time.sleep(0.1)
+        worker = subprocess.Popen([sys.executable, "-m", "dask", "worker", address, "--nworkers", "1",
+                                   "--nthreads", "1", "--host", "127.0.0.1", "--no-dashboard"],
+                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        study = small_study()
+        summary = run_study(study, tmp_path / "remote", scheduler=address)
+        assert summary.failed == () and summary.ran == 4
+        reference = run_study(study, tmp_path / "local", workers=1)
+        pd.testing.assert_frame_equal(tidy_metrics(summary.path), tidy_metrics(reference.path), check_exact=True)
+        from ilcforce.study import read_study
+
+        session = read_study(summary.path).sessions[-1]
+        assert session["scheduler"] == address and session["workers"] == 1
+    finally:
+        if worker is not None:
+            _stop(worker)
+        _stop(scheduler)
+
+
+def _foreign_service():
+    """A TCP service on 127.0.0.1 that is not a Dask scheduler (it answers like an HTTP server)."""
+    import threading
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen()
+    server.settimeout(0.2)
+    stop = threading.Event()
+
+    def serve():
+        while not stop.is_set():
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                continue
+            with conn:
+                conn.sendall(b"HTTP/1.0 200 OK\r\nContent-Length: 5\r\n\r\nhello" * 50)
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    return server, stop, thread
+
+
+@pytest.mark.parametrize("kind", ["refused", "malformed", "foreign"])
+def test_unreachable_scheduler_is_one_line_in_bounded_time(tmp_path, kind):
+    study_file = write_study_file(tmp_path, TINY_TOML)
+    service = None
+    if kind == "refused":
+        address = f"tcp://127.0.0.1:{_free_port()}"
+    elif kind == "malformed":
+        address = "nonsense-address"
+    else:
+        service = _foreign_service()
+        address = f"tcp://127.0.0.1:{service[0].getsockname()[1]}"
+    try:
+        start = time.monotonic()
+        result = subprocess.run([*CLI, "study", str(study_file), "--results", str(tmp_path / "r"), "--scheduler",
+                                 address, "--timeout", "2"], capture_output=True, text=True, timeout=120)
+        elapsed = time.monotonic() - start
+    finally:
+        if service is not None:
+            service[1].set()
+            service[2].join(timeout=5)
+            service[0].close()
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr, result.stderr
+    assert "scheduler" in result.stderr
+    # 2 s to connect plus the interpreter's start-up (imports take a few seconds on a loaded machine)
+    assert elapsed < 60, f"took {elapsed:.1f} s"

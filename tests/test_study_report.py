@@ -1,0 +1,83 @@
+"""The study report: numbers over seeds with their intervals, claims as frequencies, figures, index."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ilcforce.experiment import run_method
+from ilcforce.report.build import write_report
+from ilcforce.report.study import key_numbers, per_seed_numbers
+from ilcforce.stats import format_interval, median_interval
+from ilcforce.study import read_study, run_study
+
+from test_study import small_study
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    """A results folder with a 1-D sweep study, a 2-D sweep study and one single run."""
+    root = tmp_path_factory.mktemp("results")
+    one = small_study(name="sweep1", seeds="0-2", methods=("c1", "c2", "c3"),
+                      sweep={"c3.eta": [5.0, 2.0]})
+    two = small_study(name="sweep2", seeds="0-1", methods=("c3",),
+                      sweep={"c3.eta": [5.0, 2.0], "simulation.torque_bound": [1e3, 1.0]})
+    run_study(one, root, workers=1)
+    run_study(two, root, workers=1)
+    from ilcforce.config import load_config
+
+    run_method(load_config(None, {"reference.duration": 0.2, "experiment.iterations": 3}), "c1",
+               root / "paper" / "c1.h5")
+    out = root / "report"
+    summary = write_report(root, out, formats=("png",), jobs=1)
+    return root, out, summary
+
+
+def test_key_numbers_are_medians_with_bootstrap_intervals(results):
+    root, _out, _summary = results
+    study = read_study(root / "studies" / "sweep1.h5")
+    frame = study.setting_metrics(1)
+    table = key_numbers(frame, ["c1", "c2", "c3"], 3).set_index("quantity")
+    # recompute one number independently from the tidy frame
+    c3 = frame[(frame["method"] == "c3") & (frame["iteration"] == 2)].sort_values("seed")
+    expected = format_interval(median_interval(c3["force_error_2norm"].to_numpy()))
+    assert table.loc["force 2-norm at j = 2 (N)", "c3"] == expected
+    assert "[" in expected, "three distinct seeds give a proper interval"
+    numbers = per_seed_numbers(frame, ["c1", "c2", "c3"], 3)
+    h1 = frame[(frame["method"] == "c1") & (frame["iteration"] == 2)].sort_values("seed")["chattering_task_x"]
+    h3 = c3["chattering_task_x"]
+    np.testing.assert_allclose(numbers["H(C1)/H(C3) x at j = 2"]["ratio"], h1.to_numpy() / h3.to_numpy(),
+                               rtol=0, atol=0, err_msg="ratios are taken seed by seed (common random numbers)")
+
+
+def test_report_leads_with_studies_beside_single_runs(results):
+    _root, out, summary = results
+    assert set(summary.studies) == {"sweep1", "sweep2"} and "paper" in summary.experiments
+    index = (out / "index.md").read_text(encoding="utf-8")
+    assert index.index("## Studies") < index.index("[paper](paper/report.md)")
+    assert "(studies/sweep1/report.md)" in index and "(studies/sweep2/report.md)" in index
+    assert not any("studies" in w and "skipped" in w for w in summary.warnings), summary.warnings
+
+
+def test_study_report_contents(results):
+    _root, out, _summary = results
+    text = (out / "studies" / "sweep1" / "report.md").read_text(encoding="utf-8")
+    assert "percentile-bootstrap" in text and "## Setting 1: c3.eta=2.0" in text
+    assert "### The paper's claims over seeds" in text and " of 3 seeds" in text
+    for k in (0, 1):
+        for stem in ("fig3_position_error_norm", "fig4_force_error_norm"):
+            assert (out / "studies" / "sweep1" / f"{stem}_s{k}.png").stat().st_size > 0
+    assert (out / "studies" / "sweep1" / "sweep_key_numbers.png").stat().st_size > 0
+    heat = out / "studies" / "sweep2" / "sweep_divergence_heatmap.png"
+    assert heat.stat().st_size > 0
+    text2 = (out / "studies" / "sweep2" / "report.md").read_text(encoding="utf-8")
+    # a 1 N m torque bound stops C3 at once; the paper's 1e3 N m does not within 3 short iterations
+    assert "stable through 2 (2 seeds)" in text2 and "j = 0 (2 of 2 seeds)" in text2
+
+
+def test_a_damaged_study_store_is_a_warning_not_a_crash(tmp_path):
+    (tmp_path / "studies").mkdir()
+    (tmp_path / "studies" / "broken.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 100)
+    summary = write_report(tmp_path, tmp_path / "report", formats=("png",))
+    assert any("broken.h5" in w for w in summary.warnings)
+    assert summary.studies == ()
