@@ -160,6 +160,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--study-repeat", type=int, default=3, help="repetitions of the full paper study")
     parser.add_argument("--mc-seeds", type=int, default=100, help="seeds of the paper's Monte Carlo study (0: skip)")
     parser.add_argument("--speedup-seeds", type=int, default=10, help="seeds of the 1 -> 2 worker study (0: skip)")
+    parser.add_argument("--cold-repeat", type=int, default=5, help="cold processes per user command (0: skip)")
     args = parser.parse_args(argv)
     config = default_config()
     steps = config.n_control - 1
@@ -185,6 +186,10 @@ def main(argv: list[str] | None = None) -> None:
         size = sum(f.stat().st_size for f in Path(tmp).glob("*.h5"))
     print(f"  paper study, c1+c2+c3 x {config.experiment.iterations} iterations with HDF5 : {t:8.2f} s wall "
           f"(median of {args.study_repeat}; stores {size / 1e6:.0f} MB)")
+    if args.cold_repeat > 0:  # the user's commands from a cold process (ilcforce.bench_cold)
+        from ilcforce import bench_cold
+
+        bench_cold.report(repeat=args.cold_repeat)
     study_figures(args)
 
 
