@@ -27,9 +27,15 @@ def plant_experiment(model: str):
     """
     from pathlib import Path
 
+    from ilcforce.config import ConfigError
+
     files = sorted(Path("experiments").glob("*.toml"), key=lambda p: (p.name != "paper.toml", p.name))
     for path in files:
-        if load_config(path).plant.model == model:
+        try:
+            config = load_config(path)
+        except ConfigError:  # not an experiment (e.g. a study file, [study] ...)
+            continue
+        if config.plant.model == model:
             return path
     return None
 
