@@ -27,15 +27,13 @@ def plant_experiment(model: str):
     """
     from pathlib import Path
 
-    from ilcforce.config import ConfigError
-
     files = sorted(Path("experiments").glob("*.toml"), key=lambda p: (p.name != "paper.toml", p.name))
+    from ilcforce.study.spec import is_study_file
+
     for path in files:
-        try:
-            config = load_config(path)
-        except ConfigError:  # not an experiment (e.g. a study file, [study] ...)
+        if is_study_file(path):  # a study file names an experiment; it is not one
             continue
-        if config.plant.model == model:
+        if load_config(path).plant.model == model:
             return path
     return None
 
