@@ -19,6 +19,7 @@ from scipy import signal
 
 from ilcforce import store
 from ilcforce.config import default_config, load_config
+from ilcforce.study.spec import is_study_file
 from ilcforce.controllers import LEARNS, PAPER_METHODS, REGISTRY
 from ilcforce.controllers.base import GAIN_SPECIFIC, gain_layout
 from ilcforce.experiment import make_controller, run_method
@@ -32,6 +33,8 @@ def _plant_experiments() -> dict[str, Path]:
     files = sorted(Path("experiments").glob("*.toml"), key=lambda p: (p.name != "paper.toml", p.name))
     found: dict[str, Path] = {}
     for path in files:
+        if is_study_file(path):  # a study file (ilcforce.study), not an experiment
+            continue
         model = str(getattr(load_config(path).plant, "model", "fivebar"))
         found.setdefault(model, path)
     return found
