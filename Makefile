@@ -65,8 +65,14 @@ reproduce: $(STAMP) ## run every experiment (every registered method, in paralle
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
 	@echo "report: $(RESULTS)/report/index.md"
 
+readme-findings: $(STAMP) ## copy the report's generated findings (results/report/findings.md) into README.md
+	$(PY) -m ilcforce.report.readme update README.md $(RESULTS)/report/findings.md
+
+check-readme: $(STAMP) ## fail when README.md's findings differ from the report's (run after make reproduce)
+	$(PY) -m ilcforce.report.readme check README.md $(RESULTS)/report/findings.md
+
 clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
-.PHONY: help install test test-slow bench stores studies reproduce clean
+.PHONY: help install test test-slow bench stores studies reproduce readme-findings check-readme clean

@@ -20,10 +20,22 @@ def noise_free():
     return load_config("experiments/noise-free.toml", {"experiment.iterations": 11})
 
 
+#: Measured reduction |e_P(j=0)| / |e_P(j=5)| without noise (deterministic: no random draw enters),
+#: C2 8.41e3 and C3 1.37e3 (findings helper, this code). The bound is the measured value / 3: a
+#: learning law that lost a factor 3 of its speed fails, while changes at the integrator's level
+#: (1e-3 relative, tests/test_regression.py::test_integration_is_converged) pass. The former bound,
+#: "tenfold", let a 100x loss through.
+MEASURED_REDUCTION_J5 = {"c2": 8.41e3, "c3": 1.37e3}
+REDUCTION_MARGIN = 3.0
+
+
 @pytest.mark.parametrize("method", ["c2", "c3"])
-def test_learning_methods_cut_position_error_tenfold_by_j5(noise_free, method):
+def test_learning_methods_cut_position_error_as_measured_by_j5(noise_free, method):
     norms = _norms(noise_free, method)
-    assert norms[5] < norms[0] / 10, f"{method}: |e_P| j=0 {norms[0]:.3g} m, j=5 {norms[5]:.3g} m"
+    bound = MEASURED_REDUCTION_J5[method] / REDUCTION_MARGIN
+    assert norms[0] / norms[5] > bound, (
+        f"{method}: |e_P| j=0 {norms[0]:.3g} m, j=5 {norms[5]:.3g} m: reduction {norms[0] / norms[5]:.3g}x, "
+        f"bound {bound:.3g}x")
 
 
 def test_c1_is_flat_until_the_perturbation(noise_free):

@@ -102,7 +102,7 @@ def test_poses_outside_working_mode_raise():
     for theta in ((0.3, -0.5), (0.3, 0.0), (0.3, 3.5)):  # float pi is just inside (sin > 0)
         with pytest.raises(UnreachableError):
             arm.forward_kinematics(theta)
-        assert arm.kernels().accel(arm.packed, theta[0], theta[1], 0.0, 0.0)[0] == 0.0
+        assert arm.kernels().accel(arm.address, theta[0], theta[1], 0.0, 0.0)[0] == 0.0
 
 
 # --- 3. gravity ------------------------------------------------------------------------------------
@@ -240,7 +240,7 @@ def test_task_model_is_eq4_and_kernels_agree(arm, point):
     C = Ji.T @ (Cq - Dq @ Ji @ dJ) @ Ji
     np.testing.assert_allclose(arm.task_inertia(theta), D, rtol=0, atol=1e-12 * np.linalg.norm(D))
     np.testing.assert_allclose(arm.task_coriolis(theta, dtheta), C, rtol=0, atol=1e-12 * np.linalg.norm(C))
-    out = arm.kernels().accel(arm.packed, theta[0], theta[1], dtheta[0], dtheta[1])
+    out = arm.kernels().accel(arm.address, theta[0], theta[1], dtheta[0], dtheta[1])
     b = Cq @ dtheta + arm.gravity(theta)
     np.testing.assert_allclose(out[9:11], b, rtol=0, atol=1e-13 * np.linalg.norm(b))
     np.testing.assert_allclose([[out[11], out[12]], [out[12], out[13]]], np.linalg.inv(Dq), rtol=1e-12)
@@ -264,3 +264,16 @@ def test_scaled_changes_one_parameter():
     heavy = base.scaled("m2", 1.4)
     assert [n for n in PARAM_NAMES if getattr(heavy, n) != getattr(base, n)] == ["m2"]
     assert heavy.m2 == pytest.approx(1.26)
+
+
+def test_task_gravity_along_a_path_is_the_pointwise_g():
+    arm = Serial2R()
+    path = np.array([START, (0.2, 0.41), (0.05, 0.432)])
+    along = arm.task_gravity_along(path)
+    assert along.shape == (3, 2)
+    for pos, g in zip(path, along):
+        theta = arm.inverse_kinematics(pos)
+        # J^-T G_q by numpy's solve against the kernel's adjugate form: cond(J) < 10, a few ulp
+        np.testing.assert_allclose(g, np.linalg.solve(arm.jacobian(theta).T, arm.gravity(theta)), rtol=1e-13)
+    # the weight of the arm (2.1 kg x 9.81 = 20.6 N) is carried mostly along y at the start pose
+    assert 5.0 < along[0, 1] < 20.6

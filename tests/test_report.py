@@ -764,3 +764,30 @@ def test_zero_norms_do_not_divide_by_zero() -> None:
     assert result[2] == "fails", "0 / 0 is not a 40% reduction"
     # H(C1) / 0 is infinite: above 1 (direction holds) but not near 2.44 (magnitude fails)
     assert result[5] == "in part", "H(C1) / 0 is infinite, above 1 and far from the paper's ratio"
+
+
+# ---------------------------------------------------------------------------------------------
+# The README's findings are generated: the check fails when the copy differs
+# ---------------------------------------------------------------------------------------------
+
+
+def test_readme_findings_check(tmp_path: Path, results_dir: Path) -> None:
+    from ilcforce.report import readme
+
+    out = tmp_path / "out"
+    write_report(results_dir, out, formats=())
+    findings = out / "findings.md"
+    text = findings.read_text(encoding="utf-8")
+    assert "**`synthetic`**" in text and "Claim 2 **holds**" in text, text
+    target = tmp_path / "README.md"
+    target.write_text(f"# x\n\n{readme.BEGIN}\nold numbers\n{readme.END}\n\nrest\n", encoding="utf-8")
+    assert "differ" in readme.check(target, findings) or "lines" in readme.check(target, findings)
+    assert readme.main(["check", str(target), str(findings)]) == 1
+    readme.update(target, findings)
+    assert readme.check(target, findings) == ""
+    assert target.read_text(encoding="utf-8").endswith("\n\nrest\n"), "text after the section is kept"
+    # one changed digit is caught
+    target.write_text(target.read_text(encoding="utf-8").replace("holds", "fails", 1), encoding="utf-8")
+    assert readme.check(target, findings) != ""
+    (tmp_path / "bare.md").write_text("no markers\n", encoding="utf-8")
+    assert "markers missing" in readme.check(tmp_path / "bare.md", findings)

@@ -224,7 +224,7 @@ def _fifo(p: Path) -> None:
 
 
 THINGS = {"text file": lambda p: p.write_text("my notes\n"), "fifo": _fifo,
-          "directory": lambda p: p.mkdir(), "foreign HDF5": lambda p: h5py.File(p, "w").close()}
+          "foreign HDF5": lambda p: h5py.File(p, "w").close()}
 
 
 @pytest.mark.parametrize("make", THINGS.values(), ids=THINGS.keys())
@@ -283,3 +283,23 @@ def test_commits_stay_in_place_without_hdf5_locking(path: Path, monkeypatch: pyt
             assert beside == ["c3.h5", "c3.h5.lock"], beside
         w.finish("complete")
     store.validate(path)
+
+
+# -- fault 7 in the report: one bad file never aborts it ------------------------------------------------
+
+
+def test_report_skips_a_store_with_forged_types(tmp_path: Path):
+    from typer.testing import CliRunner
+
+    from ilcforce.cli import app
+    from ilcforce.report.build import write_report
+
+    results = tmp_path / "results"
+    made = CliRunner().invoke(app, ["compare", "--methods", "c1,c2", "-n", "2", "--results", str(results), *SHORT])
+    assert made.exit_code == 0, made.output
+    folder = next(results.iterdir())
+    with h5py.File(folder / "c2.h5", "a") as handle:  # a float iteration index with inf
+        handle["iterations/0001"].attrs["iteration"] = np.inf
+    summary = write_report(results, tmp_path / "report", formats=())
+    assert summary.experiments == (folder.name,)
+    assert any("c2.h5" in w for w in summary.warnings), summary.warnings

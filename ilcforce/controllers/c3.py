@@ -83,8 +83,8 @@ def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_m
     # Theta_hat_j = Theta_hat_{j-1} + Gamma Phi sigma: rows 0..na-1 see Psi sigma_x, the next na Psi sigma_y
     mx = 0.0  # (Phi^T Theta_hat_j)_x
     my = 0.0  # (Phi^T Theta_hat_j)_y
-    for r in range(na):
-        psi = p1x if r == 0 else (p1y if r == 1 else (p2x if r == 2 else (p2y if r == 3 else 1.0)))  # eq. (12)
+    for r in range(4):  # the D and C blocks (a constant trip count, so it is unrolled)
+        psi = p1x if r == 0 else (p1y if r == 1 else (p2x if r == 2 else p2y))  # eq. (12)
         th_x = keep * mem_prev[k, r] + gamma_entry(gains, 0, r) * psi * sx  # eq. (14), Theta update
         th_y = keep * mem_prev[k, na + r] + gamma_entry(gains, 1, r) * psi * sy
         mx += th_x * psi
@@ -92,6 +92,15 @@ def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_m
         if write:
             mem_new[k, r] = th_x
             mem_new[k, na + r] = th_y
+    if na == 6:  # the G block: Psi's third block is the ones vector (eq. 12), so psi = 1
+        for r in range(4, 6):
+            th_x = keep * mem_prev[k, r] + gamma_entry(gains, 0, r) * sx  # eq. (14), Theta update
+            th_y = keep * mem_prev[k, na + r] + gamma_entry(gains, 1, r) * sy
+            mx += th_x
+            my += th_y
+            if write:
+                mem_new[k, r] = th_x
+                mem_new[k, na + r] = th_y
     sgx = sgn(sx)
     sgy = sgn(sy)
     alpha = keep * mem_prev[k, 2 * na] + gains[ETA] * (sx * sgx + sy * sgy)  # eq. (14), alpha update

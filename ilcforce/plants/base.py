@@ -18,6 +18,11 @@ scalars, allocates nothing, and returns a tuple of floats whose first entry ``ok
   Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, Gq1, Gq2): the joint-space model      :data:`DYN_TYPE`
 * ``ik(p, Px, Py)`` -> (ok, th1, th2): inverse kinematics in the working mode       :data:`IK_TYPE`
 
+``p`` is the *address* of the packed parameter vector (``array.ctypes.data``), viewed inside a
+kernel with :func:`params_view`: passing a numba array through a function pointer costs about
+20-40 ns a call (its meminfo is reference-counted in the call wrapper), a raw address nothing, and
+the loop makes five such calls per control step.
+
 A plant module exposes them lazily through :meth:`Plant.kernels` so that numba compiles or loads
 only the kernels of the plant a command uses.
 
@@ -33,12 +38,13 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import types
+from numba import carray, njit, types
+from numba.extending import intrinsic
 
-__all__ = ["UnreachableError", "PlantKernels", "Plant", "KIN_TYPE", "ACCEL_TYPE", "TASK_TYPE", "DYN_TYPE",
+__all__ = ["UnreachableError", "PlantKernels", "Plant", "params_view", "KIN_TYPE", "ACCEL_TYPE", "TASK_TYPE", "DYN_TYPE",
            "IK_TYPE", "check_pair"]
 
-_P = types.float64[::1]
+_P = types.intp  # address of the packed float64 parameter vector
 _F = types.float64
 KIN_SIGNATURE = types.UniTuple(_F, 7)(_P, _F, _F)
 ACCEL_SIGNATURE = types.UniTuple(_F, 14)(_P, _F, _F, _F, _F)
@@ -50,6 +56,23 @@ ACCEL_TYPE = types.FunctionType(ACCEL_SIGNATURE)
 TASK_TYPE = types.FunctionType(TASK_SIGNATURE)
 DYN_TYPE = types.FunctionType(DYN_SIGNATURE)
 IK_TYPE = types.FunctionType(IK_SIGNATURE)
+
+
+@intrinsic
+def _address_to_pointer(typingctx, address):
+    """An integer address as a float64 pointer (no reference counting, no bounds)."""
+    sig = types.CPointer(types.float64)(address)
+
+    def codegen(context, builder, signature, args):
+        return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
+
+    return sig, codegen
+
+
+@njit(cache=True, error_model="numpy")
+def params_view(address, n):
+    """The packed parameter vector of length n at ``address``, as a read-only-by-convention array."""
+    return carray(_address_to_pointer(address), n)
 
 
 class UnreachableError(ValueError):
@@ -85,6 +108,7 @@ class Plant:
     def __init__(self, params=None):
         self.params = params if params is not None else self.params_class()
         self._p = self.params.as_array()
+        self._address = self._p.ctypes.data  # what the kernels take; self._p keeps it alive
 
     @staticmethod
     def kernels() -> PlantKernels:
@@ -92,15 +116,20 @@ class Plant:
 
     @property
     def packed(self) -> np.ndarray:
-        """The packed parameter vector for the compiled kernels."""
+        """The packed parameter vector."""
         return self._p
+
+    @property
+    def address(self) -> int:
+        """The address of :attr:`packed`, the ``p`` argument of the kernels (valid while self lives)."""
+        return self._address
 
     def _outside(self, th1, th2):
         return UnreachableError(f"joint angles ({th1:.6g}, {th2:.6g}) rad are outside {self.working_mode}")
 
     def _kin(self, theta):
         th1, th2 = check_pair("theta", theta)
-        out = self.kernels().kin(self._p, th1, th2)
+        out = self.kernels().kin(self._address, th1, th2)
         if not out[0]:
             raise self._outside(th1, th2)
         return out
@@ -108,7 +137,7 @@ class Plant:
     def _dyn(self, theta, dtheta):
         th1, th2 = check_pair("theta", theta)
         d1, d2 = check_pair("dtheta", dtheta)
-        out = self.kernels().dyn(self._p, th1, th2, d1, d2)
+        out = self.kernels().dyn(self._address, th1, th2, d1, d2)
         if not out[0]:
             raise self._outside(th1, th2)
         return out
@@ -116,7 +145,7 @@ class Plant:
     def _task(self, theta, dtheta):
         th1, th2 = check_pair("theta", theta)
         d1, d2 = check_pair("dtheta", dtheta)
-        out = self.kernels().task(self._p, th1, th2, d1, d2)
+        out = self.kernels().task(self._address, th1, th2, d1, d2)
         if not out[0]:
             raise self._outside(th1, th2)
         return out
@@ -131,8 +160,8 @@ class Plant:
         """Joint angles (rad) in the working mode for end-effector position P (m); raises if unreachable."""
         px, py = check_pair("position", position)
         k = self.kernels()
-        ok, th1, th2 = k.ik(self._p, px, py)
-        fk = k.kin(self._p, th1, th2) if ok else (0.0,)
+        ok, th1, th2 = k.ik(self._address, px, py)
+        fk = k.kin(self._address, th1, th2) if ok else (0.0,)
         # the angles must map back to P in the working mode (e.g. the five-bar's lower assembly
         # has elbows-out angles whose forward kinematics is another point)
         if not fk[0] or math.hypot(fk[1] - px, fk[2] - py) > 1e-9:
@@ -181,6 +210,14 @@ class Plant:
         out = self._task(theta, (0.0, 0.0))
         return np.array([out[16], out[17]])
 
+    def task_gravity_along(self, positions) -> np.ndarray:
+        """G = J^-T G_q (N) at each end-effector position of ``positions`` (n, 2) (m), shape (n, 2):
+        the task-space gravity C3's G block should learn along a path (zero without gravity)."""
+        positions = np.asarray(positions, dtype=np.float64)
+        if positions.ndim != 2 or positions.shape[1] != 2:
+            raise ValueError(f"positions must have shape (n, 2), got {positions.shape}")
+        return np.array([self.task_gravity(self.inverse_kinematics(pos)) for pos in positions]).reshape(-1, 2)
+
     # --- dynamics ------------------------------------------------------------------------
     def inverse_dynamics(self, theta, dtheta, ddtheta, force_on_end_effector=(0.0, 0.0)) -> np.ndarray:
         """tau = Dq ddtheta + Cq dtheta + G_q - J^T f (N m), f the force on the robot (eq. 1)."""
@@ -201,7 +238,7 @@ class Plant:
         t1, t2 = check_pair("tau", tau)
         fx, fy = check_pair("force_on_end_effector", force_on_end_effector)
         self._kin(theta)
-        out = self.kernels().accel(self._p, th1, th2, d1, d2)
+        out = self.kernels().accel(self._address, th1, th2, d1, d2)
         r1 = t1 + out[3] * fx + out[5] * fy - out[9]
         r2 = t2 + out[4] * fx + out[6] * fy - out[10]
         return np.array([out[11] * r1 + out[12] * r2, out[12] * r1 + out[13] * r2])

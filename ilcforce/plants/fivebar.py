@@ -40,6 +40,7 @@ from numba import njit
 
 from ilcforce.plants.base import (
     ACCEL_SIGNATURE, DYN_SIGNATURE, IK_SIGNATURE, KIN_SIGNATURE, TASK_SIGNATURE, Plant, PlantKernels,
+    params_view,
     UnreachableError, check_pair as _pair,
 )
 
@@ -104,6 +105,7 @@ class FiveBarParams:
         """Just the link parameters, as a plain :class:`FiveBarParams`."""
         return FiveBarParams(**{name: getattr(self, name) for name in PARAM_NAMES})
 
+_N_PARAMS = len(PARAM_NAMES)
 
 # --------------------------------------------------------------------------------------------
 # Compiled kernels. p is the packed parameter vector; everything else is a scalar.
@@ -329,31 +331,36 @@ def _accel_terms(p, th1, th2, dth1, dth2):
 # --------------------------------------------------------------------------------------------
 
 
-def _kin_kernel(p, th1, th2):
+def _kin_kernel(address, th1, th2):
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     out = _kinematics(p, th1, th2)
     return (1.0 if out[0] else 0.0, out[1], out[2], out[11], out[12], out[13], out[14])
 
 
-def _accel_kernel(p, th1, th2, d1, d2):
+def _accel_kernel(address, th1, th2, d1, d2):
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     (ok, px, py, J00, J01, J10, J11, dJvx, dJvy, b1, b2, Mi00, Mi01, Mi11) = _accel_terms(p, th1, th2, d1, d2)
     # G_q = 0 (horizontal plane): b = Cq dtheta
     return (1.0 if ok else 0.0, px, py, J00, J01, J10, J11, dJvx, dJvy, b1, b2, Mi00, Mi01, Mi11)
 
 
-def _task_kernel(p, th1, th2, d1, d2):
+def _task_kernel(address, th1, th2, d1, d2):
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     (ok, px, py, vx, vy, J00, J01, J10, J11, D00, D01, D11,
      C00, C01, C10, C11) = _task_model(p, th1, th2, d1, d2)
     return (1.0 if ok else 0.0, px, py, vx, vy, J00, J01, J10, J11, D00, D01, D11, C00, C01, C10, C11, 0.0, 0.0)
 
 
-def _dyn_kernel(p, th1, th2, d1, d2):
+def _dyn_kernel(address, th1, th2, d1, d2):
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
      Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11) = _dynamics(p, th1, th2, d1, d2)
     return (1.0 if ok else 0.0, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
             Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, 0.0, 0.0)
 
 
-def _ik_kernel(p, px, py):
+def _ik_kernel(address, px, py):
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     ok, th1, th2 = _inverse_kinematics(p, px, py)
     return (1.0 if ok else 0.0, th1, th2)
 

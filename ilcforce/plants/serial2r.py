@@ -29,6 +29,7 @@ from numba import njit
 
 from ilcforce.plants.base import (
     ACCEL_SIGNATURE, DYN_SIGNATURE, IK_SIGNATURE, KIN_SIGNATURE, TASK_SIGNATURE, Plant, PlantKernels,
+    params_view,
 )
 
 __all__ = ["Serial2RParams", "Serial2R", "PARAM_NAMES"]
@@ -74,6 +75,7 @@ class Serial2RParams:
             raise ValueError(f"unknown plant parameter {name!r}; expected one of {', '.join(PARAM_NAMES)}")
         return replace(self, **{name: getattr(self, name) * factor})
 
+_N_PARAMS = len(PARAM_NAMES)
 
 # --------------------------------------------------------------------------------------------
 # Compiled kernels. p is the packed parameter vector; everything else is a scalar.
@@ -117,7 +119,8 @@ def _dynamics(p, th1, th2, d1, d2):
             Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2)
 
 
-def _kin_kernel(p, th1, th2):
+def _kin_kernel(address, th1, th2):
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     L1, L2 = p[0], p[1]
     c1, s1 = math.cos(th1), math.sin(th1)
     c12, s12 = math.cos(th1 + th2), math.sin(th1 + th2)
@@ -126,7 +129,8 @@ def _kin_kernel(p, th1, th2):
             -L1 * s1 - L2 * s12, -L2 * s12, L1 * c1 + L2 * c12, L2 * c12)
 
 
-def _accel_kernel(p, th1, th2, d1, d2):
+def _accel_kernel(address, th1, th2, d1, d2):
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
      Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = _dynamics(p, th1, th2, d1, d2)
     det = Dq00 * Dq11 - Dq01 * Dq01
@@ -136,7 +140,8 @@ def _accel_kernel(p, th1, th2, d1, d2):
             Dq11 / det, -Dq01 / det, Dq00 / det)
 
 
-def _task_kernel(p, th1, th2, d1, d2):
+def _task_kernel(address, th1, th2, d1, d2):
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
      Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = _dynamics(p, th1, th2, d1, d2)
     det = J00 * J11 - J01 * J10
@@ -169,12 +174,14 @@ def _task_kernel(p, th1, th2, d1, d2):
             D00, D01, D11, C00, C01, C10, C11, Gx, Gy)
 
 
-def _dyn_kernel(p, th1, th2, d1, d2):
+def _dyn_kernel(address, th1, th2, d1, d2):
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     return _dynamics(p, th1, th2, d1, d2)
 
 
-def _ik_kernel(p, px, py):
+def _ik_kernel(address, px, py):
     """theta2 = acos(c2) in (0, pi); theta1 = atan2(y, x) - atan2(L2 s2, L1 + L2 c2)."""
+    p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     L1, L2 = p[0], p[1]
     c2 = (px * px + py * py - L1 * L1 - L2 * L2) / (2.0 * L1 * L2)
     if not (-1.0 < c2 < 1.0):

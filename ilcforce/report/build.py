@@ -33,7 +33,7 @@ from matplotlib.figure import Figure
 import ilcforce
 from ilcforce import store
 from ilcforce.report import claims as claims_module
-from ilcforce.report import figures, paper, sections, stability, tables
+from ilcforce.report import figures, paper, readme, sections, stability, tables
 from ilcforce.metrics import memory_norms
 
 #: The methods an experiment is expected to hold.
@@ -551,6 +551,8 @@ def _write_experiment(
     written.append(report)
     summary.attrs["description"] = sections.description(experiment.config())
     summary.attrs["flags"] = dict(flags)
+    summary.attrs["parts"] = claims.to_dict("list")
+    summary.attrs["divergence"] = _divergence_lines(experiment, {})
     return written, summary
 
 
@@ -643,6 +645,12 @@ def write_report(
     title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
     index.write_text("\n".join([title, "", *study_section]) + rest, encoding="utf-8")  # studies lead
     written.append(index)
+    findings = out_dir / "findings.md"
+    findings.write_text(readme.findings_markdown({
+        name: {"description": frame.attrs.get("description", ""), "parts": pd.DataFrame(frame.attrs.get("parts", {})),
+               "flags": frame.attrs.get("flags", {}), "divergence": frame.attrs.get("divergence", [])}
+        for name, frame in verdicts.items()}), encoding="utf-8")
+    written.append(findings)
     return ReportSummary(
         out_dir=out_dir,
         experiments=tuple(sorted(verdicts)),

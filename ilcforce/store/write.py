@@ -31,6 +31,12 @@ _METRICS_CHUNK = 64  # rows per chunk of a /metrics column
 SameRunCheck = Callable[[dict[str, Any]], None]
 
 
+def text(value: object) -> str:
+    """A string HDF5 can store as UTF-8: undecodable bytes of a path or argument (surrogate
+    escapes, e.g. a non-ASCII file name under an ASCII locale) become U+FFFD."""
+    return str(value).encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
+
 def utc_now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
@@ -127,9 +133,9 @@ class StoreWriter:
             raise StoreError(f"{self._path}: --overwrite and --resume are mutually exclusive; choose one")
         if int(n_iterations) != n_iterations or n_iterations < 0:
             raise ValueError(f"n_iterations must be an int >= 0, got {n_iterations!r}")
-        self._experiment, self._method = str(experiment), str(method)
-        self._config_toml, self._config_json = str(config_toml), str(config_json)
-        self._seed, self._command, self._n_iterations = int(seed), str(command), int(n_iterations)
+        self._experiment, self._method = text(experiment), text(method)
+        self._config_toml, self._config_json = text(config_toml), text(config_json)
+        self._seed, self._command, self._n_iterations = int(seed), text(command), int(n_iterations)
         self._overwrite, self._resume = bool(overwrite), bool(resume)
         self._same_run = same_run or _default_same_run(self._config_json)
         if "time" not in reference or np.ndim(reference["time"]) != 1 or np.shape(reference["time"])[0] < 2:
@@ -247,7 +253,7 @@ class StoreWriter:
             attrs["iteration"] = int(record.iteration)
             attrs["status"] = str(record.status)
             attrs["diverged_time"] = float(record.diverged_time)
-            attrs["diverged_reason"] = one_line(record.diverged_reason)
+            attrs["diverged_reason"] = text(one_line(record.diverged_reason))
             attrs["fallback_count"] = int(record.fallback_count)
             if first_of_session:
                 self._write_invocation_attrs(handle)

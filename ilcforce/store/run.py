@@ -1,0 +1,138 @@
+"""``ilcforce.open(path)``: a stored run read back as an object.
+
+    run = ilcforce.open("results/paper/c3.h5")
+    run.metrics                 # DataFrame, one row per iteration, units in .attrs["units"]
+    run.iteration(19)           # IterationRecord (logs as arrays) ...
+    run.iteration(19).to_pandas()   # ... or a DataFrame indexed by time, units in .attrs["units"]
+    run.memory(19)              # learned memory after iteration 19 (DataFrame on the control grid)
+    run.config                  # the Config the run was made with
+
+Every read goes through the store's readers (checked, checksummed, one-line StoreError).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ilcforce.records import IterationRecord
+from ilcforce.store import access
+
+
+@dataclass(frozen=True)
+class StoredIteration(IterationRecord):
+    """An :class:`IterationRecord` read from a store (``memory`` included), with :meth:`to_pandas`."""
+
+    frame: pd.DataFrame | None = None
+
+    def to_pandas(self) -> pd.DataFrame:
+        """The logs as a DataFrame indexed by time (s); ``attrs["units"]`` maps column -> unit."""
+        assert self.frame is not None
+        return self.frame.copy()
+
+
+class Run:
+    """One stored run (one method of one experiment). Opens nothing until asked."""
+
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = Path(path)
+        access.validate(self.path)  # a damaged file fails here, in bounded time, with one line
+
+    def __repr__(self) -> str:
+        p = self.provenance
+        return (f"<ilcforce run {p.get('experiment')}/{p.get('method')}: {len(self.iterations)} iterations, "
+                f"{p.get('run_state')}, {self.path}>")
+
+    @cached_property
+    def provenance(self) -> dict[str, Any]:
+        """Root attributes: experiment, method, seed, git_commit, command, run_state, ..."""
+        return access.read_provenance(self.path)
+
+    @property
+    def method(self) -> str:
+        return str(self.provenance["method"])
+
+    @property
+    def experiment(self) -> str:
+        return str(self.provenance["experiment"])
+
+    @cached_property
+    def iterations(self) -> list[int]:
+        """Complete iterations, ascending."""
+        return access.iterations(self.path)
+
+    @cached_property
+    def metrics(self) -> pd.DataFrame:
+        """One row per iteration (index ``iteration``); ``attrs["units"]`` column -> unit."""
+        return access.read_metrics(self.path)
+
+    @cached_property
+    def config(self):
+        """The run's configuration as a :class:`ilcforce.config.Config`."""
+        from ilcforce.config import config_from_dict
+        from ilcforce.samerun import stored_config
+
+        return config_from_dict(stored_config(self.provenance))
+
+    @cached_property
+    def reference(self) -> pd.DataFrame:
+        """The reference trajectories on the log grid (index ``time``, units in attrs)."""
+        return access.read_reference(self.path)
+
+    def iteration(self, j: int) -> StoredIteration:
+        """Iteration ``j``: logs (arrays on the log grid), memory, status; ``.to_pandas()``."""
+        frame = access.read_iteration(self.path, j)
+        from ilcforce.records import LOG_SIGNALS
+
+        log: dict[str, np.ndarray] = {"time": frame.index.to_numpy()}
+        for signal, (axes, _unit, _description) in LOG_SIGNALS.items():
+            if signal == "time":
+                continue
+            columns = [signal] if axes is None else [f"{signal}_{a}" for a in axes]
+            values = frame[columns].to_numpy()
+            log[signal] = values[:, 0] if axes is None else values
+        info = access.read_memory_info(self.path, j)
+        return StoredIteration(
+            iteration=int(frame.attrs["iteration"]), status=str(frame.attrs["status"]),
+            diverged_time=float(frame.attrs["diverged_time"]), diverged_reason=str(frame.attrs["diverged_reason"]),
+            fallback_count=int(frame.attrs["fallback_count"]), log=log, memory=access.read_memory(self.path, j),
+            memory_units={k: v["units"] for k, v in info.items()},
+            memory_labels={k: tuple(v["columns"]) for k, v in info.items() if v["columns"]}, frame=frame)
+
+    def memory(self, j: int) -> pd.DataFrame:
+        """The learned memory after iteration ``j`` as a DataFrame on the control grid.
+
+        One column per memory entry (a matrix gives one column per labelled entry, e.g.
+        ``theta_hat_D11``); ``attrs["units"]`` column -> unit.
+        """
+        arrays = access.read_memory(self.path, j)
+        info = access.read_memory_info(self.path, j)
+        time = access.read_control_time(self.path)
+        data: dict[str, np.ndarray] = {}
+        units: dict[str, str] = {}
+        for name, values in arrays.items():
+            if values.ndim == 1:
+                data[name] = values
+                units[name] = info[name]["units"]
+            else:
+                labels = info[name]["columns"] or [str(k) for k in range(values.shape[1])]
+                for k, label in enumerate(labels):
+                    data[f"{name}_{label}"] = values[:, k]
+                    units[f"{name}_{label}"] = info[name]["units"]
+        n = next(iter(data.values())).shape[0] if data else 0
+        index = pd.Index(time if time is not None and time.shape[0] == n else np.arange(n), name="time")
+        frame = pd.DataFrame(data, index=index)
+        frame.attrs["units"] = units
+        frame.attrs["iteration"] = int(j)
+        return frame
+
+
+def open_run(path: str | os.PathLike[str]) -> Run:
+    """Open a stored run (see :class:`Run`); StoreError (one line) if it is not a valid store."""
+    return Run(path)

@@ -1,0 +1,144 @@
+"""Issue 8 faults 4, 8 and 13 at the command line, and issue 11's first-class variants: messages
+are shown literally, one line, unwrapped, in any locale; the same-run policy decides what is
+stale; --set runs get a results folder of their own."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from ilcforce import samerun, store
+from ilcforce.cli import app
+
+SHORT = ["--set", "reference.duration=0.2"]
+VARIANT = "paper--reference.duration=0.2"
+
+
+@pytest.fixture
+def runner():
+    return CliRunner()
+
+
+# -- fault 4: no markup in messages ------------------------------------------------------------------
+
+
+def test_bad_section_name_is_shown_literally(runner):
+    result = runner.invoke(app, ["simulate", "--set", "plnat.m3=1"])
+    assert result.exit_code == 2
+    assert "unknown section [plnat] (did you mean 'plant'?)" in result.output, result.output
+
+
+def test_path_with_markup_is_shown_literally(runner, tmp_path: Path):
+    weird = tmp_path / "a[/bold]b[red].h5"
+    result = runner.invoke(app, ["validate", str(weird)])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    assert str(weird) in result.output, result.output
+
+
+# -- fault 13: unwrapped when piped, any locale; compare --overwrite reruns only what differs ---------
+
+
+def test_validate_line_is_not_wrapped_when_piped(tmp_path: Path):
+    deep = tmp_path / ("a-rather-long-folder-name-" * 4) / "c1.h5"
+    made = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c1", "-n", "1", "--out", str(deep),
+                           *SHORT], capture_output=True, text=True, timeout=300)
+    assert made.returncode == 0, made.stderr
+    result = subprocess.run([sys.executable, "-m", "ilcforce", "validate", str(deep)], capture_output=True,
+                            text=True, timeout=300, env={**os.environ, "COLUMNS": "80"})
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.count("\n") == 1 and str(deep) in result.stdout and len(result.stdout) > 80
+
+
+def test_ascii_locale_with_a_non_ascii_path(tmp_path: Path):
+    """Under an ASCII locale the file name arrives with surrogate escapes: it used to end in a
+    UnicodeEncodeError traceback writing the store's provenance."""
+    env = {**os.environ, "LC_ALL": "C", "LANG": "C", "PYTHONIOENCODING": "ascii", "PYTHONUTF8": "0"}
+    out = tmp_path / "r\u00e9sultat.h5"
+    result = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c3", "-n", "1", "--out", str(out),
+                             *SHORT], capture_output=True, text=True, timeout=300, env=env)
+    assert result.returncode == 0, result.stderr
+    assert "Traceback" not in result.stderr and "complete" in result.stdout
+    store.validate(out)
+
+
+def test_compare_overwrite_keeps_identical_results(runner, tmp_path: Path):
+    args = ["compare", "--methods", "c1", "-n", "1", "--results", str(tmp_path), *SHORT]
+    assert runner.invoke(app, args).exit_code == 0
+    path = tmp_path / VARIANT / "c1.h5"
+    before = (path.stat().st_ino, path.stat().st_mtime_ns, path.read_bytes())
+    assert runner.invoke(app, [*args, "--overwrite"]).exit_code == 0
+    assert (path.stat().st_ino, path.stat().st_mtime_ns, path.read_bytes()) == before, "identical result was rerun"
+
+
+# -- fault 8 and variants: one same-run policy --------------------------------------------------------
+
+
+def test_resume_refuses_an_integer_change_that_equals_the_iteration_change(runner, tmp_path: Path):
+    """substeps 2 -> 3 with --iters 2 -> 3 used to be accepted (the old check tolerated any int that
+    changed from the old iteration count to the new one)."""
+    out = tmp_path / "c1.h5"
+    first = runner.invoke(app, ["simulate", "-m", "c1", "-n", "2", "--out", str(out), *SHORT,
+                                "--set", "simulation.substeps=2"])
+    assert first.exit_code == 0, first.output
+    result = runner.invoke(app, ["simulate", "-m", "c1", "-n", "3", "--out", str(out), "--resume", *SHORT,
+                                 "--set", "simulation.substeps=3"])
+    assert result.exit_code == 2, result.output
+    assert "simulation.substeps" in result.output and "stored 2, new 3" in result.output, result.output
+    assert store.iterations(out) == [0, 1]
+
+
+def test_a_set_run_writes_to_a_folder_of_its_own(runner, tmp_path: Path):
+    canonical = ["simulate", "-m", "c1", "-n", "1", "--results", str(tmp_path), *SHORT]
+    assert runner.invoke(app, canonical).exit_code == 0
+    variant = runner.invoke(app, [*canonical, "--set", "c1.alpha=0.2"])
+    assert variant.exit_code == 0, variant.output
+    folders = sorted(p.name for p in tmp_path.iterdir())
+    assert folders == sorted([VARIANT, samerun.variant_folder("paper", {"reference.duration": 0.2, "c1.alpha": 0.2})])
+    assert len(folders) == 2
+
+
+def test_changing_a_c3_gain_does_not_make_the_c1_store_stale(runner, tmp_path: Path):
+    out_c1 = tmp_path / "c1.h5"
+    assert runner.invoke(app, ["simulate", "-m", "c1", "-n", "1", "--out", str(out_c1), *SHORT]).exit_code == 0
+    provenance = store.read_provenance(out_c1)
+    stored = samerun.stored_config(provenance)
+    changed = json.loads(json.dumps(stored))
+    changed["c3"]["eta"] = 2.0
+    assert samerun.differences(stored, changed, "c1") == []
+    assert samerun.differences(stored, changed, "c3") == ["c3.eta"]
+    changed["simulation"]["substeps"] = 4  # a common section matters to every method
+    assert samerun.differences(stored, changed, "c1") == ["simulation.substeps"]
+
+
+def test_compare_refusal_names_the_keys_that_differ(runner, tmp_path: Path):
+    base = ["compare", "--methods", "c1", "-n", "1", "--results", str(tmp_path), *SHORT]
+    assert runner.invoke(app, base).exit_code == 0
+    # the same folder with a changed common value: only reachable through a config file
+    toml = tmp_path / "paper-changed.toml"
+    toml.write_text("[wall]\nstiffness = 1100.0\n", encoding="utf-8")
+    result = runner.invoke(app, [*base, "-c", str(toml)])
+    assert result.exit_code == 2, result.output
+    assert "wall.stiffness (stored 1000.0, new 1100.0)" in result.output, result.output
+
+
+@pytest.mark.parametrize("overrides", [{"c3.eta": 2}, {"simulation.sample_time": 2.5e-4, "c3.eta": 2},
+                                       {"experiment.name": "x", "plant.model": "serial 2R/x"}])
+def test_variant_folder_is_deterministic_and_safe(overrides):
+    name = samerun.variant_folder("paper", overrides)
+    assert name == samerun.variant_folder("paper", dict(reversed(list(overrides.items()))))
+    assert "/" not in name and not name.startswith(".") and len(name) <= 120
+    assert all(c.isalnum() or c in "._=,+-" for c in name)
+
+
+def test_variant_folders_of_different_overrides_differ():
+    a = samerun.variant_folder("paper", {"plant.model": "a/b"})
+    b = samerun.variant_folder("paper", {"plant.model": "a_b"})
+    long_a = samerun.variant_folder("paper", {f"c3.k{i}": i for i in range(40)})
+    long_b = samerun.variant_folder("paper", {f"c3.k{i}": i + (i == 39) for i in range(40)})
+    assert a != b and long_a != long_b and len(long_a) <= 120
