@@ -32,6 +32,8 @@ def _plant_experiments() -> dict[str, Path]:
     files = sorted(Path("experiments").glob("*.toml"), key=lambda p: (p.name != "paper.toml", p.name))
     found: dict[str, Path] = {}
     for path in files:
+        if "[study]" in path.read_text(encoding="utf-8"):  # a study file (ilcforce.study), not an experiment
+            continue
         model = str(getattr(load_config(path).plant, "model", "fivebar"))
         found.setdefault(model, path)
     return found
