@@ -23,7 +23,7 @@ from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.base import LAW_SIGNATURE, MemoryController
 from ilcforce.experiment import make_controller, run_method
 from ilcforce.noise import draw_iteration
-from ilcforce.plant import _accel_terms
+from ilcforce.plants.fivebar import _accel_terms
 from ilcforce.simulate import IterationInputs, run_iteration
 
 
@@ -74,12 +74,77 @@ def _iteration_runner(config, controller):
     return run
 
 
+def _iteration_runner_chunked(config, controller, chunk_steps):
+    draws = draw_iteration(config.experiment.seed, 0, config.n_control, config.noise)
+    inputs = IterationInputs(0, config.plant.links(), config.plant.links(), config.wall,
+                             config.reference_samples(), config.simulation, config.noise, draws,
+                             config.surface.selection)
+
+    def run():
+        mem_prev, mem_new = controller.begin_iteration(0)
+        run_iteration(inputs, controller, mem_prev, mem_new, chunk_steps=chunk_steps)
+
+    return run
+
+
+def per_step_figures(repeat: int) -> None:
+    """us per control step for each plant (ilcforce.plants.MODELS) and each registered method."""
+    from ilcforce.config import load_config
+    from ilcforce.plants import MODELS
+
+    for model in MODELS:
+        config = load_config(None, {"plant.model": model})
+        steps = config.n_control - 1
+        print(f"  plant {model}:")
+        rows = [("RK4 control step, zero-torque controller", ZeroController(config.n_control))]
+        for method in REGISTRY:  # every registered method
+            rows.append((f"full control step, {method} (implicit scheme)", make_controller(config, method)))
+        for label, controller in rows:
+            run = _iteration_runner(config, controller)
+            t0 = time.perf_counter()
+            run()
+            first = time.perf_counter() - t0
+            t = _median_time(run, repeat)
+            print(f"    {label:<46}: {t / steps * 1e6:8.3f} us   (first call {first:.2f} s)")
+
+
+def chunking_figures(repeat: int) -> None:
+    """What returning to Python between chunks of the compiled loop costs (issue 8, fault 11), and
+    how long one chunk takes at substeps = 1000 (the Ctrl-C latency bound)."""
+    from ilcforce.config import load_config
+    from ilcforce.simulate import CHUNK_RK4_STEPS
+
+    config = default_config()
+    steps = config.n_control - 1
+    chunked = _iteration_runner_chunked(config, make_controller(config, "c3"), None)
+    whole = _iteration_runner_chunked(config, make_controller(config, "c3"), 10 ** 9)
+    chunked(), whole()
+    times = {"chunked": [], "whole": []}
+    for _ in range(repeat):  # alternate, so both see the same machine load
+        for name, run in (("chunked", chunked), ("whole", whole)):
+            t0 = time.perf_counter()
+            run()
+            times[name].append(time.perf_counter() - t0)
+    a, b = (statistics.median(times[k]) / steps * 1e6 for k in ("chunked", "whole"))
+    print(f"  c3 step, chunks of {CHUNK_RK4_STEPS} RK4 steps vs one call : {a:8.3f} vs {b:.3f} us "
+          f"(chunking costs {100 * (a / b - 1):+.2f}%)")
+    slow = load_config(None, {"simulation.substeps": 1000, "reference.duration": 0.02})
+    chunk = max(1, CHUNK_RK4_STEPS // 1000)
+    run = _iteration_runner_chunked(slow, make_controller(slow, "c3"), chunk)
+    run()
+    t = _median_time(run, max(3, repeat // 2))
+    n_chunks = -(-slow.n_control // chunk)
+    print(f"  one chunk at substeps = 1000 ({chunk} control steps), the Ctrl-C latency : "
+          f"{t / n_chunks * 1e3:8.2f} ms")
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=7, help="repetitions per figure (median reported)")
     parser.add_argument("--study-repeat", type=int, default=3, help="repetitions of the full paper study")
     parser.add_argument("--mc-seeds", type=int, default=100, help="seeds of the paper's Monte Carlo study (0: skip)")
     parser.add_argument("--speedup-seeds", type=int, default=10, help="seeds of the 1 -> 2 worker study (0: skip)")
+    parser.add_argument("--cold-repeat", type=int, default=5, help="cold processes per user command (0: skip)")
     args = parser.parse_args(argv)
     config = default_config()
     steps = config.n_control - 1
@@ -94,16 +159,8 @@ def main(argv: list[str] | None = None) -> None:
     t = _median_time(lambda: _plant_loop(p, n), args.repeat)
     print(f"  plant evaluation (Dq^-1, Cq dtheta, J, dJ dtheta) : {t / n * 1e6:8.3f} us   (first call {first:.2f} s)")
 
-    rows = [("RK4 control step, zero-torque controller", ZeroController(config.n_control))]
-    for method in REGISTRY:  # every registered method
-        rows.append((f"full control step, {method} (implicit scheme)", make_controller(config, method)))
-    for label, controller in rows:
-        run = _iteration_runner(config, controller)
-        t0 = time.perf_counter()
-        run()
-        first = time.perf_counter() - t0
-        t = _median_time(run, args.repeat)
-        print(f"  {label:<48}: {t / steps * 1e6:8.3f} us   (first call {first:.2f} s)")
+    per_step_figures(args.repeat)
+    chunking_figures(args.repeat)
 
     with tempfile.TemporaryDirectory() as tmp:
         def study():
@@ -113,6 +170,10 @@ def main(argv: list[str] | None = None) -> None:
         size = sum(f.stat().st_size for f in Path(tmp).glob("*.h5"))
     print(f"  paper study, c1+c2+c3 x {config.experiment.iterations} iterations with HDF5 : {t:8.2f} s wall "
           f"(median of {args.study_repeat}; stores {size / 1e6:.0f} MB)")
+    if args.cold_repeat > 0:  # the user's commands from a cold process (ilcforce.bench_cold)
+        from ilcforce import bench_cold
+
+        bench_cold.report(repeat=args.cold_repeat)
     study_figures(args)
 
 

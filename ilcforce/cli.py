@@ -18,14 +18,32 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-from rich.box import ASCII, HEAVY_HEAD
-from rich.markup import escape
-from rich.table import Table
 
 from ilcforce import __version__
 from ilcforce.controllers import PAPER_METHODS, REGISTRY
+
+# Only what every command needs is imported here: `ilcforce --help` and one-line input errors must
+# not pay for rich's consoles and tables, pandas, numba's kernels, h5py or matplotlib (issue 12;
+# `python -X importtime -m ilcforce --help` shows what is left). Commands import what they use.
+
+
+class _LazyConsole:
+    """A rich ``Console`` made on first use; ``out.print(...)`` and ``err.print(...)`` as usual."""
+
+    def __init__(self, stderr: bool) -> None:
+        self._stderr = stderr
+        self._console = None
+
+    def console(self):
+        """The rich ``Console`` itself (for rich objects that take one)."""
+        if self._console is None:
+            from rich.console import Console
+
+            self._console = Console(stderr=self._stderr)
+        return self._console
+
+    def __getattr__(self, name: str):
+        return getattr(self.console(), name)
 
 app = typer.Typer(
     add_completion=False,
@@ -33,8 +51,8 @@ app = typer.Typer(
     help="Iterative learning control for hybrid force/position control of a five-bar robot "
          "(reproduces and checks the ILC + sliding mode paper; see README.md).",
 )
-out = Console()
-err = Console(stderr=True)
+out = _LazyConsole(stderr=False)
+err = _LazyConsole(stderr=True)
 
 
 class CliError(Exception):
@@ -118,9 +136,7 @@ def _methods(text: str) -> list[str]:
 
 def _g(value) -> str:
     """A table cell: 3 significant digits, '-' for a missing value (None, NaN, pandas NA)."""
-    import pandas as pd
-
-    if value is None or value is pd.NA:
+    if value is None or type(value).__name__ == "NAType":  # pandas.NA, without importing pandas
         return "-"
     if isinstance(value, float):
         return "-" if math.isnan(value) else f"{value:.3g}"
@@ -141,24 +157,68 @@ def _command_line(ctx: typer.Context) -> str:
     return shlex.join(parts)
 
 
+def _progress_bar(disable: bool):
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    # no refresh thread: the display is redrawn at each update (and so nothing runs while compare forks)
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TextColumn("{task.fields[last]}"), TimeElapsedColumn(), console=err.console(),
+                    transient=False, auto_refresh=False, disable=disable)
+
+
+def _last(iteration: int, status: str, row: dict) -> str:
+    return (f"j={iteration} |e_P|={_g(row['position_error_2norm'])} m "
+            f"|e_F|={_g(row['force_error_2norm'])} N {status}")
+
+
 def _run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool, command: str):
     from ilcforce.experiment import run_method
 
     total = config.experiment.iterations
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[last]}"), TimeElapsedColumn(), console=err,
-                  transient=False, disable=not err.is_terminal) as progress:
+    with _progress_bar(disable=not err.is_terminal) as progress:
         task = progress.add_task(f"{config.experiment.name}/{method}", total=total, last="")
 
         def tick(record, row):
-            progress.update(task, completed=record.iteration + 1,
-                            last=f"j={record.iteration} |e_P|={_g(row['position_error_2norm'])} m "
-                                 f"|e_F|={_g(row['force_error_2norm'])} N {record.status}")
+            progress.update(task, completed=record.iteration + 1, last=_last(record.iteration, record.status, row))
+            progress.refresh()
 
         with _deferred_interrupt() as interrupted:
             summary = run_method(config, method, path, overwrite=overwrite, resume=resume, command=command,
                                  progress=tick, stop_requested=interrupted)
     return summary
+
+
+def _run_several(config, jobs) -> None:
+    """Run several methods at once, one worker process each (``ilcforce.parallel``), one display."""
+    from ilcforce.parallel import run_parallel
+
+    progress = _progress_bar(disable=not err.is_terminal)
+    tasks = {}
+
+    def tick(method: str, iteration: int, status: str, row: dict) -> None:
+        if not tasks:  # the display starts after the workers were forked
+            progress.start()
+            tasks.update({job.method: progress.add_task(f"{config.experiment.name}/{job.method}",
+                                                        total=config.experiment.iterations, last="")
+                          for job in jobs})
+        progress.update(tasks[method], completed=iteration + 1, last=_last(iteration, status, row))
+        progress.refresh()
+
+    def stopping() -> None:
+        err.print("stopping after the current iteration is stored (Ctrl-C again to stop now)", highlight=False)
+
+    try:
+        outcomes = run_parallel(config, jobs, progress=tick, on_interrupt=stopping, meanwhile=_import_for_table)
+    finally:
+        progress.stop()
+    failed = [o for o in outcomes.values() if o.status == "error"]
+    for outcome in failed:
+        if not outcome.known:
+            raise RuntimeError(f"{outcome.method} failed:\n{outcome.message}")
+    if failed:
+        raise CliError(failed[0].message)
+    if any(o.status == "interrupted" for o in outcomes.values()):
+        raise KeyboardInterrupt
 
 
 @contextlib.contextmanager
@@ -236,30 +296,55 @@ def compare(
     results: Annotated[Path, typer.Option("--results", help="results folder")] = Path("results"),
     overwrite: Annotated[bool, typer.Option("--overwrite", help="rerun methods whose stored result differs")] = False,
 ) -> None:
-    """Run the methods that have no complete result for this experiment, then compare them side by side."""
+    """Run the methods that have no complete result for this experiment, then compare them side by side.
+
+    Methods to run run at once, one worker process each, sharing the cores.
+    """
     from ilcforce import store
     from ilcforce.experiment import default_store_path
-    from ilcforce.report.tables import comparison_frame
+    from ilcforce.parallel import Job
 
     names = _methods(methods)
     cfg = _load(config, seed, iters, sets)
-    metrics_by_method = {}
-    for name in names:
-        path = default_store_path(results, cfg, name, _variant(seed, sets))
+    paths = {name: default_store_path(results, cfg, name, _variant(seed, sets)) for name in names}
+    jobs = []
+    for name, path in paths.items():
         action, replace = _compare_action(cfg, name, path, overwrite)
         if action != "keep":
-            _run_one(cfg, name, path, overwrite=replace, resume=action == "resume", command=_command_line(ctx))
-        metrics_by_method[name] = store.read_metrics(path)
-    frame = comparison_frame(metrics_by_method)
+            jobs.append(Job(name, path, overwrite=replace, resume=action == "resume", command=_command_line(ctx)))
+    if len(jobs) == 1:
+        job = jobs[0]
+        _run_one(cfg, job.method, job.path, overwrite=job.overwrite, resume=job.resume, command=job.command)
+    elif jobs:
+        _run_several(cfg, jobs)
+
+    from ilcforce.report.tables import comparison_frame
+
+    frame = comparison_frame({name: store.read_metrics(path) for name, path in paths.items()})
     units = dict(frame.attrs.get("units", {}))
     if "method" in frame.columns:
         frame = frame.set_index("method")
-    _print_frame(frame.T, f"{cfg.experiment.name}: same seed {cfg.experiment.seed}, same disturbance and noise", units)
+    _print_frame(frame.T, _comparison_title(cfg), units)
 
 
-def _table(title: str) -> Table:
+def _import_for_table() -> None:
+    """What compare needs after the runs (pandas, the report's tables), imported while workers run."""
+    import ilcforce.report.tables  # noqa: F401
+
+
+def _comparison_title(cfg) -> str:
+    """The experiment's own name and description (not boilerplate), and the seed every method shared."""
+    exp = cfg.experiment
+    return f"{exp.name}: {exp.description} (seed {exp.seed}, {exp.iterations} iterations)"
+
+
+def _table(title: str):
     """A rich table whose title is shown literally (a path may contain [brackets]); ASCII
     borders when the output encoding cannot show box-drawing characters."""
+    from rich.box import ASCII, HEAVY_HEAD
+    from rich.markup import escape
+    from rich.table import Table
+
     encoding = (out.encoding or "").lower().replace("-", "")
     shown = title.encode(out.encoding or "utf-8", "replace").decode(out.encoding or "utf-8", "replace")
     return Table(title=escape(shown), box=HEAVY_HEAD if encoding.startswith("utf") else ASCII)
@@ -287,6 +372,8 @@ def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str,
 
 def _print_frame(frame, title: str, units: dict[str, str]) -> None:
     """One row per quantity, one column per method (narrow enough for a terminal)."""
+    from rich.markup import escape
+
     table = _table(title)
     table.add_column("")
     for col in frame.columns:
@@ -361,13 +448,14 @@ class _StudyProgress:
         self._started = self._time()
 
     def __enter__(self):
-        from rich.progress import TimeRemainingColumn
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                                   TimeRemainingColumn)
 
         if not self.quiet and err.is_terminal:
             self.bar = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                                 TextColumn("cells, {task.fields[failed]} failed"), TimeElapsedColumn(),
                                 TextColumn("ETA"), TimeRemainingColumn(), TextColumn("{task.fields[last]}"),
-                                console=err, transient=False)
+                                console=err.console(), transient=False)
             self.bar.__enter__()
             self.task = None
         return self

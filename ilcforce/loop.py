@@ -41,21 +41,23 @@ LOG_COLUMNS = {
     "position": 8, "velocity": 10, "contact_force": 12, "contact_force_measured": 14,
     "disturbance": 16, "torque": 18, "task_input": 20, "sliding_surface": 22,
 }
-LOG_WIDTH = 24
+LOG_FALLBACKS = 24  # implicit-scheme fallbacks in the log interval ending at the row's sample
+LOG_WIDTH = 25
 
 # Packed float settings: Ts, filter coefficient, torque bound
 FS_TS, FS_BETA, FS_TAU_BOUND = 0, 1, 2
 FS_WIDTH = 3
 # Packed integer settings
-IS_SUBSTEPS, IS_LOG_EVERY, IS_SCHEME, IS_NOMINAL_DYNAMICS, IS_FORCE_AXIS = 0, 1, 2, 3, 4
-IS_WIDTH = 5
+IS_SUBSTEPS, IS_LOG_EVERY, IS_SCHEME, IS_NOMINAL_DYNAMICS, IS_FORCE_AXIS, IS_FALLBACK = 0, 1, 2, 3, 4, 5
+IS_WIDTH = 6
 
 # The carry vector: the state and everything the loop keeps between samples
 CARRY_THETA, CARRY_DTHETA = 0, 2  # true joint angles and rates
 CARRY_FILTER = 4  # prev_vx, prev_vy, prev_fx, prev_fy, acc_x, acc_y, dfx, dfy, ddfx, ddfy
 CARRY_A_PREV = 14  # the implicit scheme's previous acceleration
 CARRY_FALLBACK = 15  # implicit-loop fallback count so far
-CARRY_WIDTH = 16
+CARRY_FALLBACK_LOGGED = 16  # the count when the last log row was written
+CARRY_WIDTH = 17
 
 #: Probe accelerations (m/s^2) at which the implicit scheme samples the law.
 _PROBE = 1.0
@@ -109,6 +111,22 @@ def _set_candidate(meas, axis, a, dfdy):
     meas[MEAS_FORCE_ACCEL + 1] = dfdy * a if axis == 1 else 0.0
 
 
+@njit(cache=True, error_model="numpy")
+def _fallback(least_residual, a_prev, bb, c2):
+    """The implicit scheme's acceleration where c2 a^2 + bb a + c0 = 0 has no usable root.
+
+    "previous": the last sample's a. "least_residual": the minimiser of |c2 a^2 + bb a + c0|, the
+    vertex -bb / (2 c2), which is the double root where the roots merge (continuous there); with no
+    curvature to locate it (|c2| below _DEGENERATE, e.g. a law linear in a, where the residual is
+    flat or the vertex is roundoff far away) the previous a.
+    """
+    if least_residual and abs(c2) > _DEGENERATE:
+        a = -bb / (2.0 * c2)
+        if math.isfinite(a):
+            return a
+    return a_prev
+
+
 _SIM_SIGNATURE = types.UniTuple(types.int64, 2)(
     LAW_TYPE,
     ACCEL_TYPE,  # true plant: forward dynamics terms
@@ -121,7 +139,8 @@ _SIM_SIGNATURE = types.UniTuple(types.int64, 2)(
     types.float64[:, ::1],  # mem_prev
     types.float64[:, ::1],  # mem_new
     types.float64[:, ::1],  # reference (n_control, 12)
-    types.float64[:, ::1],  # disturbance on the half-step grid (2 substeps N + 1, 2)
+    types.float64[:, ::1],  # disturbance on this chunk's half-step grid: stage indices 2 substeps k_start
+    #                          .. 2 substeps min(k_stop, n_control - 1), i.e. the samples' times and RK4 stages
     types.float64[:, ::1],  # sensor noise (n_control, 6)
     types.float64[::1],  # float settings
     types.int64[::1],  # integer settings
@@ -149,6 +168,7 @@ def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_n
     implicit = iset[IS_SCHEME] == 0
     nominal_dyn = iset[IS_NOMINAL_DYNAMICS] != 0
     fa = iset[IS_FORCE_AXIS]
+    least_residual = iset[IS_FALLBACK] == 1
     ye, ke, w = wall[0], wall[1], wall[2]
     h = ts / substeps
 
@@ -163,12 +183,13 @@ def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_n
     ddfx, ddfy = carry[f0 + 8], carry[f0 + 9]
     a_prev = carry[CARRY_A_PREV]
     fallback = int(carry[CARRY_FALLBACK])
+    fallback_logged = int(carry[CARRY_FALLBACK_LOGGED])
     status = RUN_CONTINUE
     k_fail = -1
 
     for k in range(k_start, min(k_stop, n_steps + 1)):
         t = k * ts
-        base = 2 * substeps * k
+        base = 2 * substeps * (k - k_start)  # this sample's row of the chunk's disturbance
         fvx, fvy = dist[base, 0], dist[base, 1]
         # 1. true plant at the sample (reused as RK4's first stage)
         (ok, px, py, J00, J01, J10, J11, dJvx, dJvy, r1, r2,
@@ -222,7 +243,7 @@ def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_n
 
         # 3. acceleration estimates, 4. the law
         if implicit:
-            dfdy = wall_stiffness(pmy, ye, ke, w)  # stiffness relation, in contact
+            dfdy = wall_stiffness(pmy, vmy, ye, ke, w)  # stiffness relation, in contact
             meas[MEAS_FORCE_RATE] = 0.0
             meas[MEAS_FORCE_RATE + 1] = dfdy * vmy
             # true force-axis acceleration for torque tau: p0 + q . tau
@@ -248,12 +269,12 @@ def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_n
             bb = c1 - 1.0
             disc = bb * bb - 4.0 * c2 * c0
             if disc < 0.0 or not math.isfinite(disc):
-                a = a_prev
+                a = _fallback(least_residual, a_prev, bb, c2)
                 fallback += 1
             else:
                 den = bb + math.copysign(math.sqrt(disc), bb)
                 if abs(den) < _DEGENERATE:
-                    a = a_prev
+                    a = _fallback(least_residual, a_prev, bb, c2)
                     fallback += 1
                 else:
                     a = -2.0 * c0 / den
@@ -312,6 +333,8 @@ def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_n
             log[row, 21] = (-J01 * tau1 + J00 * tau2) / det
             log[row, 22] = diag[DIAG_SIGMA]
             log[row, 23] = diag[DIAG_SIGMA + 1]
+            log[row, LOG_FALLBACKS] = fallback - fallback_logged
+            fallback_logged = fallback
         if k == n_steps:
             status = RUN_OK
             break
@@ -352,6 +375,11 @@ def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_n
             status, k_fail = RUN_NONFINITE, k + 1
             break
 
+    if status != RUN_OK and status != RUN_CONTINUE and fallback > fallback_logged:
+        # a divergence: the fallbacks since the last log row go to the row whose interval holds k_fail
+        row = min((k_fail + log_every - 1) // log_every, log.shape[0] - 1)
+        log[row, LOG_FALLBACKS] = fallback - fallback_logged
+        fallback_logged = fallback
     carry[CARRY_THETA], carry[CARRY_THETA + 1] = th1, th2
     carry[CARRY_DTHETA], carry[CARRY_DTHETA + 1] = d1, d2
     carry[f0], carry[f0 + 1], carry[f0 + 2], carry[f0 + 3] = prev_vx, prev_vy, prev_fx, prev_fy
@@ -359,6 +387,7 @@ def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_n
     carry[f0 + 8], carry[f0 + 9] = ddfx, ddfy
     carry[CARRY_A_PREV] = a_prev
     carry[CARRY_FALLBACK] = fallback
+    carry[CARRY_FALLBACK_LOGGED] = fallback_logged
     return status, k_fail
 
 

@@ -47,6 +47,11 @@ LOG_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
     "sliding_surface": (TASK_AXES, "m/s", "sigma as computed by the controller from its measurements (eq. 8)"),
     "position_error": (TASK_AXES, "m", "e_P = Sbar (P_d - P), true position (eq. 6)"),
     "force_error": (TASK_AXES, "N", "e_F = S (F_d - F), true force (eq. 7)"),
+    "implicit_fallbacks": (None, "1", "control samples in the log interval ending at this sample where the "
+                           "implicit acceleration scheme had no usable root and fell back "
+                           "(simulation.implicit_fallback); 0 for the filtered scheme. After a divergence the "
+                           "fallbacks since the last row are counted in the row whose interval holds it, so "
+                           "the signal sums to the iteration's fallback_count"),
 }
 
 #: Reference signals stored once per file under /reference, on the log grid.

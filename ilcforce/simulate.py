@@ -41,9 +41,13 @@ from ilcforce.controllers.base import Controller
 from ilcforce.noise import IterationDraws, NoiseModel, disturbance
 from ilcforce.plants import make_plant
 from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
-from ilcforce.task import REF_FORCE, REF_POSITION, Wall
+from ilcforce.task import REF_FORCE, REF_POSITION, REF_VELOCITY, Wall
 
 ACCELERATION_SCHEMES = {"implicit": 0, "filtered": 1}
+#: what the implicit scheme does where its quadratic has no usable root (issue 11)
+IMPLICIT_FALLBACKS = {"previous": 0, "least_residual": 1}
+#: each iteration's initial velocity (issue 11): at rest, or the velocity the reference asks for
+INITIAL_VELOCITIES = ("rest", "consistent")
 
 # watchdog outcomes, as ilcforce.loop returns them (kept here so importing this module compiles nothing)
 _RUN_OK, _RUN_NONFINITE, _RUN_TORQUE_BOUND, _RUN_WORKING_MODE, _RUN_CONTINUE = 0, 1, 2, 3, 4
@@ -67,12 +71,25 @@ class SimulationSettings:
     acceleration: str = "implicit"  # "implicit" (resolve the algebraic loop) or "filtered"
     filter_hz: float = 50.0  # cut-off of the first-order filters of the "filtered" scheme, Hz
     torque_bound: float = 1e3  # watchdog bound on |tau|, N m
-    initial_position: tuple[float, float] = (0.35, 0.40)  # P(0), at rest, m
+    initial_position: tuple[float, float] = (0.35, 0.40)  # P(0), m
+    # "rest": dP(0) = 0 (the paper says nothing); "consistent": dP(0) = dP_d(0), i.e. dx(0) = dx_d(0)
+    # and dy(0) = w dF_yd(0) / K_e, removing the t = 0 mismatch of sigma
+    initial_velocity: str = "rest"
+    # implicit scheme without a usable root: "previous" reuses the last sample's acceleration;
+    # "least_residual" takes the minimiser of the loop residual (the parabola's vertex), which is
+    # continuous where the two roots merge and vanish
+    implicit_fallback: str = "previous"
 
     def __post_init__(self) -> None:
         if self.acceleration not in ACCELERATION_SCHEMES:
             raise ValueError(f"simulation.acceleration must be one of {', '.join(ACCELERATION_SCHEMES)}, "
                              f"got {self.acceleration!r}")
+        if self.initial_velocity not in INITIAL_VELOCITIES:
+            raise ValueError(f"simulation.initial_velocity must be one of {', '.join(INITIAL_VELOCITIES)}, "
+                             f"got {self.initial_velocity!r}")
+        if self.implicit_fallback not in IMPLICIT_FALLBACKS:
+            raise ValueError(f"simulation.implicit_fallback must be one of {', '.join(IMPLICIT_FALLBACKS)}, "
+                             f"got {self.implicit_fallback!r}")
         for name in ("sample_time", "filter_hz", "torque_bound"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -147,25 +164,34 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     n_log = (n_control - 1) // s.log_every + 1
     t_control = np.arange(n_control) * s.sample_time
     h = s.sample_time / s.substeps
-    t_stage = np.arange(2 * s.substeps * (n_control - 1) + 1) * (0.5 * h)
-    dist = np.ascontiguousarray(disturbance(t_stage, inputs.draws, inputs.noise))
+
+    def chunk_disturbance(k0, k1):
+        """F_v at the half-step times of samples k0 .. k1 - 1 and their RK4 stages (made per chunk:
+        at substeps = 1000 the whole iteration's would be 40 million rows)."""
+        stages = np.arange(2 * s.substeps * k0, 2 * s.substeps * min(k1, n_control - 1) + 1)
+        return np.ascontiguousarray(disturbance(stages * (0.5 * h), inputs.draws, inputs.noise))
     true_robot = make_plant(inputs.true_plant)
     nominal_robot = make_plant(inputs.nominal_plant)
     theta0 = true_robot.inverse_kinematics(s.initial_position)
+    dtheta0 = (0.0, 0.0)
+    if s.initial_velocity == "consistent":  # dP(0) = dP_d(0) on the true plant
+        dtheta0 = tuple(np.linalg.solve(true_robot.jacobian(theta0), ref[0, REF_VELOCITY:REF_VELOCITY + 2]))
     fset = np.array([s.sample_time, 1.0 - math.exp(-2.0 * math.pi * s.filter_hz * s.sample_time), s.torque_bound])
     iset = np.array([s.substeps, s.log_every, ACCELERATION_SCHEMES[s.acceleration],
-                     int(controller.uses_nominal_dynamics), force_axis(inputs.selection)], dtype=np.int64)
+                     int(controller.uses_nominal_dynamics), force_axis(inputs.selection),
+                     IMPLICIT_FALLBACKS[s.implicit_fallback]], dtype=np.int64)
     wall = np.array([inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign])
     log = np.full((n_log, loop.LOG_WIDTH), np.nan)
-    carry = loop.new_carry(theta0, (0.0, 0.0))
+    carry = loop.new_carry(theta0, dtheta0)
     true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
-    args = (controller.law, true_k.accel, nominal_k.kin, nominal_k.task, true_robot.address, nominal_robot.address,
-            wall, np.ascontiguousarray(controller.gains(), dtype=np.float64), mem_prev, mem_new, ref, dist,
-            np.ascontiguousarray(inputs.draws.sensor), fset, iset, log, carry)
+    head = (controller.law, true_k.accel, nominal_k.kin, nominal_k.task, true_robot.address,
+            nominal_robot.address, wall, np.ascontiguousarray(controller.gains(), dtype=np.float64), mem_prev,
+            mem_new, ref)
+    tail = (np.ascontiguousarray(inputs.draws.sensor), fset, iset, log, carry)
     chunk = chunk_steps if chunk_steps is not None else max(1, CHUNK_RK4_STEPS // s.substeps)
     k = 0
     while True:
-        status, k_fail = loop._simulate(*args, k, k + chunk)
+        status, k_fail = loop._simulate(*head, chunk_disturbance(k, k + chunk), *tail, k, k + chunk)
         k += chunk
         if status != loop.RUN_CONTINUE:
             break
@@ -176,6 +202,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     signals = {"time": t_control[::s.log_every].copy()}
     for name, col in loop.LOG_COLUMNS.items():
         signals[name] = log[:, col:col + 2].copy()
+    signals["implicit_fallbacks"] = log[:, loop.LOG_FALLBACKS].copy()
     sel = np.asarray(inputs.selection, dtype=np.float64)
     ref_log = ref[::s.log_every]
     signals["position_error"] = (1.0 - sel) * (ref_log[:, REF_POSITION:REF_POSITION + 2] - signals["position"])  # eq. (6)

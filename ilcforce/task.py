@@ -38,9 +38,12 @@ def wall_force(y, ye, ke, w):
 
 
 @njit(cache=True, error_model="numpy")
-def wall_stiffness(y, ye, ke, w):
-    """dF_y/dy of :func:`wall_force`: w K_e in contact, 0 out of it (the stiffness relation of SPEC 4)."""
-    return w * ke if w * (y - ye) > 0.0 else 0.0
+def wall_stiffness(y, vy, ye, ke, w):
+    """dF_y/dy of :func:`wall_force` along the motion (the stiffness relation of SPEC 4): w K_e in
+    contact, 0 out of it; exactly on the surface, the one-sided derivative in the direction of the
+    velocity vy (w K_e when entering the wall, 0 when leaving or at rest)."""
+    pen = w * (y - ye)
+    return w * ke if pen > 0.0 or (pen == 0.0 and w * vy > 0.0) else 0.0
 
 
 @dataclass(frozen=True)

@@ -17,3 +17,35 @@ def short_config():
         return load_config(path, base)
 
     return make
+
+
+def plant_experiment(model: str):
+    """The experiment file that runs the paper's task on plant ``model`` (paper.toml first), or None.
+
+    A plant model with no experiment file is run as the embedded paper setup with ``plant.model``
+    set, so a newly registered robot is picked up by the tests that parametrize over the plants.
+    """
+    from pathlib import Path
+
+    files = sorted(Path("experiments").glob("*.toml"), key=lambda p: (p.name != "paper.toml", p.name))
+    from ilcforce.study.spec import is_study_file
+
+    for path in files:
+        if is_study_file(path):  # a study file names an experiment; it is not one
+            continue
+        if load_config(path).plant.model == model:
+            return path
+    return None
+
+
+@pytest.fixture
+def plant_config():
+    """A factory: the paper's task on plant ``model`` (see :func:`plant_experiment`), with overrides."""
+
+    def make(model: str, **overrides):
+        path = plant_experiment(model)
+        if path is None:
+            overrides = {"plant.model": model, **overrides}
+        return load_config(path, overrides)
+
+    return make

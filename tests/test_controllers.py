@@ -10,14 +10,14 @@ from ilcforce.controllers import REGISTRY, Controller
 from ilcforce.controllers.base import (DIAG_WIDTH, LAW_SIGNATURE, MEAS_ACCEL, MEAS_FORCE_ACCEL,
                                        MEAS_WIDTH)
 from ilcforce.experiment import make_controller
-from ilcforce.plant import FiveBar
+from ilcforce.plants import MODELS, make_plant
 
 N = 50  # control samples of the toy memory
 
 
 def _random_measurement(rng, config, k_accel=None):
     """A physically consistent measurement vector at a random pose near the task (nominal model)."""
-    robot = FiveBar(config.plant.links())
+    robot = make_plant(config.plant.nominal())
     pos = np.array([rng.uniform(0.05, 0.35), rng.uniform(0.40, 0.43)])
     theta = robot.inverse_kinematics(pos)
     dtheta = rng.normal(0.0, 0.5, 2)
@@ -36,6 +36,7 @@ def _random_measurement(rng, config, k_accel=None):
     C = robot.task_coriolis(theta, dtheta)
     meas[20:23] = [D[0, 0], D[0, 1], D[1, 1]]
     meas[23:27] = C.ravel()
+    meas[27:29] = robot.task_gravity(theta)  # zero for the five-bar
     return meas
 
 
@@ -48,9 +49,15 @@ def method(request):
     return request.param
 
 
-def test_contract(method):
+@pytest.fixture(params=sorted(MODELS))
+def plant(request):
+    """Every registered plant model: the contract holds for every method on every robot."""
+    return request.param
+
+
+def test_contract(method, plant, plant_config):
     """Every registered controller follows the one contract."""
-    config = default_config()
+    config = plant_config(plant)
     controller = make_controller(config, method)
     assert isinstance(controller, Controller)
     assert controller.name == method
@@ -68,9 +75,9 @@ def test_contract(method):
         assert value.shape[0] == config.n_control, key
 
 
-def test_law_is_pure_unless_writing(method):
+def test_law_is_pure_unless_writing(method, plant, plant_config):
     rng = np.random.default_rng(1)
-    config = default_config()
+    config = plant_config(plant)
     controller = make_controller(config, method)
     width = max((stop for _a, stop, _u in controller.memory_layout.values()), default=0)
     mem_prev = rng.normal(0, 1, (N, width))
@@ -90,14 +97,14 @@ def test_law_is_pure_unless_writing(method):
         np.testing.assert_array_equal(np.delete(mem_new, 3, axis=0), 7.0, err_msg="only sample k is written")
 
 
-def test_law_is_at_most_quadratic_in_acceleration(method):
+def test_law_is_at_most_quadratic_in_acceleration(method, plant, plant_config):
     """The implicit scheme relies on tau(a) being a polynomial of degree <= 2 (see simulate.py).
 
     Third finite differences of a quadratic vanish up to roundoff: with torques of order 10 N m and
     a step of 0.7 m/s^2 the roundoff is ~1e-13; 1e-9 N m is a generous but still decisive bound.
     """
     rng = np.random.default_rng(2)
-    config = default_config()
+    config = plant_config(plant)
     controller = make_controller(config, method)
     width = max((stop for _a, stop, _u in controller.memory_layout.values()), default=0)
     for trial in range(5):
@@ -212,8 +219,8 @@ def test_theta_regressor_identity():
     np.testing.assert_allclose(Phi.T @ theta, D @ psi[:2] + C @ psi[2:], rtol=1e-14)
 
 
-def test_memory_round_trip(method):
-    config = default_config()
+def test_memory_round_trip(method, plant, plant_config):
+    config = plant_config(plant)
     controller = make_controller(config, method)
     rng = np.random.default_rng(4)
     stored = {key: rng.normal(size=value.shape) for key, value in controller.learned_state().items()}
@@ -345,3 +352,38 @@ def test_pd_ilc_law_is_pd_feedback_plus_last_iterations_feedforward(seed):
     tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
     np.testing.assert_allclose(tau, mem_prev[4] + J.T @ (np.diag(g.k) @ sigma + meas[4:6]), rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(mem_new[4], mem_prev[4] + J.T @ np.diag(g.learning) @ sigma, rtol=1e-12, atol=1e-14)
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("method", ["c3", "c3-leak"])
+def test_c3_with_gravity_matches_eq14_with_the_full_theta(seed, method, plant_config):
+    """With gravity (serial 2R), Psi = [psi1; dP + sigma; 1; 1] and Theta has 12 entries (eq. 13):
+    Gamma's G block is ``gamma_gravity`` (G11 G12 for x, G21 G22 for y), read by name."""
+    from dataclasses import replace
+
+    config = plant_config("serial2r")
+    assert config.plant.has_gravity
+    distinct = replace(config.gains[method], gamma_gravity=(1e3, 2e3, 3e3, 4e3))  # a misplaced entry shows
+    config = replace(config, gains={**config.gains, method: distinct})
+    rng = np.random.default_rng(seed)
+    meas = _random_measurement(rng, config)
+    ref = _reference(rng)
+    mem_prev = rng.normal(0, 1, (N, 13))
+    g = config.gains[method]
+    keep = 1.0 - getattr(g, "leakage", 0.0)
+    controller = make_controller(config, method)
+    sigma, psi = _reference_surface(meas, ref[4], config)
+    psi = np.concatenate([psi, [1.0, 1.0]])  # eq. (12) with the G block
+    Phi = np.zeros((12, 2))
+    Phi[0:6, 0] = psi
+    Phi[6:12, 1] = psi
+    Gamma = np.diag([*g.gamma[0:4], *g.gamma_gravity[0:2], *g.gamma[4:8], *g.gamma_gravity[2:4]])
+    theta = keep * mem_prev[4, :12] + Gamma @ Phi @ sigma  # eq. (14)
+    alpha = min(getattr(g, "alpha_max", np.inf), keep * mem_prev[4, 12] + g.eta * sigma @ np.sign(sigma))
+    J = meas[10:14].reshape(2, 2)
+    u = np.diag(g.k) @ sigma + Phi.T @ theta + meas[4:6] + alpha * np.sign(sigma)
+    mem_new = np.zeros((N, 13))
+    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
+    np.testing.assert_allclose(tau, J.T @ u, rtol=1e-11, atol=1e-13, err_msg=f"{method} torque with the G block")
+    np.testing.assert_allclose(mem_new[4, :12], theta, rtol=1e-12, err_msg=f"{method} Theta_hat with the G block")
+    assert mem_new[4, 12] == pytest.approx(alpha, rel=1e-12)

@@ -36,7 +36,8 @@ def make_record(
         if name == "time":
             log[name] = np.linspace(0.0, duration, n_log)
         else:
-            log[name] = np.asarray(signals.pop(name, np.zeros((n_log, len(axes)))), dtype=float)
+            shape = (n_log,) if axes is None else (n_log, len(axes))  # e.g. implicit_fallbacks is scalar
+            log[name] = np.asarray(signals.pop(name, np.zeros(shape)), dtype=float)
     assert not signals, f"unknown signals {sorted(signals)}"
     return IterationRecord(
         iteration=iteration,

@@ -264,3 +264,16 @@ def test_scaled_changes_one_parameter():
     heavy = base.scaled("m2", 1.4)
     assert [n for n in PARAM_NAMES if getattr(heavy, n) != getattr(base, n)] == ["m2"]
     assert heavy.m2 == pytest.approx(1.26)
+
+
+def test_task_gravity_along_a_path_is_the_pointwise_g():
+    arm = Serial2R()
+    path = np.array([START, (0.2, 0.41), (0.05, 0.432)])
+    along = arm.task_gravity_along(path)
+    assert along.shape == (3, 2)
+    for pos, g in zip(path, along):
+        theta = arm.inverse_kinematics(pos)
+        # J^-T G_q by numpy's solve against the kernel's adjugate form: cond(J) < 10, a few ulp
+        np.testing.assert_allclose(g, np.linalg.solve(arm.jacobian(theta).T, arm.gravity(theta)), rtol=1e-13)
+    # the weight of the arm (2.1 kg x 9.81 = 20.6 N) is carried mostly along y at the start pose
+    assert 5.0 < along[0, 1] < 20.6

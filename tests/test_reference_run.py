@@ -52,9 +52,9 @@ def _stored_numbers(results: Path) -> dict[str, np.ndarray]:
 
     numbers: dict[str, np.ndarray] = {}
     for method in METHODS:
-        # --set runs write to a results folder of their own (a variant of "paper"): the only one here
-        folder = next(p for p in results.iterdir() if p.is_dir() and p.name.startswith("paper"))
-        with h5py.File(folder / f"{method}.h5", "r") as handle:
+        found = sorted(Path(results).rglob(f"{method}.h5"))  # a --set run may live in a variant folder
+        assert len(found) == 1, found
+        with h5py.File(found[0], "r") as handle:
             def visit(name, item, method=method):
                 if isinstance(item, h5py.Dataset):
                     value = item[()]

@@ -210,6 +210,14 @@ class Plant:
         out = self._task(theta, (0.0, 0.0))
         return np.array([out[16], out[17]])
 
+    def task_gravity_along(self, positions) -> np.ndarray:
+        """G = J^-T G_q (N) at each end-effector position of ``positions`` (n, 2) (m), shape (n, 2):
+        the task-space gravity C3's G block should learn along a path (zero without gravity)."""
+        positions = np.asarray(positions, dtype=np.float64)
+        if positions.ndim != 2 or positions.shape[1] != 2:
+            raise ValueError(f"positions must have shape (n, 2), got {positions.shape}")
+        return np.array([self.task_gravity(self.inverse_kinematics(pos)) for pos in positions]).reshape(-1, 2)
+
     # --- dynamics ------------------------------------------------------------------------
     def inverse_dynamics(self, theta, dtheta, ddtheta, force_on_end_effector=(0.0, 0.0)) -> np.ndarray:
         """tau = Dq ddtheta + Cq dtheta + G_q - J^T f (N m), f the force on the robot (eq. 1)."""

@@ -4,6 +4,14 @@
 and :mod:`.figures` work on DataFrames and Axes, :mod:`.paper` holds the published numbers.
 """
 
-from ilcforce.report.build import ReportSummary, write_report
-
 __all__ = ["ReportSummary", "write_report"]
+
+
+def __getattr__(name: str):
+    """``write_report`` and ``ReportSummary`` on first use: ``ilcforce compare`` imports
+    ``ilcforce.report.tables`` and must not pay for matplotlib (imported by ``build``)."""
+    if name in __all__:
+        from ilcforce.report import build
+
+        return getattr(build, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

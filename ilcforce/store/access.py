@@ -5,11 +5,13 @@ from __future__ import annotations
 import os
 import stat
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports none (issue 12)
+    import pandas as pd
 
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS
@@ -124,6 +126,8 @@ def metrics_frame(rows: dict[int, dict[str, object]]) -> pd.DataFrame:
         kind = column_kind(column)
         dtype = {"int": np.int64, "str": object, "float": np.float64}[kind]
         data[column] = np.asarray([str(v) for v in values] if kind == "str" else values, dtype=dtype)
+    import pandas as pd
+
     frame = pd.DataFrame(data, index=pd.Index(np.asarray(order, dtype=np.int64), name="iteration"))
     if "status" in frame:
         frame["status"] = frame["status"].astype(str)

@@ -94,11 +94,12 @@ class JournaledFile(io.RawIOBase):
             done = 0
             while done < len(view):
                 done += os.pwrite(self._fd, view[done:], start + done)
-        except Exception as error:
-            # HDF5 must never see a failed write: after one (a full disk, a file-size limit) its
-            # close can crash the process (measured: a segmentation fault in H5Fclose). The
-            # failure is recorded, this and every later write is dropped, and the caller undoes
-            # the commit from the journal once HDF5 has closed the file.
+        except BaseException as error:
+            # HDF5 must never see a failed write: after one (a full disk, a file-size limit, a
+            # KeyboardInterrupt raised here) its close can crash the process (measured: a
+            # segmentation fault in H5Fclose). The failure is recorded, this and every later
+            # write is dropped, and the caller undoes the commit from the journal once HDF5 has
+            # closed the file, then raises the failure.
             self.failed = error
         return len(view)
 
@@ -109,7 +110,7 @@ class JournaledFile(io.RawIOBase):
         try:
             self._save(size, self._base)
             os.ftruncate(self._fd, size)
-        except Exception as error:
+        except BaseException as error:
             self.failed = error
         return size
 

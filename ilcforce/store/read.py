@@ -14,11 +14,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from time import sleep
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports none (issue 12)
+    import pandas as pd
 
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
 from ilcforce.records import IterationRecord
@@ -307,6 +309,8 @@ def frame_from_group(group: h5py.Group, signals: Mapping[str, tuple[tuple[str, .
                 data[name] = values[:, column]
         for name in names:
             units[name] = str(py(stored_unit))
+    import pandas as pd
+
     frame = pd.DataFrame(data, index=pd.Index(time, name="time"))
     frame.attrs["units"] = units
     return frame

@@ -1,0 +1,186 @@
+"""Cold-process figures for ``make bench``: the user's own commands, timed as a user runs them.
+
+Each figure is the median wall time over repeated fresh processes of the real ``ilcforce`` entry
+point (console script), with numba's on-disk caches warm (one untimed run first):
+
+* ``ilcforce --help``;
+* ``ilcforce simulate --method c3 --iters 20`` (the paper's setup, full store written);
+* ``ilcforce compare`` for the paper's study (c1, c2, c3 x 20, every store written, fresh results).
+
+Beside them, the compiled loop's own time for the same work (the simulator kernel timed
+in-process, warm), so that overhead = wall - loop shows; and a split of one cold ``simulate`` under
+cProfile into imports, the compiled loop, store writes, tau_d, metrics and the rest (cProfile
+inflates Python-heavy parts a little; the split is for finding where time goes, the medians are
+the figures).
+"""
+
+from __future__ import annotations
+
+import os
+import pstats
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+METHODS = ("c1", "c2", "c3")
+ITERATIONS = 20
+
+
+def entry_point() -> list[str]:
+    """The installed ``ilcforce`` console script beside this interpreter (or ``python -m ilcforce``)."""
+    script = Path(sys.executable).parent / "ilcforce"
+    return [str(script)] if script.is_file() else [sys.executable, "-m", "ilcforce"]
+
+
+def _wall(args: Sequence[str], cwd: Path) -> float:
+    t0 = time.perf_counter()
+    proc = subprocess.run(list(args), cwd=cwd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    elapsed = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(args)} failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
+    return elapsed
+
+
+def cold_walls(repeat: int, extra: Sequence[str] = (), iterations: int = ITERATIONS) -> dict[str, list[float]]:
+    """Wall times (s) of ``repeat`` cold processes per command, alternating the commands."""
+    cmd = entry_point()
+    n = ["--iters", str(iterations), *extra]
+    walls: dict[str, list[float]] = {"help": [], "simulate": [], "compare": []}
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp_path = Path(tmp)
+        _wall([*cmd, "compare", *n, "--results", str(tmp_path / "warm")], tmp_path)  # numba caches warm
+        for i in range(repeat):
+            walls["help"].append(_wall([*cmd, "--help"], tmp_path))
+            walls["simulate"].append(_wall([*cmd, "simulate", "--method", "c3", *n, "--out",
+                                            str(tmp_path / f"s{i}" / "c3.h5")], tmp_path))
+            walls["compare"].append(_wall([*cmd, "compare", "--methods", ",".join(METHODS), *n,
+                                           "--results", str(tmp_path / f"c{i}")], tmp_path))
+    return walls
+
+
+def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIONS,
+                 overrides: dict | None = None) -> dict[str, float]:
+    """Median in-process time of the compiled simulation loop alone, per method, for ``iterations``."""
+    from ilcforce.config import load_config
+    from ilcforce.experiment import simulate_iterations
+
+    home = _kernel_module()
+    config = load_config(None, {"experiment.iterations": iterations, **(overrides or {})})
+    kernel = home._simulate
+    spent = [0.0]
+
+    def timed(*args):
+        t0 = time.perf_counter()
+        try:
+            return kernel(*args)
+        finally:
+            spent[0] += time.perf_counter() - t0
+
+    out = {}
+    home._simulate = timed
+    try:
+        for method in methods:
+            runs = []
+            for _ in range(repeat):
+                spent[0] = 0.0
+                for _record in simulate_iterations(config, method):
+                    pass
+                runs.append(spent[0])
+            out[method] = statistics.median(runs)
+    finally:
+        home._simulate = kernel
+    return out
+
+
+def _kernel_module():
+    """The module holding the compiled simulation loop ``_simulate`` (called through the module)."""
+    import importlib
+
+    for name in ("ilcforce.loop", "ilcforce.simulate"):
+        module = importlib.import_module(name)
+        if hasattr(module, "_simulate"):
+            return module
+    raise RuntimeError("no compiled simulation loop `_simulate` found")
+
+
+#: Categories of the cold-run split: (label, test on a profiled function (file, line, name)).
+def _category(func: tuple[str, int, str]) -> str | None:
+    filename, _, name = func
+    path = filename.replace(os.sep, "/")
+    if name == "<module>":  # module bodies run at import: counted under imports
+        return None
+    if name == "_simulate" and path.endswith(("ilcforce/loop.py", "ilcforce/simulate.py")):
+        return "compiled loop"
+    if "desired" in name and "/ilcforce/" in path:
+        return "tau_d along the reference"
+    if "/ilcforce/store" in path:
+        return "store writes"
+    if path.endswith("ilcforce/metrics.py"):
+        return "metrics"
+    return None
+
+
+def profile_split(extra: Sequence[str] = (), iterations: int = ITERATIONS) -> tuple[float, dict[str, float]]:
+    """One cold ``simulate -m c3`` under cProfile: (profiled total, seconds per category)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        prof = Path(tmp) / "run.prof"
+        args = [sys.executable, "-m", "cProfile", "-o", str(prof), "-m", "ilcforce", "simulate", "--method", "c3",
+                "--iters", str(iterations), *extra, "--out", str(Path(tmp) / "c3.h5")]
+        _wall(args, Path(tmp))
+        stats = pstats.Stats(str(prof)).stats  # type: ignore[attr-defined]
+    total = max(ct for (_, _, _, ct, _) in stats.values())
+    split: dict[str, float] = {}
+    imports = sum(ct for func, (_, _, _, ct, _) in stats.items() if func[2] == "_find_and_load")
+    split["imports (incl. numba cache loads at import)"] = imports
+    for func, (_, _, _, ct, callers) in stats.items():
+        category = _category(func)
+        if category is None:
+            continue
+        # count only calls from outside the category (so nested calls are not counted twice)
+        outside = sum(c[3] for caller, c in callers.items() if _category(caller) != category
+                      and not caller[0].startswith("<frozen") and caller[2] != "<module>")
+        split[category] = split.get(category, 0.0) + outside
+    split["other (CLI, config, noise draws, Python glue)"] = total - sum(split.values())
+    return total, split
+
+
+def report(repeat: int = 5, loop_repeat: int = 3, extra: Sequence[str] = (), iterations: int = ITERATIONS) -> None:
+    """Print the cold-process figures, the loop/overhead split and the profiled split."""
+    cores = os.cpu_count() or 1
+    walls = cold_walls(repeat, extra, iterations)
+    overrides = dict(_parse_set(extra))
+    loops = loop_seconds(METHODS, loop_repeat, iterations, overrides)
+    med = {k: statistics.median(v) for k, v in walls.items()}
+    rng = {k: f"{min(v):.2f}-{max(v):.2f}" for k, v in walls.items()}
+    print(f"cold processes of {' '.join(entry_point())} (median of {repeat}, range; numba caches warm; "
+          f"{cores} cores):")
+    print(f"  ilcforce --help                                   : {med['help']:8.2f} s wall   ({rng['help']})")
+    sim_loop = loops["c3"]
+    print(f"  ilcforce simulate --method c3 --iters {iterations:<3}          : {med['simulate']:8.2f} s wall   "
+          f"({rng['simulate']}); compiled loop {sim_loop:.2f} s, overhead "
+          f"{100 * (1 - sim_loop / med['simulate']):.0f}%")
+    ideal = max(sum(loops.values()) / min(cores, len(METHODS)), max(loops.values()))
+    print(f"  ilcforce compare (c1, c2, c3 x {iterations}, stores written): {med['compare']:8.2f} s wall   "
+          f"({rng['compare']}); compiled loop {sum(loops.values()):.2f} s over the methods "
+          f"= {ideal:.2f} s on {min(cores, len(METHODS))} cores, overhead {100 * (1 - ideal / med['compare']):.0f}%")
+    total, split = profile_split(extra, iterations)
+    parts = ", ".join(f"{name} {100 * t / total:.0f}%" for name, t in split.items())
+    print(f"  split of one cold simulate -m c3 under cProfile ({total:.2f} s profiled): {parts}")
+
+
+def _parse_set(extra: Sequence[str]):
+    """``--set key=value`` pairs of ``extra`` as config overrides (for the in-process loop timing)."""
+    from ilcforce.config import parse_override
+
+    items = list(extra)
+    for flag, value in zip(items[::2], items[1::2]):
+        if flag == "--set":
+            yield parse_override(value)
+
+
+if __name__ == "__main__":
+    report()

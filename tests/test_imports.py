@@ -1,0 +1,37 @@
+"""Lazy imports (issue 12): each path imports only what it uses, so cold commands start fast.
+
+Timings belong to `make bench` (ilcforce/bench_cold.py); this pins the structure that makes them:
+which heavy modules each path leaves unimported. A failure names the module that crept in.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+HEAVY = ("rich.table", "rich.progress", "pandas", "numba", "h5py", "matplotlib", "scipy")
+
+
+def _imported_after(code: str) -> set[str]:
+    probe = f"{code}\nimport sys\nprint('MODULES:', *(m for m in {HEAVY!r} if m in sys.modules))"
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    line = [line for line in proc.stdout.splitlines() if line.startswith("MODULES:")][-1]
+    return set(line.split()[1:])
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["simulate", "--help"], ["compare", "--help"], ["version"]])
+def test_help_and_version_import_no_heavy_module(argv):
+    code = (f"import sys\nsys.argv = ['ilcforce', *{argv!r}]\nfrom ilcforce.cli import main\n"
+            "try:\n    main()\nexcept SystemExit:\n    pass")
+    assert _imported_after(code) - {"rich.table"} == set()  # typer's help may draw a rich table
+
+
+def test_the_simulation_path_imports_neither_pandas_nor_matplotlib():
+    assert _imported_after("import ilcforce.experiment") & {"pandas", "matplotlib"} == set()
+
+
+def test_compare_tables_do_not_import_matplotlib():
+    assert "matplotlib" not in _imported_after("import ilcforce.report.tables")
