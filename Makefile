@@ -8,7 +8,8 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 RESULTS ?= results
-EXPERIMENTS := paper noise-free realistic ts-1ms long-run
+# every experiment file in experiments/ (a file with a [study] table is a study, run by `make studies`)
+EXPERIMENTS := $(patsubst experiments/%.toml,%,$(shell grep -L '^\[study\]' experiments/*.toml))
 # every registered method (ilcforce/controllers/__init__.py); evaluated only by targets that need it
 METHODS = $(shell $(PY) -m ilcforce.controllers)
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
