@@ -510,6 +510,8 @@ def study(
                                 command=_command_line(ctx), progress=progress, timeout=timeout)
     except _study_errors() as exc:
         _fail_plain(str(exc) or type(exc).__name__)
+    except OSError as exc:
+        _fail_plain(f"{exc.filename or results}: {exc.strerror or exc}")
     except KeyboardInterrupt:
         err.print("interrupted: every finished cell is stored; rerun the same command to continue", highlight=False)
         raise typer.Exit(130)

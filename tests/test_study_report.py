@@ -81,3 +81,25 @@ def test_a_damaged_study_store_is_a_warning_not_a_crash(tmp_path):
     summary = write_report(tmp_path, tmp_path / "report", formats=("png",))
     assert any("broken.h5" in w for w in summary.warnings)
     assert summary.studies == ()
+
+
+def test_study_findings_and_boundary_figure(results):
+    """The findings page of a study (issue 11): per setting the first diverged iteration, the flags
+    and the claims; for a one-key sweep, the stability-boundary figure; and the README section."""
+    from ilcforce.report.study_findings import first_divergence
+
+    _root, out, _summary = results
+    page = (out / "studies" / "sweep1" / "findings.md").read_text(encoding="utf-8")
+    assert "## Overview" in page and "c3.eta = 5" in page and "c3.eta = 2" in page
+    assert (out / "studies" / "sweep1" / "fig_stability_boundary.png").stat().st_size > 10_000
+    assert not (out / "studies" / "sweep2" / "fig_stability_boundary.png").exists(), "two keys: no 1-D figure"
+    findings = (out / "findings.md").read_text(encoding="utf-8")
+    assert "**Study `sweep1`**" in findings and findings.index("Study `sweep1`") < findings.index("`paper`")
+    # the first diverged iteration is the first iteration with status "diverged", per seed and method
+    import pandas as pd
+
+    frame = pd.DataFrame({"seed": [0, 0, 0, 1, 1], "method": ["c3"] * 5, "iteration": [0, 1, 2, 0, 1],
+                          "status": ["complete", "complete", "diverged", "complete", "complete"]})
+    div = first_divergence(frame).set_index("seed")
+    assert div.at[0, "diverged_at"] == 2 and np.isnan(div.at[1, "diverged_at"])
+    assert list(div["iterations"]) == [3, 2]

@@ -33,7 +33,7 @@ from matplotlib.figure import Figure
 import ilcforce
 from ilcforce import store
 from ilcforce.report import claims as claims_module
-from ilcforce.report import figures, paper, readme, sections, stability, tables
+from ilcforce.report import figures, paper, readme, sections, stability, study_findings, tables
 from ilcforce.metrics import memory_norms
 
 #: The methods an experiment is expected to hold.
@@ -645,11 +645,20 @@ def write_report(
     title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
     index.write_text("\n".join([title, "", *study_section]) + rest, encoding="utf-8")  # studies lead
     written.append(index)
+    studies: dict[str, dict] = {}
+    for path in sorted((results_dir / "studies").glob("*.h5")) if (results_dir / "studies").is_dir() else []:
+        try:
+            files, name, found_study = study_findings.write_study_findings(path, out_dir / "studies")
+        except Exception as error:  # one bad study store never aborts the report  # noqa: BLE001
+            warnings.append(f"{path}: study findings not written: {' '.join(str(error).split())}")
+            continue
+        written += files
+        studies[name] = found_study
     findings = out_dir / "findings.md"
     findings.write_text(readme.findings_markdown({
         name: {"description": frame.attrs.get("description", ""), "parts": pd.DataFrame(frame.attrs.get("parts", {})),
                "flags": frame.attrs.get("flags", {}), "divergence": frame.attrs.get("divergence", [])}
-        for name, frame in verdicts.items()}), encoding="utf-8")
+        for name, frame in verdicts.items()}, studies), encoding="utf-8")
     written.append(findings)
     return ReportSummary(
         out_dir=out_dir,

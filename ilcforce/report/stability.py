@@ -38,13 +38,19 @@ MIN_WINDOW = 9
 #: Quantities always watched (metric columns); memory norms are added when present.
 WATCHED = ("chattering_task_x", "chattering_task_y", "position_error_2norm", "force_error_2norm")
 UNSTABLE = "unstable learning"
+#: Learned-memory norm columns: ``memory_norm_<name>`` (ilcforce.metrics.memory_norms, single-run
+#: reports) and ``memory_rms_<name>`` (the same RMS as study cells name it).
+MEMORY_PREFIXES = ("memory_norm_", "memory_rms_")
 #: Short names for the quantities, for flags and tables.
 SHORT = {"chattering_task_x": "H_x", "chattering_task_y": "H_y", "position_error_2norm": "|e_P|",
          "force_error_2norm": "|e_F|"}
 
 
 def short_name(column: str) -> str:
-    return SHORT.get(column, column.replace("memory_norm_", "|") + ("|" if column.startswith("memory_norm_") else ""))
+    for prefix in MEMORY_PREFIXES:
+        if column.startswith(prefix):
+            return f"|{column.removeprefix(prefix)}|"
+    return SHORT.get(column, column)
 
 
 def growth_window(iterations: list[int], perturbation_iteration: int) -> list[int]:
@@ -58,7 +64,7 @@ def growth_window(iterations: list[int], perturbation_iteration: int) -> list[in
 
 def watched_columns(frame: pd.DataFrame) -> list[str]:
     return [c for c in WATCHED if c in frame.columns] + sorted(
-        c for c in frame.columns if c.startswith("memory_norm_"))
+        c for c in frame.columns if c.startswith(MEMORY_PREFIXES))
 
 
 def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd.DataFrame:

@@ -1,0 +1,180 @@
+"""Findings of a study (issue 11, section 3): per setting, the claims part by part over seeds, the
+learning-stability flags, the first diverged iteration, and the key numbers with intervals; for a
+one-key sweep, the stability boundary as a figure.
+
+Reads a :class:`ilcforce.study.tidy.StudyResults`; writes nothing itself except through
+:func:`write_study_findings`.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from ilcforce.records import STATUS_DIVERGED
+from ilcforce.report import claims as claims_module
+from ilcforce.report import figures, paper, stability
+from ilcforce.report.tables import markdown_table
+from ilcforce.stats import format_interval, median_interval
+
+#: Key numbers per setting and method, read at the paper's Table 3 iteration (j = 19, or the last
+#: iteration a seed completed): grid-independent error norms (comparable across sample times) and H.
+KEY_COLUMNS = (("position_error_l2", "|e_P| L2 (m s^1/2)"), ("force_error_l2", "|e_F| L2 (N s^1/2)"),
+               ("position_error_2norm", "|e_P| 2-norm (m)"), ("force_error_2norm", "|e_F| 2-norm (N)"),
+               ("chattering_task_x", "H_x (N)"), ("chattering_task_y", "H_y (N)"),
+               ("chattering_task_y_settled", "H_y settled (N)"))
+
+
+def first_divergence(frame: pd.DataFrame) -> pd.DataFrame:
+    """Per (seed, method): the first diverged iteration (NaN when none) and the iterations run."""
+    rows = []
+    for (seed, method), cell in frame.groupby(["seed", "method"], sort=False):
+        diverged = cell.loc[cell["status"].astype(str) == STATUS_DIVERGED, "iteration"]
+        rows.append({"seed": seed, "method": method, "iterations": int(cell["iteration"].max()) + 1,
+                     "diverged_at": float(diverged.min()) if len(diverged) else math.nan})
+    return pd.DataFrame(rows, columns=["seed", "method", "iterations", "diverged_at"])
+
+
+def _divergence_text(div: pd.DataFrame) -> str:
+    k, n = int(div["diverged_at"].notna().sum()), len(div)
+    if k == 0:
+        return f"stable through j = {int(div['iterations'].max()) - 1} (0 of {n})"
+    return f"j = {format_interval(median_interval(div['diverged_at']))} ({k} of {n} seeds)"
+
+
+def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int) -> tuple[list[dict], pd.DataFrame, dict]:
+    """One setting's per-method rows (key numbers, divergence, flag), its claim parts and flags."""
+    parts = claims_module.judge_claims_over_seeds(frame, perturbation_iteration=perturbation_iteration)
+    growth = stability.learning_growth(frame, perturbation_iteration=perturbation_iteration)
+    flags = stability.unstable_methods(growth)
+    divergence = first_divergence(frame)
+    rows = []
+    for method, per_method in frame.groupby("method", sort=False):
+        row = {"method": method, "divergence": _divergence_text(divergence[divergence["method"] == method]),
+               "unstable learning": flags.get(str(method), "no").split(": ", 1)[-1]}
+        for column, label in KEY_COLUMNS:
+            if column not in per_method.columns:
+                continue
+            at = per_method[(per_method["iteration"] == paper.CHATTERING_ITERATION)
+                            & (per_method["status"].astype(str) == "complete")]
+            row[f"{label} at j = {paper.CHATTERING_ITERATION}"] = format_interval(median_interval(at[column]))
+        rows.append(row)
+    return rows, parts, flags
+
+
+def _setting_name(values: dict) -> str:
+    return ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in values.items()) or "-"
+
+
+def study_markdown(results, *, perturbation_iteration: int = paper.PERTURBATION_ITERATION) -> tuple[str, dict]:
+    """The study's findings page and a summary for the README (setting -> verdicts and flags)."""
+    lines = [f"# Study `{results.name}`", "", f"**{results.description or 'no description'}**", "",
+             "Every number is a median over seeds with its 95% percentile-bootstrap interval; divergence "
+             "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
+             "(a claim fails when a central part fails); unstable learning follows the stated growth test.", ""]
+    overview, summary, body = [], {}, []
+    for setting in results.settings.index:
+        values = {k: results.settings.loc[setting, k] for k in results.sweep_keys}
+        frame = results.setting_metrics(int(setting))
+        if frame.empty:
+            continue
+        rows, parts, flags = setting_rows(frame, perturbation_iteration=perturbation_iteration)
+        verdicts = claims_module.claim_summary(parts)
+        name = _setting_name(values)
+        entry = {"setting": name}
+        entry.update({f"claim {r.claim}": f"{r.verdict}" for r in verdicts.itertuples(index=False)})
+        entry["unstable learning"] = ", ".join(flags) or "none"
+        overview.append(entry)
+        summary[name] = {"verdicts": dict(zip(verdicts["claim"], verdicts["verdict"])), "flags": dict(flags),
+                         "rows": rows, "seeds": int(frame["seed"].nunique())}
+        body += [f"## Setting: {name}", "", markdown_table(pd.DataFrame(rows))]
+        body.append(markdown_table(verdicts[["claim", "verdict", "frequency", "statement"]]))
+    if overview:
+        lines += ["## Overview", "", markdown_table(pd.DataFrame(overview))]
+    lines += body
+    return "\n".join(lines) + "\n", summary
+
+
+def figure_boundary(results) -> Figure | None:
+    """For a one-key numeric sweep: (a) first diverged iteration per method against the swept
+    value (median over the seeds that diverged, bars from min to max; a hollow marker at the top
+    means stable through the last iteration in every seed), (b) the growth rate per iteration of
+    H_x per method with its 95% interval, and 1 (no growth) dashed."""
+    if len(results.sweep_keys) != 1:
+        return None
+    key = results.sweep_keys[0]
+    xs = [results.settings.loc[s, key] for s in results.settings.index]
+    if not all(isinstance(x, (int, float)) for x in xs):
+        return None
+    fig = Figure(figsize=(7.0, 6.0), layout="constrained")
+    ax_div, ax_rate = fig.subplots(2, 1, sharex=True)
+    methods = list(dict.fromkeys(results.metrics["method"]))
+    offsets = {m: 1 + 0.06 * (k - (len(methods) - 1) / 2) for k, m in enumerate(methods)}
+    top = 0
+    for method in methods:
+        color = figures._color(method)
+        for setting, x in zip(results.settings.index, xs, strict=True):
+            frame = results.setting_metrics(int(setting))
+            frame = frame[frame["method"] == method]
+            if frame.empty:
+                continue
+            div = first_divergence(frame)
+            top = max(top, int(div["iterations"].max()))
+            hit = div["diverged_at"].dropna()
+            xm = x * offsets[method]
+            if len(hit):
+                med = float(np.median(hit))
+                ax_div.errorbar([xm], [med], yerr=[[med - hit.min()], [hit.max() - med]], marker="o", color=color,
+                                capsize=3, label=None)
+                ax_div.annotate(f"{len(hit)}/{len(div)}", (xm, med), textcoords="offset points", xytext=(4, 4),
+                                fontsize="x-small", color=color)
+            else:
+                ax_div.plot([xm], [div["iterations"].max()], marker="^", markerfacecolor="none", color=color)
+            growth = stability.learning_growth(frame, perturbation_iteration=paper.PERTURBATION_ITERATION)
+            hx = growth[growth["quantity"] == "chattering_task_x"]
+            if len(hx):
+                r = hx.iloc[0]
+                ax_rate.errorbar([xm], [r.rate], yerr=[[r.rate - r.rate_low], [r.rate_high - r.rate]], marker="o",
+                                 color=color, capsize=3)
+        ax_div.plot([], [], marker="o", color=color, label=figures.method_label(method))
+    ax_div.plot([], [], marker="^", markerfacecolor="none", color="0.3", linestyle="none",
+                label="stable in every seed (at the iterations run)")
+    ax_div.set_ylabel("first diverged iteration j")
+    ax_div.set_ylim(-0.5, top + 1)
+    ax_div.legend(fontsize="small")
+    ax_rate.axhline(1.0, color="0.4", linestyle="--", linewidth=1.0)
+    ax_rate.set_ylabel("growth rate of H_x per iteration")
+    ax_rate.set_xlabel(key)
+    if min(xs) > 0:
+        ax_rate.set_xscale("log")
+        ax_rate.set_xlim(min(xs) / 1.5, max(xs) * 1.5)
+    else:
+        span = max(xs) - min(xs) or 1.0
+        ax_rate.set_xlim(min(xs) - 0.1 * span, max(xs) + 0.1 * span)
+    ax_div.set_title(f"Stability boundary over {key}")
+    return fig
+
+
+def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], str, dict]:
+    """Write ``out_dir/<name>/findings.md`` (+ the boundary figure for 1-key sweeps)."""
+    from ilcforce.study.tidy import read_study
+
+    results = read_study(study_store)
+    directory = Path(out_dir) / results.name
+    directory.mkdir(parents=True, exist_ok=True)
+    text, summary = study_markdown(results)
+    written = []
+    with figures.report_style():
+        fig = figure_boundary(results)
+        if fig is not None:
+            path = directory / "fig_stability_boundary.png"
+            fig.savefig(path)
+            written.append(path)
+            text += f"\n![stability boundary]({path.name})\n"
+    (directory / "findings.md").write_text(text, encoding="utf-8")
+    written.append(directory / "findings.md")
+    return written, results.name, {"description": results.description, "settings": summary}
