@@ -33,6 +33,8 @@ test-slow: $(STAMP) ## run only the slow paper-level regression studies
 	$(PY) -m pytest -q -m slow
 
 bench: $(STAMP) ## print speed figures (medians over repeated runs)
+	@# bytecode as a regular install has it (an editable one under PYTHONDONTWRITEBYTECODE never writes it)
+	$(PY) -m compileall -q ilcforce
 	$(PY) -m ilcforce.bench
 
 STORES = $(foreach e,$(EXPERIMENTS),$(foreach m,$(METHODS),$(RESULTS)/$(e)/$(m).h5))
