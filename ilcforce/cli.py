@@ -488,7 +488,7 @@ class _StudyProgress:
 @app.command()
 def study(
     ctx: typer.Context,
-    file: Annotated[Path, typer.Argument(help="study file (TOML with a [study] table; see README)")],
+    file: Annotated[Path, typer.Argument(help="study file: TOML whose study table names the seeds, methods, fixed values and sweep (see README)")],
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://HOST:8786")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", help="local worker processes (default: one per core; 1 runs in this process without Dask)")] = None,
     results: Annotated[Path, typer.Option("--results", help="results folder; the study store is <results>/studies/<name>.h5")] = Path("results"),
@@ -510,6 +510,8 @@ def study(
                                 command=_command_line(ctx), progress=progress, timeout=timeout)
     except _study_errors() as exc:
         _fail_plain(str(exc) or type(exc).__name__)
+    except OSError as exc:
+        _fail_plain(f"{exc.filename or results}: {exc.strerror or exc}")
     except KeyboardInterrupt:
         err.print("interrupted: every finished cell is stored; rerun the same command to continue", highlight=False)
         raise typer.Exit(130)

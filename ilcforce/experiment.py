@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from ilcforce import samerun
-from ilcforce.config import Config
+from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
@@ -57,8 +57,11 @@ def make_controller(config: Config, method: str):
     if method not in REGISTRY:
         raise UnknownMethodError(f"unknown method {method!r}; choose one of {', '.join(REGISTRY)}")
     cls = REGISTRY[method].controller_class
-    return cls(config.n_control, config.surface, config.wall.sign, config.gains[method],
-               gravity=config.plant.has_gravity, sample_time=config.simulation.sample_time)
+    try:
+        return cls(config.n_control, config.surface, config.wall.sign, config.gains[method],
+                   gravity=config.plant.has_gravity, sample_time=config.simulation.sample_time)
+    except ValueError as exc:  # gains valid alone but not with this setting (e.g. a Q cutoff above Nyquist)
+        raise ConfigError(str(exc)) from None
 
 
 def reference_log(config: Config) -> dict[str, np.ndarray]:

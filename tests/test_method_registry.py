@@ -137,6 +137,22 @@ def test_runs_deterministic_resumable_and_valid(tmp_path, plant_config, method, 
     _assert_same_stores(straight, resumed, [2], "resumed from the stored memory")
 
 
+def test_gains_invalid_for_the_setting_are_one_line_exit_2(tmp_path):
+    """A gain valid alone but not with the experiment (pd-ilc's Q cutoff above the Nyquist frequency
+    of Ts = 0.1 ms) is bad input: one line naming it, exit code 2, no file written."""
+    from typer.testing import CliRunner
+
+    from ilcforce.cli import app
+
+    out = tmp_path / "pd.h5"
+    result = CliRunner().invoke(app, ["simulate", "-m", "pd-ilc", "-n", "1", "--out", str(out), "--set",
+                                      "reference.duration=0.2", "--set", "pd-ilc.q_cutoff=6000"])
+    text = result.output.strip()
+    assert result.exit_code == 2, f"exit {result.exit_code}: {text}"
+    assert "pd-ilc.q_cutoff" in text and "Nyquist" in text and len(text.splitlines()) == 1, text
+    assert not out.exists()
+
+
 # ---------------------------------------------------------------------------------------------
 # the between-iteration hook
 # ---------------------------------------------------------------------------------------------

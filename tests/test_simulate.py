@@ -462,3 +462,20 @@ def test_ctrl_c_stops_a_long_iteration_at_once(tmp_path):
                 proc.communicate()
     assert proc.returncode == 130, stderr
     assert latency < 3.0, f"Ctrl-C took {latency:.2f} s to take effect"
+
+
+def test_gravity_figure_plots_learned_against_true_g(tmp_path, short_config):
+    """The 'does C3 learn gravity?' figure: learned G11 + G12, G21 + G22 of a 2R C3 store against
+    J^-T G_q of the true plant, one panel per axis."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from ilcforce.experiment import run_method
+    from ilcforce.report.gravity import gravity_figure
+
+    config = _plant_config(short_config, "serial2r", **{"experiment.iterations": 2})
+    run_method(config, "c3", tmp_path / "c3.h5")
+    fig = gravity_figure(tmp_path / "c3.h5", config)
+    assert len(fig.axes) == 2
+    truth = fig.axes[1].lines[-1].get_ydata()
+    assert 9.0 < truth.min() < truth.max() < 16.0  # J^-T G_q along y on the task: 9.9 .. 14.9 N

@@ -205,3 +205,27 @@ def test_unreachable_scheduler_is_one_line_in_bounded_time(tmp_path, kind):
     assert "scheduler" in result.stderr
     # 2 s to connect plus the interpreter's start-up (imports take a few seconds on a loaded machine)
     assert elapsed < 60, f"took {elapsed:.1f} s"
+
+
+def test_file_size_limit_is_one_line_and_a_rerun_completes(tmp_path):
+    """`ulimit -f` (like a full disk) stops the study with one line, exit 2; the cells committed before
+    are kept and a rerun without the limit completes with the clean run's metrics."""
+    import resource
+
+    study_file = write_study_file(tmp_path, TINY_TOML)
+    results = tmp_path / "r"
+
+    def limit():  # in the child: files may grow to 64 kB (a journal record is ~10 kB)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (64 * 1024, resource.RLIM_INFINITY))
+
+    limited = subprocess.run([*CLI, "study", str(study_file), "--results", str(results), "--workers", "1",
+                              "--quiet"], capture_output=True, text=True, timeout=300, preexec_fn=limit)
+    assert limited.returncode == 2, limited.stderr
+    assert limited.stderr.count("\n") == 1 and "ulimit -f" in limited.stderr, limited.stderr
+    rerun = subprocess.run([*CLI, "study", str(study_file), "--results", str(results), "--workers", "1"],
+                           capture_output=True, text=True, timeout=300)
+    assert rerun.returncode == 0, rerun.stderr
+    clean = tmp_path / "clean"
+    run_study(small_study(sweep={"c3.eta": [5.0, 2.0]}), clean, workers=1)
+    pd.testing.assert_frame_equal(tidy_metrics(results / "studies" / "tiny.h5"),
+                                  tidy_metrics(clean / "studies" / "tiny.h5"), check_exact=True)

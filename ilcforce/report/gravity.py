@@ -57,7 +57,8 @@ def gravity_figure(store_path: Path, config, iterations=None):
     truth = true_gravity(config, chosen[-1], positions)
     for k, (ax, axis) in enumerate(zip(axes, G_COLUMNS)):
         ax.plot(t, truth[:, k], "k--", lw=1.2, label=f"true J^-T G_q (j = {chosen[-1]})")
-        ax.set_title(f"G_{axis}: C3's G_{{{'1' if axis == 'x' else '2'}1}} + G_{{{'1' if axis == 'x' else '2'}2}}")
+        i = "1" if axis == "x" else "2"
+        ax.set_title(f"G_{axis}: C3's G{i}1 + G{i}2 against J^-T G_q")
         ax.set_xlabel("t (s)")
         ax.set_ylabel("N")
     axes[0].legend(fontsize=7)

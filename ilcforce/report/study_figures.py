@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import tables
@@ -83,6 +84,7 @@ def norm_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: t
             label += f", {n_end} of {n_seeds} seeds" if n_end != n_seeds else ""
             drawn.append(_band_plot(ax, wide.index.to_numpy(), stats, method, label))
         _log_scale(ax, drawn)
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.set_xlabel("iteration j")
         ax.set_ylabel(ylabel)
         ax.set_title(f"{'Fig. 3' if stem.startswith('fig3') else 'Fig. 4'} over {n_seeds} seeds")

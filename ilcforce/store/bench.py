@@ -85,6 +85,9 @@ def _one(tree: Path, data: Path, folder: Path, locking: bool, watch: bool = Fals
         env["HDF5_USE_FILE_LOCKING"] = "FALSE"
     script = (_USE_TREE + "import pickle, sys\nfrom ilcforce.records import IterationRecord\n"
               "d = pickle.load(open(sys.argv[1], 'rb'))\n"
+              "from ilcforce.records import LOG_SIGNALS\n"
+              "for r in d['plain']:\n"  # each tree stores the signals it knows
+              "    r['log'] = {k: v for k, v in r['log'].items() if k in LOG_SIGNALS}\n"
               "d['records'] = [IterationRecord(**r) for r in d['plain']]\n"
               "pickle.dump(d, open(sys.argv[1] + '.rec', 'wb'))\n")
     subprocess.run([sys.executable, "-c", script, str(data)], check=True, env=env, cwd=folder)

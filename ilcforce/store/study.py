@@ -60,8 +60,12 @@ def _lock_path(path: Path) -> Path:
 
 
 def is_study_store(path: Path) -> bool:
-    """True if ``path`` is an HDF5 file carrying the study schema (never raises)."""
+    """True if ``path`` is an HDF5 file carrying the study schema (never raises, bounded time)."""
     try:
+        with open(path, "rb") as handle:
+            if handle.read(8) != b"\x89HDF\r\n\x1a\n":
+                return False
+        _probe(Path(path))
         with h5py.File(path, "r") as handle:
             return handle.attrs.get("schema") == SCHEMA_NAME
     except Exception:  # noqa: BLE001 - any unreadable file is "not a study store"
@@ -109,8 +113,30 @@ def _journal_records(path: Path) -> list[dict]:
     return records
 
 
-def read_header(path: Path) -> dict:
-    """Root attributes and the settings table of a study store; StudyStoreError if not one."""
+def _probe(path: Path) -> None:
+    """Bounded time on a damaged file: walk its structure in a forked child first (the run store's
+    :func:`ilcforce.store.safeio.probe`); StudyStoreError if that fails."""
+    from ilcforce.store.safeio import StoreError, probe
+
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError as exc:
+        raise StudyStoreError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        probe(Path(path), fd)
+    except StoreError as exc:
+        raise StudyStoreError(str(exc)) from None
+    finally:
+        os.close(fd)
+
+
+def read_header(path: Path, *, check: bool = True) -> dict:
+    """Root attributes and the settings table of a study store; StudyStoreError if not one.
+
+    ``check`` walks the file in a time-limited child first (readers; the driver, which wrote the
+    file itself, skips it)."""
+    if check:
+        _probe(path)
     try:
         with h5py.File(path, "r") as handle:
             if handle.attrs.get("schema") != SCHEMA_NAME:
@@ -128,13 +154,13 @@ def read_header(path: Path) -> dict:
     return attrs
 
 
-def read_tables(path: Path) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
+def read_tables(path: Path, *, check: bool = True) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
     """(header, metrics, cells) of a study store, journal records included.
 
     ``metrics`` has the raw columns (``setting`` index, ``seed``, ``method``, ``iteration``, metric
     columns); ``cells`` one row per cell, its latest record.
     """
-    header = read_header(path)
+    header = read_header(path, check=check)
     try:
         with h5py.File(path, "r") as handle:
             metrics = _table(handle["metrics"])
@@ -220,11 +246,49 @@ def _fsync(path: Path) -> None:
 
 def _write_json_atomic(path: Path, data: dict) -> None:
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    with open(tmp, "w", encoding="utf-8") as handle:
-        json.dump(data, handle)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
+    text = json.dumps(data)
+    _ensure_room(path.parent, 2 * len(text))
+    try:
+        with open(tmp, "w", encoding="utf-8") as handle:
+            handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, path)
+    except OSError as exc:
+        _remove(tmp)
+        raise StudyStoreError(f"{path}: cannot commit the cell ({exc.strerror or exc}); every cell committed "
+                              "before is kept, rerun to continue") from None
+
+
+#: Room kept free beyond what a write needs, bytes.
+_MARGIN = 1 << 20
+
+
+def _ensure_room(folder: Path, needed: int) -> None:
+    """Refuse a write that would not fit (free disk space, ``ulimit -f``) before any byte is written:
+    HDF5 running out of space mid-write can crash the process instead of raising."""
+    import resource
+
+    needed = int(needed) + _MARGIN
+    try:
+        stats = os.statvfs(folder)
+        free = stats.f_bavail * stats.f_frsize
+    except OSError:
+        free = None
+    limit = resource.getrlimit(resource.RLIMIT_FSIZE)[0]
+    if free is not None and free < needed:
+        raise StudyStoreError(f"{folder}: not enough free disk space for the study store ({free} bytes free, "
+                              f"{needed} needed); every cell committed before is kept")
+    if limit != resource.RLIM_INFINITY and limit < needed:
+        raise StudyStoreError(f"{folder}: the file size limit (ulimit -f: {limit} bytes) is below the "
+                              f"{needed} bytes the study store needs; every cell committed before is kept")
+
+
+def _remove(path: Path) -> None:
+    try:
+        path.unlink()
+    except OSError:
+        pass
 
 
 class StudyStore:
@@ -267,7 +331,7 @@ class StudyStore:
             raise
         self.done: set[tuple[int, int, str]] = set()
         self.failed: dict[tuple[int, int, str], str] = {}
-        _header, _metrics, cells = read_tables(self.path)
+        _header, _metrics, cells = read_tables(self.path, check=False)
         if len(cells):
             for key, state, message in zip(_keys(cells), cells["state"], cells["message"]):
                 if state == DONE:
@@ -276,6 +340,11 @@ class StudyStore:
                     self.failed[key] = str(message)
         self._pending = [r for r in _journal_records(self.path)]
         self._last = 0.0
+        # what the HDF5 file itself holds, kept in memory so that a consolidation reads nothing back
+        with h5py.File(self.path, "r") as handle:
+            stored = _table(handle["cells"])
+            self._sessions = json.loads(handle.attrs.get("sessions_json", "[]"))
+        self._in_file = set(_keys(stored[stored["state"] == DONE])) if len(stored) else set()
 
     # -- setup --------------------------------------------------------------------------------
 
@@ -326,6 +395,7 @@ class StudyStore:
 
     def _create(self) -> None:
         tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
+        _ensure_room(self.path.parent, 512 * 1024 + 2 * len(json.dumps(self._header["settings"])))
         with h5py.File(tmp, "w") as handle:
             handle.attrs["schema"] = SCHEMA_NAME
             handle.attrs["schema_version"] = SCHEMA_VERSION
@@ -360,30 +430,38 @@ class StudyStore:
     def consolidate(self, now: float = 0.0) -> None:
         """Fold the journal into the HDF5 file (copy, append, fsync, rename), then clear it."""
         self._last = now
-        header = read_header(self.path)
-        _h, _m, stored = read_tables_consolidated(self.path)
-        done = set(_keys(stored[stored["state"] == DONE])) if len(stored) else set()
-        cells, rows = [], []
+        cells, rows, added = [], [], set()
         for record in self._pending:
             key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
-            if record["state"] == DONE and key in done:
-                continue
+            if record["state"] == DONE and (key in self._in_file or key in added):
+                continue  # already in the file (killed between its rename and the journal cleanup)
             cells.append({c: record.get(c) for c in CELL_COLUMNS})
             if record["state"] == DONE:
+                added.add(key)
                 rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
-        sessions = json.loads(header.get("sessions_json", "[]"))
+        sessions = list(self._sessions)
         if not sessions or sessions[-1].get("id") != self._session.get("id"):
             sessions.append(self._session)
         else:
             sessions[-1] = self._session
         tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
-        shutil.copyfile(self.path, tmp)
-        with h5py.File(tmp, "a") as handle:
-            _append(handle["cells"], cells)
-            _append(handle["metrics"], rows)
-            handle.attrs["sessions_json"] = json.dumps(sessions)
-        _fsync(tmp)
-        os.replace(tmp, self.path)
+        # the copy, what is appended (8 bytes a value, doubled for strings) and new chunks (8 kB a column)
+        _ensure_room(self.path.parent, 2 * self.path.stat().st_size + 16 * sum(len(r) for r in rows)
+                     + 4096 * len(cells) + 8192 * 64)
+        try:
+            shutil.copyfile(self.path, tmp)
+            with h5py.File(tmp, "a") as handle:
+                _append(handle["cells"], cells)
+                _append(handle["metrics"], rows)
+                handle.attrs["sessions_json"] = json.dumps(sessions)
+            _fsync(tmp)
+            os.replace(tmp, self.path)
+            self._in_file |= added
+            self._sessions = sessions
+        except (OSError, RuntimeError, ValueError) as exc:
+            _remove(tmp)
+            raise StudyStoreError(f"{self.path}: cannot consolidate the study store ({' '.join(str(exc).split())}); "
+                                  "every committed cell is kept in its journal, rerun to continue") from None
         for record in self._pending:
             try:
                 record["_file"].unlink()
@@ -399,10 +477,3 @@ class StudyStore:
             fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
             os.close(self._lock_fd)
             self._lock_fd = None
-
-
-def read_tables_consolidated(path: Path) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
-    """Like :func:`read_tables` without the journal (what the HDF5 file itself holds)."""
-    header = read_header(path)
-    with h5py.File(path, "r") as handle:
-        return header, _table(handle["metrics"]), _table(handle["cells"])

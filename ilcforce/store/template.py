@@ -70,9 +70,10 @@ class IterationTemplate:
         group = handle[path]
         sums = np.empty(len(self.names), dtype=np.uint32)
         k = 0
+        log_group = group["log"]
         for signal in LOG_SIGNALS:
             data = log[signal]
-            group["log"][signal].write_direct(data)
+            log_group[signal].write_direct(data)
             sums[k] = crc32(data)
             k += 1
         memory_group = group["memory"]

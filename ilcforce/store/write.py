@@ -2,12 +2,9 @@
 
 from __future__ import annotations
 
-import json
 import os
 import stat
-import subprocess
-from collections.abc import Callable, Mapping
-from datetime import datetime, timezone
+from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -19,43 +16,13 @@ import ilcforce
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.store import commit, schema
-from ilcforce.store.read import check_header, open_store, py
+from ilcforce.store.read import open_store
+from ilcforce.store.provenance import SameRunCheck, default_same_run as _default_same_run, git_state, text, utc_now
 from ilcforce.store.template import IterationTemplate
 from ilcforce.store.safeio import (StoreError, StoreExistsError, acquire_writer_lock, journal_path, one_line,
-                                   os_reason, repair_interrupted_commit, tmp_path)
+                                   os_reason, repair_interrupted_commit)
 
 _METRICS_CHUNK = 64  # rows per chunk of a /metrics column
-
-#: A check of a stored run before resuming it: given its provenance, raise StoreError if it is
-#: not the same run (the experiment layer's same-run policy supplies it).
-SameRunCheck = Callable[[dict[str, Any]], None]
-
-
-def text(value: object) -> str:
-    """A string HDF5 can store as UTF-8: undecodable bytes of a path or argument (surrogate
-    escapes, e.g. a non-ASCII file name under an ASCII locale) become U+FFFD."""
-    return str(value).encode("utf-8", "surrogateescape").decode("utf-8", "replace")
-
-
-def utc_now() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
-
-
-def git_state() -> tuple[str, bool]:
-    """(``git rev-parse HEAD``, tree has uncommitted changes) of the package's checkout; ("", False)."""
-    where = Path(__file__).resolve().parent
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=where, capture_output=True, text=True,
-                              timeout=10, check=False)
-        commit_id = head.stdout.strip()
-        if head.returncode != 0 or not commit_id or any(c not in "0123456789abcdef" for c in commit_id):
-            return "", False
-        status = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=where,
-                                capture_output=True, text=True, timeout=10, check=False)
-        return commit_id, bool(status.stdout.strip()) if status.returncode == 0 else False
-    except (OSError, subprocess.SubprocessError, ValueError):
-        return "", False
-
 
 def _signal_array(arrays: Mapping[str, np.ndarray], argument: str, name: str,
                   axes: tuple[str, ...] | None, n: int) -> np.ndarray:
@@ -75,34 +42,6 @@ def _dataset(group: h5py.Group, name: str, data: np.ndarray, units: str, descrip
     attrs["description"] = description
     if axes is not None:
         attrs[columns_attr] = list(axes)
-
-
-def _leaves(value: Any, prefix: str, out: dict[str, Any]) -> dict[str, Any]:
-    if isinstance(value, dict):
-        for key, item in value.items():
-            _leaves(item, f"{prefix}.{key}" if prefix else str(key), out)
-    else:
-        out[prefix] = value
-    return out
-
-
-def _default_same_run(config_json: str) -> SameRunCheck:
-    """Without a policy: the stored configuration must equal this one, key by key, except
-    ``experiment.iterations`` (the experiment layer's policy, :mod:`ilcforce.samerun`, is finer)."""
-    def check(provenance: dict[str, Any]) -> None:
-        try:
-            stored = _leaves(json.loads(str(provenance["config_json"])), "", {})
-            new = _leaves(json.loads(config_json), "", {})
-        except json.JSONDecodeError:
-            raise StoreError("the stored configuration is not valid JSON") from None
-        for leaves in (stored, new):
-            leaves.pop("experiment.iterations", None)
-        keys = sorted(k for k in set(stored) | set(new)
-                      if k not in stored or k not in new or stored[k] != new[k] or type(stored[k]) is not type(new[k]))
-        if keys:
-            raise StoreError(f"configuration differs from the stored run at {', '.join(keys[:6])}"
-                             + (f" and {len(keys) - 6} more" if len(keys) > 6 else ""))
-    return check
 
 
 class StoreWriter:

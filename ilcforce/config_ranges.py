@@ -1,0 +1,72 @@
+"""Valid ranges of the configuration's fields (issue 8, fault 5), checked before any work.
+
+Every numeric field has a range: its own entry in :data:`RANGES`, a section-wide ``section.*``
+entry, or the default of its type (:data:`DEFAULT_RANGES`). Strings are printable and bounded.
+A whole run's resources (working memory, integrator steps) are bounded too
+(:data:`MAX_RUN_BYTES`, :data:`MAX_STEPS_PER_ITERATION`, estimated by
+:func:`ilcforce.config.run_footprint`). Adding a config field needs an entry here only when the
+default range does not fit it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Range:
+    """The valid interval of a numeric field: low/high with open or closed ends."""
+
+    low: float
+    high: float
+    low_open: bool = False
+    high_open: bool = False
+
+    def contains(self, value: float) -> bool:
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def __str__(self) -> str:
+        return f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
+
+
+#: Ranges by dotted key; ``section.*`` covers a whole section, list entries use their list's key.
+#: A field without an entry gets the default of its type (:data:`DEFAULT_RANGES`). Helpers adding
+#: a config field add its range here when the default does not fit.
+RANGES: dict[str, Range] = {
+    "experiment.seed": Range(0, 2**63 - 1),
+    "experiment.iterations": Range(1, 100_000),
+    "reference.duration": Range(0, 600, low_open=True),
+    "simulation.sample_time": Range(1e-6, 0.1),
+    "simulation.substeps": Range(1, 100_000),
+    "simulation.log_every": Range(1, 10_000_000),
+    "simulation.filter_hz": Range(0, 1e7, low_open=True),
+    "simulation.torque_bound": Range(0, 1e12, low_open=True),
+    "wall.stiffness": Range(0, 1e12, low_open=True),
+    "noise.*": Range(0, 1e6),
+    "plant.perturbation.factor": Range(0, 1e6, low_open=True),
+    "plant.perturbation.from_iteration": Range(0, 100_000),
+}
+#: Any other number: finite, magnitude at most 1e12 (floats) / 1e9 (integers).
+DEFAULT_RANGES = {float: Range(-1e12, 1e12), int: Range(-10**9, 10**9)}
+#: Strings: printable (newlines and tabs allowed), at most this many characters.
+MAX_STRING = 4000
+#: Resource limits of one run, checked before it starts.
+MAX_RUN_BYTES = 2 * 1024**3  # working memory of one iteration (arrays on the control grid)
+MAX_STEPS_PER_ITERATION = 10**9  # integrator steps (control samples x substeps)
+
+
+def range_of(path: str, kind: type) -> Range:
+    """The valid range of the field at dotted ``path`` (list indices ignored)."""
+    key = path.split("[", 1)[0]
+    if key in RANGES:
+        return RANGES[key]
+    parts = key.split(".")
+    for cut in range(len(parts) - 1, 0, -1):
+        wildcard = ".".join(parts[:cut]) + ".*"
+        if wildcard in RANGES:
+            return RANGES[wildcard]
+    return DEFAULT_RANGES[kind]
+
+
