@@ -641,10 +641,6 @@ def write_report(
     for study_report in study_reports:
         written += study_report.files
         warnings += study_report.warnings
-    index = out_dir / "index.md"
-    title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
-    index.write_text("\n".join([title, "", *study_section]) + rest, encoding="utf-8")  # studies lead
-    written.append(index)
     studies: dict[str, dict] = {}
     for path in sorted((results_dir / "studies").glob("*.h5")) if (results_dir / "studies").is_dir() else []:
         try:
@@ -654,6 +650,14 @@ def write_report(
             continue
         written += files
         studies[name] = found_study
+    if studies:  # the findings pages (stability boundary, per-setting verdicts and flags) next to the reports
+        study_section = [*study_section, "Findings per study (verdicts, unstable learning, first diverged "
+                         "iteration per setting; the stability-boundary figure for one-key sweeps): "
+                         + ", ".join(f"[{n}](studies/{n}/findings.md)" for n in sorted(studies)), ""]
+    index = out_dir / "index.md"
+    title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
+    index.write_text("\n".join([title, "", *study_section]) + rest, encoding="utf-8")  # studies lead
+    written.append(index)
     findings = out_dir / "findings.md"
     findings.write_text(readme.findings_markdown({
         name: {"description": frame.attrs.get("description", ""), "parts": pd.DataFrame(frame.attrs.get("parts", {})),
