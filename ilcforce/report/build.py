@@ -48,6 +48,7 @@ FIGURES = {
     "fig6_input_x": "Fig. 6: (a) control input and (b) Delta tau in X, C1 and C3 at j = 19",
     "fig7_input_y": "Fig. 7: (a) control input and (b) Delta tau in Y, C1 and C3 at j = 19",
     "fig_alpha_hat": "C3's learned switching gain alpha_hat_j(t) (not in the paper)",
+    "fig_gravity": "Does C3 learn gravity? Theta_hat's G entries against the true J^-T G_q (plants with gravity)",
 }
 FIGURE_FORMATS = ("png", "pdf")
 
@@ -257,6 +258,18 @@ def _figure_builders(experiment: _Experiment, p: int,
         unit = store.read_memory_units(method.path, max(alphas)).get("alpha_hat", "N")
         return figures.figure_switching_gain(alphas, duration, profiles=profiles, unit=unit)
 
+    def gravity() -> Figure | str:
+        if "c3" not in methods:
+            return "no C3 results"
+        from ilcforce.report.gravity import gravity_figure
+        from ilcforce.store.run import open_run
+
+        path = methods["c3"].path
+        first = tables.complete_iterations(methods["c3"].metrics) or [int(j) for j in methods["c3"].metrics.index]
+        if not first or store.read_memory(path, first[0])["theta_hat"].shape[1] != 12:
+            return "the plant has no gravity: C3's Theta has no G entries"
+        return gravity_figure(path, open_run(path).config)
+
     return {
         "fig2_reference": reference,
         "fig3_position_error_norm": norms("position_error_2norm", "position error 2-norm (m)"),
@@ -265,6 +278,7 @@ def _figure_builders(experiment: _Experiment, p: int,
         "fig6_input_x": inputs("x"),
         "fig7_input_y": inputs("y"),
         "fig_alpha_hat": alpha_hat,
+        "fig_gravity": gravity,
     }
 
 
