@@ -1,0 +1,146 @@
+"""The figures of one experiment's report: which ones, how each is built from the stores, saving.
+
+Each builder returns a matplotlib figure, or a one-line reason it cannot be drawn (which the report
+prints in the figure's place). Reads only the results store; never simulates.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import pandas as pd
+from matplotlib.figure import Figure
+
+from ilcforce import store
+from ilcforce.report import figures, sections, stability, tables
+
+#: Figures written per experiment: file stem -> caption.
+FIGURES = {
+    "fig2_reference": "Fig. 2: desired position x_d and desired force F_yd",
+    "fig3_position_error_norm": "Fig. 3: 2-norm of the position error (X) against iteration",
+    "fig4_force_error_norm": "Fig. 4: 2-norm of the force error (Y) against iteration",
+    "fig5_tracking_error": "Fig. 5: position error X and force error Y at j = 0, 5, 10, 15",
+    "fig6_input_x": "Fig. 6: (a) control input and (b) Delta tau in X, C1 and C3 at j = 19",
+    "fig7_input_y": "Fig. 7: (a) control input and (b) Delta tau in Y, C1 and C3 at j = 19",
+    "fig_alpha_hat": "C3's learned switching gain alpha_hat_j(t) (not in the paper)",
+    "fig_gravity": "Does C3 learn gravity? Theta_hat's G entries against the true J^-T G_q (plants with gravity)",
+}
+FIGURE_FORMATS = ("png", "pdf")
+
+#: Errors a store reader may raise for a bad file (StoreError) or unexpected contents.
+READ_ERRORS = (store.StoreError, OSError, KeyError, ValueError, TypeError)
+
+
+def _save(fig: Figure, directory: Path, stem: str, formats: tuple[str, ...]) -> list[Path]:
+    written = []
+    for fmt in formats:
+        path = directory / f"{stem}.{fmt}"
+        # No creation date in the PDF, so that an unchanged report is byte-identical.
+        metadata = {"CreationDate": None} if fmt == "pdf" else None
+        fig.savefig(path, format=fmt, metadata=metadata)
+        written.append(path)
+    return written
+
+
+def _figure_builders(experiment, p: int,
+                     flags: Mapping[str, str]) -> dict[str, Callable[[], Figure | str]]:
+    """Stem -> a callable making the figure, or returning a one-line reason it cannot be drawn."""
+    methods = experiment.methods
+    labels = {m: figures.method_label(m) + "".join(
+        f" [{d.split(',')[0]}]" for d in sections.law_differences(m, experiment.config(m)))
+        + (f" ({stability.UNSTABLE})" if m in flags else "") for m in methods}
+
+    def reference() -> Figure | str:
+        first = next(iter(methods.values()))
+        return figures.figure_reference(store.read_reference(first.path))
+
+    def norms(column: str, ylabel: str) -> Callable[[], Figure | str]:
+        return lambda: figures.figure_error_norm(experiment.metrics, column, ylabel, perturbation_iteration=p,
+                                                 labels=labels)
+
+    def tracking() -> Figure | str:
+        frames: dict[str, dict[int, pd.DataFrame]] = {}
+        for name, method in methods.items():
+            stored = {int(j) for j in method.metrics.index}  # every committed iteration, diverged included
+            frames[name] = {
+                j: store.read_iteration(method.path, j) for j in figures.TRACKING_ITERATIONS if j in stored
+            }
+        return figures.figure_tracking_error(frames, labels=labels)
+
+    def inputs(axis: str) -> Callable[[], Figure | str]:
+        def build() -> Figure | str:
+            chosen, read_at = {}, {}
+            for name in ("c1", "c3"):
+                if name not in methods:
+                    continue
+                j = tables.chattering_iteration(methods[name].metrics)
+                if j is not None:
+                    chosen[name] = store.read_iteration(methods[name].path, j)
+                    read_at[name] = j
+            if not chosen:
+                return "no complete C1 or C3 iteration"
+            return figures.figure_input(chosen, axis, iterations=read_at, labels=labels)
+
+        return build
+
+    def alpha_hat() -> Figure | str:
+        if "c3" not in methods:
+            return "no C3 results"
+        method = methods["c3"]
+        alphas = {}
+        for j in tables.complete_iterations(method.metrics):
+            memory = store.read_memory(method.path, j)
+            if "alpha_hat" in memory:
+                alphas[j] = memory["alpha_hat"]
+        if not alphas:
+            return "the C3 store holds no alpha_hat memory"
+        duration = float(store.read_reference(method.path).index.to_numpy()[-1])
+        profiles = figures.profile_iterations(list(alphas))
+        unit = store.read_memory_units(method.path, max(alphas)).get("alpha_hat", "N")
+        return figures.figure_switching_gain(alphas, duration, profiles=profiles, unit=unit)
+
+    def gravity() -> Figure | str:
+        if "c3" not in methods:
+            return "no C3 results"
+        from ilcforce.report.gravity import gravity_figure
+        from ilcforce.store.run import open_run
+
+        path = methods["c3"].path
+        first = tables.complete_iterations(methods["c3"].metrics) or [int(j) for j in methods["c3"].metrics.index]
+        if not first or store.read_memory(path, first[0])["theta_hat"].shape[1] != 12:
+            return "the plant has no gravity: C3's Theta has no G entries"
+        return gravity_figure(path, open_run(path).config)
+
+    return {
+        "fig2_reference": reference,
+        "fig3_position_error_norm": norms("position_error_2norm", "position error 2-norm (m)"),
+        "fig4_force_error_norm": norms("force_error_2norm", "force error 2-norm (N)"),
+        "fig5_tracking_error": tracking,
+        "fig6_input_x": inputs("x"),
+        "fig7_input_y": inputs("y"),
+        "fig_alpha_hat": alpha_hat,
+        "fig_gravity": gravity,
+    }
+
+
+def write_figures(experiment, directory: Path, p: int, formats: tuple[str, ...],
+                   flags: Mapping[str, str]) -> list[Path]:
+    written: list[Path] = []
+    if not experiment.methods or not formats:
+        for stem in FIGURES:
+            experiment.notes[stem] = "no readable store" if not experiment.methods else "no figure format requested"
+        return written
+    for stem, build in _figure_builders(experiment, p, flags).items():
+        try:
+            with figures.report_style():
+                made = build()
+                if isinstance(made, str):
+                    experiment.notes[stem] = made
+                    continue
+                written += _save(made, directory, stem, formats)
+        except READ_ERRORS as error:
+            experiment.notes[stem] = f"not drawn: {' '.join(str(error).split())}"
+            experiment.warn(f"{stem} not drawn: {error}")
+    return written
+
