@@ -33,6 +33,8 @@ import pandas as pd
 from ilcforce.records import STATUS_COMPLETE
 from ilcforce.stats import growth_rate, median_interval
 
+#: A quantity grows in a seed when the lower end of its rate's 95% interval exceeds this (1%/iteration).
+MIN_RATE = 1.01
 #: The fewest iterations a growth rate is fitted over (when the run has them).
 MIN_WINDOW = 9
 #: Quantities always watched (metric columns); memory norms are added when present.
@@ -76,7 +78,7 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd
     Returns one row per (method, quantity) with a fittable rate: ``method``, ``quantity``,
     ``window`` (e.g. "j = 11..19"), ``rate`` (median over seeds of the per-iteration rate),
     ``rate_low``, ``rate_high`` (95% bootstrap interval of that median), ``growing`` (seeds whose
-    rate interval lies above 1), ``fitted`` (seeds with a rate), ``grows`` (bool, majority rule).
+    rate interval lies above MIN_RATE), ``fitted`` (seeds with a rate), ``grows`` (bool, majority rule).
     """
     rows = []
     for method, per_method in metrics.groupby("method", sort=False):
@@ -98,7 +100,7 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd
             if not rates:
                 continue
             median = median_interval(rates)
-            growing = int(sum(low > 1.0 for low in lows))
+            growing = int(sum(low > MIN_RATE for low in lows))
             rows.append({"method": str(method), "quantity": column, "window": ", ".join(sorted(windows)),
                          "rate": median.estimate, "rate_low": median.low, "rate_high": median.high,
                          "growing": growing, "fitted": len(rates), "grows": bool(2 * growing > len(rates))})
