@@ -89,6 +89,15 @@ class PlantKernels(NamedTuple):
     ik: object
 
 
+def compile_kernels(kin, accel, task, dyn, ik) -> PlantKernels:
+    """A plant's five interface functions compiled with the fixed signatures above (or loaded from
+    numba's on-disk cache, which is keyed by each function's own module)."""
+    def jit(sig, fn):
+        return njit(sig, cache=True, error_model="numpy")(fn)
+    return PlantKernels(kin=jit(KIN_SIGNATURE, kin), accel=jit(ACCEL_SIGNATURE, accel),
+                        task=jit(TASK_SIGNATURE, task), dyn=jit(DYN_SIGNATURE, dyn), ik=jit(IK_SIGNATURE, ik))
+
+
 def check_pair(name: str, value) -> tuple[float, float]:
     arr = np.asarray(value, dtype=np.float64)
     if arr.shape != (2,):

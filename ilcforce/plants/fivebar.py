@@ -39,7 +39,8 @@ import numpy as np
 from numba import njit
 
 from ilcforce.plants.base import (
-    ACCEL_SIGNATURE, DYN_SIGNATURE, IK_SIGNATURE, KIN_SIGNATURE, TASK_SIGNATURE, Plant, PlantKernels,
+    compile_kernels,
+    Plant, PlantKernels,
     params_view,
     UnreachableError, check_pair as _pair,
 )
@@ -368,11 +369,7 @@ def _ik_kernel(address, px, py):
 @functools.cache
 def kernels() -> PlantKernels:
     """The five-bar's interface kernels (compiled, or loaded from numba's cache, on first call)."""
-    def jit(sig, fn):
-        return njit(sig, cache=True, error_model="numpy")(fn)
-    return PlantKernels(kin=jit(KIN_SIGNATURE, _kin_kernel), accel=jit(ACCEL_SIGNATURE, _accel_kernel),
-                        task=jit(TASK_SIGNATURE, _task_kernel), dyn=jit(DYN_SIGNATURE, _dyn_kernel),
-                        ik=jit(IK_SIGNATURE, _ik_kernel))
+    return compile_kernels(_kin_kernel, _accel_kernel, _task_kernel, _dyn_kernel, _ik_kernel)
 
 
 # --------------------------------------------------------------------------------------------
