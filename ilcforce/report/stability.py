@@ -40,9 +40,9 @@ MIN_WINDOW = 9
 #: Quantities always watched (metric columns); memory norms are added when present.
 WATCHED = ("chattering_task_x", "chattering_task_y", "position_error_2norm", "force_error_2norm")
 UNSTABLE = "unstable learning"
-#: Learned-memory norm columns: ``memory_norm_<name>`` (ilcforce.metrics.memory_norms, single-run
-#: reports) and ``memory_rms_<name>`` (the same RMS as study cells name it).
-MEMORY_PREFIXES = ("memory_norm_", "memory_rms_")
+#: Learned-memory norm columns: ``memory_norm_<name>`` (ilcforce.metrics.memory_norms, the one
+#: function single-run reports and study cells share).
+MEMORY_PREFIXES = ("memory_norm_",)
 #: Short names for the quantities, for flags and tables.
 SHORT = {"chattering_task_x": "H_x", "chattering_task_y": "H_y", "position_error_2norm": "|e_P|",
          "force_error_2norm": "|e_F|"}
