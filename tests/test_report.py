@@ -793,3 +793,25 @@ def test_readme_findings_check(tmp_path: Path, results_dir: Path) -> None:
     assert readme.check(target, findings) != ""
     (tmp_path / "bare.md").write_text("no markers\n", encoding="utf-8")
     assert "markers missing" in readme.check(tmp_path / "bare.md", findings)
+
+
+def test_h_form_match_names_the_closest_form_or_says_none_is_close():
+    from ilcforce.report.tables import h_form_match
+
+    frame = pd.DataFrame([
+        # Y: whole grid 8x, without t = 0 5x, settled 0.97x the paper -> settled is named
+        {"method": "c3", "chattering_task_x": 0.05, "chattering_task_x_no_t0": 0.05,
+         "chattering_task_x_settled": 0.05, "chattering_task_x_paper": 0.04,
+         "chattering_task_y": 0.176, "chattering_task_y_no_t0": 0.11, "chattering_task_y_settled": 0.0213,
+         "chattering_task_y_paper": 0.022},
+        # Y: every form 10x the paper -> no form explains it
+        {"method": "c1", "chattering_task_x": 0.098, "chattering_task_x_no_t0": 0.098,
+         "chattering_task_x_settled": 0.098, "chattering_task_x_paper": float("nan"),
+         "chattering_task_y": 0.53, "chattering_task_y_no_t0": 0.53, "chattering_task_y_settled": 0.52,
+         "chattering_task_y_paper": 0.053},
+    ])
+    lines = h_form_match(frame)
+    assert len(lines) == 3  # c1's X has no paper value
+    assert "c3, X" in lines[0] and "forms agree within 5%" in lines[0]
+    assert "c3, Y" in lines[1] and "closest: settled" in lines[1] and "0.968x" in lines[1]
+    assert "c1, Y" in lines[2] and "no form within 2x" in lines[2]

@@ -178,6 +178,10 @@ def report_text(
         "form is the one that leaves the start transient out.",
         "",
         md(table3),
+        "Which form of H matches the paper's magnitudes (ratio ours / paper at the iteration read):",
+        "",
+        *(tables.h_form_match(table3) or ["* no method with a Table 3 value has an H"]),
+        "",
         "## Comparison of the methods",
         "",
         "Error 2-norms at j = 0, j̄, 9, 10 (first perturbed iteration in the paper's setup) and 19; "

@@ -380,3 +380,41 @@ def write_table(frame: pd.DataFrame, directory: Path, stem: str, *, title: str |
         write_csv(frame, directory / f"{stem}.csv"),
         write_markdown(frame, directory / f"{stem}.md", title=title),
     ]
+
+
+#: The three forms of H in task space: column suffix -> how the report names it.
+H_FORM_NAMES = {"": "whole grid", "_no_t0": "without t = 0", "_settled": "settled (t >= 20 ms)"}
+
+
+def h_form_match(table3_frame: pd.DataFrame) -> list[str]:
+    """Which form of H comes closest to the paper's Table 3, per method and task axis.
+
+    ``table3_frame`` is :func:`table3`'s frame. For every row with a paper value on an axis, one
+    Markdown bullet gives ours / paper for each form and names the form closest in ratio
+    (|log(ours / paper)| smallest), or says that no form is within 2x of the paper.
+    """
+    lines = []
+    for row in table3_frame.itertuples(index=False):
+        row = row._asdict()
+        for axis in ("x", "y"):
+            published = row.get(f"chattering_task_{axis}_paper")
+            if published is None or _is_missing(published) or not published > 0:
+                continue
+            ratios = {}
+            for suffix, name in H_FORM_NAMES.items():
+                ours = row.get(f"chattering_task_{axis}{suffix}")
+                if ours is not None and not _is_missing(ours) and ours > 0:
+                    ratios[name] = float(ours) / float(published)
+            if not ratios:
+                continue
+            best = min(ratios, key=lambda n: abs(math.log(ratios[n])))
+            shown = ", ".join(f"{name} {ratio:.3g}x" for name, ratio in ratios.items())
+            if abs(math.log(ratios[best])) > math.log(2.0):
+                verdict = "no form within 2x: the definition does not explain the difference"
+            elif max(ratios.values()) <= 1.05 * min(ratios.values()):
+                verdict = "the forms agree within 5% (the start transient does not matter here)"
+            else:
+                verdict = f"closest: {best}"
+            lines.append(f"* {row['method']}, {axis.upper()}: ours / paper ({float(published):.3g} N): "
+                         f"{shown}; {verdict}.")
+    return lines
