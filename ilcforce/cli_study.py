@@ -1,0 +1,132 @@
+"""The `study` and `export` commands: parse, call ilcforce.study, render. No science here.
+
+Registered on the CLI's ``app`` when :mod:`ilcforce.cli` imports this module; the heavy modules
+(Dask, pandas, h5py) are imported inside the commands, so `ilcforce --help` does not load them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from ilcforce.cli import _command_line, _fail, app, err, out
+
+
+def _fail_plain(message: str) -> None:
+    """One line on stderr, exit 2; whitespace (a multi-line library message) folded to spaces."""
+    _fail(" ".join(str(message).split()))
+
+
+def _study_errors():
+    from ilcforce.study import ExportError, StudyError, StudyRunError, StudyStoreError
+
+    return (StudyError, StudyStoreError, StudyRunError, ExportError)
+
+
+class _StudyProgress:
+    """Progress over cells: a rich bar with ETA on a terminal, a line every ~10% otherwise."""
+
+    def __init__(self, name: str, quiet: bool) -> None:
+        import time
+
+        self.name, self.quiet, self._time = name, quiet, time.monotonic
+        self.bar = None
+        self._next_line = 0.0
+        self._started = self._time()
+
+    def __enter__(self):
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                                   TimeRemainingColumn)
+
+        if not self.quiet and err.is_terminal:
+            self.bar = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                TextColumn("cells, {task.fields[failed]} failed"), TimeElapsedColumn(),
+                                TextColumn("ETA"), TimeRemainingColumn(), TextColumn("{task.fields[last]}"),
+                                console=err.console(), transient=False)
+            self.bar.__enter__()
+            self.task = None
+        return self
+
+    def __call__(self, p) -> None:
+        if self.quiet:
+            return
+        if self.bar is not None:
+            if self.task is None:
+                self.task = self.bar.add_task(self.name, total=p.total, completed=p.finished, failed=0, last="")
+            self.bar.update(self.task, completed=p.finished + p.failed, failed=p.failed, last=p.last[:60])
+            return
+        now = self._time()
+        if p.last == "":
+            self._started = now
+        done = p.finished + p.failed
+        if p.last == "" or done == p.total or now >= self._next_line:
+            self._next_line = now + 10.0
+            elapsed = now - self._started
+            ran = done - (p.total - p.to_run)
+            eta = f", ETA {elapsed / ran * (p.total - done):.0f} s" if ran > 0 and done < p.total else ""
+            err.print(f"{self.name}: {done}/{p.total} cells, {p.failed} failed, {elapsed:.0f} s{eta}",
+                      highlight=False, markup=False)
+
+    def __exit__(self, *exc):
+        if self.bar is not None:
+            self.bar.__exit__(*exc)
+
+
+@app.command()
+def study(
+    ctx: typer.Context,
+    file: Annotated[Path, typer.Argument(help="study file: TOML whose study table names the seeds, methods, fixed values and sweep (see README)")],
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://HOST:8786")] = None,
+    workers: Annotated[Optional[int], typer.Option("--workers", help="local worker processes (default: one per core; 1 runs in this process without Dask)")] = None,
+    results: Annotated[Path, typer.Option("--results", help="results folder; the study store is <results>/studies/<name>.h5")] = Path("results"),
+    resume: Annotated[bool, typer.Option("--resume", help="continue a stored study (refused if there is none); a plain rerun continues too")] = False,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="discard the stored study and run every cell again")] = False,
+    replace_stale: Annotated[bool, typer.Option("--replace-stale", help="start over when the stored study has other settings or came from other simulation code, instead of refusing")] = False,
+    keep_stores: Annotated[bool, typer.Option("--keep-stores", help="also write each cell's full run store under <results>/studies/<name>/cells/")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress output")] = False,
+    timeout: Annotated[float, typer.Option("--timeout", help="seconds allowed to reach --scheduler")] = 10.0,
+) -> None:
+    """Run a study (seeds x settings x methods) on Dask; finished cells are stored and never rerun."""
+    from ilcforce.study import load_study, run_study
+
+    try:
+        spec = load_study(file)
+        with _StudyProgress(spec.name, quiet) as progress:
+            summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
+                                overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
+                                command=_command_line(ctx), progress=progress, timeout=timeout)
+    except _study_errors() as exc:
+        _fail_plain(str(exc) or type(exc).__name__)
+    except OSError as exc:
+        _fail_plain(f"{exc.filename or results}: {exc.strerror or exc}")
+    except KeyboardInterrupt:
+        err.print("interrupted: every finished cell is stored; rerun the same command to continue", highlight=False)
+        raise typer.Exit(130)
+    for cell, message in summary.failed[:10]:
+        err.print(f"warning: cell {cell.method} seed {cell.seed} setting {cell.setting} failed twice: {message}",
+                  highlight=False, markup=False, soft_wrap=True)
+    if not quiet:
+        where = summary.scheduler if summary.workers == 0 else f"{summary.scheduler}, {summary.workers} worker(s)"
+        out.print(f"{spec.name}: {summary.total} cells ({summary.skipped} already stored, {summary.ran} run, "
+                  f"{len(summary.failed)} failed) in {summary.wall_time:.1f} s on {where} -> {summary.path}",
+                  highlight=False, markup=False, soft_wrap=True)
+
+
+@app.command()
+def export(
+    store_path: Annotated[Path, typer.Argument(help="a study store (results/studies/<name>.h5) or a run store")],
+    out_path: Annotated[Path, typer.Option("--out", "-o", help="output table (.csv)")],
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="replace an existing output file")] = False,
+) -> None:
+    """Write a store's metrics as one tidy table: one row per (setting, seed, method, iteration)."""
+    from ilcforce.study import export as export_table
+
+    try:
+        path, rows = export_table(store_path, out_path, overwrite=overwrite)
+    except _study_errors() as exc:
+        _fail_plain(str(exc) or type(exc).__name__)
+    except OSError as exc:
+        _fail_plain(f"{exc.filename or out_path}: {exc.strerror or exc}")
+    out.print(f"{rows} rows written to {path}", highlight=False, markup=False)
