@@ -35,6 +35,7 @@ of shape (2,) or (2, 2), SI units); a subclass provides its parameters class and
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
@@ -103,6 +104,23 @@ def check_pair(name: str, value) -> tuple[float, float]:
     if arr.shape != (2,):
         raise ValueError(f"{name} must have shape (2,), got {arr.shape}")
     return float(arr[0]), float(arr[1])
+
+
+class PackedParams:
+    """What every plant's frozen parameter dataclass shares: the packed vector the kernels read
+    and scaled copies (the perturbation). Subclasses set ``param_names`` (the packing order)."""
+
+    param_names: tuple[str, ...] = ()
+
+    def as_array(self) -> np.ndarray:
+        """Packed float64 vector in ``param_names`` order, for the compiled kernels."""
+        return np.array([getattr(self, name) for name in self.param_names], dtype=np.float64)
+
+    def scaled(self, name: str, factor: float):
+        """A copy with parameter ``name`` multiplied by ``factor`` (e.g. m3 x 1.4)."""
+        if name not in self.param_names:
+            raise ValueError(f"unknown plant parameter {name!r}; expected one of {', '.join(self.param_names)}")
+        return replace(self, **{name: getattr(self, name) * factor})
 
 
 class Plant:

@@ -32,13 +32,14 @@ from __future__ import annotations
 import functools
 import math
 import numbers
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 from numba import njit
 
 from ilcforce.plants.base import (
+    PackedParams,
     compile_kernels,
     Plant, PlantKernels,
     params_view,
@@ -57,11 +58,13 @@ PARAM_NAMES = (
 
 
 @dataclass(frozen=True)
-class FiveBarParams:
+class FiveBarParams(PackedParams):
     """Link parameters (Table 1). Lengths in m, masses in kg, centroidal inertias in kg m^2.
 
     ``Lci`` is measured from link i's proximal joint (B1, B2, E1, E2) to its centre of mass.
     """
+
+    param_names = PARAM_NAMES  # packing order of as_array (not a field: no annotation)
 
     model: ClassVar[str] = "fivebar"  # the plants.MODELS key
 
@@ -92,15 +95,6 @@ class FiveBarParams:
                 raise ValueError(f"plant.fivebar.{name} must be finite and positive, got {value!r}")
             object.__setattr__(self, name, float(value))  # numpy scalars become plain floats
 
-    def as_array(self) -> np.ndarray:
-        """Packed float64 vector in :data:`PARAM_NAMES` order, for the compiled kernels."""
-        return np.array([getattr(self, name) for name in PARAM_NAMES], dtype=np.float64)
-
-    def scaled(self, name: str, factor: float) -> "FiveBarParams":
-        """A copy with parameter ``name`` multiplied by ``factor`` (e.g. m3 x 1.4)."""
-        if name not in PARAM_NAMES:
-            raise ValueError(f"unknown plant parameter {name!r}; expected one of {', '.join(PARAM_NAMES)}")
-        return replace(self, **{name: getattr(self, name) * factor})
 
     def links(self) -> "FiveBarParams":
         """Just the link parameters, as a plain :class:`FiveBarParams`."""

@@ -21,13 +21,14 @@ from __future__ import annotations
 import functools
 import math
 import numbers
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 from numba import njit
 
 from ilcforce.plants.base import (
+    PackedParams,
     compile_kernels,
     Plant, PlantKernels,
     params_view,
@@ -40,9 +41,11 @@ PARAM_NAMES = ("L1", "L2", "Lc1", "Lc2", "m1", "m2", "I1", "I2", "g")
 
 
 @dataclass(frozen=True)
-class Serial2RParams:
+class Serial2RParams(PackedParams):
     """Link parameters (SPEC section 8). Lengths in m, masses in kg, centroidal inertias in kg m^2,
     g in m/s^2 (>= 0; 0 turns gravity off)."""
+
+    param_names = PARAM_NAMES  # packing order of as_array (not a field: no annotation)
 
     model: ClassVar[str] = "serial2r"  # the plants.MODELS key
 
@@ -66,15 +69,6 @@ class Serial2RParams:
                                  f"{'>= 0' if name == 'g' else 'positive'}, got {value!r}")
             object.__setattr__(self, name, float(value))
 
-    def as_array(self) -> np.ndarray:
-        """Packed float64 vector in :data:`PARAM_NAMES` order, for the compiled kernels."""
-        return np.array([getattr(self, name) for name in PARAM_NAMES], dtype=np.float64)
-
-    def scaled(self, name: str, factor: float) -> "Serial2RParams":
-        """A copy with parameter ``name`` multiplied by ``factor`` (e.g. m2 x 1.4)."""
-        if name not in PARAM_NAMES:
-            raise ValueError(f"unknown plant parameter {name!r}; expected one of {', '.join(PARAM_NAMES)}")
-        return replace(self, **{name: getattr(self, name) * factor})
 
 _N_PARAMS = len(PARAM_NAMES)
 

@@ -67,6 +67,16 @@ def _apply(stream: journal.JournaledFile, mode: str, change: Change) -> None:
         raise stream.failed
 
 
+def _abandon(path: Path, tmp: Path, stream, error: BaseException) -> None:
+    """A commit that failed: mark the stream failed, drop the temporary file, and turn a file
+    problem into a one-line StoreError (anything else propagates unchanged)."""
+    if stream is not None:
+        stream.failed = stream.failed or error
+    _remove_tmp(tmp)
+    if isinstance(error, (OSError, RuntimeError, ValueError)):
+        raise _fail(path, error) from None
+
+
 def create(path: Path, build: Change) -> None:
     """Write a new store with ``build`` and rename it over ``path`` (atomic)."""
     tmp = tmp_path(path)
@@ -78,11 +88,7 @@ def create(path: Path, build: Change) -> None:
         _apply(stream, "w", build)
         os.replace(tmp, path)
     except BaseException as error:
-        if stream is not None:
-            stream.failed = stream.failed or error
-        _remove_tmp(tmp)
-        if isinstance(error, (OSError, RuntimeError, ValueError)):
-            raise _fail(path, error) from None
+        _abandon(path, tmp, stream, error)
         raise
     finally:
         if fd >= 0:
@@ -168,11 +174,7 @@ def _copy_update(path: Path, change: Change) -> None:
         _remove_tmp(tmp)
         raise
     except BaseException as error:
-        if stream is not None:
-            stream.failed = stream.failed or error
-        _remove_tmp(tmp)
-        if isinstance(error, (OSError, RuntimeError, ValueError)):
-            raise _fail(path, error) from None
+        _abandon(path, tmp, stream, error)
         raise
     finally:
         for f in (fd, src):
