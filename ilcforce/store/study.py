@@ -1,4 +1,5 @@
 """The study store, ``results/studies/<name>.h5`` (part of the store package, the only one touching h5py).
+Readers (header, tables, journal records) are in :mod:`.study_read`; this module is the writer.
 
 Only the driver writes it. Durability without ever writing an HDF5 file in place:
 
@@ -36,165 +37,11 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-import pandas as pd
 
-SCHEMA_NAME = "ilcforce.study"
-SCHEMA_VERSION = "1.0"
-CELL_COLUMNS = ("setting", "seed", "method", "state", "attempts", "message", "elapsed", "worker")
-KEY_COLUMNS = ("setting", "seed", "method")
-DONE, FAILED = "done", "failed"
-_STRING = h5py.string_dtype("utf-8")
-_CHUNK = 1024
-
-
-class StudyStoreError(Exception):
-    """A study store that cannot be used (locked, foreign, damaged, a different study); one line."""
-
-
-def journal_dir(path: Path) -> Path:
-    return Path(f"{path}.journal")
-
-
-def _lock_path(path: Path) -> Path:
-    return Path(f"{path}.lock")
-
-
-def is_study_store(path: Path) -> bool:
-    """True if ``path`` is an HDF5 file carrying the study schema (never raises, bounded time)."""
-    try:
-        with open(path, "rb") as handle:
-            if handle.read(8) != b"\x89HDF\r\n\x1a\n":
-                return False
-        _probe(Path(path))
-        with h5py.File(path, "r") as handle:
-            return handle.attrs.get("schema") == SCHEMA_NAME
-    except Exception:  # noqa: BLE001 - any unreadable file is "not a study store"
-        return False
-
-
-# ------------------------------------------------------------------------------------------------
-# reading
-
-
-def _column(dataset: h5py.Dataset) -> np.ndarray:
-    if h5py.check_string_dtype(dataset.dtype) is not None:
-        return np.asarray(dataset.asstr()[()], dtype=object)
-    return dataset[()]
-
-
-def _table(group: h5py.Group) -> pd.DataFrame:
-    n = int(group.attrs.get("n_rows", 0))
-    data = {}
-    for name in json.loads(group.attrs.get("columns_json", "[]")):
-        values = _column(group[name])
-        if values.shape != (n,):
-            raise StudyStoreError(f"{group.file.filename}: /{group.name.strip('/')}/{name} has {values.shape[0]} "
-                                  f"rows, expected {n}")
-        data[name] = values
-    return pd.DataFrame(data)
-
-
-def _journal_records(path: Path) -> list[dict]:
-    records = []
-    folder = journal_dir(path)
-    if not folder.is_dir():
-        return records
-    for item in sorted(folder.iterdir()):
-        if item.suffix != ".json" or item.name.startswith("."):
-            continue
-        try:
-            record = json.loads(item.read_text(encoding="utf-8"))
-            if not all(k in record for k in (*KEY_COLUMNS, "state", "rows")):
-                continue
-        except (OSError, ValueError, UnicodeDecodeError):
-            continue  # a damaged record: its cell runs again
-        record["_file"] = item
-        records.append(record)
-    return records
-
-
-def _probe(path: Path) -> None:
-    """Bounded time on a damaged file: walk its structure in a forked child first (the run store's
-    :func:`ilcforce.store.safeio.probe`); StudyStoreError if that fails."""
-    from ilcforce.store.safeio import StoreError, probe
-
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError as exc:
-        raise StudyStoreError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    try:
-        probe(Path(path), fd)
-    except StoreError as exc:
-        raise StudyStoreError(str(exc)) from None
-    finally:
-        os.close(fd)
-
-
-def read_header(path: Path, *, check: bool = True) -> dict:
-    """Root attributes and the settings table of a study store; StudyStoreError if not one.
-
-    ``check`` walks the file in a time-limited child first (readers; the driver, which wrote the
-    file itself, skips it)."""
-    if check:
-        _probe(path)
-    try:
-        with h5py.File(path, "r") as handle:
-            if handle.attrs.get("schema") != SCHEMA_NAME:
-                raise StudyStoreError(f"{path}: not an ilcforce study store")
-            version = str(handle.attrs.get("schema_version", ""))
-            if version.split(".")[0] != SCHEMA_VERSION.split(".")[0]:
-                raise StudyStoreError(f"{path}: study store schema {version!r}; this ilcforce reads {SCHEMA_VERSION}")
-            attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in handle.attrs.items()}
-            settings = _table(handle["settings"])
-    except StudyStoreError:
-        raise
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        raise StudyStoreError(f"{path}: not a readable ilcforce study store ({' '.join(str(exc).split())})") from None
-    attrs["settings"] = settings
-    return attrs
-
-
-def read_tables(path: Path, *, check: bool = True) -> tuple[dict, pd.DataFrame, pd.DataFrame]:
-    """(header, metrics, cells) of a study store, journal records included.
-
-    ``metrics`` has the raw columns (``setting`` index, ``seed``, ``method``, ``iteration``, metric
-    columns); ``cells`` one row per cell, its latest record.
-    """
-    header = read_header(path, check=check)
-    try:
-        with h5py.File(path, "r") as handle:
-            metrics = _table(handle["metrics"])
-            cells = _table(handle["cells"])
-    except StudyStoreError:
-        raise
-    except (OSError, KeyError, ValueError, TypeError) as exc:
-        raise StudyStoreError(f"{path}: damaged study store ({' '.join(str(exc).split())})") from None
-    done = set(_keys(cells[cells["state"] == DONE])) if len(cells) else set()
-    extra_rows, extra_cells = [], []
-    for record in _journal_records(path):
-        key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
-        if record["state"] == DONE and key in done:
-            continue  # consolidated already (killed between the rename and the journal cleanup)
-        extra_cells.append({c: record.get(c) for c in CELL_COLUMNS})
-        if record["state"] == DONE:
-            extra_rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
-    if extra_cells:
-        cells = pd.concat([cells, pd.DataFrame(extra_cells)], ignore_index=True)
-    if extra_rows:
-        metrics = pd.concat([metrics, pd.DataFrame(extra_rows)], ignore_index=True)
-    if len(cells):
-        cells = cells.drop_duplicates(list(KEY_COLUMNS), keep="last").reset_index(drop=True)
-    return header, metrics, cells
-
-
-def _keys(frame: pd.DataFrame):
-    if not len(frame):
-        return iter(())
-    return zip(frame["setting"].astype(int), frame["seed"].astype(int), frame["method"].astype(str))
-
-
-# ------------------------------------------------------------------------------------------------
-# writing (the driver only)
+from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
+    CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
+    _journal_records, _keys, _lock_path, _table, is_study_store, journal_dir, read_header, read_tables,
+)
 
 
 def _append(group: h5py.Group, rows: list[dict]) -> None:
