@@ -389,7 +389,8 @@ def _print_frame(frame, title: str, units: dict[str, str]) -> None:
 def report(
     results: Annotated[Path, typer.Option("--results", help="folder of HDF5 stores (results/<experiment>/<method>.h5)")] = Path("results"),
     out_dir: Annotated[Optional[Path], typer.Option("--out", help="output folder (default: <results>/report)")] = None,
-    jobs: Annotated[int, typer.Option("--jobs", "-j", help="experiments reported in parallel (default: CPU count)")] = 0,
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="worker processes (default: CPU count)")] = 0,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress lines (warnings are still printed)")] = False,
 ) -> None:
     """Write the paper's tables, figures and a verdict on each claim from the HDF5 stores."""
     from ilcforce.report.build import write_report
@@ -400,7 +401,7 @@ def report(
     if jobs < 0:
         raise CliError(f"--jobs must be >= 0 (0: one per CPU), got {jobs}")
     summary = write_report(results, target, jobs=jobs or os.cpu_count() or 1,
-                           progress=lambda text: _say(f"report: {text}", stderr=True))
+                           progress=None if quiet else lambda text: _say(f"report: {text}", stderr=True))
     for warning in summary.warnings:
         _say(f"warning: {warning}", stderr=True)
     if not summary.experiments and not summary.studies:

@@ -103,3 +103,40 @@ def test_study_findings_and_boundary_figure(results):
     div = first_divergence(frame).set_index("seed")
     assert div.at[0, "diverged_at"] == 2 and np.isnan(div.at[1, "diverged_at"])
     assert list(div["iterations"]) == [3, 2]
+
+
+def test_report_on_two_processes_is_the_same_files_with_progress(results, tmp_path):
+    """Experiments, study reports and findings pages run as pool tasks: the files are byte for byte
+    those of the one-process report, and the workers' progress lines reach the caller."""
+    root, out, _summary = results
+    lines: list[str] = []
+    summary = write_report(root, tmp_path / "par", formats=("png",), jobs=2, progress=lines.append)
+    ours = sorted(p.relative_to(tmp_path / "par") for p in (tmp_path / "par").rglob("*") if p.is_file())
+    theirs = sorted(p.relative_to(out) for p in out.rglob("*") if p.is_file())
+    assert ours == theirs and len(ours) > 20
+    for relative in ours:
+        assert (tmp_path / "par" / relative).read_bytes() == (out / relative).read_bytes(), relative
+    assert summary.studies == _summary.studies and summary.warnings == _summary.warnings
+    assert "study sweep1: setting 2 of 2" in lines, "a worker's own progress line is shown"
+    assert lines[0].startswith("1 experiment(s), 2 study report(s), 2 findings page(s) on 2 process(es)")
+    assert sum(" done (" in line for line in lines) == 5 and lines[-1].endswith("(5 of 5)")
+
+
+def test_report_command_shows_progress_and_quiet_silences_it(results, tmp_path, monkeypatch):
+    """The command passes its progress printer to the report (one "report: ..." line each on
+    stderr), and none with --quiet. The report itself is the real one, without figures (speed)."""
+    from typer.testing import CliRunner
+
+    import ilcforce.report.build as build
+    from ilcforce.cli import app
+
+    real = build.write_report
+    monkeypatch.setattr(build, "write_report", lambda *a, **k: real(*a, **{**k, "formats": ()}))
+    root, _out, _summary = results
+    runner = CliRunner()
+    loud = runner.invoke(app, ["report", "--results", str(root), "--out", str(tmp_path / "a"), "--jobs", "1"])
+    quiet = runner.invoke(app, ["report", "--results", str(root), "--out", str(tmp_path / "b"), "--jobs", "1",
+                                "--quiet"])
+    assert loud.exit_code == 0 and quiet.exit_code == 0, (loud.output, quiet.output)
+    assert "report: study sweep1: setting 1 of 2" in loud.stderr and "done (5 of 5)" in loud.stderr
+    assert "report:" not in quiet.stderr and "written to" in quiet.stdout

@@ -18,9 +18,7 @@ and everything that can still be reported is.
 from __future__ import annotations
 
 import json
-import multiprocessing
 from collections.abc import Callable, Mapping
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,7 +27,7 @@ import pandas as pd
 
 from ilcforce import store
 from ilcforce.report import claims as claims_module
-from ilcforce.report import paper, readme, sections, stability, study_findings, tables
+from ilcforce.report import paper, pool, readme, sections, stability, tables, tasks
 from ilcforce.report.run_figures import FIGURE_FORMATS, FIGURES, READ_ERRORS as _READ_ERRORS
 from ilcforce.report.run_figures import write_figures as _write_figures
 from ilcforce.report.run_text import divergence_lines as _divergence_lines
@@ -244,8 +242,9 @@ def _misplaced_files(results_dir: Path) -> list[str]:
     return warnings
 
 
-def _report_experiment(name: str, paths: Mapping[str, Path], out_dir: Path, formats: tuple[str, ...]):
-    """One experiment's report (a process-pool task). Returns (files, claims or None, warnings)."""
+def _report_experiment(name: str, paths: Mapping[str, Path], out_dir: Path, formats: tuple[str, ...],
+                       progress: Callable[[str], None] | None = None):
+    """One experiment's report (a pool task). Returns (files, claims or None, warnings)."""
     experiment = _load_experiment(name, paths)
     if not experiment.methods:
         experiment.warn("no readable store; no report written")
@@ -288,42 +287,42 @@ def write_report(
     written: list[Path] = []
     verdicts: dict[str, pd.DataFrame] = {}
     experiment_warnings: dict[str, list[str]] = {}
-    tasks = [(name, paths, out_dir, tuple(formats)) for name, paths in found.items()]
-    if jobs > 1 and len(tasks) > 1:
-        context = multiprocessing.get_context("fork")  # workers inherit the imported modules
-        with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=context) as pool:
-            outcomes = []
-            for task, outcome in zip(tasks, pool.map(_report_experiment, *zip(*tasks))):
-                outcomes.append(outcome)
-                if progress is not None:
-                    progress(f"experiment {task[0]} ({len(outcomes)} of {len(tasks)})")
-    else:
-        outcomes = []
-        for task in tasks:
-            outcomes.append(_report_experiment(*task))
-            if progress is not None:
-                progress(f"experiment {task[0]} ({len(outcomes)} of {len(tasks)})")
-    for (name, *_rest), (files, claims, experiment_warns) in zip(tasks, outcomes):
+    # every experiment, every study's report and every study's findings page is one task; they run on
+    # `jobs` cores together, heaviest first, and are put together below in this fixed order
+    from ilcforce.report.study import find_study_stores, study_index_section
+
+    study_dir = results_dir / "studies"
+    report_paths = find_study_stores(results_dir)
+    findings_paths = sorted(study_dir.glob("*.h5")) if study_dir.is_dir() else []
+    pieces = [pool.Task(f"experiment {name}", _report_experiment, (name, paths, out_dir, tuple(formats)),
+                        cost=tasks.experiment_cost(paths.values())) for name, paths in found.items()]
+    pieces += [pool.Task(f"study {path.stem}", tasks.study_report, (path, out_dir / "studies", tuple(formats)),
+                         cost=tasks.study_cost(path, 2.0)) for path in report_paths]
+    pieces += [pool.Task(f"findings of study {path.stem}", tasks.study_findings_page, (path, out_dir / "studies"),
+                         cost=tasks.study_cost(path, 0.1)) for path in findings_paths]
+    if progress is not None:
+        progress(f"{len(found)} experiment(s), {len(report_paths)} study report(s), {len(findings_paths)} findings "
+                 f"page(s) on {max(1, min(jobs, len(pieces)))} process(es)")
+    outcomes = pool.run_tasks(pieces, jobs=jobs, progress=progress)
+    n_experiments, n_reports = len(found), len(report_paths)
+    for name, (files, claims, experiment_warns) in zip(found, outcomes[:n_experiments]):
         warnings += experiment_warns
         if claims is None:
             continue
         written += files
         verdicts[name] = claims
         experiment_warnings[name] = experiment_warns
-    from ilcforce.report.study import write_study_reports
-
-    study_reports, study_section = write_study_reports(results_dir, out_dir, formats=tuple(formats),
-                                                       progress=progress)
+    study_reports = outcomes[n_experiments:n_experiments + n_reports]
+    study_section = study_index_section(study_reports)
     for study_report in study_reports:
         written += study_report.files
         warnings += study_report.warnings
     studies: dict[str, dict] = {}
-    for path in sorted((results_dir / "studies").glob("*.h5")) if (results_dir / "studies").is_dir() else []:
-        try:
-            files, name, found_study = study_findings.write_study_findings(path, out_dir / "studies")
-        except Exception as error:  # one bad study store never aborts the report  # noqa: BLE001
-            warnings.append(f"{path}: study findings not written: {' '.join(str(error).split())}")
+    for outcome in outcomes[n_experiments + n_reports:]:
+        if isinstance(outcome, str):
+            warnings.append(outcome)
             continue
+        files, name, found_study = outcome
         written += files
         studies[name] = found_study
     if studies:  # the findings pages (stability boundary, per-setting verdicts and flags) next to the reports

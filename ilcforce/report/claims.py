@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.report import paper
-from ilcforce.report.tables import chattering_iteration, complete_iterations, divergence, jbar, value_at
+from ilcforce.report.seedframes import SeedMetrics, split_seeds
 from ilcforce.stats import frequency_interval, median_interval
 
 HOLDS = "holds"
@@ -134,9 +134,9 @@ def _ratio(numerator: float, denominator: float) -> float:
 
 
 class _Seed:
-    """One seed's per-method metrics frames (indexed by iteration) plus the checks parts share."""
+    """One seed's per-method metrics (:class:`~ilcforce.report.seedframes.SeedMetrics`) plus the checks parts share."""
 
-    def __init__(self, metrics_by_method: Mapping[str, pd.DataFrame], p: int) -> None:
+    def __init__(self, metrics_by_method: Mapping[str, SeedMetrics], p: int) -> None:
         self.metrics, self.p = metrics_by_method, int(p)
 
     def need(self, *methods: str) -> None:
@@ -147,17 +147,17 @@ class _Seed:
     def asserted(self, method: str, last: int) -> None:
         """A method the part praises diverged at or before ``last``: the part fails."""
         self.need(method)
-        found = divergence(self.metrics[method])
+        found = self.metrics[method].divergence
         if found is not None and found[0] <= last:
             raise _Stop(False, f"{method} diverged at iteration {found[0]}")
 
     def norm(self, method: str, column: str, j: int) -> float:
         """The norm at ``j``; inf from a divergence on (a baseline lost tracking); missing -> not evaluable."""
         self.need(method)
-        found = divergence(self.metrics[method])
+        found = self.metrics[method].divergence
         if found is not None and j >= found[0]:
             return math.inf
-        value = value_at(self.metrics[method], column, j)
+        value = self.metrics[method].value_at(column, j)
         if not math.isfinite(value):
             raise _Stop(None, f"{method} has no complete iteration {j}")
         return value
@@ -167,14 +167,14 @@ class _Seed:
 
     def jbar(self, method: str, column: str) -> int:
         self.asserted(method, 9)
-        found = jbar(self.metrics[method], column)
+        found = self.metrics[method].jbar(column)
         if found is None:
             raise _Stop(None, f"{method}: j̄ needs complete iterations 0..9")
         return found
 
     def end(self) -> int:
         """Claim 4's last iteration: 19, or the last one every method completed."""
-        ends = [max(complete_iterations(self.metrics[m]), default=-1) for m in ("c1", "c2", "c3")]
+        ends = [max(self.metrics[m].complete_iterations, default=-1) for m in ("c1", "c2", "c3")]
         end = min(paper.CHATTERING_ITERATION, *ends)
         if end <= self.p:
             raise _Stop(None, f"needs iterations up to at least {self.p + 1}; the runs stop at {end}")
@@ -182,10 +182,10 @@ class _Seed:
 
     def chattering(self, method: str, column: str) -> float:
         self.asserted(method, paper.CHATTERING_ITERATION) if method == "c3" else self.need(method)
-        j = chattering_iteration(self.metrics[method])
+        j = self.metrics[method].chattering_iteration()
         if j != paper.CHATTERING_ITERATION:
             raise _Stop(None, f"{method} has no complete iteration {paper.CHATTERING_ITERATION}")
-        value = value_at(self.metrics[method], column, j)
+        value = self.metrics[method].value_at(column, j)
         if not math.isfinite(value):
             raise _Stop(None, f"{column} not available for {method}")
         return value
@@ -335,14 +335,6 @@ def claim_verdict(part_verdicts: Mapping[str, str], roles: Mapping[str, str]) ->
     return HOLDS if all(v == HOLDS for v in secondary) else IN_PART
 
 
-def _split_seeds(metrics: pd.DataFrame) -> dict[int, dict[str, pd.DataFrame]]:
-    out = {}
-    for seed, per_seed in metrics.groupby("seed", sort=True):
-        out[int(seed)] = {str(m): frame.drop(columns=["seed", "method"]).set_index("iteration").sort_index()
-                          for m, frame in per_seed.groupby("method")}
-    return out
-
-
 def _distribution(values: np.ndarray) -> str:
     finite = values[np.isfinite(values)]
     if finite.size == 0 or not np.all(finite == np.round(finite)):
@@ -366,7 +358,7 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     passing share), ``part_verdict`` ("-" for shown parts), ``notes`` (why a seed could not be
     judged, first reason), ``n_seeds``. :func:`claim_summary` reduces it to one row per claim.
     """
-    seeds = _split_seeds(metrics)
+    seeds = split_seeds(metrics)
     contexts = {seed: _Seed(frames, perturbation_iteration) for seed, frames in seeds.items()}
     results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in PARTS}
     roles = {part.key: part.role for part in PARTS}

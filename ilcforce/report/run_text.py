@@ -13,6 +13,7 @@ import pandas as pd
 import ilcforce
 from ilcforce import store
 from ilcforce.metrics import memory_norms
+from ilcforce.store.access import read_memories
 from ilcforce.report import claims as claims_module
 from ilcforce.report import sections, tables
 from ilcforce.report.run_figures import FIGURES
@@ -115,9 +116,15 @@ def tidy_metrics(experiment) -> pd.DataFrame:
     frame = claims_module.tidy_from_methods(experiment.metrics)
     norms: dict[tuple[str, int], dict[str, float]] = {}
     for name, method in experiment.methods.items():
-        for j in tables.complete_iterations(method.metrics):
+        wanted = tables.complete_iterations(method.metrics)
+        try:  # one open for all iterations; on a failure, iteration by iteration to name the bad ones
+            memories = read_memories(method.path, wanted)
+        except _READ_ERRORS:
+            memories = {}
+        for j in wanted:
             try:
-                norms[(name, j)] = memory_norms(store.read_memory(method.path, j))
+                memory = memories[j] if j in memories else store.read_memory(method.path, j)
+                norms[(name, j)] = memory_norms(memory)
             except _READ_ERRORS as error:
                 experiment.warn(f"{name}: memory of iteration {j} unreadable ({error}); its norm is missing")
     columns = sorted({c for row in norms.values() for c in row})

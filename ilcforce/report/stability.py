@@ -30,7 +30,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from ilcforce.records import STATUS_COMPLETE
+from ilcforce.report.seedframes import split_seeds
 from ilcforce.stats import growth_rate, median_interval
 
 #: A quantity grows in a seed when the lower end of its rate's 95% interval exceeds this (1%/iteration).
@@ -81,14 +81,21 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd
     rate interval lies above MIN_RATE), ``fitted`` (seeds with a rate), ``grows`` (bool, majority rule).
     """
     rows = []
-    for method, per_method in metrics.groupby("method", sort=False):
-        for column in watched_columns(per_method):
-            rates, lows, windows = [], [], set()
-            for _seed, frame in per_method.groupby("seed"):
-                frame = frame.set_index("iteration").sort_index()
-                complete = frame.index[frame["status"].astype(str) == STATUS_COMPLETE].tolist()
-                window = growth_window([int(j) for j in complete], perturbation_iteration)
-                values = frame.loc[window, column].to_numpy(dtype=float) if window else np.array([])
+    columns = watched_columns(metrics)
+    by_seed = split_seeds(metrics)  # seed (ascending) -> method -> arrays sorted by iteration
+    for method in dict.fromkeys(metrics["method"].astype(str)):  # methods in order of appearance
+        # each seed's window is found once and read for every watched column
+        windows = []
+        for per_seed in by_seed.values():
+            if method not in per_seed:
+                continue
+            seed = per_seed[method]
+            window = growth_window(seed.complete_iterations, perturbation_iteration)
+            windows.append((window, {c: seed.columns[c][[seed.position[j] for j in window]] for c in columns}))
+        for column in columns:
+            rates, lows, seen = [], [], set()
+            for window, values_by_column in windows:
+                values = np.asarray(values_by_column[column], dtype=float) if window else np.array([])
                 if values.size < 3 or not np.all(np.isfinite(values)):
                     continue
                 fitted = growth_rate(values)
@@ -96,12 +103,12 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd
                     continue
                 rates.append(fitted.estimate)
                 lows.append(fitted.low)
-                windows.add(f"j = {window[0]}..{window[-1]}")
+                seen.add(f"j = {window[0]}..{window[-1]}")
             if not rates:
                 continue
             median = median_interval(rates)
             growing = int(sum(low > MIN_RATE for low in lows))
-            rows.append({"method": str(method), "quantity": column, "window": ", ".join(sorted(windows)),
+            rows.append({"method": str(method), "quantity": column, "window": ", ".join(sorted(seen)),
                          "rate": median.estimate, "rate_low": median.low, "rate_high": median.high,
                          "growing": growing, "fitted": len(rates), "grows": bool(2 * growing > len(rates))})
     return pd.DataFrame(rows, columns=["method", "quantity", "window", "rate", "rate_low", "rate_high",

@@ -277,17 +277,8 @@ def find_study_stores(results_dir: Path) -> list[Path]:
     return sorted(found, key=lambda p: (p.stem != "paper-mc", p.stem))
 
 
-def write_study_reports(results_dir: Path, out_dir: Path, *, formats: tuple[str, ...] = ("png", "pdf"),
-                        progress: Callable[[str], None] | None = None) -> tuple[list[StudyReport], list[str]]:
-    """Every study's report under ``out_dir/studies/``; returns the reports and the index section."""
-    from ilcforce.report.figures import report_style
-
-    reports = []
-    with report_style():
-        for path in find_study_stores(results_dir):
-            if progress is not None:
-                progress(f"study {path.stem}")
-            reports.append(write_study_report(path, Path(out_dir) / "studies", formats=formats, progress=progress))
+def study_index_section(reports: list[StudyReport]) -> list[str]:
+    """The index's section on the studies (empty without studies), in the order of ``reports``."""
     section = []
     if reports:
         section = ["## Studies (over seeds)", "",
@@ -296,4 +287,4 @@ def write_study_reports(results_dir: Path, out_dir: Path, *, formats: tuple[str,
                    ""]
         for report in reports:
             section += report.index_lines or [f"### {report.name}", "", "No report (see warnings).", ""]
-    return reports, section
+    return section

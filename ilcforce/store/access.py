@@ -178,6 +178,24 @@ def read_memory(path: str | os.PathLike[str], j: int) -> dict[str, np.ndarray]:
                 for name, d in datasets.items()}
 
 
+def read_memories(path: str | os.PathLike[str], iterations: list[int]) -> dict[int, dict[str, np.ndarray]]:
+    """:func:`read_memory` of each of ``iterations``, with the file opened and scanned once.
+
+    (A loop over :func:`read_memory` opens and scans the file per iteration: quadratic in the
+    number of iterations, which made the long-run report slow.) Returns j -> name -> array.
+    """
+    with open_store(path) as (handle, checked, major):
+        layout = scan(handle, checked, major)
+        n_control = control_length(handle, checked)
+        out = {}
+        for j in iterations:
+            group = handle[group_for(layout, int(j), checked)]
+            datasets = read_memory_group(group, checked, n_control)
+            out[int(j)] = {name: np.array(checked_data(group, f"memory/{name}", d, checked, major), dtype=np.float64)
+                           for name, d in datasets.items()}
+        return out
+
+
 def read_memory_info(path: str | os.PathLike[str], j: int) -> dict[str, dict[str, Any]]:
     """Per memory entry of iteration ``j``: ``units`` and ``columns`` (labels, or None)."""
     with open_store(path) as (handle, checked, major):
