@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcforce import samerun
+from ilcforce import pipeline, samerun
 from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY
 from ilcforce.noise import draw_iteration
@@ -90,8 +90,9 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     """Yield the :class:`IterationRecord` of iterations ``first .. iterations - 1`` in order.
 
     Stops after a diverged iteration. ``memory`` (a stored learned state) seeds iteration ``first``.
-    ``stop_requested`` and ``chunk_steps`` go to :func:`~ilcforce.simulate.run_iteration` (an
-    iteration in flight is abandoned with KeyboardInterrupt within one chunk of the request).
+    ``stop_requested()`` is looked at before each iteration (KeyboardInterrupt when true); it and
+    ``chunk_steps`` go to :func:`~ilcforce.simulate.run_iteration` (an iteration in flight is
+    abandoned with KeyboardInterrupt within one chunk of the request).
     ``desired_cache`` (true plant -> tau_d arrays) may be shared by callers that run many cells of
     the same wall, reference and grids (a study's worker); it must only ever hold entries computed
     for that same (wall, reference, sample_time, log_every).
@@ -105,6 +106,8 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     if desired_cache is None:
         desired_cache = {}
     for j in range(first, config.experiment.iterations):
+        if stop_requested is not None and stop_requested():  # also between iterations: an iteration
+            raise KeyboardInterrupt  # may be one chunk, so run_iteration might never look
         true_plant = config.plant.true_plant(j)
         inputs = IterationInputs(
             iteration=j, true_plant=true_plant, nominal_plant=nominal, wall=config.wall,
@@ -154,16 +157,22 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
             return RunSummary(Path(out), method, first, (), STATUS_DIVERGED)
         memory = writer.resume_memory() if first > 0 else None
         status = STATUS_COMPLETE
-        for record in simulate_iterations(config, method, first, memory, stop_requested, chunk_steps,
-                                          desired_cache=desired_cache):
+
+        def iterations(consumer_gone):
+            def stopping() -> bool:
+                return consumer_gone() or (stop_requested is not None and stop_requested())
+            return simulate_iterations(config, method, first, memory, stopping, chunk_steps,
+                                       desired_cache=desired_cache)
+
+        # iteration j + 1 simulates while j is stored; a stop request ends the simulation within one
+        # chunk (KeyboardInterrupt, raised here after every finished iteration is stored)
+        for record in pipeline.ahead(iterations):
             row = writer.append(record)  # the store computes the metrics row once
             rows.append(row)
             if progress is not None:
                 progress(record, row)
             if record.status == STATUS_DIVERGED:
                 status = STATUS_DIVERGED
-            elif stop_requested is not None and stop_requested():
-                raise KeyboardInterrupt
         writer.finish(status)
     return RunSummary(Path(out), method, first, tuple(rows), status)
 
