@@ -61,7 +61,7 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
     ``on_interrupt()`` is called in the parent at the first Ctrl-C (e.g. to say what happens next);
     ``meanwhile()`` once all workers have started (e.g. imports the parent needs afterwards).
     """
-    _preload(config, [job.method for job in jobs])
+    preload_kernels(config, [job.method for job in jobs])
     context = multiprocessing.get_context("fork")
     workers: dict[str, multiprocessing.process.BaseProcess] = {}
     readers: dict[object, str] = {}  # one pipe per worker: a killed worker cannot block another's
@@ -116,7 +116,7 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
     return outcomes
 
 
-def _preload(config, methods: Sequence[str]) -> None:
+def preload_kernels(config, methods: Sequence[str]) -> None:
     """Import and load in the parent what every worker would otherwise load for itself.
 
     Forked workers inherit the imported modules and numba's loaded kernels (the simulation loop,
