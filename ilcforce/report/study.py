@@ -192,7 +192,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         lines += [results.description, ""]
     lines += [f"{done} cells done, {len(failed)} failed; {len(seeds)} seeds "
               f"({_seed_text(seeds)}), methods {', '.join(methods) or '-'}, {len(results.settings)} setting(s)"
-              + (f" over {', '.join(results.sweep_keys)}" if results.sweep_keys else "") + ".", "",
+              + _settings_text(results) + ".", "",
               "## How to read the numbers", "", INTERVAL_TEXT, ""]
     if len(failed):
         report.warnings.append(f"study {name}: {len(failed)} cell(s) failed; see its report")
@@ -245,6 +245,14 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
     report.files.append(text_path)
     report.index_lines = _index_lines(name, results, headline, len(seeds), done, len(failed))
     return report
+
+
+def _settings_text(results) -> str:
+    """How the settings were chosen: the labels of a settings list, or the swept keys."""
+    if getattr(results, "labelled", False):
+        return (" listed by name (" + "; ".join(str(v) for v in results.settings["label"]) + ")"
+                + (f", setting columns {', '.join(results.sweep_keys)}" if results.sweep_keys else ""))
+    return f" over {', '.join(results.sweep_keys)}" if results.sweep_keys else ""
 
 
 def _seed_text(seeds: list[int]) -> str:
