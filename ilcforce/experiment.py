@@ -16,7 +16,9 @@ depends on (seed, j) only, the result is bit-identical to an uninterrupted run.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,7 +31,6 @@ from ilcforce.controllers import REGISTRY
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.simulate import IterationInputs, complete_record, desired_inputs, run_iteration
-from ilcforce.store import StoreWriter
 from ilcforce.task import (REF_ACCELERATION, REF_FORCE, REF_POSITION, REF_VELOCITY)
 
 
@@ -141,32 +142,44 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     every finished iteration is stored and the store is left "partial", ready for ``resume``.
     Raises ``ilcforce.store.StoreError`` for store problems (existing result, concurrent writer, ...).
     """
+    from ilcforce.store import StoreWriter  # h5py and the store: imported while iteration 0 simulates
+
     make_controller(config, method)  # fail on a bad method before touching any file
     rows = []
-    writer = StoreWriter(
-        out, experiment=config.experiment.name, method=method, config_toml=config.to_toml(),
-        config_json=config.to_json(), seed=config.experiment.seed, command=command,
-        n_iterations=config.experiment.iterations, reference=reference_log(config),
-        control_time=config.control_times(), overwrite=overwrite, resume=resume,
-        same_run=samerun.same_run_check(config.to_dict(), method),
-    )
-    with writer:
-        first = writer.last_complete_iteration + 1
-        if resume and writer.stored_status() == STATUS_DIVERGED:
-            writer.finish(STATUS_DIVERGED)
-            return RunSummary(Path(out), method, first, (), STATUS_DIVERGED)
-        memory = writer.resume_memory() if first > 0 else None
-        status = STATUS_COMPLETE
 
-        def iterations(consumer_gone):
+    def iterations(first: int, memory: dict | None):
+        def make(consumer_gone):
             def stopping() -> bool:
                 return consumer_gone() or (stop_requested is not None and stop_requested())
             return simulate_iterations(config, method, first, memory, stopping, chunk_steps,
                                        desired_cache=desired_cache)
+        return pipeline.Ahead(make)
 
-        # iteration j + 1 simulates while j is stored; a stop request ends the simulation within one
-        # chunk (KeyboardInterrupt, raised here after every finished iteration is stored)
-        for record in pipeline.ahead(iterations):
+    # Iteration j + 1 simulates (compiled loop, GIL released) while j is stored. A run into a new
+    # file starts simulating at once, while this thread sets up the store (an existing file is
+    # checked first: a refusal must not wait for the simulation to stop; a resumed run needs the
+    # store's memory). A stop request ends the simulation within one chunk (KeyboardInterrupt,
+    # raised here after every finished iteration is stored); a store error stops it the same way.
+    with contextlib.ExitStack() as stack:
+        fresh = not resume and not os.path.lexists(out)
+        ahead = stack.enter_context(iterations(0, None)) if fresh else None
+        writer = stack.enter_context(StoreWriter(
+            out, experiment=config.experiment.name, method=method, config_toml=config.to_toml(),
+            config_json=config.to_json(), seed=config.experiment.seed, command=command,
+            n_iterations=config.experiment.iterations, reference=reference_log(config),
+            control_time=config.control_times(), overwrite=overwrite, resume=resume,
+            same_run=samerun.same_run_check(config.to_dict(), method),
+        ))
+        first = writer.last_complete_iteration + 1
+        if resume and writer.stored_status() == STATUS_DIVERGED:
+            writer.finish(STATUS_DIVERGED)
+            return RunSummary(Path(out), method, first, (), STATUS_DIVERGED)
+        if ahead is None:
+            ahead = stack.enter_context(iterations(first, writer.resume_memory() if first > 0 else None))
+        elif first != 0:  # a new store always starts at iteration 0
+            raise RuntimeError(f"{out}: a new store starts at iteration {first}, not 0")
+        status = STATUS_COMPLETE
+        for record in ahead:
             row = writer.append(record)  # the store computes the metrics row once
             rows.append(row)
             if progress is not None:

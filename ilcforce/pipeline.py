@@ -18,52 +18,74 @@ from __future__ import annotations
 import queue
 import threading
 from collections.abc import Callable, Iterator
-from typing import TypeVar
+from typing import Generic, TypeVar
 
 T = TypeVar("T")
+_DONE = object()
 
 #: How long the producer waits to hand over an item before looking at the stop flag again (s).
 _POLL = 0.05
 
 
-def ahead(make: Callable[[Callable[[], bool]], Iterator[T]], *, depth: int = 1) -> Iterator[T]:
-    """Yield the items of ``make(stopping)``, produced in a background thread up to ``depth`` ahead.
+class Ahead(Generic[T]):
+    """The items of ``make(stopping)``, produced in a background thread (started at once) up to
+    ``depth`` ahead of the consumer; iterate once, in the consumer's thread. A context manager:
+    leaving it (normally, by an error, or without having iterated at all) stops the producer within
+    one chunk of its work and joins it.
 
     ``make`` receives ``stopping()``, true once the consumer has gone away; the producer should pass
-    it to whatever checks for a stop between chunks of work (it then ends within one chunk).
+    it to whatever checks for a stop between chunks of work.
     """
-    handoff: queue.Queue = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-    done = object()
 
-    def put(item) -> bool:
-        while not stop.is_set():
+    def __init__(self, make: Callable[[Callable[[], bool]], Iterator[T]], *, depth: int = 1) -> None:
+        self._handoff: queue.Queue = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._make = make
+        self._thread = threading.Thread(target=self._produce, name="ilcforce-ahead", daemon=True)
+        self._thread.start()
+
+    def _put(self, item) -> bool:
+        while not self._stop.is_set():
             try:
-                handoff.put(item, timeout=_POLL)
+                self._handoff.put(item, timeout=_POLL)
                 return True
             except queue.Full:
                 continue
         return False
 
-    def produce() -> None:
+    def _produce(self) -> None:
         try:
-            for item in make(stop.is_set):
-                if not put((None, item)):
+            for item in self._make(self._stop.is_set):
+                if not self._put((None, item)):
                     return
-            put((None, done))
+            self._put((None, _DONE))
         except BaseException as exc:  # noqa: BLE001 - handed to the consumer, raised there
-            put((exc, None))
+            self._put((exc, None))
 
-    thread = threading.Thread(target=produce, name="ilcforce-ahead", daemon=True)
-    thread.start()
-    try:
-        while True:
-            exc, item = handoff.get()
-            if exc is not None:
-                raise exc
-            if item is done:
-                return
-            yield item
-    finally:
-        stop.set()
-        thread.join()
+    def __iter__(self) -> Iterator[T]:
+        try:
+            while True:
+                exc, item = self._handoff.get()
+                if exc is not None:
+                    raise exc
+                if item is _DONE:
+                    return
+                yield item
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Stop the producer (within one chunk of its work) and wait for it."""
+        self._stop.set()
+        self._thread.join()
+
+    def __enter__(self) -> Ahead[T]:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def ahead(make: Callable[[Callable[[], bool]], Iterator[T]], *, depth: int = 1) -> Iterator[T]:
+    """Iterate :class:`Ahead` (``for item in ahead(make)``): the producer stops when the loop ends."""
+    yield from Ahead(make, depth=depth)
