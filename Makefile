@@ -38,6 +38,9 @@ bench: $(STAMP) ## print speed figures (medians over repeated runs)
 	$(PY) -m ilcforce.bench
 
 STORES = $(foreach e,$(EXPERIMENTS),$(foreach m,$(METHODS),$(RESULTS)/$(e)/$(m).h5))
+comma := ,
+empty :=
+space := $(empty) $(empty)
 
 SOURCES := $(shell find ilcforce -name '*.py' -o -name '*.mplstyle')
 
@@ -47,20 +50,30 @@ $(RESULTS)/%.h5: $(STAMP) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).to
 	$(VENV)/bin/ilcforce simulate --config experiments/$(word 1,$(subst /, ,$*)).toml \
 	    --method $(word 2,$(subst /, ,$*)) --out $@ --overwrite
 
-stores: $(STAMP) $$(STORES)
-
-# Studies: every experiments/*.toml with a [study] table (its study.name must be the file's stem).
-# A study resumes where it stopped; --replace-stale starts it over only if its settings or the
-# simulation code changed (unchanged cells are kept, so a rerun after a report-only change is quick).
-STUDY_FILES := $(shell grep -l '^\[study\]' experiments/*.toml 2>/dev/null)
-STUDIES := $(patsubst experiments/%.toml,%,$(STUDY_FILES))
-STUDY_STORES := $(foreach s,$(STUDIES),$(RESULTS)/studies/$(s).h5)
-.PRECIOUS: $(RESULTS)/studies/%.h5
-$(RESULTS)/studies/%.h5: $(STAMP) $(SOURCES) experiments/%.toml $(wildcard experiments/*.toml)
-	$(VENV)/bin/ilcforce study experiments/$*.toml --results $(RESULTS) --replace-stale
+# `make stores`: one `ilcforce compare` per experiment runs every registered method at once (one
+# worker process each, sharing the cores): one cold start per experiment instead of one per store.
+# All of an experiment's stores are rerun when the code or its experiment file changes (the marker
+# .stores records when they were made). A single store can still be made: make results/paper/c3.h5
+$(RESULTS)/%/.stores: $(STAMP) $(SOURCES) experiments/%.toml
+	rm -f $(foreach m,$(METHODS),$(RESULTS)/$*/$(m).h5)
+	$(VENV)/bin/ilcforce compare --config experiments/$*.toml --results $(RESULTS) \
+	    --methods $(subst $(space),$(comma),$(strip $(METHODS)))
+	test "$$(ls $(foreach m,$(METHODS),$(RESULTS)/$*/$(m).h5) | wc -l)" = "$(words $(METHODS))" || \
+	    { echo "experiments/$*.toml: its experiment.name must be '$*' (the stores go to results/<name>/)"; exit 1; }
 	touch $@
 
-studies: $(STUDY_STORES) ## run every study in experiments/ (all cores each, one after another)
+stores: $(STAMP) $$(foreach e,$$(EXPERIMENTS),$$(RESULTS)/$$(e)/.stores)
+
+# Studies: every experiments/*.toml with a [study] table (its study.name must be the file's stem),
+# all in one `ilcforce study` command on one local cluster (started once, its workers kept warm).
+# A study resumes where it stopped; --replace-stale starts it over only if its settings or the
+# simulation code changed (unchanged studies are skipped in seconds, so this always runs).
+STUDY_FILES := $(shell grep -l '^\[study\]' experiments/*.toml 2>/dev/null)
+# the paper's Monte Carlo first: the report leads with it
+STUDY_FILES := $(filter experiments/paper-mc.toml,$(STUDY_FILES)) $(filter-out experiments/paper-mc.toml,$(STUDY_FILES))
+
+studies: $(STAMP) ## run every study in experiments/ (on all cores, one after another, one cluster)
+	$(VENV)/bin/ilcforce study $(STUDY_FILES) --results $(RESULTS) --replace-stale
 
 reproduce: $(STAMP) ## run every experiment (every registered method, in parallel) and every study in experiments/, then write the report
 	$(MAKE) --no-print-directory -j $(JOBS) -O stores

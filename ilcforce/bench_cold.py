@@ -9,7 +9,8 @@ point (console script), with numba's on-disk caches warm (one untimed run first)
 
 Beside them, the compiled loop's own time for the same work (the simulator kernel timed
 in-process, warm), so that overhead = wall - loop shows; and a split of one cold ``simulate`` under
-cProfile into imports, the compiled loop, store writes, tau_d, metrics and the rest (cProfile
+cProfile into imports, store writes, metrics, the wait for the simulation thread (which runs the
+compiled loop beside the store's writes; cProfile sees only the main thread) and the rest (cProfile
 inflates Python-heavy parts a little; the split is for finding where time goes, the medians are
 the figures).
 """
@@ -144,7 +145,13 @@ def profile_split(extra: Sequence[str] = (), iterations: int = ITERATIONS) -> tu
         outside = sum(c[3] for caller, c in callers.items() if _category(caller) != category
                       and not caller[0].startswith("<frozen") and caller[2] != "<module>")
         split[category] = split.get(category, 0.0) + outside
-    split["other (CLI, config, noise draws, Python glue)"] = total - sum(split.values())
+    # the simulation runs in a second thread (ilcforce.pipeline), which cProfile does not see: the main
+    # thread's wait for its next iteration stands for it (the loop, noise draws and glue not overlapped
+    # with the store's writes)
+    split["waiting for the simulation thread"] = sum(
+        c[3] for func, (_, _, _, _, callers) in stats.items() if func[2] == "get" and func[0].endswith("queue.py")
+        for caller, c in callers.items() if caller[0].replace(os.sep, "/").endswith("ilcforce/pipeline.py"))
+    split["other (CLI, config, Python glue)"] = total - sum(split.values())
     return total, split
 
 

@@ -147,13 +147,14 @@ def _command_line(ctx: typer.Context) -> str:
     """The invocation as ilcforce saw it (resolved options), for the store's provenance."""
     parts = ["ilcforce", ctx.info_name or ""]
     flags = {"out_path": "--out", "out_dir": "--out", "sets": "--set"}
+    positional = {p.name for p in ctx.command.params if p.param_type_name == "argument"}
     for name, value in ctx.params.items():
         if value in (None, False, [], ()):
             continue
         flag = flags.get(name, "--" + name.replace("_", "-"))
         values = value if isinstance(value, (list, tuple)) else [value]
         for v in values:
-            parts += [flag] if v is True else [flag, str(v)]
+            parts += [str(v)] if name in positional else [flag] if v is True else [flag, str(v)]
     return shlex.join(parts)
 
 

@@ -77,7 +77,7 @@ class _StudyProgress:
 @app.command()
 def study(
     ctx: typer.Context,
-    file: Annotated[Path, typer.Argument(help="study file: TOML whose study table names the seeds, methods, fixed values and sweep (see README)")],
+    files: Annotated[list[Path], typer.Argument(help="study files: TOML whose study table names the seeds, methods, fixed values, and a sweep or a list of settings (see README); several run one after another on one cluster")],
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://HOST:8786")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", help="local worker processes (default: one per core; 1 runs in this process without Dask)")] = None,
     results: Annotated[Path, typer.Option("--results", help="results folder; the study store is <results>/studies/<name>.h5")] = Path("results"),
@@ -88,15 +88,24 @@ def study(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress output")] = False,
     timeout: Annotated[float, typer.Option("--timeout", help="seconds allowed to reach --scheduler")] = 10.0,
 ) -> None:
-    """Run a study (seeds x settings x methods) on Dask; finished cells are stored and never rerun."""
+    """Run studies (seeds x settings x methods) on Dask; finished cells are stored and never rerun."""
     from ilcforce.study import load_study, run_study
+    from ilcforce.study.runner import SharedClient
 
     try:
-        spec = load_study(file)
-        with _StudyProgress(spec.name, quiet) as progress:
-            summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
-                                overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
-                                command=_command_line(ctx), progress=progress, timeout=timeout)
+        specs = [load_study(file) for file in files]  # every file valid before any cell runs
+        names = [spec.name for spec in specs]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            _fail_plain(f"two study files name the same study {twice[0]!r} (each is stored as results/studies/<name>.h5)")
+        with SharedClient() as shared:
+            for spec in specs:
+                with _StudyProgress(spec.name, quiet) as progress:
+                    summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
+                                        overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
+                                        command=_command_line(ctx), progress=progress, timeout=timeout,
+                                        shared=shared)
+                _summarise(spec, summary, quiet)
     except _study_errors() as exc:
         _fail_plain(str(exc) or type(exc).__name__)
     except OSError as exc:
@@ -104,9 +113,12 @@ def study(
     except KeyboardInterrupt:
         err.print("interrupted: every finished cell is stored; rerun the same command to continue", highlight=False)
         raise typer.Exit(130)
+
+
+def _summarise(spec, summary, quiet: bool) -> None:
     for cell, message in summary.failed[:10]:
-        err.print(f"warning: cell {cell.method} seed {cell.seed} setting {cell.setting} failed twice: {message}",
-                  highlight=False, markup=False, soft_wrap=True)
+        err.print(f"warning: {spec.name}: cell {cell.method} seed {cell.seed} setting {cell.setting} failed twice: "
+                  f"{message}", highlight=False, markup=False, soft_wrap=True)
     if not quiet:
         where = summary.scheduler if summary.workers == 0 else f"{summary.scheduler}, {summary.workers} worker(s)"
         out.print(f"{spec.name}: {summary.total} cells ({summary.skipped} already stored, {summary.ran} run, "

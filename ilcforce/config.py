@@ -303,11 +303,13 @@ def run_footprint(config: Config) -> tuple[int, int]:
     """(bytes of working memory, integrator steps) one iteration needs, estimated from the grid.
 
     Per control sample: the reference (12 floats), the learned memory (old and new, up to 2 x 16),
-    the noise draws (about 10), the raw log before decimation (about 40): about 100 float64.
+    the noise draws (about 10), the raw log before decimation (about 40): about 100 float64; plus two
+    finished iterations' records (log and memory copies, about 56 each) waiting for or in the store's
+    writes while the next iteration simulates (:mod:`ilcforce.pipeline`): about 212 float64.
     """
     sim = config.simulation
     n_control = config.reference.duration / sim.sample_time + 1
-    return int(n_control * 100 * 8), int(n_control * sim.substeps)
+    return int(n_control * 212 * 8), int(n_control * sim.substeps)
 
 
 def _check_consistency(config: Config) -> None:

@@ -16,20 +16,21 @@ depends on (seed, j) only, the result is bit-identical to an uninterrupted run.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ilcforce import samerun
+from ilcforce import pipeline, samerun
 from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.simulate import IterationInputs, complete_record, desired_inputs, run_iteration
-from ilcforce.store import StoreWriter
 from ilcforce.task import (REF_ACCELERATION, REF_FORCE, REF_POSITION, REF_VELOCITY)
 
 
@@ -90,8 +91,9 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     """Yield the :class:`IterationRecord` of iterations ``first .. iterations - 1`` in order.
 
     Stops after a diverged iteration. ``memory`` (a stored learned state) seeds iteration ``first``.
-    ``stop_requested`` and ``chunk_steps`` go to :func:`~ilcforce.simulate.run_iteration` (an
-    iteration in flight is abandoned with KeyboardInterrupt within one chunk of the request).
+    ``stop_requested()`` is looked at before each iteration (KeyboardInterrupt when true); it and
+    ``chunk_steps`` go to :func:`~ilcforce.simulate.run_iteration` (an iteration in flight is
+    abandoned with KeyboardInterrupt within one chunk of the request).
     ``desired_cache`` (true plant -> tau_d arrays) may be shared by callers that run many cells of
     the same wall, reference and grids (a study's worker); it must only ever hold entries computed
     for that same (wall, reference, sample_time, log_every).
@@ -105,6 +107,8 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     if desired_cache is None:
         desired_cache = {}
     for j in range(first, config.experiment.iterations):
+        if stop_requested is not None and stop_requested():  # also between iterations: an iteration
+            raise KeyboardInterrupt  # may be one chunk, so run_iteration might never look
         true_plant = config.plant.true_plant(j)
         inputs = IterationInputs(
             iteration=j, true_plant=true_plant, nominal_plant=nominal, wall=config.wall,
@@ -138,32 +142,50 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     every finished iteration is stored and the store is left "partial", ready for ``resume``.
     Raises ``ilcforce.store.StoreError`` for store problems (existing result, concurrent writer, ...).
     """
+    from ilcforce.store import StoreWriter  # h5py and the store: imported while iteration 0 simulates
+
     make_controller(config, method)  # fail on a bad method before touching any file
     rows = []
-    writer = StoreWriter(
-        out, experiment=config.experiment.name, method=method, config_toml=config.to_toml(),
-        config_json=config.to_json(), seed=config.experiment.seed, command=command,
-        n_iterations=config.experiment.iterations, reference=reference_log(config),
-        control_time=config.control_times(), overwrite=overwrite, resume=resume,
-        same_run=samerun.same_run_check(config.to_dict(), method),
-    )
-    with writer:
+
+    def iterations(first: int, memory: dict | None):
+        def make(consumer_gone):
+            def stopping() -> bool:
+                return consumer_gone() or (stop_requested is not None and stop_requested())
+            return simulate_iterations(config, method, first, memory, stopping, chunk_steps,
+                                       desired_cache=desired_cache)
+        return pipeline.Ahead(make)
+
+    # Iteration j + 1 simulates (compiled loop, GIL released) while j is stored. A run into a new
+    # file starts simulating at once, while this thread sets up the store (an existing file is
+    # checked first: a refusal must not wait for the simulation to stop; a resumed run needs the
+    # store's memory). A stop request ends the simulation within one chunk (KeyboardInterrupt,
+    # raised here after every finished iteration is stored); a store error stops it the same way.
+    with contextlib.ExitStack() as stack:
+        fresh = not resume and not os.path.lexists(out)
+        ahead = stack.enter_context(iterations(0, None)) if fresh else None
+        writer = stack.enter_context(StoreWriter(
+            out, experiment=config.experiment.name, method=method, config_toml=config.to_toml(),
+            config_json=config.to_json(), seed=config.experiment.seed, command=command,
+            n_iterations=config.experiment.iterations, reference=reference_log(config),
+            control_time=config.control_times(), overwrite=overwrite, resume=resume,
+            same_run=samerun.same_run_check(config.to_dict(), method),
+        ))
         first = writer.last_complete_iteration + 1
         if resume and writer.stored_status() == STATUS_DIVERGED:
             writer.finish(STATUS_DIVERGED)
             return RunSummary(Path(out), method, first, (), STATUS_DIVERGED)
-        memory = writer.resume_memory() if first > 0 else None
+        if ahead is None:
+            ahead = stack.enter_context(iterations(first, writer.resume_memory() if first > 0 else None))
+        elif first != 0:  # a new store always starts at iteration 0
+            raise RuntimeError(f"{out}: a new store starts at iteration {first}, not 0")
         status = STATUS_COMPLETE
-        for record in simulate_iterations(config, method, first, memory, stop_requested, chunk_steps,
-                                          desired_cache=desired_cache):
+        for record in ahead:
             row = writer.append(record)  # the store computes the metrics row once
             rows.append(row)
             if progress is not None:
                 progress(record, row)
             if record.status == STATUS_DIVERGED:
                 status = STATUS_DIVERGED
-            elif stop_requested is not None and stop_requested():
-                raise KeyboardInterrupt
         writer.finish(status)
     return RunSummary(Path(out), method, first, tuple(rows), status)
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import ilcforce._lapack  # noqa: F401, I001 - before numba: numba's LAPACK modules without all of scipy.linalg
 from numba import njit, types
 
 from ilcforce.controllers.base import (
@@ -151,7 +152,7 @@ _SIM_SIGNATURE = types.UniTuple(types.int64, 2)(
 )
 
 
-@njit(_SIM_SIGNATURE, cache=True, error_model="numpy")
+@njit(_SIM_SIGNATURE, cache=True, error_model="numpy", nogil=True)  # nogil: the store writes beside it (pipeline.py)
 def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset,
               iset, log, carry, k_start, k_stop):
     """Control samples k_start .. k_stop - 1 of one iteration.
@@ -402,7 +403,7 @@ _DESIRED_SIGNATURE = types.int64(
 )
 
 
-@njit(_DESIRED_SIGNATURE, cache=True, error_model="numpy")
+@njit(_DESIRED_SIGNATURE, cache=True, error_model="numpy", nogil=True)
 def desired_kernel(dyn, ik, p, ref, w, tau_d, task_d):
     """tau_d = Dq ddtheta_d + Cq dtheta_d + G_q - J^T f_d along the reference (eq. 1), f_d = -w F_d
     the wall's reaction to the desired force; and J^-T tau_d, with dtheta_d = J^-1 dP_d and

@@ -15,6 +15,7 @@ has been stored (a valid "partial" store, ready for ``--resume``); a second stop
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 from multiprocessing import connection
 import os
@@ -23,6 +24,8 @@ import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+
+from ilcforce.store import safeio
 
 #: Exit status of a worker stopped by an interrupt (as the CLI's 130).
 _INTERRUPTED = 130
@@ -61,7 +64,7 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
     ``on_interrupt()`` is called in the parent at the first Ctrl-C (e.g. to say what happens next);
     ``meanwhile()`` once all workers have started (e.g. imports the parent needs afterwards).
     """
-    _preload(config, [job.method for job in jobs])
+    preload_kernels(config, [job.method for job in jobs])
     context = multiprocessing.get_context("fork")
     workers: dict[str, multiprocessing.process.BaseProcess] = {}
     readers: dict[object, str] = {}  # one pipe per worker: a killed worker cannot block another's
@@ -101,6 +104,8 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
                 if kind == "progress":
                     if progress is not None:
                         progress(method, *payload)
+                elif kind == "written":  # the worker's store, closed: no need to walk it again here
+                    safeio.mark_walked(payload[0])
                 else:
                     outcomes[method] = Outcome(method, *payload)
         for worker in workers.values():
@@ -116,7 +121,7 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
     return outcomes
 
 
-def _preload(config, methods: Sequence[str]) -> None:
+def preload_kernels(config, methods: Sequence[str]) -> None:
     """Import and load in the parent what every worker would otherwise load for itself.
 
     Forked workers inherit the imported modules and numba's loaded kernels (the simulation loop,
@@ -185,6 +190,9 @@ def _worker(config, job: Job, messages) -> None:  # messages: the write end of i
         outcome, code = ("error", traceback.format_exc(), False), 1
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the report must reach the parent
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    if code == 0:
+        with contextlib.suppress(OSError):
+            tell(("written", safeio.file_key(job.path)))
     tell(("done", *outcome))
     messages.close()
     os._exit(code)

@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import ilcforce._lapack  # noqa: F401, I001 - before numba: numba's LAPACK modules without all of scipy.linalg
 from numba import njit
 
 FORCE_SIGNS = {"applied": 1.0, "paper": -1.0}

@@ -35,3 +35,16 @@ def test_the_simulation_path_imports_neither_pandas_nor_matplotlib():
 
 def test_compare_tables_do_not_import_matplotlib():
     assert "matplotlib" not in _imported_after("import ilcforce.report.tables")
+
+
+def test_a_simulation_loads_numbas_lapack_without_all_of_scipy_linalg():
+    """ilcforce._lapack: numba's BLAS/LAPACK modules come without scipy.linalg's 170 ms package
+    import, and the compiled solves still work (the tau_d kernel uses np.linalg.solve)."""
+    code = ("import sys\nfrom ilcforce.config import load_config\nfrom ilcforce.experiment import simulate_iterations\n"
+            "cfg = load_config(None, {'experiment.iterations': 1, 'reference.duration': 0.05})\n"
+            "rec = next(simulate_iterations(cfg, 'c3'))\n"
+            "import numpy as np\nassert np.isfinite(rec.log['desired_torque']).all()\n"
+            "print('LINALG', 'scipy.linalg' in sys.modules, 'scipy.linalg.cython_lapack' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "LINALG False True" in proc.stdout

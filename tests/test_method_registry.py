@@ -153,6 +153,16 @@ def test_gains_invalid_for_the_setting_are_one_line_exit_2(tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("method, key", [("c3", "c3.eta"), ("c3-leak", "c3-leak.eta"), ("c3-leak", "c3-leak.gamma")])
+def test_a_bad_gain_is_named_by_its_own_section(method, key):
+    """C3-leak inherits C3's gain checks; its errors name c3-leak's keys, the ones the user set."""
+    from ilcforce.config import ConfigError
+
+    value = -1.0 if key.endswith("eta") else [-1.0] * 8
+    with pytest.raises(ConfigError, match=rf"^{key} must be"):
+        load_config(None, {key: value})
+
+
 # ---------------------------------------------------------------------------------------------
 # the between-iteration hook
 # ---------------------------------------------------------------------------------------------

@@ -303,3 +303,30 @@ def test_report_skips_a_store_with_forged_types(tmp_path: Path):
     summary = write_report(results, tmp_path / "report", formats=())
     assert summary.experiments == (folder.name,)
     assert any("c2.h5" in w for w in summary.warnings), summary.warnings
+
+
+def test_a_store_marked_walked_skips_the_probe_until_it_changes(path: Path, monkeypatch):
+    """compare's parent skips the forked walk of a store its worker has just written (the worker sends
+    the file's key); any later change to the file is a new key and is walked again."""
+    from ilcforce.store import safeio
+
+    write_run(path, 2)
+    marks = path.parent / "walks.txt"  # the walk runs in a forked child: it leaves a mark in a file
+
+    def walk(p, real=safeio._walk):
+        with open(marks, "a") as handle:
+            handle.write("walk\n")
+        real(p)
+
+    def walks():
+        return marks.read_text().split() if marks.exists() else []
+
+    monkeypatch.setattr(safeio, "_walk", walk)
+    monkeypatch.setattr(safeio, "_probed", set())
+    safeio.mark_walked(safeio.file_key(path))
+    store.read_metrics(path)
+    assert walks() == []
+    info = os.stat(path)
+    os.utime(path, ns=(info.st_atime_ns, info.st_mtime_ns + 1_000_000))
+    store.read_metrics(path)
+    assert walks() == ["walk"]

@@ -368,3 +368,35 @@ def test_paper_monte_carlo_100_seeds(tmp_path):
         for column in METRIC_COLUMNS:
             np.testing.assert_array_equal(rows[column].to_numpy(), single[column].to_numpy(),
                                           err_msg=f"seed {seed} {method} {column}")
+
+
+def test_several_study_files_run_in_one_command_on_one_cluster(tmp_path, monkeypatch):
+    """`ilcforce study A.toml B.toml`: both stored, one after another, on one LocalCluster started once;
+    two files naming the same study are refused before anything runs."""
+    from ilcforce.study import dask_run
+
+    starts = []
+    real = dask_run.dask_client
+
+    def counting(*args, **kwargs):
+        starts.append(args)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(dask_run, "dask_client", counting)
+    for sub in "abc":
+        (tmp_path / sub).mkdir()
+    one_seed = TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-0"').replace('"c3.eta" = [5.0, 2.0]', '"c3.eta" = [5.0]')
+    a = write_study_file(tmp_path / "a", one_seed.replace('name = "tiny"', 'name = "first"'))
+    b = write_study_file(tmp_path / "b", one_seed.replace('name = "tiny"', 'name = "second"'))
+    results = tmp_path / "r"
+    ran = CliRunner().invoke(app, ["study", str(a), str(b), "--results", str(results), "--workers", "2", "--quiet"])
+    assert ran.exit_code == 0, ran.output
+    assert len(starts) == 1
+    for name in ("first", "second"):
+        cells = read_study(results / "studies" / f"{name}.h5").cells
+        assert len(cells) == 2 and (cells["state"] == "done").all()
+    same = write_study_file(tmp_path / "c", one_seed.replace('name = "tiny"', 'name = "first"'))
+    refused = CliRunner().invoke(app, ["study", str(a), str(same), "--results", str(tmp_path / "r2"), "--workers", "1"])
+    assert refused.exit_code == 2 and "same study 'first'" in refused.output
+    assert len(refused.output.strip().splitlines()) == 1
+    assert not (tmp_path / "r2" / "studies").exists()

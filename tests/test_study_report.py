@@ -68,6 +68,12 @@ def test_study_report_contents(results):
         for stem in ("fig3_position_error_norm", "fig4_force_error_norm"):
             assert (out / "studies" / "sweep1" / f"{stem}_s{k}.png").stat().st_size > 0
     assert (out / "studies" / "sweep1" / "sweep_key_numbers.png").stat().st_size > 0
+    # Figs. 5-7 over seeds (issue 11, section 4), per setting, with the caption saying what is banded
+    assert "### Figs. 5-7 over seeds" in text and "per-iteration metrics, not time signals" in text
+    for k in (0, 1):
+        for stem in ("fig5_tracking_error_seeds", "fig6_input_x_seeds", "fig7_input_y_seeds"):
+            assert (out / "studies" / "sweep1" / f"{stem}_s{k}.png").stat().st_size > 10_000
+            assert f"]({stem}_s{k}.png)" in text
     heat = out / "studies" / "sweep2" / "sweep_divergence_heatmap.png"
     assert heat.stat().st_size > 0
     text2 = (out / "studies" / "sweep2" / "report.md").read_text(encoding="utf-8")
@@ -140,3 +146,30 @@ def test_report_command_shows_progress_and_quiet_silences_it(results, tmp_path, 
     assert loud.exit_code == 0 and quiet.exit_code == 0, (loud.output, quiet.output)
     assert "report: study sweep1: setting 1 of 2" in loud.stderr and "done (5 of 5)" in loud.stderr
     assert "report:" not in quiet.stderr and "written to" in quiet.stdout
+
+
+def test_single_run_report_shows_the_bands_of_the_study_of_its_setup(results):
+    """Issue 11 section 4: the paper run's Figs. 3-7 get the bands over seeds of the study that ran the
+    same setup (here sweep1's setting 0: same config for C1, the seed apart), linked into its report."""
+    _root, out, _summary = results
+    text = (out / "paper" / "report.md").read_text(encoding="utf-8")
+    for stem in ("fig3_position_error_norm", "fig5_tracking_error_seeds", "fig6_input_x_seeds", "fig7_input_y_seeds"):
+        link = f"../studies/sweep1/{stem}_s0.png"
+        assert f"]({link})" in text, stem
+        assert (out / "paper" / link).resolve().stat().st_size > 10_000, "the link points at a drawn figure"
+    assert "from study [`sweep1`](../studies/sweep1/report.md)" in text and "methods c1)" in text
+
+
+def test_a_study_matches_only_the_same_setup():
+    from ilcforce.config import load_config
+    from ilcforce.report.study_match import _same
+
+    base = load_config(None, {"experiment.iterations": 3}).to_dict()
+    other_seed = load_config(None, {"experiment.iterations": 3, "experiment.seed": 7}).to_dict()
+    c3_gain = load_config(None, {"experiment.iterations": 3, "c3.eta": 2.0}).to_dict()
+    longer = load_config(None, {"experiment.iterations": 30}).to_dict()
+    noise = load_config(None, {"experiment.iterations": 3, "noise.encoder": 0.0}).to_dict()
+    assert _same(base, other_seed, "c3"), "the seed apart"
+    assert _same(base, c3_gain, "c1") and not _same(base, c3_gain, "c3"), "only the method's own gains count"
+    assert not _same(base, longer, "c1"), "a 3-iteration study does not stand for a 30-iteration run"
+    assert not _same(base, noise, "c1")

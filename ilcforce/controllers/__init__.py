@@ -63,6 +63,9 @@ class MethodSpec:
 
     @property
     def memory_layout(self) -> dict[str, tuple[int, int, str]]:
+        """The controller class's memory blocks (name -> first column, last + 1, unit), as for the
+        five-bar. An instance may be wider: C3 on a plant with gravity adds Theta's G block, so ask
+        the controller made for the experiment (``experiment.make_controller``) for its own layout."""
         return dict(self.controller_class.memory_layout)
 
 

@@ -15,8 +15,10 @@ Phi^T Theta = D psi1 + C (dP + sigma) + G 1, and the learned G_i1 + G_i2 estimat
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
+import ilcforce._lapack  # noqa: F401, I001 - before numba: numba's LAPACK modules without all of scipy.linalg
 from numba import njit
 
 from ilcforce.controllers.base import (
@@ -41,18 +43,22 @@ class C3Gains:
     gamma_gravity: tuple[float, float, float, float] = (1e3, 1e3, 1e3, 1e3)
     psi_acceleration: str = "measured"  # "measured": S ddP in Psi (the paper); "desired": S ddP_d
 
+    #: the config section these gains come from, named in error messages (C3-leak inherits them)
+    section: ClassVar[str] = "c3"
+
     def __post_init__(self) -> None:
-        check_vector("c3.k", self.k, 2)
-        check_vector("c3.gamma", self.gamma, 8)
-        check_vector("c3.gamma_gravity", self.gamma_gravity, 4)
+        name = self.section
+        check_vector(f"{name}.k", self.k, 2)
+        check_vector(f"{name}.gamma", self.gamma, 8)
+        check_vector(f"{name}.gamma_gravity", self.gamma_gravity, 4)
         if min(self.gamma_gravity) < 0:
-            raise ValueError("c3.gamma_gravity must be non-negative (Gamma is positive semi-definite)")
+            raise ValueError(f"{name}.gamma_gravity must be non-negative (Gamma is positive semi-definite)")
         if not (np.isfinite(self.eta) and self.eta >= 0):
-            raise ValueError(f"c3.eta must be finite and >= 0, got {self.eta!r}")
+            raise ValueError(f"{name}.eta must be finite and >= 0, got {self.eta!r}")
         if min(self.gamma) < 0:
-            raise ValueError("c3.gamma must be non-negative (Gamma is positive semi-definite)")
+            raise ValueError(f"{name}.gamma must be non-negative (Gamma is positive semi-definite)")
         if self.psi_acceleration not in PSI_ACCELERATION:
-            raise ValueError(f"c3.psi_acceleration must be one of {', '.join(PSI_ACCELERATION)}, "
+            raise ValueError(f"{name}.psi_acceleration must be one of {', '.join(PSI_ACCELERATION)}, "
                              f"got {self.psi_acceleration!r}")
 
 

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 from ilcforce.controllers.base import compiled_law, gain_indices
 from ilcforce.controllers.c3 import (
@@ -40,6 +41,7 @@ from ilcforce.controllers.c3 import (
 class C3LeakGains(C3Gains):
     """C3's gains (eq. 14) plus the leakage and the switching-gain bound."""
 
+    section: ClassVar[str] = "c3-leak"
     leakage: float = 0.02  # lambda: fraction of the previous iteration's memory forgotten, 0 <= lambda < 1
     alpha_max: float = 0.1  # bound on alpha_hat, N
 

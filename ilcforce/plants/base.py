@@ -39,6 +39,7 @@ from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
+import ilcforce._lapack  # noqa: F401, I001 - before numba: numba's LAPACK modules without all of scipy.linalg
 from numba import carray, njit, types
 from numba.extending import intrinsic
 

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
+import ilcforce._lapack  # noqa: F401, I001 - before numba: numba's LAPACK modules without all of scipy.linalg
 from numba import njit
 
 from ilcforce.plants.base import (

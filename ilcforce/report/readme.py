@@ -60,7 +60,34 @@ def study_findings(name: str, found: Mapping[str, object]) -> list[str]:
         from ilcforce.report.tables import markdown_table
 
         lines.append(markdown_table(pd.DataFrame(rows)))
+    if found.get("labelled"):
+        lines += _error_table(found["settings"])  # type: ignore[arg-type]
     return lines
+
+
+#: The error columns a breakdown over listed settings shows (labels of study_findings.KEY_COLUMNS).
+ERROR_LABELS = ("|e_P| 2-norm (m)", "|e_F| 2-norm (N)")
+
+
+def _error_table(settings: Mapping[str, Mapping[str, object]]) -> list[str]:
+    """For a study with a settings list (a breakdown, e.g. by noise source): each method's error
+    2-norms per setting, median [95% interval] over seeds, so the settings can be compared."""
+    from ilcforce.report.tables import markdown_table
+
+    rows, at = [], ""
+    for setting, entry in settings.items():
+        row: dict[str, object] = {"setting": setting}
+        for method_row in entry["rows"]:  # type: ignore[union-attr]
+            for label in ERROR_LABELS:
+                key = next((k for k in method_row if k.startswith(label + " at j = ")), None)
+                if key is not None:
+                    at = key.removeprefix(label)
+                    row[f"{method_row['method']} {label.split(' ')[0]}"] = method_row[key]
+        rows.append(row)
+    if len(rows) < 2 or len(rows[0]) < 2:
+        return []
+    return ["", f"Error 2-norms{at} per setting (median [95% interval] over seeds; |e_P| in m, |e_F| in N):", "",
+            markdown_table(pd.DataFrame(rows))]
 
 
 def findings_markdown(experiments: Mapping[str, Mapping[str, object]],

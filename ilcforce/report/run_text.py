@@ -15,7 +15,7 @@ from ilcforce import store
 from ilcforce.metrics import memory_norms
 from ilcforce.store.access import read_memories
 from ilcforce.report import claims as claims_module
-from ilcforce.report import sections, tables
+from ilcforce.report import sections, study_match, tables
 from ilcforce.report.run_figures import FIGURES
 from ilcforce.report.run_figures import READ_ERRORS as _READ_ERRORS
 
@@ -134,6 +134,15 @@ def tidy_metrics(experiment) -> pd.DataFrame:
     return frame
 
 
+def _matching_study(experiment):
+    """The study that ran this experiment's setup over seeds (None without one)."""
+    if not experiment.methods:
+        return None
+    first = next(iter(experiment.methods.values()))
+    configs = {name: sections.config_of(method.provenance) for name, method in experiment.methods.items()}
+    return study_match.find_study(Path(first.path).parent.parent, configs)
+
+
 def report_text(
     experiment,
     *,
@@ -214,6 +223,7 @@ def report_text(
     ]
     lines.append(md(fallback_table(experiment)) if experiment.methods else "No readable store.\n")
     lines += ["## Figures", ""]
+    match = _matching_study(experiment)
     for stem, caption in FIGURES.items():
         made = sorted((p.name for p in figure_files if p.stem == stem), key=lambda n: not n.endswith(".png"))
         if made:
@@ -221,6 +231,7 @@ def report_text(
             lines += [f"### {caption}", "", f"![{caption}]({made[0]}) {others}".rstrip(), ""]
         else:
             lines += [f"### {caption}", "", f"Not drawn: {experiment.notes.get(stem, 'unknown reason')}.", ""]
+        lines += study_match.band_lines(match, stem)  # the same figure over seeds, where a study ran this setup
     lines += [
         "## Files",
         "",

@@ -9,7 +9,8 @@ are dropped and the count ``n`` is shown. Claims are judged seed by seed and sum
 frequencies (:func:`ilcforce.report.claims.judge_claims_over_seeds`).
 
 Written to ``<report>/studies/<name>/``: ``report.md``, ``key_numbers_s<k>.csv`` per setting,
-``claims_s<k>.csv``, the figures (:mod:`ilcforce.report.study_figures`).
+``claims_s<k>.csv``, the figures (:mod:`ilcforce.report.study_figures`; Figs. 5-7 over seeds:
+:mod:`ilcforce.report.seed_bands`).
 """
 
 from __future__ import annotations
@@ -168,7 +169,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
                        progress: Callable[[str], None] | None = None) -> StudyReport:
     """Write the report of the study store ``path`` into ``out_dir/<name>/``. Never raises for a bad store."""
     from ilcforce.report import claims as claims_module
-    from ilcforce.report import sections, stability, study_figures
+    from ilcforce.report import seed_bands, sections, stability, study_figures
     from ilcforce.study import StudyStoreError, read_study
 
     report = StudyReport(Path(path).stem)
@@ -192,7 +193,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         lines += [results.description, ""]
     lines += [f"{done} cells done, {len(failed)} failed; {len(seeds)} seeds "
               f"({_seed_text(seeds)}), methods {', '.join(methods) or '-'}, {len(results.settings)} setting(s)"
-              + (f" over {', '.join(results.sweep_keys)}" if results.sweep_keys else "") + ".", "",
+              + _settings_text(results) + ".", "",
               "## How to read the numbers", "", INTERVAL_TEXT, ""]
     if len(failed):
         report.warnings.append(f"study {name}: {len(failed)} cell(s) failed; see its report")
@@ -225,6 +226,10 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         report.files += figures
         lines += ["### Figs. 3 and 4 over seeds", "", study_figures.BAND_CAPTION, ""]
         lines += [f"![{f.stem}]({f.name})" for f in figures if f.suffix == ".png"] + [""]
+        band_files, band_lines = seed_bands.seed_band_figures(mine, directory, f"s{k}", formats, flags,
+                                                                  perturbation_iteration=p)
+        report.files += band_files
+        lines += ["### Figs. 5-7 over seeds", ""] + band_lines
         if k == 0:
             headline = claims_module.claim_summary(parts)
     if results.sweep_keys and len(frame):
@@ -245,6 +250,14 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
     report.files.append(text_path)
     report.index_lines = _index_lines(name, results, headline, len(seeds), done, len(failed))
     return report
+
+
+def _settings_text(results) -> str:
+    """How the settings were chosen: the labels of a settings list, or the swept keys."""
+    if getattr(results, "labelled", False):
+        return (" listed by name (" + "; ".join(str(v) for v in results.settings["label"]) + ")"
+                + (f", setting columns {', '.join(results.sweep_keys)}" if results.sweep_keys else ""))
+    return f" over {', '.join(results.sweep_keys)}" if results.sweep_keys else ""
 
 
 def _seed_text(seeds: list[int]) -> str:

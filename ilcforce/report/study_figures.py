@@ -1,5 +1,5 @@
-"""Figures of a study: Figs. 3 and 4 with bands over seeds, key numbers against a swept value, and
-a heatmap of the first diverged iteration over a 2-D sweep.
+"""Figures of a study: Figs. 3 and 4 with bands over seeds, key numbers against a swept value (or
+against the labels of a settings list), and a heatmap of the first diverged iteration over a 2-D sweep.
 
 Bands: the dark band is the 95% percentile-bootstrap interval of the median over seeds (the
 uncertainty of the line drawn); the light band holds the central 95% of the seeds (2.5th to 97.5th
@@ -61,6 +61,18 @@ def _band_plot(ax, x, stats, method: str, label: str) -> np.ndarray:
     ax.fill_between(x, stats[:, 3], stats[:, 4], color=color, alpha=0.12, linewidth=0)
     ax.fill_between(x, stats[:, 1], stats[:, 2], color=color, alpha=0.35, linewidth=0)
     ax.plot(x, stats[:, 0], marker="o", markersize=3, color=color, label=label)
+    return stats[:, :5]
+
+
+def _category_plot(ax, x, stats, method: str, label: str, offset: float) -> np.ndarray:
+    """Bands for unordered settings (a settings list): no line joins two settings; per setting a
+    marker at the median, a thick bar for its 95% interval and a thin bar for the central 95%."""
+    stats = np.asarray(stats, dtype=float).reshape(-1, 6)
+    color = _color(method)
+    xs = np.asarray(x, dtype=float) + offset
+    ax.vlines(xs, stats[:, 3], stats[:, 4], color=color, alpha=0.45, linewidth=1.0)
+    ax.vlines(xs, stats[:, 1], stats[:, 2], color=color, linewidth=4.0, alpha=0.8)
+    ax.plot(xs, stats[:, 0], marker="o", markersize=5, linestyle="none", color=color, label=label)
     return stats[:, :5]
 
 
@@ -140,8 +152,9 @@ def _iterations(results) -> int:
 
 
 def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[list[Path], list[str]]:
-    """1-D sweep: key numbers against the swept value with bands; 2-D: heatmaps of the first
-    diverged iteration per method. Returns the files and the report's lines."""
+    """1-D sweep or a settings list: key numbers against the swept value (against the setting's
+    label for a list) with bands; 2-D sweep: heatmaps of the first diverged iteration per method.
+    Returns the files and the report's lines."""
     keys = list(results.sweep_keys)
     frame = results.metrics
     methods = tables.ordered_methods(frame["method"].unique().tolist())
@@ -155,8 +168,10 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
     files: list[Path] = []
     lines: list[str] = []
     divergence_rows = []
+    labelled = bool(getattr(results, "labelled", False))
     for k in results.settings["setting"]:
-        row = {key: results.settings.loc[k, key] for key in keys}
+        row = ({"setting": results.settings.loc[k, "label"]} if labelled
+               else {key: results.settings.loc[k, key] for key in keys})
         for method in methods:
             seeds = per_cell[(int(k), method)]
             firsts = np.array([_first_diverged(m) for m in seeds.values()])
@@ -166,31 +181,44 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
         divergence_rows.append(row)
     lines += ["### First diverged iteration (earliest over seeds; how many seeds diverged)", "",
               tables.markdown_table(pd.DataFrame(divergence_rows)), ""]
-    if len(keys) == 1:
-        key = keys[0]
-        values = [v.item() if isinstance(v, np.generic) else v for v in results.settings[key]]
-        numeric = _numeric(values)
+    if labelled or len(keys) == 1:
+        # a settings list is drawn against its labels (categorical), a 1-D sweep against its values
+        key = "setting" if labelled else keys[0]
+        column = results.settings["label"] if labelled else results.settings[key]
+        values = [v.item() if isinstance(v, np.generic) else v for v in column]
+        numeric = not labelled and _numeric(values)
         x = np.asarray(values, dtype=float) if numeric else np.arange(len(values), dtype=float)
         numbers = _sweep_numbers(frame, iterations)
         fig = Figure(figsize=(6.4, 2.8 * len(numbers)))
         axes = fig.subplots(len(numbers), 1, sharex=True)
         for ax, (_name, (ylabel, get)) in zip(axes, numbers.items()):
             drawn = []
-            for method in methods:
+            for n, method in enumerate(methods):
                 stats = [_bands(np.array([get(m) for m in per_cell[(k, method)].values()], dtype=float))
                          for k in range(len(values))]
-                drawn.append(_band_plot(ax, x, stats, method, _label(method)))
+                if labelled:
+                    offset = 0.12 * (n - (len(methods) - 1) / 2)
+                    drawn.append(_category_plot(ax, x, stats, method, _label(method), offset))
+                else:
+                    drawn.append(_band_plot(ax, x, stats, method, _label(method)))
             ax.set_ylabel(ylabel, fontsize="small")
             _log_scale(ax, drawn)
         if numeric and min(values) > 0 and max(values) / min(values) >= 10:
             axes[-1].set_xscale("log")
         if not numeric:
-            axes[-1].set_xticks(x, [str(v) for v in values])
+            axes[-1].set_xticks(x, [str(v) for v in values], rotation=20 if labelled else 0,
+                                ha="right" if labelled else "center")
+            for ax in axes:
+                ax.set_xlim(-0.5, len(values) - 0.5)
         axes[-1].set_xlabel(key)
         axes[0].legend(fontsize="small")
-        axes[0].set_title(f"key numbers against {key}; seeds that diverged are left out")
+        axes[0].set_title(f"key numbers {'per setting' if labelled else 'against ' + key}; "
+                          "seeds that diverged are left out")
         files += _save(fig, directory, "sweep_key_numbers", formats)
-        lines += ["![sweep_key_numbers](sweep_key_numbers.png)", "", BAND_CAPTION + " Error norms here are the "
+        caption = BAND_CAPTION if not labelled else (
+            "Marker: median over seeds. Thick bar: 95% percentile-bootstrap interval of that median. Thin bar: "
+            "central 95% of the seeds. The settings are listed, not ordered, so no line joins them.")
+        lines += ["![sweep_key_numbers](sweep_key_numbers.png)", "", caption + " Error norms here are the "
                   "grid-independent L2 norms sqrt(dt sum_k e(t_k)^2): the paper's 2-norm grows with the number of "
                   "log samples, so it is not comparable across settings whose grids differ.", ""]
     else:

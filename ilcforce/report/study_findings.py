@@ -84,7 +84,9 @@ def study_markdown(results, *, perturbation_iteration: int = paper.PERTURBATION_
             continue
         rows, parts, flags = setting_rows(frame, perturbation_iteration=perturbation_iteration)
         verdicts = claims_module.claim_summary(parts)
-        name = _setting_name(values)
+        # a listed setting is named by its label (its key values are in the study report and the table)
+        name = (str(results.settings.loc[setting, "label"]) if getattr(results, "labelled", False)
+                else _setting_name(values))
         entry = {"setting": name}
         entry.update({f"claim {r.claim}": f"{r.verdict}" for r in verdicts.itertuples(index=False)})
         entry["unstable learning"] = ", ".join(flags) or "none"
@@ -104,7 +106,7 @@ def figure_boundary(results) -> Figure | None:
     value (median over the seeds that diverged, bars from min to max; a hollow marker at the top
     means stable through the last iteration in every seed), (b) the growth rate per iteration of
     H_x per method with its 95% interval, and 1 (no growth) dashed."""
-    if len(results.sweep_keys) != 1:
+    if len(results.sweep_keys) != 1 or getattr(results, "labelled", False):
         return None
     key = results.sweep_keys[0]
     xs = [results.settings.loc[s, key] for s in results.settings.index]
@@ -177,4 +179,5 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
             text += f"\n![stability boundary]({path.name})\n"
     (directory / "findings.md").write_text(text, encoding="utf-8")
     written.append(directory / "findings.md")
-    return written, results.name, {"description": results.description, "settings": summary}
+    return written, results.name, {"description": results.description, "settings": summary,
+                                   "labelled": bool(getattr(results, "labelled", False))}

@@ -185,6 +185,19 @@ def superblock_version(fd: int) -> int | None:
 _probed: set[tuple[int, int, int, int]] = set()
 
 
+def file_key(path: Path) -> tuple[int, int, int, int]:
+    """(device, inode, size, mtime) of ``path``: one version of one file."""
+    info = os.stat(path)
+    return (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
+
+
+def mark_walked(key: tuple[int, int, int, int]) -> None:
+    """Skip the probe for this version of a file: a store that a child process of ours has just
+    written and closed (``ilcforce compare``'s workers send its :func:`file_key`); any later change
+    to the file gives another key, which is probed as usual."""
+    _probed.add(tuple(key))
+
+
 def _walk(path: Path) -> None:
     """What HDF5 must parse to read a store: the root attributes (dense storage: where a zeroed
     block hung every command), every object header and link (``H5Ovisit`` with object info,

@@ -67,21 +67,24 @@ class IterationTemplate:
               memory: Mapping[str, np.ndarray]) -> h5py.Group:
         """Copy the template to ``path`` in ``handle`` and write the data and its checksums."""
         h5py.h5o.copy(self._file.id, _NAME, handle.id, path.encode())
-        group = handle[path]
+        # h5py's low-level API: a dataset opened and written whole by H5Dopen/H5Dwrite costs about a
+        # third of Group[...] + Dataset.write_direct (their selection machinery), for the same bytes
+        group_id = h5py.h5g.open(handle.id, path.encode())
         sums = np.empty(len(self.names), dtype=np.uint32)
         k = 0
-        log_group = group["log"]
-        for signal in LOG_SIGNALS:
-            data = log[signal]
-            log_group[signal].write_direct(data)
-            sums[k] = crc32(data)
-            k += 1
-        memory_group = group["memory"]
-        for name, _shape, _unit, _columns in self.memory:
-            data = memory[name]
-            memory_group[name].write_direct(data)
-            sums[k] = crc32(data)
-            k += 1
+        for folder, items in ((b"log", ((s, log[s]) for s in LOG_SIGNALS)),
+                              (b"memory", ((m[0], memory[m[0]]) for m in self.memory))):
+            folder_id = h5py.h5g.open(group_id, folder)
+            for name, data in items:
+                data = np.ascontiguousarray(data, dtype=np.float64)
+                dataset_id = h5py.h5d.open(folder_id, name.encode())
+                if dataset_id.shape != data.shape:
+                    raise ValueError(f"{folder.decode()}/{name} has shape {data.shape}, the store expects "
+                                     f"{dataset_id.shape}")
+                dataset_id.write(h5py.h5s.ALL, h5py.h5s.ALL, data)
+                sums[k] = crc32(data)
+                k += 1
+        group = handle[path]
         group.attrs["crc32"] = sums
         return group
 

@@ -12,7 +12,8 @@ worker's job), :mod:`~ilcforce.study.runner` (the driver, Dask), :mod:`~ilcforce
 study store, in the store package: only the store touches h5py), :mod:`~ilcforce.study.tidy` (reading, export).
 """
 
-from ilcforce.study.runner import StudyRunError, run_study, store_path
+from ilcforce.study.dask_run import StudyRunError
+from ilcforce.study.runner import run_study, store_path
 from ilcforce.study.spec import Cell, Setting, Study, StudyError, build_study, load_study
 from ilcforce.store.study import StudyStoreError
 from ilcforce.study.tidy import ExportError, StudyResults, export, read_study, tidy_metrics

@@ -7,7 +7,9 @@
   sum of compute time: scheduling, transfer, the driver's writes and idle workers;
 * driver and worker memory (RSS) at 10% of the cells and at the end (flat in the number of cells
   means the two agree);
-* the speed-up from 1 to 2 LocalCluster workers on a smaller study, runs alternated, medians.
+* the speed-up from 1 worker (in-process) to 2 LocalCluster workers on a smaller study, runs
+  alternated, medians: of the cell phase (from the moment every worker has loaded the kernels, as
+  the runner does before the first cell) and of the whole run including the cluster's start.
 """
 
 from __future__ import annotations
@@ -47,6 +49,8 @@ def timed_study(seeds: int, workers: int, study_file: Path = PAPER_MC) -> dict:
         done = p.finished + p.failed
         if done in (max(1, n_cells // 10), n_cells):
             marks["memory"].append(_rss_mb())
+        if done == n_cells and p.last:
+            marks["last"] = now  # the last cell committed (the cluster's shutdown comes after)
 
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
@@ -54,7 +58,7 @@ def timed_study(seeds: int, workers: int, study_file: Path = PAPER_MC) -> dict:
         end = time.perf_counter()
         compute = float(read_study(summary.path).cells["elapsed"].sum())
     ready = marks.get("ready", start)
-    cell_wall = end - ready
+    cell_wall = marks.get("last", end) - ready
     return {"wall": end - start, "startup": ready - start, "cell_wall": cell_wall, "compute": compute,
             "cells": n_cells, "failed": len(summary.failed),
             "overhead": (workers * cell_wall - compute) / compute if compute > 0 else float("nan"),
@@ -79,5 +83,30 @@ def main(mc_seeds: int = 100, speedup_seeds: int = 10, repeat: int = 3, workers:
             one.append(timed_study(speedup_seeds, 1)["cell_wall"])
             two.append(timed_study(speedup_seeds, 2)["cell_wall"])
         m1, m2 = statistics.median(one), statistics.median(two)
-        print(f"  speed-up 1 -> 2 workers ({speedup_seeds} seeds x 3 methods, cell phase, medians of {repeat}): "
-              f"{m1:.1f} s (in-process) -> {m2:.1f} s (LocalCluster x 2) = {m1 / m2:.2f}x")
+        print(f"  speed-up 1 -> 2 workers ({speedup_seeds} seeds x 3 methods, cell phase on warm workers, medians "
+              f"of {repeat}): {m1:.1f} s (in-process) -> {m2:.1f} s (LocalCluster x 2) = {m1 / m2:.2f}x")
+        c1, c2 = cold_study_walls(speedup_seeds, repeat)
+        print(f"  the same as a user runs it (cold `ilcforce study --workers 1|2 --quiet`, whole command): "
+              f"{c1:.1f} s -> {c2:.1f} s = {c1 / c2:.2f}x")
+
+
+def cold_study_walls(seeds: int, repeat: int) -> tuple[float, float]:
+    """Median wall of the real command, cold, with 1 (in-process) and 2 workers (alternated)."""
+    import subprocess
+    import sys
+
+    from ilcforce.bench_cold import entry_point
+
+    walls: dict[int, list[float]] = {1: [], 2: []}
+    with tempfile.TemporaryDirectory() as tmp:
+        study = Path(tmp) / "speedup.toml"
+        study.write_text(f'[study]\nname = "speedup"\nexperiment = "{PAPER_MC.parent / "paper.toml"}"\n'
+                         f'methods = ["c1", "c2", "c3"]\nseeds = "0-{seeds - 1}"\n')
+        for i in range(repeat):
+            for workers in (1, 2):
+                start = time.perf_counter()
+                subprocess.run([*entry_point(), "study", str(study), "--workers", str(workers), "--quiet",
+                                "--results", str(Path(tmp) / f"r{i}-{workers}")], check=True,
+                               stdout=subprocess.DEVNULL, stderr=sys.stderr)
+                walls[workers].append(time.perf_counter() - start)
+    return statistics.median(walls[1]), statistics.median(walls[2])

@@ -7,6 +7,8 @@ Execution (``workers`` / ``scheduler``):
 * default: a Dask ``LocalCluster`` of ``workers`` single-threaded worker processes (one per core);
 * ``scheduler="tcp://HOST:PORT"``: an existing Dask cluster (``dask scheduler`` + ``dask worker``).
 
+The Dask side (cluster, shared client, retries) is :mod:`ilcforce.study.dask_run`.
+
 Workers return metrics only (:func:`ilcforce.study.cell.run_cell`); the driver is the only writer
 of the study store. At most a few cells per worker are in flight at once, so the driver's and the
 scheduler's memory stay flat in the number of cells. A cell that raises, or whose worker dies, is
@@ -18,7 +20,6 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
-import logging
 import os
 import platform
 import re
@@ -31,26 +32,17 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from ilcforce.study.cell import run_cell
+from ilcforce.study.dask_run import (ATTEMPTS, CONNECT_TIMEOUT, IN_FLIGHT_PER_WORKER, SharedClient,
+                                     describe_failure, dask_client, run_on_dask)
 from ilcforce.study.spec import Cell, Study, StudyError
 from ilcforce.store.study import DONE, FAILED, StudyStore
 
-#: Seconds allowed to reach a remote scheduler, and then for a first worker to be there.
-CONNECT_TIMEOUT = 10.0
-WORKER_TIMEOUT = 30.0
-#: Cells in flight per worker (keeps every worker busy while the driver commits results).
-IN_FLIGHT_PER_WORKER = 2
-#: Tries per cell: the first run and one retry.
-ATTEMPTS = 2
 #: Source files whose change makes stored cells stale (the simulation, not reporters or CLI).
 _NOT_FINGERPRINTED = ("report/", "cli.py", "bench.py", "store", "study/", "__main__.py")
 
 
 #: A Dask scheduler address: [tcp:// or tls://]HOST:PORT (HOST a name, IPv4 or [IPv6]).
 _ADDRESS = re.compile(r"(?:(?:tcp|tls)://)?(?:[A-Za-z0-9._-]+|\[[0-9A-Fa-f:.]+\]):\d{1,5}")
-
-
-class StudyRunError(Exception):
-    """The study could not run (no scheduler, no workers); one line."""
 
 
 @dataclass(frozen=True)
@@ -129,20 +121,6 @@ def _header(study: Study) -> dict:
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), "settings": settings}
 
 
-def _one_line(text: object) -> str:
-    return " ".join(str(text).split())[:500]
-
-
-def _describe_failure(exc: BaseException) -> str:
-    if type(exc).__name__ == "KilledWorker":
-        return "the worker process died while running the cell"
-    return _one_line(f"{type(exc).__name__}: {exc}")
-
-
-# ------------------------------------------------------------------------------------------------
-# executors: each yields (cell, attempt, result dict or None, failure message or None)
-
-
 def _run_in_process(jobs, function):
     for cell, args in jobs:
         for attempt in range(1, ATTEMPTS + 1):
@@ -151,139 +129,18 @@ def _run_in_process(jobs, function):
                 break
             except Exception as exc:  # noqa: BLE001 - a failing cell is recorded, the study goes on
                 if attempt == ATTEMPTS:
-                    yield cell, attempt, None, _describe_failure(exc)
+                    yield cell, attempt, None, describe_failure(exc)
 
 
-@contextlib.contextmanager
-def _quiet_dask():
-    """Dask's own logging stays off the user's terminal (errors still show)."""
-    names = ("distributed", "distributed.scheduler", "distributed.worker", "distributed.nanny",
-             "distributed.core", "distributed.comm", "distributed.client", "bokeh", "tornado")
-    saved = {name: logging.getLogger(name).level for name in names}
-    for name in names:
-        logging.getLogger(name).setLevel(logging.CRITICAL)
-    try:
-        yield
-    finally:
-        for name, level in saved.items():
-            logging.getLogger(name).setLevel(level)
+def _warm_up(run, todo: list[Cell], study: Study) -> None:
+    """Load the compiled kernels of the study's first setting in every worker (``run(f, *args)``
+    runs f on each) before the first cell, so the cells' clock and the ETA start on warm workers
+    whichever way they run. A failure here is left for the cells to report."""
+    from ilcforce.parallel import preload_kernels
 
-
-@contextlib.contextmanager
-def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TIMEOUT):
-    """A connected ``distributed.Client`` (and its LocalCluster when no scheduler is given)."""
-    import dask
-    from distributed import Client, LocalCluster
-
-    # Local cluster only (a remote scheduler keeps its own configuration): a dead worker fails its
-    # task at once (our retry-once applies), and a single-threaded worker holds one task at a time,
-    # so a cell that kills its worker never takes an innocent cell down with it.
-    settings = {"distributed.scheduler.allowed-failures": 0,
-                "distributed.scheduler.worker-saturation": 1.0,
-                "distributed.worker.daemon": False,
-                "distributed.admin.system-monitor.gil.enabled": False,
-                "logging.distributed": "error"}
-    with _quiet_dask(), dask.config.set(settings):
-        if scheduler:
-            _probe(scheduler, timeout)
-            failure = None
-            try:
-                client = Client(scheduler, timeout=timeout, set_as_default=False)
-            except Exception as exc:  # noqa: BLE001 - anything at that address that is not a scheduler
-                failure = f"{type(exc).__name__}: {_one_line(exc)[:120]}"
-            if failure is not None:  # outside the except block, so the failed Client can be collected
-                _forget_failed_client()
-                raise StudyRunError(f"cannot connect to a Dask scheduler at {scheduler} within {timeout:g} s "
-                                    f"({failure})")
-            try:
-                try:
-                    client.wait_for_workers(1, timeout=WORKER_TIMEOUT)
-                except (OSError, TimeoutError):
-                    raise StudyRunError(f"the Dask scheduler at {scheduler} has no worker after "
-                                        f"{WORKER_TIMEOUT:g} s (start one with `dask worker {scheduler}`)") from None
-                yield client
-            finally:
-                client.close()
-            return
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.CRITICAL,
-                               # the scheduler's HTTP endpoint (health, metrics) on a free local port:
-                               # no clash with another cluster on 8787, no "port in use" warning
-                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
-        try:
-            client = Client(cluster, set_as_default=False)
-            try:
-                yield client
-            finally:
-                client.close()
-        finally:
-            cluster.close()
-
-
-def _probe(scheduler: str, timeout: float) -> None:
-    """Fail fast, with one line, when nothing listens at the scheduler's address."""
-    import socket
-
-    host, port = scheduler.split("://")[-1].rsplit(":", 1)
-    try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
-    except OSError as exc:
-        reason = "timed out" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
-        raise StudyRunError(f"cannot reach the Dask scheduler at {scheduler} within {timeout:g} s ({reason})") from None
-
-
-def _forget_failed_client() -> None:
-    """A Client whose constructor failed tries to close itself when collected and prints a traceback
-    from ``__del__``; collect it now, with that message silenced."""
-    import gc
-    import sys
-
-    hook = sys.unraisablehook
-    sys.unraisablehook = lambda _info: None
-    try:
-        gc.collect()
-    finally:
-        sys.unraisablehook = hook
-
-
-def _run_on_dask(client, jobs, function, in_flight: int):
-    from distributed import as_completed
-
-    pending = iter(jobs)
-    meta = {}
-    queue = as_completed(loop=client.loop)
-
-    def submit(cell, args, attempt):
-        future = client.submit(function, *args, key=f"cell-{cell.key}-try{attempt}-{uuid.uuid4().hex[:8]}",
-                               pure=False, retries=0)
-        meta[future.key] = (cell, args, attempt)
-        queue.add(future)
-
-    for cell, args in pending:
-        submit(cell, args, 1)
-        if len(meta) >= in_flight:
-            break
-    try:
-        for future in queue:
-            cell, args, attempt = meta.pop(future.key)
-            if future.status == "finished":
-                result = future.result()
-                future.release()
-                yield cell, attempt, result, None
-            else:
-                message = _describe_failure(future.exception())
-                future.release()
-                if attempt < ATTEMPTS:
-                    submit(cell, args, attempt + 1)
-                    continue
-                yield cell, attempt, None, message
-            for next_cell, next_args in pending:
-                submit(next_cell, next_args, 1)
-                break
-    finally:
-        for key in list(meta):
-            with contextlib.suppress(Exception):
-                client.cancel(key)
+    config = study.cell_config(todo[0])
+    with contextlib.suppress(Exception):
+        run(preload_kernels, config, sorted({c.method for c in todo}))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -294,11 +151,12 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
               replace_stale: bool = False, keep_stores: bool = False, command: str = "",
               timeout: float = CONNECT_TIMEOUT,
               progress: Callable[[Progress], None] | None = None,
-              cell_function: Callable = run_cell) -> StudySummary:
+              cell_function: Callable = run_cell, shared: SharedClient | None = None) -> StudySummary:
     """Run every cell of ``study`` not yet in ``results/studies/<name>.h5`` and store it.
 
     ``workers`` defaults to the number of usable cores; with ``scheduler`` it must be None.
     ``cell_function(config, method, keep_store_path)`` is :func:`run_cell` (tests inject faults).
+    ``shared`` (a :class:`SharedClient`) lends its cluster instead of starting one for this study.
     Raises StudyStoreError (store cannot be used) or StudyRunError (no scheduler / workers) before
     any cell runs; KeyboardInterrupt after committing every finished cell.
     """
@@ -338,13 +196,18 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
         if todo:
             with contextlib.ExitStack() as stack:
                 if scheduler or workers > 1:
-                    client = stack.enter_context(dask_client(workers or 0, scheduler, timeout))
+                    client = (shared.get(workers or 0, scheduler, timeout) if shared is not None
+                              else stack.enter_context(dask_client(workers or 0, scheduler, timeout)))
                     if scheduler:
                         workers_seen = len(client.scheduler_info().get("workers", {}))
                         store.update_session(workers=workers_seen)
                     n_workers = workers or max(1, len(client.scheduler_info().get("workers", {})))
-                    outcomes = _run_on_dask(client, jobs, cell_function, IN_FLIGHT_PER_WORKER * n_workers)
+                    if cell_function is run_cell:
+                        _warm_up(lambda *a: client.run(*a), todo, study)
+                    outcomes = run_on_dask(client, jobs, cell_function, IN_FLIGHT_PER_WORKER * n_workers)
                 else:
+                    if cell_function is run_cell:
+                        _warm_up(lambda f, *a: f(*a), todo, study)
                     outcomes = _run_in_process(jobs, cell_function)
                 report("")  # the workers are there: the clock of the ETA starts now
                 try:

@@ -1,7 +1,8 @@
 """The study file: what to run, validated in full before any cell runs.
 
-A study is a grid of **settings** (the full factorial of ``[study.sweep]``, each on top of the
-experiment file and ``[study.set]``) times **seeds** times **methods**. One **cell** is (setting,
+A study is a set of **settings** (the full factorial of ``[study.sweep]``, or an explicit list
+``[[study.settings]]``, or the list times the sweep; each on top of the experiment file and
+``[study.set]``) times **seeds** times **methods**. One **cell** is (setting,
 seed, method): all iterations of one method, i.e. exactly what ``ilcforce simulate --seed S
 --method M`` with the setting's overrides runs.
 
@@ -19,7 +20,21 @@ File format (TOML)::
     [study.sweep]                            # full factorial grid; the first key varies slowest
     "simulation.sample_time" = [1e-4, 2.5e-4, 5e-4, 1e-3]
 
-``experiment.seed`` may not appear in ``set`` or ``sweep``: ``seeds`` owns it.
+or, instead of (or besides) the sweep, an explicit list of named settings
+(:mod:`ilcforce.study.settings_list`)::
+
+    [[study.settings]]
+    label = "disturbance only"               # optional, unique; shown in the report and the table
+    "noise.encoder" = 0.0                    # overrides on top of the experiment and [study.set]
+    "noise.force_sensor" = 0.0
+    [[study.settings]]
+    label = "all"                            # no keys: the experiment as it is
+
+Entries may name different keys; the setting columns are the union of the keys, a setting that
+leaves a key alone carrying the experiment's value. With a sweep too, every listed setting is
+combined with every sweep point (the listed setting varies slowest).
+
+``experiment.seed`` may not appear in ``set``, ``sweep`` or a listed setting: ``seeds`` owns it.
 Every problem raises :class:`StudyError` with one line naming the key (and the setting).
 """
 
@@ -35,6 +50,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ilcforce.config import Config, ConfigError, load_config
+from ilcforce.study import settings_list
 
 
 class StudyError(ValueError):
@@ -42,7 +58,7 @@ class StudyError(ValueError):
 
 
 #: Keys allowed in the [study] table.
-STUDY_KEYS = ("name", "description", "experiment", "methods", "seeds", "set", "sweep")
+STUDY_KEYS = ("name", "description", "experiment", "methods", "seeds", "set", "sweep", "settings")
 #: A study name becomes a file name under results/studies/: no separators, no leading dot.
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
 #: Seeds allowed per study (a guard against "0-99999999999" typos, not a limit of the method).
@@ -53,24 +69,37 @@ MAX_CELLS = 1_000_000
 
 @dataclass(frozen=True)
 class Setting:
-    """One point of the sweep.
+    """One setting of the study: a point of the sweep, a listed setting, or a listed setting at a
+    point of the sweep.
 
     Attributes
     ----------
     index : int
-        Position in the grid (0-based; the first sweep key varies slowest).
+        Position in the study's settings (0-based; listed setting slowest, then the first sweep key).
     values : tuple of (key, value)
-        The swept config keys and their values at this point (empty without a sweep).
+        The setting columns and their values here: the listed settings' keys (every one of the
+        union, the experiment's value where this setting leaves the key alone), then the swept keys
+        (empty without either).
     config : Config
         The resolved, validated configuration; its ``experiment.seed`` is 0 and is replaced per cell.
+    listed : str or None
+        The label of the listed setting (``[[study.settings]]``) this setting comes from; None
+        without a settings list.
+    sweep_values : tuple of (key, value)
+        The swept keys and their values alone.
     """
 
     index: int
     values: tuple[tuple[str, object], ...]
     config: Config
+    listed: str | None = None
+    sweep_values: tuple[tuple[str, object], ...] = ()
 
     def label(self) -> str:
-        """``"simulation.sample_time=0.001"``, or ``"base"`` without a sweep."""
+        """The listed label (with the sweep point, if any), ``"simulation.sample_time=0.001"``, or ``"base"``."""
+        sweep = ", ".join(f"{k}={v!r}" for k, v in self.sweep_values)
+        if self.listed is not None:
+            return f"{self.listed}; {sweep}" if sweep else self.listed
         return ", ".join(f"{k}={v!r}" for k, v in self.values) or "base"
 
 
@@ -102,6 +131,7 @@ class Study:
     fixed: dict  # [study.set]: dotted key -> value
     sweep: dict  # [study.sweep]: dotted key -> tuple of values, in file order
     settings: tuple[Setting, ...]
+    listed: tuple = ()  # [[study.settings]]: ListedSetting entries, in file order (empty without)
 
     def cells(self) -> list[Cell]:
         """Every cell, setting-major, then seed, then method."""
@@ -113,9 +143,19 @@ class Study:
         return dataclasses.replace(config, experiment=dataclasses.replace(config.experiment, seed=cell.seed))
 
     def definition(self) -> dict:
-        """What identifies the study's settings (stored; a rerun must match it)."""
-        return {"name": self.name, "sweep_keys": list(self.sweep),
-                "settings": [s.config.to_json() for s in self.settings]}
+        """What identifies the study's settings (stored; a rerun must match it).
+
+        ``sweep_keys`` names the setting columns of the tidy table (for a settings list: the union
+        of its keys, then the swept keys); ``labels`` is there only with a settings list."""
+        definition = {"name": self.name, "sweep_keys": self.columns(),
+                      "settings": [s.config.to_json() for s in self.settings]}
+        if self.listed:
+            definition["labels"] = [s.label() for s in self.settings]
+        return definition
+
+    def columns(self) -> list[str]:
+        """The setting columns: the listed settings' keys (union), then the swept keys."""
+        return [*settings_list.column_keys(self.listed), *self.sweep]
 
 
 def parse_seeds(value) -> tuple[int, ...]:
@@ -217,7 +257,7 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
     extra = [k for k in data if k != "study"]
     if extra:
         raise StudyError(f"unknown top-level table [{extra[0]}] in a study file; only [study] (with "
-                         "[study.set] and [study.sweep]) is read")
+                         "[study.set], [study.sweep] and [[study.settings]]) is read")
     table = data["study"]
     if not isinstance(table, dict):
         raise StudyError("[study] must be a table")
@@ -249,30 +289,72 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
         if key in fixed:
             raise StudyError(f"study: {key} is both in [study.set] and [study.sweep]")
         sweep[key] = tuple(values)
-    n_settings = math.prod(len(v) for v in sweep.values()) if sweep else 1
+    listed = ()
+    if "settings" in table:
+        try:
+            listed = settings_list.parse_settings_list(table["settings"], fixed=fixed, sweep=sweep)
+        except settings_list.SettingsListError as exc:
+            raise StudyError(str(exc)) from None
+    n_settings = (math.prod(len(v) for v in sweep.values()) if sweep else 1) * max(1, len(listed))
     if n_settings * len(seeds) * len(methods) > MAX_CELLS:
         raise StudyError(f"study has {n_settings * len(seeds) * len(methods)} cells; at most {MAX_CELLS}")
     experiment = _resolve_experiment(table.get("experiment"), path)
-
-    settings = []
-    grid = itertools.product(*sweep.values()) if sweep else [()]
-    for index, point in enumerate(grid):
-        values = tuple(zip(sweep, point))
-        overrides = {**fixed, **dict(values), "experiment.seed": 0}
-        where = "study.set" if not values else f"setting {index} ({', '.join(f'{k}={_format_value(v)}' for k, v in values)})"
-        try:
-            config = load_config(experiment, overrides)
-        except ConfigError as exc:
-            raise StudyError(f"{where}: {exc}") from None
-        settings.append(Setting(index, values, config))
+    settings = _settings(experiment, fixed, sweep, listed)
     # every seed must be valid for the configuration (e.g. ranges the loader enforces)
     for seed in {seeds[0], seeds[-1]}:
         try:
-            load_config(experiment, {**fixed, **dict(settings[0].values), "experiment.seed": seed})
+            load_config(experiment, {**fixed, **settings[0][1], "experiment.seed": seed})
         except ConfigError as exc:
             raise StudyError(f"study.seeds: {exc}") from None
     return Study(name=name, description=description, source=source, path=path, experiment=experiment,
-                 methods=methods, seeds=seeds, fixed=fixed, sweep=sweep, settings=tuple(settings))
+                 methods=methods, seeds=seeds, fixed=fixed, sweep=sweep,
+                 settings=tuple(setting for setting, _overrides in settings), listed=listed)
+
+
+def _load(experiment: Path | None, overrides: dict, where: str) -> Config:
+    try:
+        return load_config(experiment, {**overrides, "experiment.seed": 0})
+    except ConfigError as exc:
+        raise StudyError(f"{where}: {exc}") from None
+
+
+def _settings(experiment: Path | None, fixed: dict, sweep: dict,
+              listed: tuple) -> list[tuple[Setting, dict]]:
+    """Every setting (listed setting slowest, then the sweep grid), resolved and validated, with the
+    overrides it was loaded from."""
+    columns = settings_list.column_keys(listed)
+    bases: list[tuple[object, dict]] = [(None, {})]
+    if listed:
+        bases, seen = [], {}
+        for entry in listed:
+            config = _load(experiment, {**fixed, **entry.overrides}, entry.where())
+            text = config.to_json()
+            if text in seen:
+                raise StudyError(f"{entry.where()} resolves to the same configuration as {seen[text].where()}")
+            seen[text] = entry
+            bases.append((entry, entry.overrides))
+    out: list[tuple[Setting, dict]] = []
+    for entry, base in bases:
+        grid = itertools.product(*sweep.values()) if sweep else [()]
+        for point in grid:
+            index = len(out)
+            swept = tuple(zip(sweep, point))
+            overrides = {**fixed, **base, **dict(swept)}
+            where = entry.where() if entry is not None else "study.set"
+            if swept:
+                point_text = ", ".join(f"{k}={_format_value(v)}" for k, v in swept)
+                where = f"setting {index} ({point_text})" if entry is None else f"{where} at {point_text}"
+            config = _load(experiment, overrides, where)
+            resolved = config.to_dict()
+            values = tuple((key, settings_list.config_value(resolved, key)) for key in columns) + swept
+            label = None
+            if entry is not None:
+                label = entry.label if entry.label is not None else settings_list.default_label(entry.overrides)
+                clash = next((s for s, _o in out if s.listed == label and not swept), None)
+                if clash is not None:
+                    raise StudyError(f"{entry.where()}: its label {label!r} is already used by another setting")
+            out.append((Setting(index, values, config, listed=label, sweep_values=swept), overrides))
+    return out
 
 
 def load_study(path: Path | str) -> Study:

@@ -1,7 +1,10 @@
 """The tidy metrics frame of a study store or of a run store, and its CSV export.
 
-One row per (setting..., seed, method, iteration). Columns, in order: the swept config keys
-(named by their key, e.g. ``simulation.sample_time``; none without a sweep), ``seed``, ``method``,
+One row per (setting..., seed, method, iteration). Columns, in order: for a study with a settings
+list (``[[study.settings]]``) ``setting_label`` (the setting's label), then the setting columns named
+by their config key (e.g. ``simulation.sample_time``: the swept keys, or the union of the listed
+settings' keys, each setting carrying its resolved value in every one; none for a study of one
+setting), ``seed``, ``method``,
 ``iteration``, then the metric columns of :data:`ilcforce.metrics.METRIC_COLUMNS` in their order,
 then any further columns (a study's ``memory_norm_*``). A run store is the one-setting, one-seed
 case. Failed cells have no rows (see :attr:`StudyResults.cells`).
@@ -21,6 +24,8 @@ from ilcforce.metrics import METRIC_COLUMNS
 from ilcforce.store.study import StudyStoreError, is_study_store, read_tables
 
 _INT_COLUMNS = ("seed", "iteration", "fallback_count")
+#: The tidy column holding a listed setting's label.
+LABEL_COLUMN = "setting_label"
 
 
 class ExportError(Exception):
@@ -37,7 +42,11 @@ class StudyResults:
     study_toml : str
         The study file as it was run.
     sweep_keys : list of str
-        Swept config keys, in grid order (first varies slowest).
+        The setting columns (config keys): the swept keys in grid order, after the union of the
+        listed settings' keys when the study has a settings list.
+    labelled : bool
+        True for a study with a settings list: its settings are named (``settings["label"]``) and
+        the tidy frames lead with a ``setting_label`` column.
     settings : DataFrame
         One row per setting: ``setting`` (index in the grid), ``label``, the swept keys' values,
         ``config_json`` (the resolved config; a cell's is this with ``experiment.seed`` = its seed).
@@ -54,6 +63,7 @@ class StudyResults:
     description: str
     study_toml: str
     sweep_keys: list
+    labelled: bool
     settings: pd.DataFrame
     metrics: pd.DataFrame
     cells: pd.DataFrame
@@ -63,7 +73,12 @@ class StudyResults:
     def setting_metrics(self, setting: int) -> pd.DataFrame:
         """The tidy rows of one setting (``seed``, ``method``, ``iteration`` + metrics)."""
         frame = self.metrics[self.row_setting == int(setting)]
-        return frame.drop(columns=list(self.sweep_keys)).reset_index(drop=True)
+        return frame.drop(columns=self.leading_columns).reset_index(drop=True)
+
+    @property
+    def leading_columns(self) -> list[str]:
+        """The tidy frame's setting columns: ``setting_label`` (settings list only), then the keys."""
+        return [*([LABEL_COLUMN] if self.labelled else []), *self.sweep_keys]
 
 
 def _order(frame: pd.DataFrame, leading: list[str], methods: list[str] | None = None) -> pd.DataFrame:
@@ -84,6 +99,8 @@ def read_study(path: Path | str) -> StudyResults:
     header, raw, cells = read_tables(path)
     definition = json.loads(header.get("definition_json", "{}"))
     sweep_keys = list(definition.get("sweep_keys", []))
+    labelled = "labels" in definition
+    leading = [*([LABEL_COLUMN] if labelled else []), *sweep_keys]
     settings = header["settings"].copy()
     settings.insert(0, "setting", np.arange(len(settings), dtype=np.int64))
     values = [json.loads(v) for v in settings["values_json"]]
@@ -94,6 +111,8 @@ def read_study(path: Path | str) -> StudyResults:
     def with_setting_columns(frame: pd.DataFrame) -> pd.DataFrame:
         frame = frame.copy()
         index = frame["setting"].astype(np.int64).to_numpy() if len(frame) else np.zeros(0, np.int64)
+        if labelled:
+            frame[LABEL_COLUMN] = settings["label"].astype(str).to_numpy()[index] if len(frame) else []
         for key in sweep_keys:
             frame[key] = settings[key].to_numpy()[index] if len(frame) else []
         return frame
@@ -103,20 +122,20 @@ def read_study(path: Path | str) -> StudyResults:
     registered = list(REGISTRY)
     methods = sorted(set(raw["method"]) if len(raw) else (),
                      key=lambda m: (registered.index(m) if m in registered else len(registered), m))
-    metrics = with_setting_columns(raw) if len(raw) else pd.DataFrame(columns=[*sweep_keys, "setting", "seed",
+    metrics = with_setting_columns(raw) if len(raw) else pd.DataFrame(columns=[*leading, "setting", "seed",
                                                                                "method", "iteration"])
     if len(metrics):
         order = {m: i for i, m in enumerate(methods)}
         metrics = metrics.assign(_m=metrics["method"].map(order)).sort_values(
             ["setting", "seed", "_m", "iteration"], kind="stable").drop(columns=["_m"])
     row_setting = metrics["setting"].to_numpy(dtype=np.int64) if len(metrics) else np.zeros(0, np.int64)
-    metrics = _order(metrics.drop(columns=["setting"]), sweep_keys).reset_index(drop=True)
+    metrics = _order(metrics.drop(columns=["setting"]), leading).reset_index(drop=True)
     if len(cells):
         cells = with_setting_columns(cells)
-        cells = cells[[*sweep_keys, "setting", "seed", "method", "state", "attempts", "message", "elapsed",
+        cells = cells[[*leading, "setting", "seed", "method", "state", "attempts", "message", "elapsed",
                        "worker"]].sort_values(["setting", "seed", "method"]).reset_index(drop=True)
     return StudyResults(name=str(header.get("name", "")), description=str(header.get("description", "")),
-                        study_toml=str(header.get("study_toml", "")), sweep_keys=sweep_keys,
+                        study_toml=str(header.get("study_toml", "")), sweep_keys=sweep_keys, labelled=labelled,
                         settings=settings, metrics=metrics, cells=cells,
                         sessions=json.loads(header.get("sessions_json", "[]")), row_setting=row_setting)
 

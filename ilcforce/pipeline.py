@@ -1,0 +1,91 @@
+"""Run a generator one step ahead in a background thread: simulate iteration j + 1 while j is stored.
+
+The compiled loop releases the GIL (``nogil=True``), so on a machine with a free core the store's
+writes and metrics of iteration j (Python and HDF5, in the consumer's thread) overlap with the
+simulation of iteration j + 1 (in the producer's thread). Nothing is shared between the two but the
+records handed over: each record is built from copies (``Controller.learned_state`` returns copies;
+the logs are fresh arrays), so the stored numbers are those of a serial run (pinned by
+``tests/test_reference_run.py`` and ``tests/test_experiment.py``).
+
+Order and errors are kept: items arrive in the producer's order, an exception raised by the producer
+(including a KeyboardInterrupt from a stop request) is raised in the consumer after every item made
+before it, and when the consumer stops early (an error while storing, a second Ctrl-C, ``break``)
+the producer is asked to stop and is joined before the consumer's exception goes on.
+"""
+
+from __future__ import annotations
+
+import queue
+import threading
+from collections.abc import Callable, Iterator
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+_DONE = object()
+
+#: How long the producer waits to hand over an item before looking at the stop flag again (s).
+_POLL = 0.05
+
+
+class Ahead(Generic[T]):
+    """The items of ``make(stopping)``, produced in a background thread (started at once) up to
+    ``depth`` ahead of the consumer; iterate once, in the consumer's thread. A context manager:
+    leaving it (normally, by an error, or without having iterated at all) stops the producer within
+    one chunk of its work and joins it.
+
+    ``make`` receives ``stopping()``, true once the consumer has gone away; the producer should pass
+    it to whatever checks for a stop between chunks of work.
+    """
+
+    def __init__(self, make: Callable[[Callable[[], bool]], Iterator[T]], *, depth: int = 1) -> None:
+        self._handoff: queue.Queue = queue.Queue(maxsize=depth)
+        self._stop = threading.Event()
+        self._make = make
+        self._thread = threading.Thread(target=self._produce, name="ilcforce-ahead", daemon=True)
+        self._thread.start()
+
+    def _put(self, item) -> bool:
+        while not self._stop.is_set():
+            try:
+                self._handoff.put(item, timeout=_POLL)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _produce(self) -> None:
+        try:
+            for item in self._make(self._stop.is_set):
+                if not self._put((None, item)):
+                    return
+            self._put((None, _DONE))
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer, raised there
+            self._put((exc, None))
+
+    def __iter__(self) -> Iterator[T]:
+        try:
+            while True:
+                exc, item = self._handoff.get()
+                if exc is not None:
+                    raise exc
+                if item is _DONE:
+                    return
+                yield item
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        """Stop the producer (within one chunk of its work) and wait for it."""
+        self._stop.set()
+        self._thread.join()
+
+    def __enter__(self) -> Ahead[T]:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def ahead(make: Callable[[Callable[[], bool]], Iterator[T]], *, depth: int = 1) -> Iterator[T]:
+    """Iterate :class:`Ahead` (``for item in ahead(make)``): the producer stops when the loop ends."""
+    yield from Ahead(make, depth=depth)

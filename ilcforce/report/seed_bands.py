@@ -1,0 +1,216 @@
+"""Figs. 5-7 over seeds (issue 11, section 4): bands over the seeds of a study.
+
+Figs. 5-7 of a single run draw time signals: Fig. 5 the position error X and force error Y against
+t at j = 0, 5, 10, 15; Figs. 6/7 the control input and Delta tau = tau_d - tau against t at j = 19.
+A study keeps per-iteration metrics, not time signals (its workers return metrics only, so that 100
+seeds x 3 methods stay a few MB), so a band over seeds of e(t) itself cannot be drawn from it.
+What these figures band instead is the per-iteration size of exactly the signals those figures
+draw, at every iteration (the iterations the single-run figure shows are marked):
+
+* Fig. 5 over seeds: the RMS and the peak over t of the position error |e_P(t)| and of the force
+  error |e_F(t)| (``*_error_rms``, ``*_error_max``): how large the curves of Fig. 5 are, and how
+  that changes from seed to seed.
+* Figs. 6/7 over seeds: H, the standard deviation over t of Delta tau along X (Fig. 6) or Y
+  (Fig. 7): the spread of panel (b) and of the input's deviation from the desired input in panel (a).
+  In its three forms (whole grid, without t = 0, settled from t = 20 ms), because the t = 0 spike
+  that Figs. 6/7 keep off scale dominates the whole-grid form.
+
+Bands as in :mod:`ilcforce.report.study_figures` (line: median; dark band: 95% bootstrap interval of
+the median; light band: central 95% of the seeds). One seed alone, the study's first (seed 0 of
+``paper-mc`` is the draw the single-run report of the paper's setup shows), is drawn as a thin
+dashed line without markers, so it cannot be taken for the median; if that seed diverged, a dotted
+vertical line in the method's colour marks where (no marker that could read as a data point).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+
+from ilcforce.records import STATUS_DIVERGED
+from ilcforce.report import paper, tables
+from ilcforce.report.figures import TRACKING_ITERATIONS, _color, _label
+from ilcforce.report.study_figures import _band_plot, _bands, _log_scale, _save
+from ilcforce.stats import BOOTSTRAP_SEED, LEVEL, N_BOOTSTRAP
+
+#: Methods Figs. 6 and 7 compare (the paper's).
+INPUT_METHODS = ("c1", "c3")
+
+CAPTION = (
+    "The study keeps per-iteration metrics, not time signals, so these figures band over seeds the size of the "
+    "signals Figs. 5-7 draw, at every iteration: Fig. 5's errors by their RMS and peak over t (shaded: the "
+    "iterations Fig. 5 draws), Figs. 6/7's Delta tau by H, its standard deviation over t (Table 3's measure), "
+    "in three forms, as the t = 0 spike dominates the whole-grid form (shaded: the iteration Figs. 6/7 draw; dash-dotted grey: the "
+    "m3 change). "
+    "Line: median over seeds; dark band: 95% percentile-bootstrap interval of that median; light band: central "
+    "95% of the seeds. Thin dashed line: {seed_text} alone; a dotted vertical line marks where it diverged. "
+    "Seeds that diverged leave the bands from their divergence on (the legend counts the seeds at the end).")
+
+
+@functools.lru_cache(maxsize=8)
+def _resamples(n: int) -> np.ndarray:
+    """The bootstrap indices :func:`ilcforce.stats.median_interval` draws for ``n`` values (its RNG
+    is seeded per call, so they depend on ``n`` only)."""
+    return np.random.default_rng(BOOTSTRAP_SEED).integers(0, n, size=(N_BOOTSTRAP, n))
+
+
+def _sorted_median(rows: np.ndarray) -> np.ndarray:
+    """Median along the last axis by a full sort: the same numbers as ``np.median`` (the middle
+    value, or the mean (a + b) / 2 of the two middle ones), several times faster on short rows."""
+    ordered = np.sort(rows, axis=-1)
+    n = rows.shape[-1]
+    if n % 2:
+        return ordered[..., n // 2]
+    return (ordered[..., n // 2 - 1] + ordered[..., n // 2]) / 2.0
+
+
+def band_row(values: np.ndarray) -> tuple:
+    """:func:`study_figures._bands` (median, its 95% bootstrap interval, 2.5% and 97.5% percentiles,
+    n) of the finite ``values``, with the same numbers (a test pins it) at a fraction of the cost."""
+    finite = values[np.isfinite(values)]
+    n = finite.size
+    if n < 2:
+        return _bands(finite)
+    boot = _sorted_median(finite[_resamples(n)])
+    alpha = (1.0 - LEVEL) / 2.0
+    low, high = np.quantile(boot, [alpha, 1.0 - alpha])
+    lo, hi = np.percentile(finite, [2.5, 97.5])
+    return float(np.median(finite)), float(low), float(high), float(lo), float(hi), int(n)
+
+
+def _single_seed(frame: pd.DataFrame) -> int | None:
+    return int(frame["seed"].min()) if len(frame) else None
+
+
+def _draw(ax, frame: pd.DataFrame, methods, column: str, n_seeds: int, seed: int | None,
+          flags: Mapping[str, str] | None, legend: bool) -> list[np.ndarray]:
+    """Bands of ``column`` against j for each method, and ``seed`` alone (dashed, no markers)."""
+    drawn = []
+    for method in methods:
+        mine = frame[frame["method"] == method]
+        if mine.empty or column not in mine.columns:
+            continue
+        wide = mine.pivot(index="iteration", columns="seed", values=column).sort_index()
+        stats = [band_row(row) for row in wide.to_numpy(dtype=float)]
+        n_end = stats[-1][5] if stats else 0
+        label = _label(method) + (" (unstable learning)" if flags and method in flags else "")
+        label += f", {n_end} of {n_seeds} seeds" if n_end != n_seeds else ""
+        drawn.append(_band_plot(ax, wide.index.to_numpy(), stats, method, label if legend else None))
+        if seed is None or seed not in wide.columns:
+            continue
+        one = mine[mine["seed"] == seed].set_index("iteration").sort_index()
+        ok = one["status"].astype(str) != STATUS_DIVERGED
+        ax.plot(one.index[ok], one.loc[ok, column], color=_color(method), linestyle="--", linewidth=0.9,
+                marker="none")
+        diverged = one.index[~ok]
+        if len(diverged):
+            where = float(diverged[0])
+            ax.axvline(where, color=_color(method), linestyle=":", linewidth=1.5)
+            ax.text(where, 0.98, f" seed {seed} diverged", transform=ax.get_xaxis_transform(), rotation=90,
+                    va="top", ha="right", fontsize="x-small", color=_color(method))
+    return drawn
+
+
+#: Shading of the iterations the single-run figure draws.
+MARK_COLOR = "#f7efd2"
+
+
+def _finish(ax, marked: tuple[int, ...], last: int, perturbation_iteration: int | None) -> None:
+    for j in marked:
+        if j <= last:
+            ax.axvspan(j - 0.35, j + 0.35, color=MARK_COLOR, linewidth=0, zorder=0)
+    if perturbation_iteration is not None and 0 < perturbation_iteration <= last:
+        ax.axvline(perturbation_iteration, color="0.5", linestyle="-.", linewidth=1.0)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+
+
+def _seed_proxy(ax, seed: int | None, perturbation_iteration: int | None) -> None:
+    if seed is not None:
+        ax.plot([], [], color="0.3", linestyle="--", linewidth=0.9, label=f"seed {seed} alone")
+    if perturbation_iteration is not None:
+        ax.plot([], [], color="0.5", linestyle="-.", linewidth=1.0, label=f"m3 x 1.4 from j = {perturbation_iteration}")
+
+
+def figure_fig5_over_seeds(frame: pd.DataFrame, flags: Mapping[str, str] | None = None,
+                           perturbation_iteration: int | None = None) -> Figure:
+    """Fig. 5 over seeds: RMS and peak over t of the position and force errors against j."""
+    methods = tables.ordered_methods(frame["method"].unique().tolist())
+    n_seeds, seed = frame["seed"].nunique(), _single_seed(frame)
+    last = int(frame["iteration"].max())
+    fig = Figure(figsize=(10.0, 7.0), layout="constrained")
+    axes = fig.subplots(2, 2, sharex=True)
+    panels = ((("position_error_rms", "position error |e_P|, RMS over t (m)"),
+               ("position_error_max", "position error |e_P|, peak over t (m)")),
+              (("force_error_rms", "force error |e_F|, RMS over t (N)"),
+               ("force_error_max", "force error |e_F|, peak over t (N)")))
+    for row in range(2):
+        for col in range(2):
+            column, ylabel = panels[row][col]
+            ax = axes[row, col]
+            drawn = _draw(ax, frame, methods, column, n_seeds, seed, flags, legend=(row, col) == (0, 0))
+            _log_scale(ax, drawn)
+            _finish(ax, TRACKING_ITERATIONS, last, perturbation_iteration)
+            ax.set_ylabel(ylabel, fontsize="small")
+            if row == 1:
+                ax.set_xlabel("iteration j")
+    _seed_proxy(axes[0, 0], seed, perturbation_iteration)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="outside lower center", ncols=3, fontsize="small")
+    fig.suptitle(f"Fig. 5 over {n_seeds} seeds: size of the tracking errors per iteration "
+                 f"(shaded: j = {', '.join(map(str, TRACKING_ITERATIONS))}, drawn in Fig. 5)", fontsize="medium")
+    return fig
+
+
+def figure_input_over_seeds(frame: pd.DataFrame, axis: str, flags: Mapping[str, str] | None = None,
+                            perturbation_iteration: int | None = None) -> Figure | str:
+    """Fig. 6 (``axis="x"``) or 7 (``"y"``) over seeds: H of Delta tau along ``axis`` against j, three forms."""
+    methods = [m for m in INPUT_METHODS if m in set(frame["method"])]
+    if not methods:
+        return "no C1 or C3 cells in the study"
+    frame = frame[frame["method"].isin(methods)]
+    n_seeds, seed = frame["seed"].nunique(), _single_seed(frame)
+    last = int(frame["iteration"].max())
+    fig = Figure(figsize=(12.0, 4.4), layout="constrained")
+    axes = fig.subplots(1, 3, sharex=True)
+    forms = (("", "whole grid"), ("_no_t0", "without t = 0"), ("_settled", "settled, t >= 20 ms"))
+    for k, (ax, (suffix, what)) in enumerate(zip(axes, forms)):
+        column = f"chattering_task_{axis}{suffix}"
+        drawn = _draw(ax, frame, methods, column, n_seeds, seed, flags, legend=k == 0)
+        _log_scale(ax, drawn)
+        _finish(ax, (min(paper.CHATTERING_ITERATION, last),), last, perturbation_iteration)
+        ax.set_title(f"H {axis.upper()}, {what}", fontsize="small")
+        ax.set_xlabel("iteration j")
+    axes[0].set_ylabel(rf"H = std over t of $\Delta\tau$ {axis.upper()} (N)", fontsize="small")
+    _seed_proxy(axes[0], seed, perturbation_iteration)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=4, fontsize="small")
+    fig.suptitle(f"Fig. {6 if axis == 'x' else 7} over {n_seeds} seeds: spread of Delta tau {axis.upper()} per "
+                 f"iteration (shaded: j = {min(paper.CHATTERING_ITERATION, last)}, drawn in Fig. {6 if axis == 'x' else 7})",
+                 fontsize="medium")
+    return fig
+
+
+def seed_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: tuple[str, ...],
+                      flags: Mapping[str, str] | None = None,
+                      perturbation_iteration: int | None = None) -> tuple[list[Path], list[str]]:
+    """Write Figs. 5-7 over seeds for ONE setting; returns the files and the report's lines."""
+    written: list[Path] = []
+    notes: list[str] = []
+    p = perturbation_iteration
+    builders = (("fig5_tracking_error_seeds", lambda: figure_fig5_over_seeds(frame, flags, p)),
+                ("fig6_input_x_seeds", lambda: figure_input_over_seeds(frame, "x", flags, p)),
+                ("fig7_input_y_seeds", lambda: figure_input_over_seeds(frame, "y", flags, p)))
+    for stem, build in builders:
+        made = build()
+        if isinstance(made, str):
+            notes.append(f"{stem}: not drawn ({made}).")
+            continue
+        written += _save(made, directory, f"{stem}_{tag}", formats)
+    seed = _single_seed(frame)
+    lines = [CAPTION.format(seed_text=f"seed {seed}" if seed is not None else "one seed"), ""]
+    lines += [f"![{f.stem}]({f.name})" for f in written if f.suffix == ".png"] + notes + [""]
+    return written, lines
