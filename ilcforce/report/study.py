@@ -25,8 +25,8 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.metrics import convergence_iteration
-from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import paper, tables
+from ilcforce.report.seedframes import SeedMetrics, split_seeds
 from ilcforce.stats import Interval, format_interval, median_interval
 
 #: Iterations whose error norms are tabulated (clipped to the study's iterations).
@@ -54,25 +54,24 @@ class StudyReport:
     index_lines: list = field(default_factory=list)
 
 
-def _per_seed(frame: pd.DataFrame, method: str) -> dict[int, pd.DataFrame]:
-    mine = frame[frame["method"] == method]
-    return {int(seed): f.set_index("iteration").sort_index() for seed, f in mine.groupby("seed")}
+def _per_seed(frame: pd.DataFrame, methods: list[str]) -> dict[str, dict[int, SeedMetrics]]:
+    """method -> seed (ascending) -> that cell's metrics as arrays (:mod:`ilcforce.report.seedframes`)."""
+    by_seed = split_seeds(frame)
+    return {m: {seed: cells[m] for seed, cells in by_seed.items() if m in cells} for m in methods}
 
 
-def _value(metrics: pd.DataFrame, column: str, j: int) -> float:
-    if column not in metrics.columns or j not in metrics.index:
-        return math.nan
-    return float(tables.value_at(metrics, column, j))
+def _value(metrics: SeedMetrics, column: str, j: int) -> float:
+    return metrics.value_at(column, j)  # NaN when the column or a complete iteration j is missing
 
 
-def _window_mean(metrics: pd.DataFrame, column: str, first: int, last: int) -> float:
+def _window_mean(metrics: SeedMetrics, column: str, first: int, last: int) -> float:
     values = [_value(metrics, column, j) for j in range(first, last + 1)]
     return float(np.mean(values)) if values and all(math.isfinite(v) for v in values) else math.nan
 
 
-def _diverged_at(metrics: pd.DataFrame) -> float:
-    diverged = metrics.index[metrics["status"].astype(str) == STATUS_DIVERGED]
-    return float(diverged[0]) if len(diverged) else math.nan
+def _diverged_at(metrics: SeedMetrics) -> float:
+    found = metrics.divergence
+    return float(found[0]) if found is not None else math.nan
 
 
 def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -> dict[str, dict[str, list[float]]]:
@@ -84,7 +83,7 @@ def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -
     def put(quantity: str, method: str, value: float) -> None:
         out.setdefault(quantity, {}).setdefault(method, []).append(value)
 
-    seeds = {m: _per_seed(frame, m) for m in methods}
+    seeds = _per_seed(frame, methods)
     for method in methods:
         for seed, metrics in seeds[method].items():
             for quantity, column, unit in NORMS:
