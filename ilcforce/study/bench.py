@@ -49,6 +49,8 @@ def timed_study(seeds: int, workers: int, study_file: Path = PAPER_MC) -> dict:
         done = p.finished + p.failed
         if done in (max(1, n_cells // 10), n_cells):
             marks["memory"].append(_rss_mb())
+        if done == n_cells and p.last:
+            marks["last"] = now  # the last cell committed (the cluster's shutdown comes after)
 
     with tempfile.TemporaryDirectory() as tmp:
         start = time.perf_counter()
@@ -56,7 +58,7 @@ def timed_study(seeds: int, workers: int, study_file: Path = PAPER_MC) -> dict:
         end = time.perf_counter()
         compute = float(read_study(summary.path).cells["elapsed"].sum())
     ready = marks.get("ready", start)
-    cell_wall = end - ready
+    cell_wall = marks.get("last", end) - ready
     return {"wall": end - start, "startup": ready - start, "cell_wall": cell_wall, "compute": compute,
             "cells": n_cells, "failed": len(summary.failed),
             "overhead": (workers * cell_wall - compute) / compute if compute > 0 else float("nan"),
