@@ -55,10 +55,10 @@ $(RESULTS)/%.h5: $(STAMP) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).to
 # All of an experiment's stores are rerun when the code or its experiment file changes (the marker
 # .stores records when they were made). A single store can still be made: make results/paper/c3.h5
 $(RESULTS)/%/.stores: $(STAMP) $(SOURCES) experiments/%.toml
-	rm -f $(foreach m,$(METHODS),$(RESULTS)/$*/$(m).h5)
+	@rm -f $(foreach m,$(METHODS),$(RESULTS)/$*/$(m).h5)
 	$(VENV)/bin/ilcforce compare --config experiments/$*.toml --results $(RESULTS) \
 	    --methods $(subst $(space),$(comma),$(strip $(METHODS)))
-	test "$$(ls $(foreach m,$(METHODS),$(RESULTS)/$*/$(m).h5) | wc -l)" = "$(words $(METHODS))" || \
+	@test "$$(ls $(foreach m,$(METHODS),$(RESULTS)/$*/$(m).h5) | wc -l)" = "$(words $(METHODS))" || \
 	    { echo "experiments/$*.toml: its experiment.name must be '$*' (the stores go to results/<name>/)"; exit 1; }
 	touch $@
 
