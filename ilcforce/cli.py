@@ -392,6 +392,7 @@ def report(
     out_dir: Annotated[Optional[Path], typer.Option("--out", help="output folder (default: <results>/report)")] = None,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="worker processes (default: CPU count)")] = 0,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress lines (warnings are still printed)")] = False,
+    pdf: Annotated[bool, typer.Option("--pdf", help="also write every figure as PDF (vector; about doubles the drawing time)")] = False,
 ) -> None:
     """Write the paper's tables, figures and a verdict on each claim from the HDF5 stores."""
     from ilcforce.report.build import write_report
@@ -401,7 +402,8 @@ def report(
     target = out_dir if out_dir is not None else results / "report"
     if jobs < 0:
         raise CliError(f"--jobs must be >= 0 (0: one per CPU), got {jobs}")
-    summary = write_report(results, target, jobs=jobs or os.cpu_count() or 1,
+    formats = ("png", "pdf") if pdf else ("png",)
+    summary = write_report(results, target, formats=formats, jobs=jobs or os.cpu_count() or 1,
                            progress=None if quiet else lambda text: _say(f"report: {text}", stderr=True))
     for warning in summary.warnings:
         _say(f"warning: {warning}", stderr=True)

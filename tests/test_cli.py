@@ -77,6 +77,11 @@ def test_compare_and_report(runner, tmp_path):
     report = runner.invoke(app, ["report", "--results", str(results), "--out", str(tmp_path / "rep")])
     assert report.exit_code == 0, report.output
     assert (tmp_path / "rep" / "index.md").is_file()
+    pngs = sorted((tmp_path / "rep").rglob("*.png"))
+    assert pngs and not list((tmp_path / "rep").rglob("*.pdf")), "PNG only unless --pdf"
+    with_pdf = runner.invoke(app, ["report", "--results", str(results), "--out", str(tmp_path / "pdf"), "--pdf"])
+    assert with_pdf.exit_code == 0, with_pdf.output
+    assert {p.stem for p in (tmp_path / "pdf").rglob("*.pdf")} == {p.stem for p in pngs}
 
 
 @pytest.mark.parametrize("args, expected", [

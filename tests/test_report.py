@@ -611,7 +611,7 @@ REPORT_HEADINGS = (
 @pytest.fixture(scope="module")
 def report(results_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> ReportSummary:
     """The full report (PNG and PDF figures) of the synthetic results, written once."""
-    return write_report(results_dir, tmp_path_factory.mktemp("report"))
+    return write_report(results_dir, tmp_path_factory.mktemp("report"), formats=build.FIGURE_FORMATS)
 
 
 def test_write_report_end_to_end(report: ReportSummary) -> None:
@@ -646,7 +646,7 @@ def test_write_report_end_to_end(report: ReportSummary) -> None:
 
 
 def test_write_report_twice_is_identical(results_dir: Path, report: ReportSummary, tmp_path: Path) -> None:
-    second = write_report(results_dir, tmp_path)
+    second = write_report(results_dir, tmp_path, formats=build.FIGURE_FORMATS)
     assert len(report.files) == len(second.files)
     for path in report.files:
         if path.suffix in (".md", ".csv", ".pdf"):

@@ -8,7 +8,7 @@ Reads only the results store (:mod:`ilcforce.store`); never simulates. Layout wr
     <out_dir>/<experiment>/table3.csv|.md   Table 3, ours beside the paper's
     <out_dir>/<experiment>/comparison.csv|.md
     <out_dir>/<experiment>/claims.csv|.md   the five claims with verdicts and rules
-    <out_dir>/<experiment>/<figure>.png|.pdf
+    <out_dir>/<experiment>/<figure>.png (and .pdf with formats=FIGURE_FORMATS, ilcforce report --pdf)
 
 Problems with the inputs (an unreadable or foreign file, a missing method, a partial run, a newer
 schema) never raise: each becomes one line in :attr:`ReportSummary.warnings` and in the report,
@@ -28,13 +28,13 @@ import pandas as pd
 from ilcforce import store
 from ilcforce.report import claims as claims_module
 from ilcforce.report import paper, pool, readme, sections, stability, tables, tasks
-from ilcforce.report.run_figures import FIGURE_FORMATS, FIGURES, READ_ERRORS as _READ_ERRORS
+from ilcforce.report.run_figures import DEFAULT_FORMATS, FIGURE_FORMATS, FIGURES, READ_ERRORS as _READ_ERRORS
 from ilcforce.report.run_figures import write_figures as _write_figures
 from ilcforce.report.run_text import divergence_lines as _divergence_lines
 from ilcforce.report.run_text import report_text as _report_text
 from ilcforce.report.run_text import tidy_metrics
 
-__all__ = ["EXPECTED_METHODS", "FIGURES", "FIGURE_FORMATS", "ReportSummary", "tidy_metrics", "write_report"]
+__all__ = ["DEFAULT_FORMATS", "EXPECTED_METHODS", "FIGURES", "FIGURE_FORMATS", "ReportSummary", "tidy_metrics", "write_report"]
 
 #: The methods an experiment is expected to hold.
 EXPECTED_METHODS = tables.METHOD_ORDER
@@ -256,7 +256,7 @@ def _report_experiment(name: str, paths: Mapping[str, Path], out_dir: Path, form
 
 
 def write_report(
-    results_dir: Path, out_dir: Path, *, formats: tuple[str, ...] = FIGURE_FORMATS, jobs: int = 1,
+    results_dir: Path, out_dir: Path, *, formats: tuple[str, ...] = DEFAULT_FORMATS, jobs: int = 1,
     progress: Callable[[str], None] | None = None,
 ) -> ReportSummary:
     """Write the report for every experiment under ``results_dir`` into ``out_dir``.
@@ -268,7 +268,8 @@ def write_report(
     out_dir : Path
         Created if missing; ``out_dir/<experiment>/`` per experiment and ``out_dir/index.md``.
     formats : tuple of str
-        Figure file formats (matplotlib names), PNG and PDF by default. The report links the PNG.
+        Figure file formats (matplotlib names): PNG by default, which the pages link; add "pdf"
+        (FIGURE_FORMATS) for vector figures.
     jobs : int
         Experiments reported in parallel worker processes (1: all in this process). Each
         experiment's files are the same either way.

@@ -26,7 +26,10 @@ FIGURES = {
     "fig_alpha_hat": "C3's learned switching gain alpha_hat_j(t) (not in the paper)",
     "fig_gravity": "Does C3 learn gravity? Theta_hat's G entries against the true J^-T G_q (plants with gravity)",
 }
+#: Every figure format the report can write; by default it writes PNG only (the pages link the
+#: PNG; a PDF of each figure doubles the drawing time of a full report), PDF on request (--pdf).
 FIGURE_FORMATS = ("png", "pdf")
+DEFAULT_FORMATS = ("png",)
 
 #: Errors a store reader may raise for a bad file (StoreError) or unexpected contents.
 READ_ERRORS = (store.StoreError, OSError, KeyError, ValueError, TypeError)

@@ -164,7 +164,7 @@ def _iterations(config_json: str) -> int:
         return 20
 
 
-def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = ("png", "pdf"),
+def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = ("png",),
                        progress: Callable[[str], None] | None = None) -> StudyReport:
     """Write the report of the study store ``path`` into ``out_dir/<name>/``. Never raises for a bad store."""
     from ilcforce.report import claims as claims_module

@@ -39,20 +39,26 @@ def validate(path: str | os.PathLike[str]) -> None:
         n_control = control_length(handle, checked)
         if n_control is not None:
             handle[schema.CONTROL_TIME][()]
+        columns = cached_metrics(handle, checked)
+        fresh_rows: dict[int, dict] = {}  # metrics of each complete iteration, from the log read once here
         for j in layout.complete:
             group = handle[layout.groups[j]]
             iteration_attrs(group, j, checked)
-            read_log(group, layout.n_log, checked, major)
+            log = read_log(group, layout.n_log, checked, major)
+            if columns is not None:
+                fresh_rows[j] = iteration_metrics(record_from_group(group, j, layout.n_log, checked, major, log=log))
             for name, dataset in read_memory_group(group, checked, n_control).items():
                 checked_data(group, f"memory/{name}", dataset, checked, major)
         _check_units(handle, checked)
-        columns = cached_metrics(handle, checked)
         if columns is not None:  # a current cache must agree with the logs it was computed from
             for k, j in enumerate(columns["iteration"]):
                 j = int(j)
                 if j not in layout.groups:
                     continue
-                fresh = iteration_metrics(record_from_group(handle[layout.groups[j]], j, layout.n_log, checked, major))
+                fresh = fresh_rows.get(j)
+                if fresh is None:  # a cached row of an iteration that is not complete
+                    fresh = iteration_metrics(record_from_group(handle[layout.groups[j]], j, layout.n_log, checked,
+                                                                major))
                 for column, value in fresh.items():
                     cached = columns[column][k]
                     same = (str(cached) == str(value) if column_kind(column) == "str"

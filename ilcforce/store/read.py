@@ -236,12 +236,14 @@ def control_length(handle: h5py.File, path: Path) -> int | None:
     return int(require_dataset(handle, schema.CONTROL_TIME, None, path).shape[0])
 
 
-def record_from_group(group: h5py.Group, j: int, n_log: int, path: Path, major: int) -> IterationRecord:
-    """An :class:`IterationRecord` (without memory) rebuilt from a stored iteration."""
+def record_from_group(group: h5py.Group, j: int, n_log: int, path: Path, major: int,
+                      log: dict[str, np.ndarray] | None = None) -> IterationRecord:
+    """An :class:`IterationRecord` (without memory) rebuilt from a stored iteration (``log``: its
+    :func:`read_log`, if the caller has read it already)."""
     a = iteration_attrs(group, j, path)
     return IterationRecord(iteration=j, status=a["status"], diverged_time=a["diverged_time"],
                            diverged_reason=a["diverged_reason"], fallback_count=a["fallback_count"],
-                           log=read_log(group, n_log, path, major))
+                           log=read_log(group, n_log, path, major) if log is None else log)
 
 
 def cached_metrics(handle: h5py.File, path: Path) -> dict[str, np.ndarray] | None:
