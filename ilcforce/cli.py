@@ -437,7 +437,29 @@ from ilcforce import cli_study  # noqa: E402,F401
 
 
 def main() -> None:
-    app()
+    """The console entry point: run the command, then end the process at once with its exit code.
+
+    Python's normal exit tears down numba's compiled code and LLVM object by object: about 0.3 s of
+    a 1.6 s cold `ilcforce simulate` (measured: the same run ends 0.24-0.44 s sooner with os._exit).
+    Nothing is left to do by then (every store is closed, every worker process joined or its
+    cluster closed, inside the command), so after flushing stdout and stderr the process exits with
+    ``os._exit``. An unexpected exception still goes the normal way, with its traceback.
+    """
+    try:
+        app()
+        code = 0
+    except SystemExit as exc:  # typer ends every command with one
+        if exc.code is None or isinstance(exc.code, int):
+            code = exc.code or 0
+        else:  # a message: print it as sys.exit would
+            print(exc.code, file=sys.stderr)
+            code = 1
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):  # a closed or broken pipe: nothing more can be said
+            pass
+    os._exit(code)
 
 
 if __name__ == "__main__":

@@ -162,3 +162,23 @@ def test_report_skips_bad_files_with_a_warning(runner, tmp_path):
     assert "Traceback" not in result.output
     assert "c2.h5" in result.output
     _one_clear_line(runner.invoke(app, ["report", "--results", str(tmp_path / "nowhere")]), "does not exist")
+
+
+def test_the_entry_point_exits_at_once_with_the_commands_code_and_its_output(tmp_path):
+    """main() ends with os._exit (skipping numba's slow teardown): the exit code and everything written
+    to stdout and stderr must still come out, also into a pipe or a file."""
+    import subprocess
+    import sys
+
+    ok = subprocess.run([sys.executable, "-m", "ilcforce", "version"], capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0 and ok.stdout.startswith("ilcforce "), (ok.returncode, ok.stdout, ok.stderr)
+    bad = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "--iters", "0"], capture_output=True,
+                         text=True, timeout=120)
+    assert bad.returncode == 2 and "--iters must be >= 1" in bad.stderr, (bad.returncode, bad.stderr)
+    out = tmp_path / "run" / "c1.h5"
+    with open(tmp_path / "stdout.txt", "w") as handle:
+        run = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c1", "-n", "1", "--out", str(out),
+                              *SHORT], stdout=handle, stderr=subprocess.PIPE, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert "complete" in (tmp_path / "stdout.txt").read_text()  # the table's row, written just before the exit
+    store.validate(out)

@@ -24,8 +24,8 @@ def _imported_after(code: str) -> set[str]:
 
 @pytest.mark.parametrize("argv", [["--help"], ["simulate", "--help"], ["compare", "--help"], ["version"]])
 def test_help_and_version_import_no_heavy_module(argv):
-    code = (f"import sys\nsys.argv = ['ilcforce', *{argv!r}]\nfrom ilcforce.cli import main\n"
-            "try:\n    main()\nexcept SystemExit:\n    pass")
+    code = (f"import sys\nsys.argv = ['ilcforce', *{argv!r}]\nfrom ilcforce.cli import app\n"  # main() would os._exit
+            "try:\n    app()\nexcept SystemExit:\n    pass")
     assert _imported_after(code) - {"rich.table"} == set()  # typer's help may draw a rich table
 
 
