@@ -129,7 +129,11 @@ def profile_split(extra: Sequence[str] = (), iterations: int = ITERATIONS) -> tu
     """One cold ``simulate -m c3`` under cProfile: (profiled total, seconds per category)."""
     with tempfile.TemporaryDirectory() as tmp:
         prof = Path(tmp) / "run.prof"
-        args = [sys.executable, "-m", "cProfile", "-o", str(prof), "-m", "ilcforce", "simulate", "--method", "c3",
+        # the command through typer's app, not main(): main ends with os._exit, before cProfile could save
+        script = Path(tmp) / "run.py"
+        script.write_text("import sys\nfrom ilcforce.cli import app\ntry:\n    app()\nexcept SystemExit as exc:\n"
+                          "    sys.exit(exc.code)\n")
+        args = [sys.executable, "-m", "cProfile", "-o", str(prof), str(script), "simulate", "--method", "c3",
                 "--iters", str(iterations), *extra, "--out", str(Path(tmp) / "c3.h5")]
         _wall(args, Path(tmp))
         stats = pstats.Stats(str(prof)).stats  # type: ignore[attr-defined]
