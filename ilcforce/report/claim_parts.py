@@ -1,0 +1,283 @@
+"""The paper's five claims as parts: each part's text, role, statistic and its test in one seed.
+
+The rule that turns parts into verdicts, and the judging over seeds, are in
+:mod:`ilcforce.report.claims` (its docstring states the rule). Thresholds are named constants here,
+each with the reason for its value.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+from ilcforce.report import paper
+from ilcforce.report.seedframes import SeedMetrics
+
+CENTRAL, SECONDARY, SHOWN = "central", "secondary", "shown"
+
+#: Claim 2: C3's norm must be below this fraction of C2's ("more than 40% below").
+REDUCTION_RATIO = 1.0 - paper.ERROR_REDUCTION_C3_VS_C2
+#: Claim 2: windows shown beside the values at j̄ (mean 2-norm over the window, both ends included).
+CLAIM2_WINDOWS = ((5, 9), (15, 19))
+#: Claim 3: |our j̄ - paper's j̄| allowed, in iterations.
+JBAR_TOLERANCE = 1
+#: Claim 4: a norm "degrades strongly" at the perturbation if norm(p) / norm(p - 1) >= this ...
+STRONG_RISE = 2.0
+#: ... and "slightly" if the rise is at most this (a 50% increase; between the two is neither).
+SLIGHT_RISE = 1.5
+#: Claim 4: a learning method "converges again" if norm(end) <= this x norm(p - 1).
+RECONVERGED = 1.5
+#: Claim 5: the ratio's magnitude matches the paper's within this factor either way: several times
+#: the seed-to-seed spread of the ratio (about 2%, measured over seeds of the paper's setup), so a
+#: mismatch beyond it is not noise.
+RATIO_FACTOR = 1.10
+
+METRICS = (("position", "position_error_2norm", "m"), ("force", "force_error_2norm", "N"))
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One of the paper's claims: its statement, the paper's figure, and how its parts are judged."""
+
+    number: int
+    statement: str
+    paper: str
+    rule: str
+
+
+CLAIMS: tuple[Claim, ...] = (
+    Claim(1, "Before j = 10, C2 and C3 track better than C1 (position and force).",
+          "Figs. 3, 4 (no numbers): 'C2 and C3 achieve better tracking performance than C1'.",
+          "4 central parts: mean error 2-norm over j = 1..p-1 of C2 and of C3 below C1's (ratio < 1), "
+          "position and force."),
+    Claim(2, "After convergence, C3's error 2-norm is more than 40% below C2's.",
+          "Table 2 (at j̄): position 4.3e-6 / 7.6e-6 m = 0.566; force 0.058 / 0.096 N = 0.604.",
+          "2 central parts: ratio C3 / C2 of the 2-norm at each method's own j̄ (as the paper does) "
+          f"below {REDUCTION_RATIO:g}, position and force. Shown beside: the margin {REDUCTION_RATIO:g} - ratio, "
+          "and the ratio of the mean 2-norm over j = 5..9 and j = 15..19."),
+    Claim(3, "Convergence iterations: C2 j̄ = 3 (position), 2 (force); C3 j̄ = 4, 3.",
+          "Table 2: C2 j̄ = 3, 2; C3 j̄ = 4, 3.",
+          f"4 central parts: our j̄ (first j <= 9 within 1.5x the median of j = 5..9) within "
+          f"+-{JBAR_TOLERANCE} of the paper's. The statistic is j̄ itself, with its distribution over seeds."),
+    Claim(4, "The m3 change at j = 10 degrades C2 and C3 strongly and C1 slightly; C2 and C3 converge again.",
+          "Figs. 3, 4 (no numbers): C2, C3 'significantly deteriorated', C1 'slightly worse', "
+          "C2, C3 'convergent again'.",
+          f"Central: rise norm(p) / norm(p-1) >= {STRONG_RISE:g} for C2 and C3, and norm(end) <= "
+          f"{RECONVERGED:g} x norm(p-1) for C2 and C3 (end = 19, or the last iteration all ran), position "
+          f"and force (8 parts). Secondary: C1's rise <= {SLIGHT_RISE:g} ('slightly': at most +50%), "
+          "position and force."),
+    Claim(5, "Chattering at j = 20: H(C1) / H(C3) = 1.67 (X) and 2.44 (Y).",
+          "Table 3: C1 0.06, 0.0534 N; C3 0.0359, 0.0219 N; ratios 1.67 (X), 2.44 (Y).",
+          "Central: direction, H(C1) / H(C3) > 1 at j = 19 on X and on Y (whole-grid H, SPEC section 6). "
+          f"Secondary: magnitude, the ratio within a factor {RATIO_FACTOR:g} of the paper's 1.67 / 2.44. "
+          "Shown: the ratio with H without t = 0 and settled (t >= 20 ms), and our H / Table 3's H."),
+)
+
+
+class _Stop(Exception):
+    """Ends one part's evaluation in one seed: ``passed`` False (a failure) or None (not evaluable)."""
+
+    def __init__(self, passed: bool | None, note: str) -> None:
+        super().__init__(note)
+        self.passed, self.note = passed, note
+
+
+@dataclass(frozen=True)
+class _Part:
+    """A part of a claim: ``evaluate(seed context)`` -> (statistic, passed or None for shown parts)."""
+
+    claim: int
+    key: str
+    text: str
+    role: str
+    statistic: str
+    evaluate: Callable[["_Seed"], tuple[float, bool | None]]
+
+
+def _ratio(numerator: float, denominator: float) -> float:
+    """numerator / denominator for norms >= 0: x / 0 is inf (0 / 0 is NaN), x / inf is 0."""
+    numerator, denominator = float(numerator), float(denominator)
+    if denominator == 0.0:
+        return math.nan if numerator == 0.0 else math.inf
+    return numerator / denominator
+
+
+class _Seed:
+    """One seed's per-method metrics (:class:`~ilcforce.report.seedframes.SeedMetrics`) plus the checks parts share."""
+
+    def __init__(self, metrics_by_method: Mapping[str, SeedMetrics], p: int) -> None:
+        self.metrics, self.p = metrics_by_method, int(p)
+
+    def need(self, *methods: str) -> None:
+        missing = [m for m in methods if m not in self.metrics]
+        if missing:
+            raise _Stop(None, "no results for " + ", ".join(missing))
+
+    def asserted(self, method: str, last: int) -> None:
+        """A method the part praises diverged at or before ``last``: the part fails."""
+        self.need(method)
+        found = self.metrics[method].divergence
+        if found is not None and found[0] <= last:
+            raise _Stop(False, f"{method} diverged at iteration {found[0]}")
+
+    def norm(self, method: str, column: str, j: int) -> float:
+        """The norm at ``j``; inf from a divergence on (a baseline lost tracking); missing -> not evaluable."""
+        self.need(method)
+        found = self.metrics[method].divergence
+        if found is not None and j >= found[0]:
+            return math.inf
+        value = self.metrics[method].value_at(column, j)
+        if not math.isfinite(value):
+            raise _Stop(None, f"{method} has no complete iteration {j}")
+        return value
+
+    def mean_norm(self, method: str, column: str, first: int, last: int) -> float:
+        return float(np.mean([self.norm(method, column, j) for j in range(first, last + 1)]))
+
+    def jbar(self, method: str, column: str) -> int:
+        self.asserted(method, 9)
+        found = self.metrics[method].jbar(column)
+        if found is None:
+            raise _Stop(None, f"{method}: j̄ needs complete iterations 0..9")
+        return found
+
+    def end(self) -> int:
+        """Claim 4's last iteration: 19, or the last one every method completed."""
+        ends = [max(self.metrics[m].complete_iterations, default=-1) for m in ("c1", "c2", "c3")]
+        end = min(paper.CHATTERING_ITERATION, *ends)
+        if end <= self.p:
+            raise _Stop(None, f"needs iterations up to at least {self.p + 1}; the runs stop at {end}")
+        return end
+
+    def chattering(self, method: str, column: str) -> float:
+        self.asserted(method, paper.CHATTERING_ITERATION) if method == "c3" else self.need(method)
+        j = self.metrics[method].chattering_iteration()
+        if j != paper.CHATTERING_ITERATION:
+            raise _Stop(None, f"{method} has no complete iteration {paper.CHATTERING_ITERATION}")
+        value = self.metrics[method].value_at(column, j)
+        if not math.isfinite(value):
+            raise _Stop(None, f"{column} not available for {method}")
+        return value
+
+
+# ---------------------------------------------------------------------------------------------
+# The parts of each claim
+# ---------------------------------------------------------------------------------------------
+
+
+def _claim1_parts() -> list[_Part]:
+    def part(method: str, quantity: str, column: str) -> _Part:
+        def evaluate(s: _Seed) -> tuple[float, bool]:
+            last = s.p - 1
+            if last < 1:
+                raise _Stop(None, f"perturbation at {s.p} leaves no iteration 1..p-1")
+            s.asserted(method, last)
+            ratio = _ratio(s.mean_norm(method, column, 1, last), s.mean_norm("c1", column, 1, last))
+            return ratio, bool(ratio < 1.0)
+        return _Part(1, f"{method}_{quantity}", f"{method.upper()} below C1, {quantity}", CENTRAL,
+                     f"mean 2-norm over j = 1..p-1, {method.upper()} / C1 (< 1 holds)", evaluate)
+    return [part(m, q, c) for q, c, _u in METRICS for m in ("c2", "c3")]
+
+
+def _claim2_parts() -> list[_Part]:
+    parts = []
+    for quantity, column, _unit in METRICS:
+        def at_jbar(s: _Seed, column=column) -> float:
+            return _ratio(s.norm("c3", column, s.jbar("c3", column)), s.norm("c2", column, s.jbar("c2", column)))
+
+        parts.append(_Part(2, f"{quantity}_jbar", f"C3 >40% below C2 at j̄, {quantity}", CENTRAL,
+                           f"C3 / C2 at each method's j̄ (< {REDUCTION_RATIO:g} holds)",
+                           lambda s, f=at_jbar: (f(s), bool(f(s) < REDUCTION_RATIO))))
+        parts.append(_Part(2, f"{quantity}_margin", f"margin to the 40% threshold, {quantity}", SHOWN,
+                           f"{REDUCTION_RATIO:g} - (C3 / C2 at j̄) (> 0: more than 40% below)",
+                           lambda s, f=at_jbar: (REDUCTION_RATIO - f(s), None)))
+        for first, last in CLAIM2_WINDOWS:
+            def window(s: _Seed, column=column, first=first, last=last) -> tuple[float, None]:
+                s.asserted("c3", last)
+                return _ratio(s.mean_norm("c3", column, first, last), s.mean_norm("c2", column, first, last)), None
+            parts.append(_Part(2, f"{quantity}_{first}_{last}", f"C3 / C2 over j = {first}..{last}, {quantity}",
+                               SHOWN, f"ratio of the mean 2-norm over j = {first}..{last}", window))
+    return parts
+
+
+def _claim3_parts() -> list[_Part]:
+    parts = []
+    for method in ("c2", "c3"):
+        published = paper.table2_row(method)
+        assert published is not None  # the paper's Table 2 has C2 and C3
+        for quantity, column, _unit in METRICS:
+            theirs = getattr(published, f"jbar_{quantity}")
+
+            def evaluate(s: _Seed, method=method, column=column, theirs=theirs) -> tuple[float, bool]:
+                ours = s.jbar(method, column)
+                return float(ours), abs(ours - theirs) <= JBAR_TOLERANCE
+
+            parts.append(_Part(3, f"{method}_{quantity}", f"{method.upper()} j̄ {quantity} (paper {theirs})",
+                               CENTRAL, f"j̄ (within +-{JBAR_TOLERANCE} of {theirs} holds)", evaluate))
+    return parts
+
+
+def _claim4_parts() -> list[_Part]:
+    parts = []
+    for quantity, column, _unit in METRICS:
+        for method in ("c1", "c2", "c3"):
+            def rise(s: _Seed, method=method, column=column) -> float:
+                if s.p < 1:
+                    raise _Stop(None, f"perturbation at {s.p} has no iteration before it")
+                if method != "c1":
+                    s.asserted(method, s.p)
+                return _ratio(s.norm(method, column, s.p), s.norm(method, column, s.p - 1))
+
+            if method == "c1":
+                parts.append(_Part(4, f"c1_slight_{quantity}", f"C1 degrades slightly, {quantity}", SECONDARY,
+                                   f"norm(p) / norm(p-1) (<= {SLIGHT_RISE:g} holds)",
+                                   lambda s, f=rise: (f(s), bool(f(s) <= SLIGHT_RISE))))
+                continue
+            parts.append(_Part(4, f"{method}_strong_{quantity}", f"{method.upper()} degrades strongly, {quantity}",
+                               CENTRAL, f"norm(p) / norm(p-1) (>= {STRONG_RISE:g} holds)",
+                               lambda s, f=rise: (f(s), bool(f(s) >= STRONG_RISE))))
+
+            def again(s: _Seed, method=method, column=column) -> tuple[float, bool]:
+                s.asserted(method, paper.CHATTERING_ITERATION)  # a divergence by j = 19 is no reconvergence
+                s.need("c1", "c2", "c3")
+                end = s.end()
+                value = _ratio(s.norm(method, column, end), s.norm(method, column, s.p - 1))
+                return value, bool(value <= RECONVERGED)
+
+            parts.append(_Part(4, f"{method}_again_{quantity}", f"{method.upper()} converges again, {quantity}",
+                               CENTRAL, f"norm(end) / norm(p-1) (<= {RECONVERGED:g} holds)", again))
+    return parts
+
+
+def _claim5_parts() -> list[_Part]:
+    parts = []
+    for axis, published in (("x", paper.CHATTERING_RATIO_X), ("y", paper.CHATTERING_RATIO_Y)):
+        def ratio(s: _Seed, axis=axis, form="") -> float:
+            column = f"chattering_task_{axis}{form}"
+            c3 = s.chattering("c3", column)  # the asserted method first: its divergence settles the part
+            return _ratio(s.chattering("c1", column), c3)
+
+        parts.append(_Part(5, f"direction_{axis}", f"C3 chatters less than C1, {axis.upper()}", CENTRAL,
+                           "H(C1) / H(C3) at j = 19 (> 1 holds)", lambda s, f=ratio: (f(s), bool(f(s) > 1.0))))
+        parts.append(_Part(5, f"magnitude_{axis}", f"ratio near the paper's {published}, {axis.upper()}", SECONDARY,
+                           f"H(C1) / H(C3) (within x{RATIO_FACTOR:g} of {published} holds)",
+                           lambda s, f=ratio, pub=published: (
+                               f(s), bool(abs(math.log(f(s) / pub)) <= math.log(RATIO_FACTOR)))))
+        for form, what in (("_no_t0", "without t = 0"), ("_settled", "settled, t >= 20 ms")):
+            parts.append(_Part(5, f"ratio{form}_{axis}", f"H(C1) / H(C3) {what}, {axis.upper()}", SHOWN,
+                               f"ratio of H {what}", lambda s, f=ratio, form=form: (f(s, form=form), None)))
+        for method in ("c1", "c3"):
+            row = paper.table3_row(method)
+            theirs = getattr(row, f"task_{axis}")
+            parts.append(_Part(5, f"absolute_{method}_{axis}", f"H of {method.upper()} / Table 3, {axis.upper()}",
+                               SHOWN, f"our H / the paper's {theirs} N",
+                               lambda s, m=method, a=axis, t=theirs: (
+                                   s.chattering(m, f"chattering_task_{a}") / t, None)))
+    return parts
+
+
+PARTS: tuple[_Part, ...] = tuple(_claim1_parts() + _claim2_parts() + _claim3_parts() + _claim4_parts()
+                                 + _claim5_parts())
