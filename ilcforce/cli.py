@@ -6,14 +6,11 @@ cannot be used (one line on stderr, never a traceback), 130 interrupted.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import os
 import math
 import shlex
-import signal
 import sys
-import threading
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -158,96 +155,6 @@ def _command_line(ctx: typer.Context) -> str:
     return shlex.join(parts)
 
 
-def _progress_bar(disable: bool):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
-    # no refresh thread: the display is redrawn at each update (and so nothing runs while compare forks)
-    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TextColumn("{task.fields[last]}"), TimeElapsedColumn(), console=err.console(),
-                    transient=False, auto_refresh=False, disable=disable)
-
-
-def _last(iteration: int, status: str, row: dict) -> str:
-    return (f"j={iteration} |e_P|={_g(row['position_error_2norm'])} m "
-            f"|e_F|={_g(row['force_error_2norm'])} N {status}")
-
-
-def _run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool, command: str):
-    from ilcforce.experiment import run_method
-
-    total = config.experiment.iterations
-    with _progress_bar(disable=not err.is_terminal) as progress:
-        task = progress.add_task(f"{config.experiment.name}/{method}", total=total, last="")
-
-        def tick(record, row):
-            progress.update(task, completed=record.iteration + 1, last=_last(record.iteration, record.status, row))
-            progress.refresh()
-
-        with _deferred_interrupt() as interrupted:
-            summary = run_method(config, method, path, overwrite=overwrite, resume=resume, command=command,
-                                 progress=tick, stop_requested=interrupted)
-    return summary
-
-
-def _run_several(config, jobs) -> None:
-    """Run several methods at once, one worker process each (``ilcforce.parallel``), one display."""
-    from ilcforce.parallel import run_parallel
-
-    progress = _progress_bar(disable=not err.is_terminal)
-    tasks = {}
-
-    def tick(method: str, iteration: int, status: str, row: dict) -> None:
-        if not tasks:  # the display starts after the workers were forked
-            progress.start()
-            tasks.update({job.method: progress.add_task(f"{config.experiment.name}/{job.method}",
-                                                        total=config.experiment.iterations, last="")
-                          for job in jobs})
-        progress.update(tasks[method], completed=iteration + 1, last=_last(iteration, status, row))
-        progress.refresh()
-
-    def stopping() -> None:
-        err.print("stopping after the current iteration is stored (Ctrl-C again to stop now)", highlight=False)
-
-    try:
-        outcomes = run_parallel(config, jobs, progress=tick, on_interrupt=stopping, meanwhile=_import_for_table)
-    finally:
-        progress.stop()
-    failed = [o for o in outcomes.values() if o.status == "error"]
-    for outcome in failed:
-        if not outcome.known:
-            raise RuntimeError(f"{outcome.method} failed:\n{outcome.message}")
-    if failed:
-        raise CliError(failed[0].message)
-    if any(o.status == "interrupted" for o in outcomes.values()):
-        raise KeyboardInterrupt
-
-
-@contextlib.contextmanager
-def _deferred_interrupt():
-    """First Ctrl-C: stop within one chunk of the compiled loop (the iteration in flight is dropped,
-    every finished one is stored). Second: stop at once.
-
-    A KeyboardInterrupt raised wherever the signal lands (e.g. inside a garbage-collection
-    callback, where Python ignores it) could be lost; a flag checked between iterations cannot.
-    """
-    if threading.current_thread() is not threading.main_thread():
-        yield lambda: False
-        return
-    requested = []
-
-    def handler(signum, frame):
-        if requested:
-            raise KeyboardInterrupt
-        requested.append(signum)
-        _say("stopping: the unfinished iteration is dropped, every finished one is stored", stderr=True)
-
-    previous = signal.signal(signal.SIGINT, handler)
-    try:
-        yield lambda: bool(requested)
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
 @app.command()
 @_guard
 def simulate(
@@ -263,6 +170,7 @@ def simulate(
     results: Annotated[Path, typer.Option("--results", help="results folder for the default --out")] = Path("results"),
 ) -> None:
     """Run one method over the iterations and store every iteration in HDF5."""
+    from ilcforce import cli_run
     from ilcforce.experiment import default_store_path
 
     names = _methods(method)
@@ -270,7 +178,7 @@ def simulate(
         raise CliError("--method takes one method; use `ilcforce compare --methods ...` for several")
     cfg = _load(config, seed, iters, sets)
     path = out_path if out_path is not None else default_store_path(results, cfg, names[0], _variant(seed, sets))
-    summary = _run_one(cfg, names[0], path, overwrite=overwrite, resume=resume, command=_command_line(ctx))
+    summary = cli_run.run_one(cfg, names[0], path, overwrite=overwrite, resume=resume, command=_command_line(ctx))
     table = _table(f"{cfg.experiment.name} / {names[0]}  ->  {path}")
     for col in ("j", "|e_P|_2 (m)", "|e_F|_2 (N)", "H_x (N)", "H_y (N)", "loop fallbacks", "status"):
         table.add_column(col, justify="right")
@@ -301,7 +209,7 @@ def compare(
 
     Methods to run run at once, one worker process each, sharing the cores.
     """
-    from ilcforce import store
+    from ilcforce import cli_run, store
     from ilcforce.experiment import default_store_path
     from ilcforce.parallel import Job
 
@@ -315,9 +223,9 @@ def compare(
             jobs.append(Job(name, path, overwrite=replace, resume=action == "resume", command=_command_line(ctx)))
     if len(jobs) == 1:
         job = jobs[0]
-        _run_one(cfg, job.method, job.path, overwrite=job.overwrite, resume=job.resume, command=job.command)
+        cli_run.run_one(cfg, job.method, job.path, overwrite=job.overwrite, resume=job.resume, command=job.command)
     elif jobs:
-        _run_several(cfg, jobs)
+        cli_run.run_several(cfg, jobs)
 
     from ilcforce.report.tables import comparison_frame
 
@@ -326,11 +234,6 @@ def compare(
     if "method" in frame.columns:
         frame = frame.set_index("method")
     _print_frame(frame.T, _comparison_title(cfg), units)
-
-
-def _import_for_table() -> None:
-    """What compare needs after the runs (pandas, the report's tables), imported while workers run."""
-    import ilcforce.report.tables  # noqa: F401
 
 
 def _comparison_title(cfg) -> str:

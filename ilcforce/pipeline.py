@@ -84,8 +84,3 @@ class Ahead(Generic[T]):
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def ahead(make: Callable[[Callable[[], bool]], Iterator[T]], *, depth: int = 1) -> Iterator[T]:
-    """Iterate :class:`Ahead` (``for item in ahead(make)``): the producer stops when the loop ends."""
-    yield from Ahead(make, depth=depth)

@@ -1,4 +1,4 @@
-"""pipeline.ahead: a generator run one step ahead in a thread keeps order, errors and stops."""
+"""pipeline.Ahead: a generator run one step ahead in a thread keeps order, errors and stops."""
 
 from __future__ import annotations
 
@@ -7,11 +7,11 @@ import time
 
 import pytest
 
-from ilcforce.pipeline import ahead
+from ilcforce.pipeline import Ahead
 
 
 def test_items_arrive_in_order_and_all_of_them():
-    assert list(ahead(lambda stopping: iter(range(50)))) == list(range(50))
+    assert list(Ahead(lambda stopping: iter(range(50)))) == list(range(50))
 
 
 def test_the_producer_runs_ahead_while_the_consumer_works():
@@ -22,7 +22,7 @@ def test_the_producer_runs_ahead_while_the_consumer_works():
             made.append(i)
             yield i
 
-    it = ahead(make)
+    it = iter(Ahead(make))
     assert next(it) == 0
     deadline = time.monotonic() + 5
     while len(made) < 2 and time.monotonic() < deadline:  # item 1 is made before the consumer asks
@@ -39,7 +39,7 @@ def test_a_producer_error_comes_after_every_item_made_before_it():
 
     got = []
     with pytest.raises(KeyboardInterrupt):
-        for item in ahead(make):
+        for item in Ahead(make):
             got.append(item)
     assert got == [1, 2]
 
@@ -55,13 +55,13 @@ def test_a_consumer_that_stops_early_stops_and_joins_the_producer():
         seen_stop.set()
 
     before = threading.active_count()
-    for item in ahead(make):
+    for item in Ahead(make):
         if item == 3:
             break
     assert threading.active_count() == before  # joined, not left running
 
     def failing_consumer():
-        for item in ahead(make):
+        for item in Ahead(make):
             raise OSError("disk full")  # the store's error while writing item 0
 
     with pytest.raises(OSError, match="disk full"):
