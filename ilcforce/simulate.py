@@ -225,7 +225,7 @@ def desired_inputs(plant, wall: Wall, reference_log: np.ndarray) -> tuple[np.nda
     desired contact force, so the wall's reaction -w F_d is balanced. ``reference_log`` is (n, 12);
     returns two (n, 2) arrays (N m, N).
     """
-    from ilcforce import loop  # compiled on first use only
+    from ilcforce import desired  # compiled on first use only
     from ilcforce.plants import UnreachableError
 
     robot = make_plant(plant)
@@ -233,7 +233,7 @@ def desired_inputs(plant, wall: Wall, reference_log: np.ndarray) -> tuple[np.nda
     ref = np.ascontiguousarray(reference_log, dtype=np.float64)
     tau_d = np.empty((ref.shape[0], 2))
     task_d = np.empty((ref.shape[0], 2))
-    bad = loop.desired_kernel(kernels.dyn, kernels.ik, robot.address, ref, float(wall.sign), tau_d, task_d)
+    bad = desired.desired_kernel(kernels.dyn, kernels.ik, robot.address, ref, float(wall.sign), tau_d, task_d)
     if bad >= 0:
         raise UnreachableError(f"the desired pose ({ref[bad, 0]:.6g}, {ref[bad, 1]:.6g}) m is not reachable "
                                f"in {robot.working_mode}")
