@@ -83,8 +83,10 @@ def main(mc_seeds: int = 100, speedup_seeds: int = 10, repeat: int = 3, workers:
             one.append(timed_study(speedup_seeds, 1)["cell_wall"])
             two.append(timed_study(speedup_seeds, 2)["cell_wall"])
         m1, m2 = statistics.median(one), statistics.median(two)
+        pairs = sorted(a / b for a, b in zip(one, two))
         print(f"  speed-up 1 -> 2 workers ({speedup_seeds} seeds x 3 methods, cell phase on warm workers, medians "
-              f"of {repeat}): {m1:.1f} s (in-process) -> {m2:.1f} s (LocalCluster x 2) = {m1 / m2:.2f}x")
+              f"of {repeat}): {m1:.1f} s (in-process) -> {m2:.1f} s (LocalCluster x 2) = {m1 / m2:.2f}x "
+              f"(run pairs {pairs[0]:.2f}-{pairs[-1]:.2f}x)")
         c1, c2 = cold_study_walls(speedup_seeds, repeat)
         print(f"  the same as a user runs it (cold `ilcforce study --workers 1|2 --quiet`, whole command): "
               f"{c1:.1f} s -> {c2:.1f} s = {c1 / c2:.2f}x")
