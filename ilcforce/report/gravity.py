@@ -37,9 +37,11 @@ def gravity_figure(store_path: Path, config, iterations=None):
     """Figure: learned G_x, G_y (C3's Theta_hat) over time for some iterations, against the truth.
 
     ``store_path`` is a C3 store of a plant with gravity; ``config`` its configuration. Returns the
-    matplotlib figure (one panel per task axis).
+    matplotlib figure (one panel per task axis), built without pyplot like the report's other figures
+    (:mod:`ilcforce.report.figures`), with a constrained layout (``tight_layout`` on top of the report
+    style's constrained layout printed a warning for every 2R report).
     """
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
 
     from ilcforce import store
 
@@ -49,7 +51,8 @@ def gravity_figure(store_path: Path, config, iterations=None):
     chosen = list(iterations) if iterations is not None else sorted({stored[0], stored[len(stored) // 2], stored[-1]})
     t = store.read_control_time(store_path)
     positions = config.reference_samples()[:, 0:2]
-    fig, axes = plt.subplots(1, 2, figsize=(9, 3.4), sharex=True)
+    fig = Figure(figsize=(9, 3.4), layout="constrained")
+    axes = fig.subplots(1, 2, sharex=True)
     for j in chosen:
         g_hat = learned_gravity(store.read_memory(store_path, j)["theta_hat"])
         for k, ax in enumerate(axes):
@@ -62,5 +65,4 @@ def gravity_figure(store_path: Path, config, iterations=None):
         ax.set_xlabel("t (s)")
         ax.set_ylabel("N")
     axes[0].legend(fontsize=7)
-    fig.tight_layout()
     return fig
