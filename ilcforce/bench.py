@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from ilcforce.config import default_config
+from ilcforce.config_load import default_config
 from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.base import LAW_SIGNATURE, MemoryController
 from ilcforce.experiment import make_controller, run_method
@@ -93,7 +93,7 @@ def per_step_figures(repeat: int) -> None:
     A run that diverges (on the 2R arm with the paper's gains C2 and C3 lose the wall in j = 0, and
     a zero torque lets the arm fall) is timed over the steps it simulated, and marked.
     """
-    from ilcforce.config import load_config
+    from ilcforce.config_load import load_config
     from ilcforce.plants import MODELS
 
     for model in MODELS:
@@ -127,7 +127,7 @@ def per_step_figures(repeat: int) -> None:
 def chunking_figures(repeat: int) -> None:
     """What returning to Python between chunks of the compiled loop costs (issue 8, fault 11), and
     how long one chunk takes at substeps = 1000 (the Ctrl-C latency bound)."""
-    from ilcforce.config import load_config
+    from ilcforce.config_load import load_config
     from ilcforce.simulate import CHUNK_RK4_STEPS
 
     config = default_config()

@@ -66,7 +66,7 @@ def cold_walls(repeat: int, extra: Sequence[str] = (), iterations: int = ITERATI
 def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIONS,
                  overrides: dict | None = None) -> dict[str, float]:
     """Median in-process time of the compiled simulation loop alone, per method, for ``iterations``."""
-    from ilcforce.config import load_config
+    from ilcforce.config_load import load_config
     from ilcforce.experiment import simulate_iterations
 
     home = _kernel_module()
@@ -185,7 +185,7 @@ def report(repeat: int = 5, loop_repeat: int = 3, extra: Sequence[str] = (), ite
 
 def _parse_set(extra: Sequence[str]):
     """``--set key=value`` pairs of ``extra`` as config overrides (for the in-process loop timing)."""
-    from ilcforce.config import parse_override
+    from ilcforce.config_load import parse_override
 
     items = list(extra)
     for flag, value in zip(items[::2], items[1::2]):

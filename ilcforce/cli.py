@@ -97,7 +97,7 @@ def _guard(func):
 
 
 def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], sets: Optional[list[str]]):
-    from ilcforce.config import load_config, parse_override
+    from ilcforce.config_load import load_config, parse_override
 
     overrides = dict(parse_override(s) for s in (sets or []))
     if seed is not None:
@@ -113,7 +113,7 @@ def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], set
 
 def _variant(seed: Optional[int], sets: Optional[list[str]]) -> dict[str, object]:
     """The overrides that make a variant (its own results folder): every --set, and --seed."""
-    from ilcforce.config import parse_override
+    from ilcforce.config_load import parse_override
 
     overrides = dict(parse_override(s) for s in (sets or []))
     if seed is not None:

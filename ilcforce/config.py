@@ -1,9 +1,10 @@
-"""Experiment configuration: a tree of frozen dataclasses loaded from TOML plus overrides.
+"""Experiment configuration: a tree of frozen dataclasses, and its TOML/JSON serialisation.
 
-One loader (:func:`load_config`) builds and validates every field and names the bad one in a
-one-line :class:`ConfigError`. With no file, :func:`default_config` is the paper's setup
-(SPEC sections 1-6); ``experiments/paper.toml`` spells the same values out and a test pins that the
-two agree.
+:class:`Config` is a whole experiment; each field is one TOML table (below). The tree's own
+dataclasses check single values in ``__post_init__``; building the tree from a TOML file and
+``--set`` overrides, with every field validated and a one-line :class:`ConfigError` naming the bad
+one, is :mod:`ilcforce.config_load` (:func:`~ilcforce.config_load.load_config`). ``to_toml``
+writes the resolved configuration back (a minimal TOML writer at the end: tomllib only reads).
 
 TOML layout (every table and key optional; see ``experiments/paper.toml``)::
 
@@ -23,22 +24,16 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import json
 import math
-import tomllib
-import typing
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from ilcforce.config_ranges import (DEFAULT_RANGES, MAX_RUN_BYTES, MAX_STEPS_PER_ITERATION,  # noqa: F401
-                                    MAX_STRING, RANGES, Range, range_of)
 from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.base import check_vector
 from ilcforce.noise import NoiseModel
-from ilcforce.plants import MODELS, UnreachableError, make_plant
+from ilcforce.plants import MODELS, make_plant
 from ilcforce.plants.fivebar import FiveBarParams
 from ilcforce.plants.serial2r import Serial2RParams
 from ilcforce.simulate import SimulationSettings, force_axis
@@ -171,7 +166,8 @@ class Config:
         return self.reference.sample(self.control_times(), self.wall)
 
     def to_dict(self) -> dict:
-        """Plain nested dict in the TOML layout (round-trips through :func:`config_from_dict`)."""
+        """Plain nested dict in the TOML layout (round-trips through
+        :func:`ilcforce.config_load.config_from_dict`)."""
         out = {}
         for f in dataclasses.fields(self):
             if f.name == "gains":
@@ -194,213 +190,6 @@ def _as_plain(obj):
     if isinstance(obj, tuple):
         return [_as_plain(v) for v in obj]
     return obj
-
-
-# ------------------------------------------------------------------------------------------------
-# building dataclasses from plain data, with one-line errors naming the field
-# ------------------------------------------------------------------------------------------------
-
-def _did_you_mean(key: str, options) -> str:
-    close = difflib.get_close_matches(key, list(options), n=1)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
-def _in_range(path: str, value, kind: type):
-    valid = range_of(path, kind)
-    if not valid.contains(value):
-        raise ConfigError(f"{path} must be in {valid}, got {value!r}")
-    return value
-
-
-def _coerce(path: str, value, annotation):
-    origin = typing.get_origin(annotation)
-    if annotation is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{path} must be a number, got {_short(value)}")
-        try:
-            value = float(value)
-        except OverflowError:
-            raise ConfigError(f"{path} must be finite, got {_short(value)}") from None
-        if not math.isfinite(value):
-            raise ConfigError(f"{path} must be finite, got {value!r}")
-        return _in_range(path, value, float)
-    if annotation is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{path} must be an integer, got {_short(value)}")
-        return _in_range(path, value, int)
-    if annotation is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{path} must be a string, got {_short(value)}")
-        if len(value) > MAX_STRING or not value.replace("\n", " ").replace("\t", " ").isprintable():
-            raise ConfigError(f"{path} must be at most {MAX_STRING} printable characters, got {_short(value)}")
-        return value
-    if origin is tuple:
-        args = typing.get_args(annotation)
-        if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{path} must be a list of numbers, got {value!r}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            items = [_coerce(f"{path}[{i}]", v, args[0]) for i, v in enumerate(value)]
-        else:
-            if len(value) != len(args):
-                raise ConfigError(f"{path} must have {len(args)} entries, got {len(value)}")
-            items = [_coerce(f"{path}[{i}]", v, a) for i, (v, a) in enumerate(zip(value, args))]
-        return tuple(items)
-    raise TypeError(f"unsupported annotation {annotation!r} at {path}")
-
-
-def _short(value) -> str:
-    """repr of a value, cut to 60 characters (a 400-digit number stays readable)."""
-    text = repr(value) if not isinstance(value, int) or abs(value) < 10**40 else f"an integer with {len(str(abs(value)))} digits"
-    return text if len(text) <= 60 else text[:57] + "..."
-
-
-def _build(cls, data, path: str, base=None):
-    """Instantiate dataclass ``cls`` from ``data`` (a dict), starting from ``base`` or defaults."""
-    if not isinstance(data, dict):
-        raise ConfigError(f"[{path}] must be a table, got {data!r}")
-    hints = typing.get_type_hints(cls)
-    names = [f.name for f in dataclasses.fields(cls)]
-    kwargs = {}
-    for key, value in data.items():
-        if key not in names:
-            raise ConfigError(f"unknown key {path}.{key}{_did_you_mean(key, names)}")
-        annotation = hints[key]
-        if dataclasses.is_dataclass(annotation):
-            kwargs[key] = _build(annotation, value, f"{path}.{key}", getattr(base, key) if base else None)
-        else:
-            kwargs[key] = _coerce(f"{path}.{key}", value, annotation)
-    try:
-        return dataclasses.replace(base, **kwargs) if base is not None else cls(**kwargs)
-    except ValueError as exc:
-        msg = str(exc)
-        raise ConfigError(msg if "." in msg.split(" ")[0] else f"{path}: {msg}") from None
-
-
-def config_from_dict(data: dict) -> Config:
-    """Build and validate a :class:`Config` from the TOML layout; raises :class:`ConfigError`."""
-    if not isinstance(data, dict):
-        raise ConfigError("the configuration must be a TOML table")
-    sections = {f.name: f for f in dataclasses.fields(Config) if f.name != "gains"}
-    default = Config()
-    kwargs = {}
-    gains = dict(default.gains)
-    for key, value in data.items():
-        if key in sections:
-            kwargs[key] = _build(type(getattr(default, key)), value, key)
-        elif key in REGISTRY:
-            gains[key] = _build(REGISTRY[key].gains_class, value, key)
-        else:
-            raise ConfigError(f"unknown section [{key}]{_did_you_mean(key, [*sections, *REGISTRY])}")
-    try:
-        config = Config(**kwargs, gains=gains)
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    _check_consistency(config)
-    return config
-
-
-def run_footprint(config: Config) -> tuple[int, int]:
-    """(bytes of working memory, integrator steps) one iteration needs, estimated from the grid.
-
-    Per control sample: the reference (12 floats), the learned memory (old and new, up to 2 x 16),
-    the noise draws (about 10), the raw log before decimation (about 40): about 100 float64; plus two
-    finished iterations' records (log and memory copies, about 56 each) waiting for or in the store's
-    writes while the next iteration simulates (:mod:`ilcforce.pipeline`): about 212 float64.
-    """
-    sim = config.simulation
-    n_control = config.reference.duration / sim.sample_time + 1
-    return int(n_control * 212 * 8), int(n_control * sim.substeps)
-
-
-def _check_consistency(config: Config) -> None:
-    """Cross-field checks, all before any simulation starts (resources first: cheap to compute)."""
-    if config.reference.duration <= 0:
-        raise ConfigError(f"reference.duration must be positive, got {config.reference.duration}")
-    needed, steps = run_footprint(config)
-    if needed > MAX_RUN_BYTES:
-        raise ConfigError(f"a run would need about {needed / 1024**3:.3g} GiB of memory per iteration "
-                          f"(reference.duration / simulation.sample_time = "
-                          f"{config.reference.duration / config.simulation.sample_time:.3g} samples); the limit is "
-                          f"{MAX_RUN_BYTES / 1024**3:g} GiB")
-    if steps > MAX_STEPS_PER_ITERATION:
-        raise ConfigError(f"an iteration would take {steps:.3g} integrator steps (samples x simulation.substeps); "
-                          f"the limit is {MAX_STEPS_PER_ITERATION:.0e}")
-    try:
-        config.n_log  # Ts divides the horizon, log_every divides the step count
-    except ValueError as exc:
-        raise ConfigError(str(exc)) from None
-    # the reference must stay in the reachable, elbows-out workspace of the nominal and true plants
-    t = np.linspace(0.0, config.reference.duration, 401)
-    poses = config.reference.sample(t, config.wall)[:, 0:2]
-    start = np.asarray(config.simulation.initial_position)
-    for label, params in (("nominal", config.plant.nominal()),
-                          ("perturbed", config.plant.true_plant(config.plant.perturbation.from_iteration))):
-        robot = make_plant(params)
-        for pos in (start, *poses):
-            try:
-                robot.inverse_kinematics(pos)
-            except UnreachableError:
-                where = "simulation.initial_position" if pos is start else "the reference"
-                raise ConfigError(f"{where} leaves the reachable workspace of the {label} plant at "
-                                  f"({pos[0]:.4g}, {pos[1]:.4g}) m") from None
-
-
-def default_config() -> Config:
-    """The paper's setup (SPEC defaults)."""
-    return config_from_dict({})
-
-
-def _set_path(data: dict, dotted: str, value) -> None:
-    keys = dotted.split(".")
-    node = data
-    for key in keys[:-1]:
-        node = node.setdefault(key, {})
-        if not isinstance(node, dict):
-            raise ConfigError(f"--set {dotted}: {key} is not a table")
-    node[keys[-1]] = value
-
-
-def parse_override(text: str) -> tuple[str, object]:
-    """``"c3.eta=2"`` -> ("c3.eta", 2); the value is read as TOML, else taken as a string."""
-    if "=" not in text:
-        raise ConfigError(f"--set expects KEY=VALUE (e.g. c3.eta=2), got {text!r}")
-    key, raw = (part.strip() for part in text.split("=", 1))
-    if not key:
-        raise ConfigError(f"--set expects KEY=VALUE, got {text!r}")
-    try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw
-    return key, value
-
-
-def load_config(path: Path | str | None = None, overrides: dict[str, object] | None = None) -> Config:
-    """Load ``path`` (None: the paper's setup), apply dotted ``overrides``, validate everything."""
-    data: dict = {}
-    if path is not None:
-        path = Path(path)
-        if not path.exists():
-            raise ConfigError(f"config file {path} does not exist")
-        if path.is_dir():
-            raise ConfigError(f"config file {path} is a directory, not a TOML file")
-        if not path.is_file():
-            raise ConfigError(f"config file {path} is not a regular file (a FIFO or device?)")
-        try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"config file {path} cannot be read: {exc}") from None
-        if not text.strip():
-            raise ConfigError(f"config file {path} is empty")
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
-    for key, value in (overrides or {}).items():
-        _set_path(data, key, value)
-    try:
-        return config_from_dict(data)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}" if path is not None else str(exc)) from None
 
 
 # ------------------------------------------------------------------------------------------------

@@ -4,7 +4,7 @@ Every numeric field has a range: its own entry in :data:`RANGES`, a section-wide
 entry, or the default of its type (:data:`DEFAULT_RANGES`). Strings are printable and bounded.
 A whole run's resources (working memory, integrator steps) are bounded too
 (:data:`MAX_RUN_BYTES`, :data:`MAX_STEPS_PER_ITERATION`, estimated by
-:func:`ilcforce.config.run_footprint`). Adding a config field needs an entry here only when the
+:func:`ilcforce.config_load.run_footprint`). Adding a config field needs an entry here only when the
 default range does not fit it.
 """
 

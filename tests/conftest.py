@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from ilcforce.config import load_config
+from ilcforce.config_load import load_config
 
 
 @pytest.fixture

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from ilcforce.config import ConfigError, config_from_dict, default_config, load_config, parse_override
+from ilcforce.config import ConfigError
+from ilcforce.config_load import config_from_dict, default_config, load_config, parse_override
 
 # study files (a [study] table; ilcforce.study) live beside the experiments and are tested in test_study.py
 EXPERIMENTS = sorted(p for p in Path("experiments").glob("*.toml") if "study" not in tomllib.loads(p.read_text()))

@@ -16,7 +16,9 @@ from typer.testing import CliRunner
 
 from ilcforce import config as config_module
 from ilcforce.cli import app
-from ilcforce.config import ConfigError, RANGES, config_from_dict, default_config, load_config, range_of
+from ilcforce.config import ConfigError
+from ilcforce.config_load import config_from_dict, default_config, load_config
+from ilcforce.config_ranges import RANGES, range_of
 
 HUGE = "99999999999999999999"
 CASES = [
@@ -101,7 +103,7 @@ def test_every_field_of_the_default_config_is_inside_its_range():
 
 def test_no_runtime_warning_leaks_for_a_long_reference():
     result = subprocess.run([sys.executable, "-W", "error::RuntimeWarning", "-c",
-                             "from ilcforce.config import load_config, ConfigError\n"
+                             "from ilcforce.config import ConfigError\nfrom ilcforce.config_load import load_config\n"
                              "try:\n    load_config(None, {'reference.duration': 1e4})\n"
                              "except ConfigError as e:\n    print(e)\n"],
                             capture_output=True, text=True, timeout=120)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ilcforce.config import default_config
+from ilcforce.config_load import default_config
 from ilcforce.controllers import REGISTRY, Controller
 from ilcforce.controllers.base import (DIAG_WIDTH, LAW_SIGNATURE, MEAS_ACCEL, MEAS_FORCE_ACCEL,
                                        MEAS_WIDTH)

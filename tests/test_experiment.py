@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from ilcforce import store
-from ilcforce.config import load_config
+from ilcforce.config_load import load_config
 from ilcforce.experiment import run_method, simulate_iterations
 from ilcforce.metrics import iteration_metrics
 

@@ -40,7 +40,8 @@ def test_compare_tables_do_not_import_matplotlib():
 def test_a_simulation_loads_numbas_lapack_without_all_of_scipy_linalg():
     """ilcforce._lapack: numba's BLAS/LAPACK modules come without scipy.linalg's 170 ms package
     import, and the compiled solves still work (the tau_d kernel uses np.linalg.solve)."""
-    code = ("import sys\nfrom ilcforce.config import load_config\nfrom ilcforce.experiment import simulate_iterations\n"
+    code = ("import sys\nfrom ilcforce.config_load import load_config\n"
+            "from ilcforce.experiment import simulate_iterations\n"
             "cfg = load_config(None, {'experiment.iterations': 1, 'reference.duration': 0.05})\n"
             "rec = next(simulate_iterations(cfg, 'c3'))\n"
             "import numpy as np\nassert np.isfinite(rec.log['desired_torque']).all()\n"

@@ -18,7 +18,7 @@ import pytest
 from scipy import signal
 
 from ilcforce import store
-from ilcforce.config import default_config, load_config
+from ilcforce.config_load import default_config, load_config
 from ilcforce.controllers import LEARNS, PAPER_METHODS, REGISTRY
 from ilcforce.controllers.base import GAIN_SPECIFIC, gain_layout
 from ilcforce.experiment import make_controller, run_method

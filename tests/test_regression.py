@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ilcforce.config import load_config
+from ilcforce.config_load import load_config
 from ilcforce.experiment import simulate_iterations
 from ilcforce.metrics import iteration_metrics
 

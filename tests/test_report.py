@@ -20,7 +20,7 @@ from matplotlib.artist import Artist
 from matplotlib.figure import Figure
 
 from ilcforce.records import LOG_SIGNALS, IterationRecord
-from ilcforce.report import build, claims, figures, paper, tables
+from ilcforce.report import build, claims, figures, paper, table_write, tables
 from ilcforce.report.build import ReportSummary, write_report
 from ilcforce.store import SCHEMA_VERSION, StoreWriter, read_metrics
 
@@ -279,7 +279,7 @@ def test_comparison_frame(metrics_by_method: dict[str, pd.DataFrame]) -> None:
 def test_markdown_table_renders_units_missing_values_and_pipes() -> None:
     frame = pd.DataFrame({"method": ["a|b", "c"], "norm": [1.23456e-6, math.nan], "j": pd.array([3, None], dtype="Int64")})
     frame.attrs["units"] = {"norm": "m"}
-    text = tables.markdown_table(frame)
+    text = table_write.markdown_table(frame)
     lines = text.strip().splitlines()
     assert lines[0] == "| method | norm [m] | j |"
     assert lines[1] == "|:---|---:|---:|"

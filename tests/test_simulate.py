@@ -434,7 +434,7 @@ def test_ctrl_c_stops_a_long_iteration_at_once(tmp_path):
     import sys
     import time
 
-    from ilcforce.config import load_config
+    from ilcforce.config_load import load_config
     from ilcforce.experiment import simulate_iterations
 
     # compile (or load) every kernel the child will use here first, so that the signal lands in

@@ -24,7 +24,7 @@ def results(tmp_path_factory):
                       sweep={"c3.eta": [5.0, 2.0], "simulation.torque_bound": [1e3, 1.0]})
     run_study(one, root, workers=1)
     run_study(two, root, workers=1)
-    from ilcforce.config import load_config
+    from ilcforce.config_load import load_config
 
     run_method(load_config(None, {"reference.duration": 0.2, "experiment.iterations": 3}), "c1",
                root / "paper" / "c1.h5")
@@ -161,7 +161,7 @@ def test_single_run_report_shows_the_bands_of_the_study_of_its_setup(results):
 
 
 def test_a_study_matches_only_the_same_setup():
-    from ilcforce.config import load_config
+    from ilcforce.config_load import load_config
     from ilcforce.report.study_match import _same
 
     base = load_config(None, {"experiment.iterations": 3}).to_dict()

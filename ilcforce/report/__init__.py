@@ -1,7 +1,8 @@
 """Reports: tables, the paper's claims judged, and figures, read from the results store only.
 
 :func:`write_report` is the entry point (``ilcforce report``); :mod:`.tables`, :mod:`.claims`
-and :mod:`.figures` work on DataFrames and Axes, :mod:`.paper` holds the published numbers.
+and :mod:`.figures` work on DataFrames and Axes (:mod:`.table_write` writes the tables as CSV and
+Markdown), :mod:`.paper` holds the published numbers.
 """
 
 __all__ = ["ReportSummary", "write_report"]

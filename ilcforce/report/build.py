@@ -27,7 +27,7 @@ import pandas as pd
 
 from ilcforce import store
 from ilcforce.report import claims as claims_module
-from ilcforce.report import paper, pool, readme, sections, stability, tables, tasks
+from ilcforce.report import paper, pool, readme, sections, stability, table_write, tables, tasks
 from ilcforce.report.run_figures import DEFAULT_FORMATS, FIGURE_FORMATS, FIGURES, READ_ERRORS as _READ_ERRORS
 from ilcforce.report.run_figures import write_figures as _write_figures
 from ilcforce.report.run_text import divergence_lines as _divergence_lines
@@ -194,17 +194,17 @@ def _write_experiment(
     flags = stability.unstable_methods(growth)
     summary = claims_module.claim_summary(claims)
     written: list[Path] = []
-    written += tables.write_table(table2, directory, "table2", title=f"Table 2 ({experiment.name})")
-    written += tables.write_table(table3, directory, "table3", title=f"Table 3 ({experiment.name})")
-    written.append(tables.write_csv(comparison, directory / "comparison.csv"))
+    written += table_write.write_table(table2, directory, "table2", title=f"Table 2 ({experiment.name})")
+    written += table_write.write_table(table3, directory, "table3", title=f"Table 3 ({experiment.name})")
+    written.append(table_write.write_csv(comparison, directory / "comparison.csv"))
     written.append(
-        tables.write_markdown(
+        table_write.write_markdown(
             tables.by_quantity(comparison), directory / "comparison.md", title=f"Comparison ({experiment.name})"
         )
     )
-    written += tables.write_table(summary, directory, "claims", title=f"Claims ({experiment.name})")
-    written.append(tables.write_csv(claims, directory / "claim_parts.csv"))
-    written.append(tables.write_csv(growth, directory / "learning_growth.csv"))
+    written += table_write.write_table(summary, directory, "claims", title=f"Claims ({experiment.name})")
+    written.append(table_write.write_csv(claims, directory / "claim_parts.csv"))
+    written.append(table_write.write_csv(growth, directory / "learning_growth.csv"))
     figure_files = _write_figures(experiment, directory, p, formats, flags)
     written += figure_files
     report = directory / "report.md"
@@ -375,7 +375,7 @@ def _index_text(
             row["warnings"] = len(experiment_warnings.get(name, []))
             rows.append(row)
         lines += ["Verdicts on the paper's five claims (see each report for the numbers and rules):", ""]
-        lines.append(tables.markdown_table(pd.DataFrame(rows)))
+        lines.append(table_write.markdown_table(pd.DataFrame(rows)))
         for number, claim in enumerate(claims_module.CLAIMS, start=1):
             lines.append(f"{number}. {claim.statement}")
         lines.append("")

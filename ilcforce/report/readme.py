@@ -57,7 +57,7 @@ def study_findings(name: str, found: Mapping[str, object]) -> list[str]:
         row["unstable learning"] = ", ".join(entry["flags"]) or "none"
         rows.append(row)
     if rows:
-        from ilcforce.report.tables import markdown_table
+        from ilcforce.report.table_write import markdown_table
 
         lines.append(markdown_table(pd.DataFrame(rows)))
     if found.get("labelled"):
@@ -72,7 +72,7 @@ ERROR_LABELS = ("|e_P| 2-norm (m)", "|e_F| 2-norm (N)")
 def _error_table(settings: Mapping[str, Mapping[str, object]]) -> list[str]:
     """For a study with a settings list (a breakdown, e.g. by noise source): each method's error
     2-norms per setting, median [95% interval] over seeds, so the settings can be compared."""
-    from ilcforce.report.tables import markdown_table
+    from ilcforce.report.table_write import markdown_table
 
     rows, at = [], ""
     for setting, entry in settings.items():

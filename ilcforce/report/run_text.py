@@ -15,7 +15,7 @@ from ilcforce import store
 from ilcforce.metrics import memory_norms
 from ilcforce.store.access import read_memories
 from ilcforce.report import claims as claims_module
-from ilcforce.report import sections, study_match, tables
+from ilcforce.report import sections, study_match, table_write, tables
 from ilcforce.report.run_figures import FIGURES
 from ilcforce.report.run_figures import READ_ERRORS as _READ_ERRORS
 
@@ -155,7 +155,7 @@ def report_text(
     flags: Mapping[str, str],
     figure_files: list[Path],
 ) -> str:
-    md = tables.markdown_table
+    md = table_write.markdown_table
     lines = [f"# ilcforce report: experiment `{experiment.name}`", ""]
     own = sections.description(experiment.config())
     if own:

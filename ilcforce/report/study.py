@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.metrics import convergence_iteration
-from ilcforce.report import paper, tables
+from ilcforce.report import paper, table_write, tables
 from ilcforce.report.seedframes import SeedMetrics, split_seeds
 from ilcforce.stats import Interval, format_interval, median_interval
 
@@ -196,8 +196,8 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
               "## How to read the numbers", "", INTERVAL_TEXT, ""]
     if len(failed):
         report.warnings.append(f"study {name}: {len(failed)} cell(s) failed; see its report")
-        lines += ["## Failed cells", "", tables.markdown_table(failed[["setting", "seed", "method", "attempts",
-                                                                         "message"]]), ""]
+        lines += ["## Failed cells", "", table_write.markdown_table(failed[["setting", "seed", "method", "attempts",
+                                                                              "message"]]), ""]
     if not len(frame):
         report.warnings.append(f"study {name}: no finished cell to report")
     headline = []
@@ -213,12 +213,12 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         title = setting.label if results.sweep_keys else "the study's setting"
         lines += [f"## Setting {k}: {title}" if results.sweep_keys else "## Results", ""]
         numbers = key_numbers(mine, methods, iterations)
-        report.files += tables.write_table(numbers, directory, f"key_numbers_s{k}")
-        lines += ["### Key numbers (median [95% interval] over seeds)", "", tables.markdown_table(numbers), ""]
+        report.files += table_write.write_table(numbers, directory, f"key_numbers_s{k}")
+        lines += ["### Key numbers (median [95% interval] over seeds)", "", table_write.markdown_table(numbers), ""]
         growth = stability.learning_growth(mine, perturbation_iteration=p)
         flags = stability.unstable_methods(growth)
         parts = claims_module.judge_claims_over_seeds(mine, perturbation_iteration=p)
-        report.files += tables.write_table(parts, directory, f"claims_s{k}")
+        report.files += table_write.write_table(parts, directory, f"claims_s{k}")
         lines += ["### The paper's claims over seeds", ""] + sections.claims_markdown(parts, flags)
         lines += ["### Learning stability", ""] + sections.stability_markdown(growth, flags)
         figures = study_figures.norm_band_figures(mine, directory, f"s{k}", formats, flags)
@@ -275,7 +275,7 @@ def _index_lines(name: str, results, headline: pd.DataFrame, n_seeds: int, done:
     if len(headline):
         what = "first setting" if results.sweep_keys else "verdicts over seeds"
         lines += [f"The paper's claims ({what}):", "",
-                  tables.markdown_table(headline[["claim", "verdict", "frequency", "statement"]]), ""]
+                  table_write.markdown_table(headline[["claim", "verdict", "frequency", "statement"]]), ""]
     return lines
 
 

@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from ilcforce.records import STATUS_DIVERGED
-from ilcforce.report import tables
+from ilcforce.report import table_write, tables
 from ilcforce.report.figures import _color, _label
 from ilcforce.stats import median_interval
 
@@ -180,7 +180,7 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
                            else f"stable through {iterations - 1} ({len(seeds)} seeds)")
         divergence_rows.append(row)
     lines += ["### First diverged iteration (earliest over seeds; how many seeds diverged)", "",
-              tables.markdown_table(pd.DataFrame(divergence_rows)), ""]
+              table_write.markdown_table(pd.DataFrame(divergence_rows)), ""]
     if labelled or len(keys) == 1:
         # a settings list is drawn against its labels (categorical), a 1-D sweep against its values
         key = "setting" if labelled else keys[0]

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import claims as claims_module
 from ilcforce.report import figures, paper, stability
-from ilcforce.report.tables import markdown_table
+from ilcforce.report.table_write import markdown_table
 from ilcforce.stats import format_interval, median_interval
 
 #: Key numbers per setting and method, read at the paper's Table 3 iteration (j = 19, or the last

@@ -4,15 +4,14 @@ Every function here takes the per-method metrics frames that :func:`ilcforce.sto
 returns (indexed by iteration j, counted from 0; columns ``status``, ``fallback_count``,
 ``diverged_time``, ``position_error_2norm`` (m), ``force_error_2norm`` (N),
 ``chattering_task_x``/``_y`` (N), ``chattering_joint_1``/``_2`` (N m), ...) and returns a
-DataFrame. Writers to CSV and Markdown are at the end; the Markdown renderer is our own (pandas'
-``to_markdown`` needs ``tabulate``, which ilcforce does not depend on).
+DataFrame (:func:`h_form_match`: Markdown bullets). Writing the frames to CSV and Markdown is
+:mod:`ilcforce.report.table_write`.
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -21,6 +20,7 @@ from ilcforce.controllers import PAPER_METHODS, REGISTRY
 from ilcforce.metrics import convergence_iteration
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
 from ilcforce.report import paper
+from ilcforce.report.table_write import is_missing
 
 #: The paper's methods in the paper's order (the registry's ``in_paper`` specs); the report expects them.
 METHOD_ORDER = PAPER_METHODS
@@ -298,90 +298,6 @@ def by_quantity(frame: pd.DataFrame) -> pd.DataFrame:
     return turned
 
 
-# ---------------------------------------------------------------------------------------------
-# Writers
-# ---------------------------------------------------------------------------------------------
-
-
-def _is_missing(value: object) -> bool:
-    if value is None or value is pd.NA:
-        return True
-    try:
-        return bool(pd.isna(value))
-    except (TypeError, ValueError):
-        return False
-
-
-def format_cell(value: object, float_format: str = "{:.4g}") -> str:
-    """One Markdown cell: missing -> "–", floats with ``float_format``, text with ``|`` escaped."""
-    if _is_missing(value):
-        return "–"
-    if isinstance(value, (bool, np.bool_)):
-        return str(bool(value))
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    if isinstance(value, (float, np.floating)):
-        return float_format.format(float(value))
-    text = str(value).replace("\r", " ").replace("\n", " ")
-    return text.replace("|", "\\|")
-
-
-def _is_numeric_column(column: pd.Series) -> bool:
-    """Numbers only (missing values allowed), booleans excluded: right-aligned in Markdown."""
-    if pd.api.types.is_bool_dtype(column):
-        return False
-    if pd.api.types.is_numeric_dtype(column):
-        return True
-    values = [v for v in column if not _is_missing(v)]
-    return bool(values) and all(
-        isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)) for v in values
-    )
-
-
-def markdown_table(frame: pd.DataFrame, *, float_format: str = "{:.4g}") -> str:
-    """``frame`` as a GitHub-flavoured Markdown table (no index), numbers right-aligned.
-
-    Headers get `` [unit]`` from ``frame.attrs["units"]`` where one is given.
-    """
-    if len(frame.columns) == 0:
-        return "(no data)\n"
-    units = frame.attrs.get("units", {})
-    headers = [f"{name} [{units[name]}]" if name in units else str(name) for name in frame.columns]
-    aligns = ["---:" if _is_numeric_column(frame[name]) else ":---" for name in frame.columns]
-    lines = [
-        "| " + " | ".join(format_cell(h) for h in headers) + " |",
-        "|" + "|".join(aligns) + "|",
-    ]
-    for row in frame.itertuples(index=False, name=None):
-        lines.append("| " + " | ".join(format_cell(v, float_format) for v in row) + " |")
-    return "\n".join(lines) + "\n"
-
-
-def write_csv(frame: pd.DataFrame, path: Path) -> Path:
-    """Write ``frame`` (no index) to ``path`` as CSV at full precision; returns ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    frame.to_csv(path, index=False)
-    return path
-
-
-def write_markdown(frame: pd.DataFrame, path: Path, *, title: str | None = None) -> Path:
-    """Write ``frame`` as a Markdown table (under a ``# title`` if given); returns ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    text = markdown_table(frame)
-    if title:
-        text = f"# {title}\n\n{text}"
-    path.write_text(text, encoding="utf-8")
-    return path
-
-
-def write_table(frame: pd.DataFrame, directory: Path, stem: str, *, title: str | None = None) -> list[Path]:
-    """Write ``<directory>/<stem>.csv`` and ``<stem>.md``; returns both paths."""
-    return [
-        write_csv(frame, directory / f"{stem}.csv"),
-        write_markdown(frame, directory / f"{stem}.md", title=title),
-    ]
-
-
 #: The three forms of H in task space: column suffix -> how the report names it.
 H_FORM_NAMES = {"": "whole grid", "_no_t0": "without t = 0", "_settled": "settled (t >= 20 ms)"}
 
@@ -398,12 +314,12 @@ def h_form_match(table3_frame: pd.DataFrame) -> list[str]:
         row = row._asdict()
         for axis in ("x", "y"):
             published = row.get(f"chattering_task_{axis}_paper")
-            if published is None or _is_missing(published) or not published > 0:
+            if published is None or is_missing(published) or not published > 0:
                 continue
             ratios = {}
             for suffix, name in H_FORM_NAMES.items():
                 ours = row.get(f"chattering_task_{axis}{suffix}")
-                if ours is not None and not _is_missing(ours) and ours > 0:
+                if ours is not None and not is_missing(ours) and ours > 0:
                     ratios[name] = float(ours) / float(published)
             if not ratios:
                 continue

@@ -3,8 +3,9 @@
 The only package that imports h5py. One file per run: ``results/<experiment>/<method>.h5``.
 Modules, one job each: :mod:`.schema` (the layout as data, versioned), :mod:`.safeio` (errors,
 locks, opening damaged files in bounded time), :mod:`.journal` and :mod:`.commit` (atomic
-commits), :mod:`.read` and :mod:`.access` (reading and validation), :mod:`.write` (the writer),
-:mod:`.run` (the ``ilcforce.open`` run object).
+commits), :mod:`.read` and :mod:`.access` (reading and validation), :mod:`.write` (the writer)
+and :mod:`.prepare` (its checks of the path before the first commit), :mod:`.run` (the
+``ilcforce.open`` run object).
 
 Layout (schema ``ilcforce.store`` 2.0; every dataset float64 unless stated, Fletcher-32
 checksummed, with ``units`` and ``description`` attributes)::

@@ -66,7 +66,7 @@ print(json.dumps({"total": total, "first": commits[1], "last": commits[-1], "siz
 
 
 def _records(path: Path) -> None:
-    from ilcforce.config import load_config
+    from ilcforce.config_load import load_config
     from ilcforce.experiment import reference_log, simulate_iterations
 
     config = load_config(None, {"experiment.iterations": 20})

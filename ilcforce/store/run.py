@@ -75,7 +75,7 @@ class Run:
     @cached_property
     def config(self):
         """The run's configuration as a :class:`ilcforce.config.Config`."""
-        from ilcforce.config import config_from_dict
+        from ilcforce.config_load import config_from_dict
         from ilcforce.samerun import stored_config
 
         return config_from_dict(stored_config(self.provenance))

@@ -1,9 +1,13 @@
-"""StoreWriter: one run into one store, one atomic commit per iteration (see :mod:`.commit`)."""
+"""StoreWriter: one run into one store, one atomic commit per iteration (see :mod:`.commit`).
+
+This module writes: the root attributes, the reference, each iteration's group and the /metrics
+cache. What the writer checks at the path before its first commit (directory, leftovers,
+--overwrite and --resume) is :mod:`.prepare`.
+"""
 
 from __future__ import annotations
 
 import os
-import stat
 from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
@@ -16,11 +20,10 @@ import ilcforce
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.store import commit, schema
-from ilcforce.store.read import open_store
 from ilcforce.store.provenance import SameRunCheck, default_same_run as _default_same_run, git_state, text, utc_now
+from ilcforce.store.prepare import check_replaceable, check_resumable, clean_leftovers, describe_existing, make_parent
 from ilcforce.store.template import IterationTemplate
-from ilcforce.store.safeio import (StoreError, StoreExistsError, acquire_writer_lock, journal_path, one_line,
-                                   os_reason, repair_interrupted_commit)
+from ilcforce.store.safeio import StoreError, StoreExistsError, acquire_writer_lock, one_line
 
 _METRICS_CHUNK = 64  # rows per chunk of a /metrics column
 
@@ -124,18 +127,18 @@ class StoreWriter:
     def __enter__(self) -> StoreWriter:
         if self._entered:
             raise RuntimeError("a StoreWriter can be entered only once")
-        self._make_parent()
+        make_parent(self._path)
         self._lock_fd = acquire_writer_lock(self._path)
         try:
-            self._clean_leftovers()
+            clean_leftovers(self._path)
             self._git = git_state()
             if os.path.lexists(self._path):
                 if self._resume:
                     self._load_for_resume()
                 elif self._overwrite:
-                    self._check_replaceable()
+                    check_replaceable(self._path)
                 else:
-                    raise StoreExistsError(f"{self._path} already exists ({self._describe_existing()}); "
+                    raise StoreExistsError(f"{self._path} already exists ({describe_existing(self._path)}); "
                                            "--overwrite replaces it or --resume continues it")
         except BaseException:
             self._release_lock()
@@ -268,94 +271,15 @@ class StoreWriter:
         if not self._entered:
             raise RuntimeError("StoreWriter must be used as a context manager ('with StoreWriter(...) as writer')")
 
-    def _make_parent(self) -> None:
-        parent = self._path.parent
-        try:
-            parent.mkdir(parents=True, exist_ok=True)
-        except OSError as error:
-            raise StoreError(f"{self._path}: cannot create directory {parent} ({os_reason(error)})") from None
-        if not parent.is_dir():
-            raise StoreError(f"{self._path}: {parent} is not a directory")
-        if not os.access(parent, os.W_OK | os.X_OK):
-            raise StoreError(f"{self._path}: directory {parent} is not writable")
-
     def _release_lock(self) -> None:
         if self._lock_fd is not None:
             os.close(self._lock_fd)  # closing releases the flock
             self._lock_fd = None
 
-    def _clean_leftovers(self) -> None:
-        """Undo an interrupted commit; delete this store's leftover copies (we hold the lock).
-
-        Names are matched literally: ``<name>.tmp`` and, from older versions, ``<name>.tmp-<pid>``
-        and ``<name>.tmp-<pid>.prev``. Never a glob: ``c[1].h5`` must not match ``c1.h5``'s files.
-        """
-        if os.path.lexists(journal_path(self._path)) and os.path.lexists(self._path):
-            repair_interrupted_commit(self._path)
-        prefix = self._path.name + ".tmp"
-        try:
-            names = os.listdir(self._path.parent)
-        except OSError:
-            return
-        for name in names:
-            if not name.startswith(prefix):
-                continue
-            rest = name[len(prefix):]
-            if rest.endswith(".prev"):
-                rest = rest[:-5]
-            if rest == "" or (rest.startswith("-") and rest[1:].isdigit()):
-                stale = self._path.parent / name
-                try:
-                    if stat.S_ISREG(os.lstat(stale).st_mode):
-                        os.unlink(stale)
-                except OSError:
-                    pass
-
-    def _check_replaceable(self) -> None:
-        """--overwrite replaces only an ilcforce store: refuse anything else at the path."""
-        info = os.lstat(self._path)
-        if stat.S_ISLNK(info.st_mode):
-            raise StoreError(f"{self._path} is a symbolic link; --overwrite replaces only an ilcforce store file")
-        if not stat.S_ISREG(info.st_mode):
-            raise StoreError(f"{self._path} is not a regular file; --overwrite replaces only an ilcforce store")
-        try:
-            with open_store(self._path):
-                pass
-        except StoreError as error:
-            raise StoreError(f"refusing to overwrite: {error}; --overwrite replaces only an ilcforce store") from None
-
-    def _describe_existing(self) -> str:
-        from ilcforce.store.access import iterations, read_provenance
-        try:
-            provenance = read_provenance(self._path)
-            done = iterations(self._path)
-        except StoreError as error:
-            return f"not a valid store: {error}"
-        return f"run_state {provenance['run_state']!r}, {len(done)} complete iterations"
-
     def _load_for_resume(self) -> None:
-        from ilcforce.store.access import iterations, read_provenance, read_reference, validate
-        validate(self._path)
-        provenance = read_provenance(self._path)
-        for key, new in (("experiment", self._experiment), ("method", self._method), ("seed", self._seed)):
-            if provenance[key] != new:
-                raise StoreError(f"{self._path}: cannot resume: stored {key} is {provenance[key]!r}, this run has "
-                                 f"{new!r}; use --overwrite to start again")
-        try:
-            self._same_run(provenance)
-        except StoreError as error:
-            raise StoreError(f"{self._path}: cannot resume: {error}; use --overwrite to start again") from None
-        stored_reference = read_reference(self._path)
-        for name, (axes, _unit, _description) in REFERENCE_SIGNALS.items():
-            if name == "time":
-                stored = stored_reference.index.to_numpy(dtype=np.float64)
-            else:
-                columns = [name] if axes is None else [f"{name}_{a}" for a in axes]
-                stored = stored_reference[columns].to_numpy(dtype=np.float64)
-            if stored.shape != self._reference[name].shape or not np.array_equal(stored, self._reference[name],
-                                                                                  equal_nan=True):
-                raise StoreError(f"{self._path}: cannot resume: reference signal {name!r} differs from the stored "
-                                 "one; use --overwrite to start again")
+        from ilcforce.store.access import iterations
+        provenance = check_resumable(self._path, experiment=self._experiment, method=self._method,
+                                     seed=self._seed, same_run=self._same_run, reference=self._reference)
         done = iterations(self._path)
         self._file_is_ours = True
         self._stored_run_state = str(provenance["run_state"])

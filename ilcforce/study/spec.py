@@ -49,7 +49,8 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from ilcforce.config import Config, ConfigError, load_config
+from ilcforce.config import Config, ConfigError
+from ilcforce.config_load import load_config
 from ilcforce.study import settings_list
 
 

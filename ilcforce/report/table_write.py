@@ -1,0 +1,93 @@
+"""Writing table frames: our own Markdown renderer, and the CSV and Markdown files of a table.
+
+The frames come from :mod:`ilcforce.report.tables` (or any report module); headers get their unit
+from ``frame.attrs["units"]``. The Markdown renderer is our own (pandas' ``to_markdown`` needs
+``tabulate``, which ilcforce does not depend on). CSV keeps full precision.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+
+def is_missing(value: object) -> bool:
+    """None, pd.NA or NaN (a cell shown as "–"); False for a value pd.isna cannot judge."""
+    if value is None or value is pd.NA:
+        return True
+    try:
+        return bool(pd.isna(value))
+    except (TypeError, ValueError):
+        return False
+
+
+def format_cell(value: object, float_format: str = "{:.4g}") -> str:
+    """One Markdown cell: missing -> "–", floats with ``float_format``, text with ``|`` escaped."""
+    if is_missing(value):
+        return "–"
+    if isinstance(value, (bool, np.bool_)):
+        return str(bool(value))
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return float_format.format(float(value))
+    text = str(value).replace("\r", " ").replace("\n", " ")
+    return text.replace("|", "\\|")
+
+
+def _is_numeric_column(column: pd.Series) -> bool:
+    """Numbers only (missing values allowed), booleans excluded: right-aligned in Markdown."""
+    if pd.api.types.is_bool_dtype(column):
+        return False
+    if pd.api.types.is_numeric_dtype(column):
+        return True
+    values = [v for v in column if not is_missing(v)]
+    return bool(values) and all(
+        isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)) for v in values
+    )
+
+
+def markdown_table(frame: pd.DataFrame, *, float_format: str = "{:.4g}") -> str:
+    """``frame`` as a GitHub-flavoured Markdown table (no index), numbers right-aligned.
+
+    Headers get `` [unit]`` from ``frame.attrs["units"]`` where one is given.
+    """
+    if len(frame.columns) == 0:
+        return "(no data)\n"
+    units = frame.attrs.get("units", {})
+    headers = [f"{name} [{units[name]}]" if name in units else str(name) for name in frame.columns]
+    aligns = ["---:" if _is_numeric_column(frame[name]) else ":---" for name in frame.columns]
+    lines = [
+        "| " + " | ".join(format_cell(h) for h in headers) + " |",
+        "|" + "|".join(aligns) + "|",
+    ]
+    for row in frame.itertuples(index=False, name=None):
+        lines.append("| " + " | ".join(format_cell(v, float_format) for v in row) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_csv(frame: pd.DataFrame, path: Path) -> Path:
+    """Write ``frame`` (no index) to ``path`` as CSV at full precision; returns ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    frame.to_csv(path, index=False)
+    return path
+
+
+def write_markdown(frame: pd.DataFrame, path: Path, *, title: str | None = None) -> Path:
+    """Write ``frame`` as a Markdown table (under a ``# title`` if given); returns ``path``."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    text = markdown_table(frame)
+    if title:
+        text = f"# {title}\n\n{text}"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def write_table(frame: pd.DataFrame, directory: Path, stem: str, *, title: str | None = None) -> list[Path]:
+    """Write ``<directory>/<stem>.csv`` and ``<stem>.md``; returns both paths."""
+    return [
+        write_csv(frame, directory / f"{stem}.csv"),
+        write_markdown(frame, directory / f"{stem}.md", title=title),
+    ]

@@ -1,0 +1,116 @@
+"""What is at a store's path before a :class:`~ilcforce.store.write.StoreWriter` writes to it.
+
+The checks the writer makes on entering, before its first commit: the directory exists and is
+writable, an interrupted commit is undone and leftover copies are deleted, ``--overwrite``
+replaces only an ilcforce store, ``--resume`` continues only the same run (same experiment,
+method, seed, reference and, by the same-run check, configuration). Every refusal is a one-line
+:class:`~ilcforce.store.safeio.StoreError` naming the file.
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ilcforce.records import REFERENCE_SIGNALS
+from ilcforce.store.provenance import SameRunCheck
+from ilcforce.store.read import open_store
+from ilcforce.store.safeio import StoreError, journal_path, os_reason, repair_interrupted_commit
+
+
+def make_parent(path: Path) -> None:
+    """Create the store's directory; refuse one that is not a writable directory."""
+    parent = path.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise StoreError(f"{path}: cannot create directory {parent} ({os_reason(error)})") from None
+    if not parent.is_dir():
+        raise StoreError(f"{path}: {parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise StoreError(f"{path}: directory {parent} is not writable")
+
+
+def clean_leftovers(path: Path) -> None:
+    """Undo an interrupted commit; delete this store's leftover copies (the caller holds the lock).
+
+    Names are matched literally: ``<name>.tmp`` and, from older versions, ``<name>.tmp-<pid>``
+    and ``<name>.tmp-<pid>.prev``. Never a glob: ``c[1].h5`` must not match ``c1.h5``'s files.
+    """
+    if os.path.lexists(journal_path(path)) and os.path.lexists(path):
+        repair_interrupted_commit(path)
+    prefix = path.name + ".tmp"
+    try:
+        names = os.listdir(path.parent)
+    except OSError:
+        return
+    for name in names:
+        if not name.startswith(prefix):
+            continue
+        rest = name[len(prefix):]
+        if rest.endswith(".prev"):
+            rest = rest[:-5]
+        if rest == "" or (rest.startswith("-") and rest[1:].isdigit()):
+            stale = path.parent / name
+            try:
+                if stat.S_ISREG(os.lstat(stale).st_mode):
+                    os.unlink(stale)
+            except OSError:
+                pass
+
+
+def check_replaceable(path: Path) -> None:
+    """--overwrite replaces only an ilcforce store: refuse anything else at the path."""
+    info = os.lstat(path)
+    if stat.S_ISLNK(info.st_mode):
+        raise StoreError(f"{path} is a symbolic link; --overwrite replaces only an ilcforce store file")
+    if not stat.S_ISREG(info.st_mode):
+        raise StoreError(f"{path} is not a regular file; --overwrite replaces only an ilcforce store")
+    try:
+        with open_store(path):
+            pass
+    except StoreError as error:
+        raise StoreError(f"refusing to overwrite: {error}; --overwrite replaces only an ilcforce store") from None
+
+
+def describe_existing(path: Path) -> str:
+    """What is at ``path`` (run state and iterations, or why it is not a store), for a refusal."""
+    from ilcforce.store.access import iterations, read_provenance
+    try:
+        provenance = read_provenance(path)
+        done = iterations(path)
+    except StoreError as error:
+        return f"not a valid store: {error}"
+    return f"run_state {provenance['run_state']!r}, {len(done)} complete iterations"
+
+
+def check_resumable(path: Path, *, experiment: str, method: str, seed: int, same_run: SameRunCheck,
+                    reference: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Validate the store at ``path`` and refuse to resume a different run; returns its provenance."""
+    from ilcforce.store.access import read_provenance, read_reference, validate
+    validate(path)
+    provenance = read_provenance(path)
+    for key, new in (("experiment", experiment), ("method", method), ("seed", seed)):
+        if provenance[key] != new:
+            raise StoreError(f"{path}: cannot resume: stored {key} is {provenance[key]!r}, this run has "
+                             f"{new!r}; use --overwrite to start again")
+    try:
+        same_run(provenance)
+    except StoreError as error:
+        raise StoreError(f"{path}: cannot resume: {error}; use --overwrite to start again") from None
+    stored_reference = read_reference(path)
+    for name, (axes, _unit, _description) in REFERENCE_SIGNALS.items():
+        if name == "time":
+            stored = stored_reference.index.to_numpy(dtype=np.float64)
+        else:
+            columns = [name] if axes is None else [f"{name}_{a}" for a in axes]
+            stored = stored_reference[columns].to_numpy(dtype=np.float64)
+        if stored.shape != reference[name].shape or not np.array_equal(stored, reference[name],
+                                                                       equal_nan=True):
+            raise StoreError(f"{path}: cannot resume: reference signal {name!r} differs from the stored "
+                             "one; use --overwrite to start again")
+    return provenance
