@@ -14,16 +14,8 @@ import numpy as np
 import pytest
 
 from ilcforce import store
-from ilcforce.metrics import METRIC_COLUMNS, iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
-from ilcforce.store import (
-    SCHEMA_NAME,
-    SCHEMA_VERSION,
-    StoreError,
-    StoreExistsError,
-    StoreLockedError,
-    StoreWriter,
-)
+from ilcforce.store import StoreWriter
 
 N_LOG = 21  # log grid: 0.1 s over 2 s
 N_CONTROL = 201  # control grid: 10 ms over 2 s

@@ -14,7 +14,6 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from ilcforce import config as config_module
 from ilcforce.cli import app
 from ilcforce.config import ConfigError
 from ilcforce.config_load import config_from_dict, default_config, load_config

@@ -5,8 +5,6 @@ from __future__ import annotations
 import json
 import math
 import re
-import subprocess
-import sys
 from datetime import datetime
 from pathlib import Path
 
@@ -16,10 +14,9 @@ import pytest
 
 from ilcforce import store
 from ilcforce.metrics import METRIC_COLUMNS, iteration_metrics
-from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
-from ilcforce.store import SCHEMA_NAME, SCHEMA_VERSION, StoreError, StoreExistsError, StoreLockedError, StoreWriter
-from storekit import (CONFIG, DURATION, N_CONTROL, N_LOG, assert_one_line_naming, make_record, make_reference,
-                      resumed_config, write_run, writer)
+from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED
+from ilcforce.store import SCHEMA_NAME, SCHEMA_VERSION, StoreError, StoreExistsError, StoreLockedError
+from storekit import CONFIG, N_LOG, assert_one_line_naming, make_record, make_reference, write_run, writer
 
 
 @pytest.fixture

@@ -23,11 +23,10 @@ import time
 from collections import OrderedDict
 from pathlib import Path
 
-import numpy as np
 
 from ilcforce import metrics
 from ilcforce.config import Config
-from ilcforce.records import STATUS_DIVERGED, IterationRecord
+from ilcforce.records import IterationRecord
 
 #: Settings kept in a worker's tau_d cache (each entry is a few hundred kB at most).
 _DESIRED_CACHE_SIZE = 32
