@@ -23,6 +23,7 @@ from ilcforce.config import Config, ConfigError
 from ilcforce.config_ranges import MAX_RUN_BYTES, MAX_STEPS_PER_ITERATION, MAX_STRING, range_of
 from ilcforce.controllers import REGISTRY
 from ilcforce.plants import UnreachableError, make_plant
+from ilcforce.tomlfile import read_toml
 
 
 # ------------------------------------------------------------------------------------------------
@@ -208,22 +209,7 @@ def load_config(path: Path | str | None = None, overrides: dict[str, object] | N
     data: dict = {}
     if path is not None:
         path = Path(path)
-        if not path.exists():
-            raise ConfigError(f"config file {path} does not exist")
-        if path.is_dir():
-            raise ConfigError(f"config file {path} is a directory, not a TOML file")
-        if not path.is_file():
-            raise ConfigError(f"config file {path} is not a regular file (a FIFO or device?)")
-        try:
-            text = path.read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"config file {path} cannot be read: {exc}") from None
-        if not text.strip():
-            raise ConfigError(f"config file {path} is empty")
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"config file {path} is not valid TOML: {exc}") from None
+        data, _ = read_toml(path, "config file", ConfigError)
     for key, value in (overrides or {}).items():
         _set_path(data, key, value)
     try:

@@ -6,6 +6,7 @@ Small on purpose: a 0.2 s horizon (2001 control samples), 3 iterations, 2 seeds.
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pandas as pd
@@ -111,6 +112,28 @@ def test_cli_bad_study_one_line_exit_2(tmp_path, text, message):
     assert message in result.output
     assert result.output.count("\n") == 1, result.output
     assert not (tmp_path / "r" / "studies").exists(), "nothing may be written for an invalid study"
+
+
+@pytest.mark.parametrize("kind, message", [
+    ("missing", "does not exist"), ("directory", "is a directory, not a TOML file"), ("empty", "is empty"),
+    ("fifo", "not a regular file"), ("latin-1", "cannot be read"),
+])
+def test_cli_study_file_that_cannot_be_read_is_one_line_exit_2(tmp_path, kind, message):
+    """The file itself: the same checks and words as an experiment file (ilcforce.tomlfile); a FIFO
+    is refused before it is opened (reading it would block)."""
+    path = tmp_path / "study.toml"
+    if kind == "directory":
+        path.mkdir()
+    elif kind == "empty":
+        path.write_text(" \n")
+    elif kind == "fifo":
+        os.mkfifo(path)
+    elif kind == "latin-1":
+        path.write_bytes('[study]\nname = "caf\xe9"\n'.encode("latin-1"))
+    result = CliRunner().invoke(app, ["study", str(path), "--results", str(tmp_path / "r"), "--workers", "1"])
+    assert result.exit_code == 2, result.output
+    assert f"study file {path}" in result.output and message in result.output, result.output
+    assert result.output.count("\n") == 1, result.output
 
 
 # ------------------------------------------------------------------------------------------------

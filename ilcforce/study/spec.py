@@ -52,6 +52,7 @@ from pathlib import Path
 from ilcforce.config import Config, ConfigError
 from ilcforce.config_load import load_config
 from ilcforce.study import settings_list
+from ilcforce.tomlfile import read_toml
 
 
 class StudyError(ValueError):
@@ -361,18 +362,7 @@ def _settings(experiment: Path | None, fixed: dict, sweep: dict,
 def load_study(path: Path | str) -> Study:
     """Read and validate a study file; raises :class:`StudyError` with one line."""
     path = Path(path)
-    if not path.exists():
-        raise StudyError(f"study file {path} does not exist")
-    if not path.is_file():
-        raise StudyError(f"study file {path} is not a regular file")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise StudyError(f"study file {path} cannot be read: {exc}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise StudyError(f"study file {path} is not valid TOML: {exc}") from None
+    data, text = read_toml(path, "study file", StudyError)
     try:
         return build_study(data, source=text, path=path)
     except StudyError as exc:
