@@ -23,7 +23,7 @@ from ilcforce.config import Config, ConfigError
 from ilcforce.config_ranges import MAX_RUN_BYTES, MAX_STEPS_PER_ITERATION, MAX_STRING, range_of
 from ilcforce.controllers import REGISTRY
 from ilcforce.plants import UnreachableError, make_plant
-from ilcforce.tomlfile import read_toml
+from ilcforce.tomlfile import parse_toml, read_toml
 
 
 # ------------------------------------------------------------------------------------------------
@@ -198,8 +198,8 @@ def parse_override(text: str) -> tuple[str, object]:
     if not key:
         raise ConfigError(f"--set expects KEY=VALUE, got {text!r}")
     try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
+        value = parse_toml(f"v = {raw}")["v"]
+    except tomllib.TOMLDecodeError:  # not a TOML value (or a 5000-digit integer, or nested too deeply)
         value = raw
     return key, value
 

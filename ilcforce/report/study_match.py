@@ -50,7 +50,7 @@ def _study_methods_and_seeds(study_toml: str) -> tuple[tuple[str, ...] | None, t
     try:
         table = tomllib.loads(study_toml).get("study", {})
         seeds = parse_seeds(table.get("seeds"))
-    except (tomllib.TOMLDecodeError, StudyError, AttributeError, TypeError):
+    except (tomllib.TOMLDecodeError, ValueError, RecursionError, StudyError, AttributeError, TypeError):
         return None, ()
     methods = table.get("methods")
     return (tuple(methods) if isinstance(methods, list) else None), seeds

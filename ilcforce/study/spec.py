@@ -52,7 +52,7 @@ from pathlib import Path
 from ilcforce.config import Config, ConfigError
 from ilcforce.config_load import load_config
 from ilcforce.study import settings_list
-from ilcforce.tomlfile import read_toml
+from ilcforce.tomlfile import parse_toml, read_toml
 
 
 class StudyError(ValueError):
@@ -372,6 +372,6 @@ def load_study(path: Path | str) -> Study:
 def is_study_file(path: Path | str) -> bool:
     """True if ``path`` is a TOML file with a [study] table (how `make` finds shipped studies)."""
     try:
-        return "study" in tomllib.loads(Path(path).read_text(encoding="utf-8"))
+        return "study" in parse_toml(Path(path).read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
         return False
