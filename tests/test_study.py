@@ -333,6 +333,43 @@ def test_export_of_a_run_store_is_the_one_seed_case(tmp_path, short_config):
     assert rows == 3 and out.is_file()
 
 
+@pytest.mark.parametrize("alias", ["same", "dotdot", "symlinked folder", "hard link"])
+def test_export_overwrite_never_replaces_the_store_it_exports(tmp_path, short_config, alias):
+    """A store named *.csv exported onto itself under --overwrite (any alias of its path) was
+    replaced by its own table: the store must survive, byte for byte, and the refusal be one line."""
+    run_method(short_config(), "c1", tmp_path / "c1.h5")
+    source = tmp_path / "store.csv"
+    os.replace(tmp_path / "c1.h5", source)
+    before = source.read_bytes()
+    (tmp_path / "d").mkdir()
+    out = {"same": source, "dotdot": tmp_path / "d" / ".." / "store.csv"}.get(alias)
+    if alias == "symlinked folder":
+        os.symlink(tmp_path, tmp_path / "lnk")
+        out = tmp_path / "lnk" / "store.csv"
+    if alias == "hard link":
+        out = tmp_path / "d" / "linked.csv"
+        os.link(source, out)
+    result = CliRunner().invoke(app, ["export", str(source), "--out", str(out), "--overwrite"])
+    assert result.exit_code == 2, result.output
+    assert "is the store being exported" in result.output and result.output.count("\n") == 1, result.output
+    assert source.read_bytes() == before
+
+
+def test_export_overwrite_never_replaces_another_store(tmp_path, short_config):
+    run_method(short_config(), "c1", tmp_path / "c1.h5")
+    run_method(short_config(), "c2", tmp_path / "c2.h5")
+    other = tmp_path / "other.csv"
+    os.replace(tmp_path / "c2.h5", other)
+    before = other.read_bytes()
+    result = CliRunner().invoke(app, ["export", str(tmp_path / "c1.h5"), "--out", str(other), "--overwrite"])
+    assert result.exit_code == 2 and "is an HDF5 file (a store?)" in result.output, result.output
+    assert other.read_bytes() == before
+    table = tmp_path / "t.csv"  # a table it wrote is still replaced
+    assert CliRunner().invoke(app, ["export", str(tmp_path / "c1.h5"), "--out", str(table)]).exit_code == 0
+    again = CliRunner().invoke(app, ["export", str(tmp_path / "c1.h5"), "--out", str(table), "--overwrite"])
+    assert again.exit_code == 0, again.output
+
+
 @pytest.mark.parametrize("content", [b"", b"garbage", b"\x89HDF\r\n\x1a\n" + b"\0" * 64])
 def test_export_of_a_foreign_file_is_one_line(tmp_path, content):
     bad = tmp_path / "bad.h5"

@@ -191,6 +191,7 @@ def export(path: Path | str, out: Path | str, *, overwrite: bool = False) -> tup
             raise ExportError(f"--out {out} exists and is not a regular file; refusing to replace it")
         if not overwrite:
             raise ExportError(f"--out {out} exists; pass --overwrite to replace it")
+        _check_replaceable(Path(path), out)
     frame = tidy_metrics(path)
     if not out.parent.is_dir():
         raise ExportError(f"--out {out}: folder {out.parent} does not exist")
@@ -198,7 +199,31 @@ def export(path: Path | str, out: Path | str, *, overwrite: bool = False) -> tup
     try:
         frame.to_csv(tmp, index=False)
         os.replace(tmp, out)
+    except OSError as exc:  # named by --out, not by the temporary file
+        raise ExportError(f"--out {out}: {exc.strerror or exc}") from None
     finally:
         if tmp.exists():
             tmp.unlink()
     return out, len(frame)
+
+
+#: The first bytes of every HDF5 file (a store, ours or not).
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def _check_replaceable(source: Path, out: Path) -> None:
+    """--overwrite replaces a table, never the store being exported (under any of its names) nor any
+    other HDF5 file: a store named ``*.csv`` was once replaced by its own export."""
+    try:
+        same = source.exists() and os.path.samefile(source, out)
+    except OSError:
+        same = False
+    if same:
+        raise ExportError(f"--out {out} is the store being exported ({source}); refusing to replace it")
+    try:
+        with out.open("rb") as handle:
+            head = handle.read(len(_HDF5_SIGNATURE))
+    except OSError as exc:
+        raise ExportError(f"--out {out} cannot be read: {exc.strerror or exc}") from None
+    if head == _HDF5_SIGNATURE:
+        raise ExportError(f"--out {out} is an HDF5 file (a store?), not a table; refusing to replace it")
