@@ -318,15 +318,31 @@ def report(
 
 @app.command()
 @_guard
-def validate(paths: Annotated[list[Path], typer.Argument(help="HDF5 stores to check against the schema")]) -> None:
-    """Check HDF5 stores against the ilcforce schema."""
-    from ilcforce import store
+def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stores to check")]) -> None:
+    """Check HDF5 stores against the ilcforce schema: run stores and study stores (results/studies).
 
+    Every file is checked, one line each; the exit code is 2 if any is not a valid store.
+    """
+    from ilcforce import store
+    from ilcforce.store.study_read import StudyStoreError, check_study_store, is_study_store
+
+    invalid = 0
     for path in paths:
-        store.validate(path)
-        prov = store.read_provenance(path)
-        _say(f"{path}: ok ({prov.get('experiment')}/{prov.get('method')}, "
-             f"{len(store.iterations(path))} iterations, {prov.get('run_state')})")
+        try:
+            if is_study_store(path):
+                s = check_study_store(path)
+                _say(f"{path}: ok (study {s['name']}, {s['cells']} cells: {s['done']} done, {s['failed']} failed)")
+                continue
+            store.validate(path)
+            prov = store.read_provenance(path)
+            _say(f"{path}: ok ({prov.get('experiment')}/{prov.get('method')}, "
+                 f"{len(store.iterations(path))} iterations, {prov.get('run_state')})")
+        except (store.StoreError, StudyStoreError, OSError) as exc:
+            message = f"{exc.filename or path}: {exc.strerror or exc}" if isinstance(exc, OSError) else str(exc)
+            _say(f"error: {message.splitlines()[0] if message else type(exc).__name__}", stderr=True)
+            invalid += 1
+    if invalid:
+        raise typer.Exit(2)
 
 
 @app.command()

@@ -333,6 +333,35 @@ def test_export_of_a_run_store_is_the_one_seed_case(tmp_path, short_config):
     assert rows == 3 and out.is_file()
 
 
+def test_validate_checks_study_stores_and_goes_on_after_a_bad_file(tmp_path):
+    """`validate` on a study store said "cannot undo an unfinished commit" (it took the study's
+    journal folder for a run store's journal) and stopped at the first bad file: now study stores are
+    read whole, checksums included, and every file gets its line; exit 2 if any is bad."""
+    import shutil
+
+    import h5py
+
+    path = write_study_file(tmp_path, TINY_TOML)
+    run_study(load_study(path), tmp_path / "r", workers=1)
+    good = tmp_path / "r" / "studies" / "tiny.h5"
+    damaged = tmp_path / "damaged.h5"
+    shutil.copy(good, damaged)
+    with h5py.File(damaged, "r") as handle:  # a flipped byte inside a metric column's chunk
+        offset = handle["metrics/position_error_2norm"].id.get_chunk_info(0).byte_offset + 8
+    with damaged.open("r+b") as raw:
+        raw.seek(offset)
+        byte = raw.read(1)
+        raw.seek(offset)
+        raw.write(bytes([byte[0] ^ 0xFF]))
+    result = CliRunner().invoke(app, ["validate", str(good), str(damaged), str(good)])
+    assert result.exit_code == 2, result.output
+    lines = result.output.splitlines()
+    cells = len(load_study(path).cells())
+    assert lines.count(f"{good}: ok (study tiny, {cells} cells: {cells} done, 0 failed)") == 2, result.output
+    assert [line for line in lines if line.startswith("error:")] == [line for line in lines if str(damaged) in line]
+    assert len(lines) == 3, result.output
+
+
 @pytest.mark.parametrize("alias", ["same", "dotdot", "symlinked folder", "hard link"])
 def test_export_overwrite_never_replaces_the_store_it_exports(tmp_path, short_config, alias):
     """A store named *.csv exported onto itself under --overwrite (any alias of its path) was

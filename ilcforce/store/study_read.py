@@ -169,3 +169,13 @@ def _keys(frame: pd.DataFrame):
 
 # ------------------------------------------------------------------------------------------------
 # writing (the driver only)
+
+
+def check_study_store(path: Path) -> dict:
+    """Read all of the study store at ``path`` as ``ilcforce validate`` does: the header and every
+    table, with their checksums, and the journal's records. Returns its name and cell counts
+    (``cells``, ``done``, ``failed``); raises :class:`StudyStoreError` (one line) on any damage."""
+    header, _, cells = read_tables(Path(path))
+    states = cells["state"].tolist() if len(cells) else []
+    return {"name": str(header.get("name", "")), "cells": len(states), "done": states.count(DONE),
+            "failed": states.count(FAILED)}
