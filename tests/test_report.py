@@ -715,9 +715,10 @@ def test_degraded_experiment_reports_what_it_can(tmp_path: Path) -> None:
 
 
 def test_empty_results_dir(tmp_path: Path) -> None:
+    """Nothing to report: nothing is written (the CLI then says so in one line and exits 2)."""
     summary = write_report(tmp_path, tmp_path / "out")
-    assert summary.experiments == ()
-    assert "No experiment found" in (tmp_path / "out" / "index.md").read_text(encoding="utf-8")
+    assert (summary.experiments, summary.studies, summary.files) == ((), (), ())
+    assert not (tmp_path / "out").exists()
 
 
 def _copy_stores(source: Path, target: Path, methods: tuple[str, ...] = ("c1", "c2", "c3")) -> None:
@@ -815,3 +816,27 @@ def test_h_form_match_names_the_closest_form_or_says_none_is_close():
     assert "c3, X" in lines[0] and "forms agree within 5%" in lines[0]
     assert "c3, Y" in lines[1] and "closest: settled" in lines[1] and "0.968x" in lines[1]
     assert "c1, Y" in lines[2] and "no form within 2x" in lines[2]
+
+
+@pytest.mark.parametrize("results", ["empty", "only a damaged store"])
+def test_a_report_with_nothing_usable_leaves_an_earlier_report_whole(results_dir: Path, tmp_path: Path,
+                                                                       results: str) -> None:
+    """`report --results <nothing usable> --out <a report>` replaced index.md and findings.md with
+    empty pages before it said there was nothing to report (found by an attack on the CLI)."""
+    from typer.testing import CliRunner
+
+    from ilcforce.cli import app
+
+    out = tmp_path / "report"
+    write_report(results_dir, out, formats=())
+    before = {p.name: p.read_bytes() for p in (out / "index.md", out / "findings.md")}
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    if results == "only a damaged store":
+        (bad / "synthetic").mkdir()
+        (bad / "synthetic" / "c1.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 200)
+    result = CliRunner().invoke(app, ["report", "--results", str(bad), "--out", str(out), "--quiet"])
+    assert result.exit_code == 2, result.output
+    assert "no usable ilcforce stores" in result.output
+    assert {p.name: p.read_bytes() for p in (out / "index.md", out / "findings.md")} == before
+    assert not (bad / "report").exists()

@@ -266,7 +266,8 @@ def write_report(
     results_dir : Path
         Holds ``<experiment>/<method>.h5`` stores (see :func:`ilcforce.store.find_stores`).
     out_dir : Path
-        Created if missing; ``out_dir/<experiment>/`` per experiment and ``out_dir/index.md``.
+        Created if missing; ``out_dir/<experiment>/`` per experiment and ``out_dir/index.md``. With
+        nothing usable under ``results_dir`` nothing is written there (an earlier report stays whole).
     formats : tuple of str
         Figure file formats (matplotlib names): PNG by default, which the pages link; add "pdf"
         (FIGURE_FORMATS) for vector figures.
@@ -286,7 +287,6 @@ def write_report(
     found = store.find_stores(results_dir)
     found.pop("studies", None)  # results/studies/ holds study stores: reported by ilcforce.report.study below
     warnings: list[str] = _misplaced_files(results_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
     verdicts: dict[str, pd.DataFrame] = {}
     experiment_warnings: dict[str, list[str]] = {}
@@ -297,6 +297,9 @@ def write_report(
     study_dir = results_dir / "studies"
     report_paths = find_study_stores(results_dir)
     findings_paths = sorted(study_dir.glob("*.h5")) if study_dir.is_dir() else []
+    if not found and not report_paths and not findings_paths:  # nothing to report: out_dir is left as it is
+        return ReportSummary(out_dir=out_dir, experiments=(), files=(), warnings=tuple(warnings))
+    out_dir.mkdir(parents=True, exist_ok=True)
     pieces = [pool.Task(f"experiment {name}", _report_experiment, (name, paths, out_dir, tuple(formats)),
                         cost=tasks.experiment_cost(paths.values())) for name, paths in found.items()]
     pieces += [pool.Task(f"study {path.stem}", tasks.study_report, (path, out_dir / "studies", tuple(formats)),
@@ -332,6 +335,9 @@ def write_report(
         study_section = [*study_section, "Findings per study (verdicts, unstable learning, first diverged "
                          "iteration per setting; the stability-boundary figure for one-key sweeps): "
                          + ", ".join(f"[{n}](studies/{n}/findings.md)" for n in sorted(studies)), ""]
+    reported = tuple(r.name for r in study_reports if r.index_lines)
+    if not verdicts and not reported and not studies:  # every store was unusable: an existing report stays
+        return ReportSummary(out_dir=out_dir, experiments=(), files=tuple(written), warnings=tuple(warnings))
     index = out_dir / "index.md"
     title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
     index.write_text("\n".join([title, "", *study_section]) + rest, encoding="utf-8")  # studies lead
@@ -347,7 +353,7 @@ def write_report(
         experiments=tuple(sorted(verdicts)),
         files=tuple(written),
         warnings=tuple(warnings),
-        studies=tuple(r.name for r in study_reports if r.index_lines),
+        studies=reported,
     )
 
 
