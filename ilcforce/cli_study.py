@@ -90,14 +90,18 @@ def study(
 ) -> None:
     """Run studies (seeds x settings x methods) on Dask; finished cells are stored and never rerun."""
     from ilcforce.study import load_study, run_study
-    from ilcforce.study.runner import SharedClient
+    from ilcforce.study.runner import SharedClient, check_store
 
     try:
         specs = [load_study(file) for file in files]  # every file valid before any cell runs
         names = [spec.name for spec in specs]
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:
-            _fail_plain(f"two study files name the same study {twice[0]!r} (each is stored as results/studies/<name>.h5)")
+            same = [str(file) for file, name in zip(files, names) if name == twice[0]]
+            _fail_plain(f"two study files name the same study {twice[0]!r}: {' and '.join(same[:2])} (each is "
+                        f"stored as results/studies/<name>.h5)")
+        for spec in specs:  # every store usable before any cell runs
+            check_store(spec, results, resume=resume, overwrite=overwrite, replace_stale=replace_stale)
         with SharedClient() as shared:
             for spec in specs:
                 with _StudyProgress(spec.name, quiet) as progress:

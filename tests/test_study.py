@@ -459,6 +459,42 @@ def test_paper_monte_carlo_100_seeds(tmp_path):
                                           err_msg=f"seed {seed} {method} {column}")
 
 
+@pytest.mark.parametrize("fault, message", [
+    ("stale", "its study has different settings"),
+    ("foreign", "is not an ilcforce study store"),
+    ("directory", "is not a regular file"),
+    ("resume without store", "no study store to resume"),
+])
+def test_several_study_files_refuse_a_later_store_before_any_cell_runs(tmp_path, fault, message):
+    """`ilcforce study A.toml B.toml` when B's store cannot be used: refused in one line before A
+    runs (found by an attack: A's cells ran and were stored first, then B was refused)."""
+    for sub in "ab":
+        (tmp_path / sub).mkdir()
+    one_seed = TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-0"').replace('"c3.eta" = [5.0, 2.0]', '"c3.eta" = [5.0]')
+    a = write_study_file(tmp_path / "a", one_seed.replace('name = "tiny"', 'name = "first"'))
+    b = write_study_file(tmp_path / "b", one_seed.replace('name = "tiny"', 'name = "second"'))
+    results = tmp_path / "r"
+    studies = results / "studies"
+    args = ["study", str(a), str(b), "--results", str(results), "--workers", "1", "--quiet"]
+    if fault == "stale":  # B's store holds another study of the same name
+        run_study(load_study(b), results, workers=1)
+        b.write_text(b.read_text().replace('"c3.eta" = [5.0]', '"c3.eta" = [4.0]'))
+    elif fault == "foreign":
+        studies.mkdir(parents=True)
+        (studies / "second.h5").write_bytes(b"not a store")
+    elif fault == "directory":
+        (studies / "second.h5").mkdir(parents=True)
+    else:
+        args.append("--resume")
+        run_study(load_study(a), results, workers=1)
+    before = sorted(p.name for p in studies.iterdir()) if studies.exists() else []
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert message in result.output and len(result.output.strip().splitlines()) == 1, result.output
+    after = sorted(p.name for p in studies.iterdir()) if studies.exists() else []
+    assert after == before, "nothing may be created before every store is checked"
+
+
 def test_several_study_files_run_in_one_command_on_one_cluster(tmp_path, monkeypatch):
     """`ilcforce study A.toml B.toml`: both stored, one after another, on one LocalCluster started once;
     two files naming the same study are refused before anything runs."""

@@ -138,6 +138,39 @@ def _remove(path: Path) -> None:
         pass
 
 
+def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_stale: bool = False,
+                 require_existing: bool = False) -> bool:
+    """Whether the study store at ``path`` can take the study of ``header``, checked without writing or
+    locking: :class:`StudyStore` checks this on opening, and ``ilcforce study A.toml B.toml`` checks
+    every file's store before any cell runs (a stale B was found only after A's cells had run).
+
+    Returns True when the store is to be made anew (none yet; ``overwrite``; a stored study with other
+    settings or code and ``replace_stale``), False when it is continued. Raises
+    :class:`StudyStoreError` (one line) when it may not be touched.
+    """
+    path = Path(path)
+    if os.path.lexists(path) and (path.is_symlink() or not path.is_file()):
+        raise StudyStoreError(f"{path}: exists and is not a regular file; refusing to touch it")
+    if not path.exists():
+        if require_existing:
+            raise StudyStoreError(f"{path}: no study store to resume (run without --resume to start it)")
+        return True
+    if not is_study_store(path):
+        raise StudyStoreError(f"{path}: exists and is not an ilcforce study store; refusing to replace it "
+                              "(move it away)")
+    stored = read_header(path)
+    reason = None
+    if stored.get("definition_json") != header["definition_json"]:
+        reason = "its study has different settings (sweep, fixed values or experiment)"
+    elif stored.get("fingerprint") != header["fingerprint"]:
+        reason = "its cells were computed by different simulation code"
+    if overwrite or (reason and replace_stale):
+        return True
+    if reason:
+        raise StudyStoreError(f"{path}: {reason}; pass --overwrite to start the study over")
+    return False
+
+
 class StudyStore:
     """The driver's handle on a study store: lock, compatibility check, journal, consolidation.
 
@@ -209,29 +242,10 @@ class StudyStore:
         return fd
 
     def _prepare(self, overwrite: bool, replace_stale: bool, require_existing: bool) -> None:
-        path = self.path
-        if os.path.lexists(path) and (path.is_symlink() or not path.is_file()):
-            raise StudyStoreError(f"{path}: exists and is not a regular file; refusing to touch it")
-        if not path.exists():
-            if require_existing:
-                raise StudyStoreError(f"{path}: no study store to resume (run without --resume to start it)")
+        if check_usable(self.path, self._header, overwrite=overwrite, replace_stale=replace_stale,
+                        require_existing=require_existing):
             self._clear_journal()
             self._create()
-            return
-        if not is_study_store(path):
-            raise StudyStoreError(f"{path}: exists and is not an ilcforce study store; refusing to replace it "
-                                  "(move it away)")
-        header = read_header(path)
-        reason = None
-        if header.get("definition_json") != self._header["definition_json"]:
-            reason = "its study has different settings (sweep, fixed values or experiment)"
-        elif header.get("fingerprint") != self._header["fingerprint"]:
-            reason = "its cells were computed by different simulation code"
-        if overwrite or (reason and replace_stale):
-            self._clear_journal()
-            self._create()
-        elif reason:
-            raise StudyStoreError(f"{path}: {reason}; pass --overwrite to start the study over")
 
     def _clear_journal(self) -> None:
         folder = journal_dir(self.path)

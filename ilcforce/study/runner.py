@@ -35,7 +35,7 @@ from ilcforce.study.cell import run_cell
 from ilcforce.study.dask_run import (ATTEMPTS, CONNECT_TIMEOUT, IN_FLIGHT_PER_WORKER, SharedClient,
                                      describe_failure, dask_client, run_on_dask)
 from ilcforce.study.spec import Cell, Study, StudyError
-from ilcforce.store.study import DONE, FAILED, StudyStore
+from ilcforce.store.study import DONE, FAILED, StudyStore, check_usable
 
 #: Source files whose change makes stored cells stale (the simulation, not reporters or CLI).
 _NOT_FINGERPRINTED = ("report/", "cli.py", "bench.py", "store", "study/", "__main__.py")
@@ -119,6 +119,14 @@ def _header(study: Study) -> dict:
     return {"name": study.name, "description": study.description, "study_toml": study.source,
             "definition_json": json.dumps(study.definition(), sort_keys=True), "fingerprint": fingerprint(),
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds"), "settings": settings}
+
+
+def check_store(study: Study, results_dir: Path | str = "results", *, resume: bool = False,
+                overwrite: bool = False, replace_stale: bool = False) -> None:
+    """Refuse now, in one line (StudyStoreError), what :func:`run_study` would refuse on opening the
+    study's store: ``ilcforce study A.toml B.toml`` checks every store before any cell runs."""
+    check_usable(store_path(results_dir, study.name), _header(study), overwrite=overwrite,
+                 replace_stale=replace_stale, require_existing=resume)
 
 
 def _run_in_process(jobs, function):
