@@ -6,12 +6,16 @@ Registered on the CLI's ``app`` when :mod:`ilcforce.cli` imports this module; th
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import sys
+import threading
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
-from ilcforce.cli import _command_line, _fail, app, err, out
+from ilcforce.cli import _command_line, _fail, _say, app, err, out
 
 
 def _fail_plain(message: str) -> None:
@@ -28,10 +32,11 @@ def _study_errors():
 class _StudyProgress:
     """Progress over cells: a rich bar with ETA on a terminal, a line every ~10% otherwise."""
 
-    def __init__(self, name: str, quiet: bool) -> None:
+    def __init__(self, name: str, quiet: bool, stop: list | None = None) -> None:
         import time
 
         self.name, self.quiet, self._time = name, quiet, time.monotonic
+        self._stop = stop if stop is not None else []  # non-empty: a SIGTERM came (see _sigterm_as_interrupt)
         self.bar = None
         self._next_line = 0.0
         self._started = self._time()
@@ -50,6 +55,8 @@ class _StudyProgress:
         return self
 
     def __call__(self, p) -> None:
+        if self._stop:  # the signal handler's KeyboardInterrupt was lost (raised inside a weakref or GC
+            raise KeyboardInterrupt  # callback, Python ignores it): stop here, after a cell's commit
         if self.quiet:
             return
         if self.bar is not None:
@@ -92,31 +99,63 @@ def study(
     from ilcforce.study import load_study, run_study
     from ilcforce.study.runner import SharedClient, check_store
 
+    terminated: list[int] = []
+    with _sigterm_as_interrupt(terminated):
+        try:
+            specs = [load_study(file) for file in files]  # every file valid before any cell runs
+            names = [spec.name for spec in specs]
+            twice = sorted({n for n in names if names.count(n) > 1})
+            if twice:
+                same = [str(file) for file, name in zip(files, names) if name == twice[0]]
+                _fail_plain(f"two study files name the same study {twice[0]!r}: {' and '.join(same[:2])} (each is "
+                            f"stored as results/studies/<name>.h5)")
+            for spec in specs:  # every store usable before any cell runs
+                check_store(spec, results, resume=resume, overwrite=overwrite, replace_stale=replace_stale)
+            with SharedClient() as shared:
+                for spec in specs:
+                    with _StudyProgress(spec.name, quiet, terminated) as progress:
+                        summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
+                                            overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
+                                            command=_command_line(ctx), progress=progress, timeout=timeout,
+                                            shared=shared)
+                    _summarise(spec, summary, quiet)
+        except _study_errors() as exc:
+            _fail_plain(str(exc) or type(exc).__name__)
+        except OSError as exc:
+            _fail_plain(f"{exc.filename or results}: {exc.strerror or exc}")
+        except KeyboardInterrupt:
+            how = "terminated (SIGTERM)" if terminated else "interrupted"
+            _say(f"{how}: every finished cell is stored; rerun the same command to continue", stderr=True)
+            raise typer.Exit(143 if terminated else 130)
+
+
+@contextlib.contextmanager
+def _sigterm_as_interrupt(terminated: list[int]):
+    """SIGTERM (a batch system's or `timeout`'s stop) takes Ctrl-C's path: the cells in flight are
+    cancelled, every finished one is committed, the cluster is shut down, one line, exit 143. It
+    used to end the driver at once, silently (the store stayed readable, the journal held the rest).
+    The handler raises KeyboardInterrupt where the signal lands; should Python drop it there (in a
+    weakref or GC callback), the progress callback raises it after the next cell's commit."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        terminated.append(signum)
+        raise KeyboardInterrupt
+
+    def unraisable(info) -> None:  # the dropped KeyboardInterrupt: no "Exception ignored" traceback
+        if not (terminated and info.exc_type is KeyboardInterrupt):
+            hook(info)
+
+    hook = sys.unraisablehook
+    previous = signal.signal(signal.SIGTERM, handler)
+    sys.unraisablehook = unraisable
     try:
-        specs = [load_study(file) for file in files]  # every file valid before any cell runs
-        names = [spec.name for spec in specs]
-        twice = sorted({n for n in names if names.count(n) > 1})
-        if twice:
-            same = [str(file) for file, name in zip(files, names) if name == twice[0]]
-            _fail_plain(f"two study files name the same study {twice[0]!r}: {' and '.join(same[:2])} (each is "
-                        f"stored as results/studies/<name>.h5)")
-        for spec in specs:  # every store usable before any cell runs
-            check_store(spec, results, resume=resume, overwrite=overwrite, replace_stale=replace_stale)
-        with SharedClient() as shared:
-            for spec in specs:
-                with _StudyProgress(spec.name, quiet) as progress:
-                    summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
-                                        overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
-                                        command=_command_line(ctx), progress=progress, timeout=timeout,
-                                        shared=shared)
-                _summarise(spec, summary, quiet)
-    except _study_errors() as exc:
-        _fail_plain(str(exc) or type(exc).__name__)
-    except OSError as exc:
-        _fail_plain(f"{exc.filename or results}: {exc.strerror or exc}")
-    except KeyboardInterrupt:
-        err.print("interrupted: every finished cell is stored; rerun the same command to continue", highlight=False)
-        raise typer.Exit(130)
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+        sys.unraisablehook = hook
 
 
 def _summarise(spec, summary, quiet: bool) -> None:

@@ -121,6 +121,36 @@ def test_driver_killed_mid_study_rerun_completes_identically(tmp_path):
                                   tidy_metrics(clean / "studies" / "tiny.h5"), check_exact=True)
 
 
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_sigterm_mid_study_commits_says_so_and_a_rerun_completes(tmp_path, workers):
+    """SIGTERM (a batch system's stop) ended the driver silently (exit 143, a semaphore warning);
+    it now takes Ctrl-C's path: one line, exit 143, every finished cell stored, rerun completes."""
+    study_file = write_study_file(tmp_path, TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-5"'))
+    results = tmp_path / "r"
+    journal = results / "studies" / "tiny.h5.journal"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    driver = subprocess.Popen([*CLI, "study", str(study_file), "--results", str(results), "--workers", workers,
+                               "--quiet"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and driver.poll() is None:
+            if journal.is_dir() and any(p.suffix == ".json" for p in journal.iterdir()):
+                break
+            time.sleep(0.01)
+        assert driver.poll() is None, "the driver ended before it could be stopped"
+        driver.send_signal(signal.SIGTERM)
+        _, stderr = driver.communicate(timeout=60)
+    finally:
+        _stop(driver)
+    assert driver.returncode == 143, stderr
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert lines == ["terminated (SIGTERM): every finished cell is stored; rerun the same command to continue"], stderr
+    rerun = subprocess.run([*CLI, "study", str(study_file), "--results", str(results), "--workers", "1"],
+                           capture_output=True, text=True, timeout=300, env=env)
+    assert rerun.returncode == 0, rerun.stderr
+    assert "24 cells (" in rerun.stdout and ", 0 failed)" in rerun.stdout, rerun.stdout
+
+
 def test_remote_scheduler_runs_a_study(tmp_path):
     port = _free_port()
     address = f"tcp://127.0.0.1:{port}"
