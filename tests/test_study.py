@@ -459,6 +459,18 @@ def test_paper_monte_carlo_100_seeds(tmp_path):
                                           err_msg=f"seed {seed} {method} {column}")
 
 
+ONE_CELL_TOML = TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-0"').replace('"c3.eta" = [5.0, 2.0]', '"c3.eta" = [5.0]')
+
+
+def _two_one_cell_studies(tmp_path):
+    """Study files a/study.toml ("first") and b/study.toml ("second"), one seed, one setting each."""
+    files = []
+    for sub, name in (("a", "first"), ("b", "second")):
+        (tmp_path / sub).mkdir()
+        files.append(write_study_file(tmp_path / sub, ONE_CELL_TOML.replace('name = "tiny"', f'name = "{name}"')))
+    return tuple(files)
+
+
 @pytest.mark.parametrize("fault, message", [
     ("stale", "its study has different settings"),
     ("foreign", "is not an ilcforce study store"),
@@ -468,11 +480,7 @@ def test_paper_monte_carlo_100_seeds(tmp_path):
 def test_several_study_files_refuse_a_later_store_before_any_cell_runs(tmp_path, fault, message):
     """`ilcforce study A.toml B.toml` when B's store cannot be used: refused in one line before A
     runs (found by an attack: A's cells ran and were stored first, then B was refused)."""
-    for sub in "ab":
-        (tmp_path / sub).mkdir()
-    one_seed = TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-0"').replace('"c3.eta" = [5.0, 2.0]', '"c3.eta" = [5.0]')
-    a = write_study_file(tmp_path / "a", one_seed.replace('name = "tiny"', 'name = "first"'))
-    b = write_study_file(tmp_path / "b", one_seed.replace('name = "tiny"', 'name = "second"'))
+    a, b = _two_one_cell_studies(tmp_path)
     results = tmp_path / "r"
     studies = results / "studies"
     args = ["study", str(a), str(b), "--results", str(results), "--workers", "1", "--quiet"]
@@ -508,11 +516,8 @@ def test_several_study_files_run_in_one_command_on_one_cluster(tmp_path, monkeyp
         return real(*args, **kwargs)
 
     monkeypatch.setattr(dask_run, "dask_client", counting)
-    for sub in "abc":
-        (tmp_path / sub).mkdir()
-    one_seed = TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-0"').replace('"c3.eta" = [5.0, 2.0]', '"c3.eta" = [5.0]')
-    a = write_study_file(tmp_path / "a", one_seed.replace('name = "tiny"', 'name = "first"'))
-    b = write_study_file(tmp_path / "b", one_seed.replace('name = "tiny"', 'name = "second"'))
+    a, b = _two_one_cell_studies(tmp_path)
+    (tmp_path / "c").mkdir()
     results = tmp_path / "r"
     ran = CliRunner().invoke(app, ["study", str(a), str(b), "--results", str(results), "--workers", "2", "--quiet"])
     assert ran.exit_code == 0, ran.output
@@ -520,7 +525,7 @@ def test_several_study_files_run_in_one_command_on_one_cluster(tmp_path, monkeyp
     for name in ("first", "second"):
         cells = read_study(results / "studies" / f"{name}.h5").cells
         assert len(cells) == 2 and (cells["state"] == "done").all()
-    same = write_study_file(tmp_path / "c", one_seed.replace('name = "tiny"', 'name = "first"'))
+    same = write_study_file(tmp_path / "c", ONE_CELL_TOML.replace('name = "tiny"', 'name = "first"'))
     refused = CliRunner().invoke(app, ["study", str(a), str(same), "--results", str(tmp_path / "r2"), "--workers", "1"])
     assert refused.exit_code == 2 and "same study 'first'" in refused.output
     assert len(refused.output.strip().splitlines()) == 1

@@ -86,6 +86,16 @@ def test_worker_killed_mid_cell_is_retried_then_recorded(tmp_path):
     assert "dask" in session["versions"]
 
 
+def _wait_for_a_committed_cell(driver: subprocess.Popen, journal: Path, log) -> None:
+    """Until the study driver has committed a cell (a journal record), so a signal lands mid-study."""
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and driver.poll() is None:
+        if journal.is_dir() and any(p.suffix == ".json" for p in journal.iterdir()):
+            break
+        time.sleep(0.01)
+    assert driver.poll() is None, f"the driver ended before it could be stopped: {log()!r}"
+
+
 def test_driver_killed_mid_study_rerun_completes_identically(tmp_path):
     study_file = write_study_file(tmp_path, TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-5"'))
     results = tmp_path / "r"
@@ -96,12 +106,7 @@ def test_driver_killed_mid_study_rerun_completes_identically(tmp_path):
         driver = subprocess.Popen([*CLI, "study", str(study_file), "--results", str(results), "--workers", "1",
                                    "--quiet"], env=env, stdout=subprocess.DEVNULL, stderr=stderr)
     try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and driver.poll() is None:
-            if journal.is_dir() and any(p.suffix == ".json" for p in journal.iterdir()):
-                break
-            time.sleep(0.01)
-        assert driver.poll() is None, f"the driver ended before it could be killed: {log.read_text()!r}"
+        _wait_for_a_committed_cell(driver, journal, log.read_text)
         driver.send_signal(signal.SIGKILL)
         driver.wait(timeout=30)
     finally:
@@ -132,12 +137,7 @@ def test_sigterm_mid_study_commits_says_so_and_a_rerun_completes(tmp_path, worke
     driver = subprocess.Popen([*CLI, "study", str(study_file), "--results", str(results), "--workers", workers,
                                "--quiet"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and driver.poll() is None:
-            if journal.is_dir() and any(p.suffix == ".json" for p in journal.iterdir()):
-                break
-            time.sleep(0.01)
-        assert driver.poll() is None, "the driver ended before it could be stopped"
+        _wait_for_a_committed_cell(driver, journal, lambda: "(stderr is read at the end)")
         driver.send_signal(signal.SIGTERM)
         _, stderr = driver.communicate(timeout=60)
     finally:
