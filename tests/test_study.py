@@ -115,6 +115,26 @@ def test_cli_bad_study_one_line_exit_2(tmp_path, text, message):
 
 
 @pytest.mark.parametrize("kind, message", [
+    ("directory", "is a directory, not a TOML file"), ("fifo", "not a regular file"),
+    ("loop", "symbolic link that leads nowhere"),
+])
+def test_cli_study_experiment_that_is_not_a_file_says_what_it_is(tmp_path, kind, message):
+    """`experiment = "x.toml"` naming a directory, a FIFO or a symlink loop was "no experiment file"."""
+    target = tmp_path / "x.toml"
+    if kind == "directory":
+        target.mkdir()
+    elif kind == "fifo":
+        os.mkfifo(target)
+    else:
+        os.symlink(target, target)
+    path = write_study_file(tmp_path, '[study]\nname = "x"\nexperiment = "x.toml"\nseeds = "0-1"\n')
+    result = CliRunner().invoke(app, ["study", str(path), "--results", str(tmp_path / "r"), "--workers", "1"])
+    assert result.exit_code == 2, result.output
+    assert f"study.experiment: experiment file {target}" in result.output and message in result.output, result.output
+    assert result.output.count("\n") == 1, result.output
+
+
+@pytest.mark.parametrize("kind, message", [
     ("missing", "does not exist"), ("directory", "is a directory, not a TOML file"), ("empty", "is empty"),
     ("fifo", "not a regular file"), ("latin-1", "cannot be read"),
 ])

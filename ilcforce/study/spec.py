@@ -244,6 +244,12 @@ def _resolve_experiment(value, study_path: Path | None) -> Path | None:
     for candidate in candidates:
         if candidate.is_file():
             return candidate
+    for candidate in candidates:  # something is there, but not a file: say what (as for any TOML file)
+        if candidate.exists() or candidate.is_symlink():
+            try:
+                read_toml(candidate, "experiment file", StudyError)
+            except StudyError as exc:
+                raise StudyError(f"study.experiment: {exc}") from None
     tried = " or ".join(str(c) for c in dict.fromkeys(candidates))
     raise StudyError(f"study.experiment: no experiment file {tried}")
 
