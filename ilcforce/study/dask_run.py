@@ -5,14 +5,17 @@ cell once. :mod:`ilcforce.study.runner` drives it and writes the store.
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
+import time
 import uuid
 
 #: Seconds allowed to reach a remote scheduler, and then for a first worker to be there.
 CONNECT_TIMEOUT = 10.0
 WORKER_TIMEOUT = 30.0
-#: Cells in flight per worker (keeps every worker busy while the driver commits results).
+#: Cells in flight per worker on a remote cluster (keeps every worker busy while the driver commits
+#: results). A local cluster places exactly one cell per worker (``run_on_dask(pin=True)``).
 IN_FLIGHT_PER_WORKER = 2
 #: Tries per cell: the first run and one retry.
 ATTEMPTS = 2
@@ -162,42 +165,96 @@ def _forget_failed_client() -> None:
         sys.unraisablehook = hook
 
 
-def run_on_dask(client, jobs, function, in_flight: int):
-    """Yield (cell, attempt, result or None, failure message or None) as cells finish; at most
-    ``in_flight`` cells submitted at once; a failed cell is submitted once more."""
+def run_on_dask(client, jobs, function, in_flight: int, *, pin: bool = False):
+    """Yield (cell, attempt, result or None, failure message or None) as cells finish; a failed cell
+    is submitted once more.
+
+    ``pin`` (a local cluster of single-threaded workers): each cell goes to a worker holding no other
+    cell, so a cell that kills its worker never takes another down with it. Without it (a remote
+    cluster, whose workers may have several threads) at most ``in_flight`` cells are submitted at once
+    and Dask places them; a second cell waiting on a worker that dies fails with it (Dask fails every
+    task a dead worker held), which on a local cluster recorded innocent cells as failed.
+    """
     from distributed import as_completed
 
     pending = iter(jobs)
-    meta = {}
+    retries: collections.deque = collections.deque()
+    lookahead: list = []
+    meta: dict = {}  # key -> (cell, args, attempt, worker or None)
     queue = as_completed(loop=client.loop)
 
-    def submit(cell, args, attempt):
+    def take():
+        if retries:
+            return retries.popleft()
+        if lookahead:
+            return lookahead.pop()
+        for cell, args in pending:
+            return cell, args, 1
+        return None
+
+    def more() -> bool:
+        if retries or lookahead:
+            return True
+        for cell, args in pending:
+            lookahead.append((cell, args, 1))
+            return True
+        return False
+
+    def submit(job, worker=None) -> None:
+        cell, args, attempt = job
+        # allow_other_workers: should the worker be gone by now, the cell still runs elsewhere
+        placement = {"workers": [worker], "allow_other_workers": True} if worker else {}
         future = client.submit(function, *args, key=f"cell-{cell.key}-try{attempt}-{uuid.uuid4().hex[:8]}",
-                               pure=False, retries=0)
-        meta[future.key] = (cell, args, attempt)
+                               pure=False, retries=0, **placement)
+        meta[future.key] = (cell, args, attempt, worker)
         queue.add(future)
 
-    for cell, args in pending:
-        submit(cell, args, 1)
-        if len(meta) >= in_flight:
-            break
+    workers: list = []
+    expected = [0]
+
+    def fill(refresh: bool = False) -> None:
+        if not pin:
+            while len(meta) < in_flight and (job := take()) is not None:
+                submit(job)
+            return
+        # the workers' addresses, asked of the scheduler at the start, after a failure (a restarted
+        # worker has a new address) and until as many are back; otherwise a freed worker is reused at
+        # once (asking on every cell left each worker idle about 25 ms a cell)
+        if refresh or len(workers) < expected[0]:
+            workers[:] = list(client.nthreads())
+            expected[0] = max(expected[0], len(workers))
+        busy = {entry[3] for entry in meta.values()}
+        for worker in workers:
+            if worker not in busy and (job := take()) is not None:
+                submit(job, worker)
+
+    fill(refresh=True)
     try:
-        for future in queue:
-            cell, args, attempt = meta.pop(future.key)
-            if future.status == "finished":
-                result = future.result()
-                future.release()
-                yield cell, attempt, result, None
-            else:
+        while True:
+            for future in queue:
+                cell, args, attempt, _ = meta.pop(future.key)
+                if future.status == "finished":
+                    fill()  # the freed worker starts its next cell while this one is fetched and committed
+                    result = future.result()
+                    future.release()
+                    yield cell, attempt, result, None
+                    continue
                 message = describe_failure(future.exception())
                 future.release()
                 if attempt < ATTEMPTS:
-                    submit(cell, args, attempt + 1)
-                    continue
-                yield cell, attempt, None, message
-            for next_cell, next_args in pending:
-                submit(next_cell, next_args, 1)
-                break
+                    retries.append((cell, args, attempt + 1))
+                fill(refresh=True)
+                if attempt >= ATTEMPTS:
+                    yield cell, attempt, None, message
+            if not more():
+                return
+            # cells left but none in flight: every worker was restarting when they were placed
+            try:
+                client.wait_for_workers(1, timeout=WORKER_TIMEOUT)
+            except (OSError, TimeoutError):
+                raise StudyRunError(f"no Dask worker came back within {WORKER_TIMEOUT:g} s") from None
+            time.sleep(0.2)
+            fill(refresh=True)
     finally:
         for key in list(meta):
             with contextlib.suppress(Exception):

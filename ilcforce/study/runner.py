@@ -212,7 +212,8 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
                     n_workers = workers or max(1, len(client.scheduler_info().get("workers", {})))
                     if cell_function is run_cell:
                         _warm_up(lambda *a: client.run(*a), todo, study)
-                    outcomes = run_on_dask(client, jobs, cell_function, IN_FLIGHT_PER_WORKER * n_workers)
+                    outcomes = run_on_dask(client, jobs, cell_function, IN_FLIGHT_PER_WORKER * n_workers,
+                                           pin=not scheduler)
                 else:
                     if cell_function is run_cell:
                         _warm_up(lambda f, *a: f(*a), todo, study)
