@@ -10,13 +10,10 @@ from pathlib import Path
 #: as TOML), and reading it whole would cost time and memory without bound (a 3 GB file: 21 s, 6 GB).
 MAX_TOML_BYTES = 4 * 1024 * 1024
 
-#: What tomllib raises on text it cannot take: bad syntax; an integer of more than 4300 digits
-#: (ValueError, Python's int-string limit); nesting deeper than Python's recursion limit.
-TOML_ERRORS = (tomllib.TOMLDecodeError, ValueError, RecursionError)
-
-
 def parse_toml(text: str) -> dict:
-    """``tomllib.loads``; every refusal raised as ``tomllib.TOMLDecodeError`` with a one-line reason."""
+    """``tomllib.loads``; every refusal raised as ``tomllib.TOMLDecodeError`` with a one-line reason
+    (tomllib itself lets an integer over 4300 digits escape as ValueError, Python's int-string limit,
+    and nesting deeper than the recursion limit as RecursionError)."""
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError:

@@ -46,11 +46,12 @@ class StudyMatch:
 
 def _study_methods_and_seeds(study_toml: str) -> tuple[tuple[str, ...] | None, tuple[int, ...]]:
     from ilcforce.study.spec import StudyError, parse_seeds
+    from ilcforce.tomlfile import parse_toml
 
     try:
-        table = tomllib.loads(study_toml).get("study", {})
+        table = parse_toml(study_toml).get("study", {})
         seeds = parse_seeds(table.get("seeds"))
-    except (tomllib.TOMLDecodeError, ValueError, RecursionError, StudyError, AttributeError, TypeError):
+    except (tomllib.TOMLDecodeError, StudyError, AttributeError, TypeError):
         return None, ()
     methods = table.get("methods")
     return (tuple(methods) if isinstance(methods, list) else None), seeds

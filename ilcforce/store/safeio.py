@@ -31,7 +31,8 @@ READ_LOCK_TIMEOUT = 30.0
 #: Time limit for walking a file's structure in a child process, s (a healthy store: milliseconds).
 PROBE_TIMEOUT = 10.0
 
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+#: The first bytes of every HDF5 file (a store, ours or not).
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 
 class StoreError(Exception):
@@ -176,7 +177,7 @@ def superblock_version(fd: int) -> int | None:
     offset = 0
     while offset + 9 <= size:
         head = os.pread(fd, 9, offset)
-        if head[:8] == _HDF5_SIGNATURE:
+        if head[:8] == HDF5_SIGNATURE:
             return head[8]
         offset = 512 if offset == 0 else offset * 2
     return None

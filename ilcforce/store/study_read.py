@@ -12,6 +12,8 @@ import h5py
 import numpy as np
 import pandas as pd
 
+from ilcforce.store.safeio import HDF5_SIGNATURE
+
 SCHEMA_NAME = "ilcforce.study"
 SCHEMA_VERSION = "1.0"
 CELL_COLUMNS = ("setting", "seed", "method", "state", "attempts", "message", "elapsed", "worker")
@@ -37,7 +39,7 @@ def is_study_store(path: Path) -> bool:
     """True if ``path`` is an HDF5 file carrying the study schema (never raises, bounded time)."""
     try:
         with open(path, "rb") as handle:
-            if handle.read(8) != b"\x89HDF\r\n\x1a\n":
+            if handle.read(len(HDF5_SIGNATURE)) != HDF5_SIGNATURE:
                 return False
         _probe(Path(path))
         with h5py.File(path, "r") as handle:
@@ -167,10 +169,6 @@ def _keys(frame: pd.DataFrame):
     return zip(frame["setting"].astype(int), frame["seed"].astype(int), frame["method"].astype(str))
 
 
-# ------------------------------------------------------------------------------------------------
-# writing (the driver only)
-
-
 def check_study_store(path: Path) -> dict:
     """Read all of the study store at ``path`` as ``ilcforce validate`` does: the header and every
     table, with their checksums, and the journal's records. Returns its name and cell counts
@@ -179,3 +177,7 @@ def check_study_store(path: Path) -> dict:
     states = cells["state"].tolist() if len(cells) else []
     return {"name": str(header.get("name", "")), "cells": len(states), "done": states.count(DONE),
             "failed": states.count(FAILED)}
+
+
+# ------------------------------------------------------------------------------------------------
+# writing (the driver only)

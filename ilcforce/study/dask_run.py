@@ -209,20 +209,21 @@ def run_on_dask(client, jobs, function, in_flight: int, *, pin: bool = False):
         meta[future.key] = (cell, args, attempt, worker)
         queue.add(future)
 
-    workers: list = []
-    expected = [0]
+    workers: list = []  # pin: the workers' addresses, as last asked of the scheduler
+    most = 0  # pin: the most workers seen at once
 
     def fill(refresh: bool = False) -> None:
+        nonlocal workers, most
         if not pin:
             while len(meta) < in_flight and (job := take()) is not None:
                 submit(job)
             return
-        # the workers' addresses, asked of the scheduler at the start, after a failure (a restarted
-        # worker has a new address) and until as many are back; otherwise a freed worker is reused at
-        # once (asking on every cell left each worker idle about 25 ms a cell)
-        if refresh or len(workers) < expected[0]:
-            workers[:] = list(client.nthreads())
-            expected[0] = max(expected[0], len(workers))
+        # asked at the start, after a failure (a restarted worker has a new address) and until as
+        # many are back; otherwise a freed worker is reused at once (asking on every cell left each
+        # worker idle about 25 ms a cell)
+        if refresh or len(workers) < most:
+            workers = list(client.nthreads())
+            most = max(most, len(workers))
         busy = {entry[3] for entry in meta.values()}
         for worker in workers:
             if worker not in busy and (job := take()) is not None:

@@ -45,14 +45,13 @@ import difflib
 import itertools
 import math
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
 from ilcforce.config import Config, ConfigError
 from ilcforce.config_load import load_config
 from ilcforce.study import settings_list
-from ilcforce.tomlfile import parse_toml, read_toml
+from ilcforce.tomlfile import read_toml
 
 
 class StudyError(ValueError):
@@ -378,6 +377,7 @@ def load_study(path: Path | str) -> Study:
 def is_study_file(path: Path | str) -> bool:
     """True if ``path`` is a TOML file with a [study] table (how `make` finds shipped studies)."""
     try:
-        return "study" in parse_toml(Path(path).read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError):
+        data, _ = read_toml(Path(path), "study file", StudyError)
+    except StudyError:
         return False
+    return "study" in data

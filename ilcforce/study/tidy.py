@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.metrics import METRIC_COLUMNS
+from ilcforce.store.safeio import HDF5_SIGNATURE
 from ilcforce.store.study import StudyStoreError, is_study_store, read_tables
 
 _INT_COLUMNS = ("seed", "iteration", "fallback_count")
@@ -207,10 +208,6 @@ def export(path: Path | str, out: Path | str, *, overwrite: bool = False) -> tup
     return out, len(frame)
 
 
-#: The first bytes of every HDF5 file (a store, ours or not).
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-
-
 def _check_replaceable(source: Path, out: Path) -> None:
     """--overwrite replaces a table, never the store being exported (under any of its names) nor any
     other HDF5 file: a store named ``*.csv`` was once replaced by its own export."""
@@ -222,8 +219,8 @@ def _check_replaceable(source: Path, out: Path) -> None:
         raise ExportError(f"--out {out} is the store being exported ({source}); refusing to replace it")
     try:
         with out.open("rb") as handle:
-            head = handle.read(len(_HDF5_SIGNATURE))
+            head = handle.read(len(HDF5_SIGNATURE))
     except OSError as exc:
         raise ExportError(f"--out {out} cannot be read: {exc.strerror or exc}") from None
-    if head == _HDF5_SIGNATURE:
+    if head == HDF5_SIGNATURE:
         raise ExportError(f"--out {out} is an HDF5 file (a store?), not a table; refusing to replace it")
