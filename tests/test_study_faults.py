@@ -86,6 +86,63 @@ def test_worker_killed_mid_cell_is_retried_then_recorded(tmp_path):
     assert "dask" in session["versions"]
 
 
+def crowding_cell(marker_dir: str, kill: frozenset):
+    """A cell function that returns how many other cells its worker holds (queued, waiting or
+    running beside it), looked at as it starts and again 0.2 s later; for a cell in ``kill`` its
+    first run SIGKILLs its worker."""
+
+    def cell(i):
+        from distributed import get_worker
+
+        worker = get_worker()
+        me = worker.get_current_task()
+
+        def others() -> int:
+            return sum(1 for key, ts in worker.state.tasks.items()
+                       if key != me and ts.state in ("waiting", "ready", "constrained", "executing"))
+
+        seen = others()
+        marker = Path(marker_dir) / str(i)
+        if i in kill and not marker.exists():
+            marker.write_text("killed")
+            os.kill(os.getpid(), signal.SIGKILL)
+        time.sleep(0.2)
+        return {"i": i, "others": max(seen, others())}
+
+    return cell
+
+
+def test_a_worker_never_holds_a_second_cell_and_kills_spare_the_innocent(tmp_path):
+    """The scheduler gives each single-threaded worker one cell at a time, so a cell that kills its
+    worker takes no waiting cell with it, and no cell is ever pinned to a worker (a cell pinned to a
+    worker that died while none was running stayed unscheduled for good: the suite hung in CI)."""
+    import threading
+    from collections import namedtuple
+
+    from ilcforce.study.dask_run import dask_client, run_on_dask
+
+    Job = namedtuple("Job", "key")
+    kill = frozenset({1, 4, 5, 9})
+    outcomes: list = []
+
+    def drive() -> None:
+        with dask_client(2, None) as client:
+            jobs = [(Job(str(i)), (i,)) for i in range(12)]
+            outcomes.extend(run_on_dask(client, jobs, crowding_cell(str(tmp_path), kill), in_flight=4))
+
+    thread = threading.Thread(target=drive, daemon=True)
+    thread.start()
+    thread.join(timeout=240)
+    assert not thread.is_alive(), f"the study hung after {len(outcomes)} of 12 cells"
+    by_key = {cell.key: (attempt, result, message) for cell, attempt, result, message in outcomes}
+    assert sorted(by_key, key=int) == [str(i) for i in range(12)]
+    for i in range(12):
+        attempt, result, message = by_key[str(i)]
+        assert message is None and result["i"] == i
+        assert attempt == (2 if i in kill else 1), f"cell {i}: {attempt} attempts"
+        assert result["others"] == 0, f"cell {i} shared its worker with {result['others']} other cells"
+
+
 def _wait_for_a_committed_cell(driver: subprocess.Popen, journal: Path, log) -> None:
     """Until the study driver has committed a cell (a journal record), so a signal lands mid-study."""
     deadline = time.monotonic() + 120

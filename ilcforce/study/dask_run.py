@@ -8,15 +8,14 @@ from __future__ import annotations
 import collections
 import contextlib
 import logging
-import time
 import uuid
 
 #: Seconds allowed to reach a remote scheduler, and then for a first worker to be there.
 CONNECT_TIMEOUT = 10.0
 WORKER_TIMEOUT = 30.0
-#: Cells in flight per worker on a remote cluster (keeps every worker busy while the driver commits
-#: results). A local cluster places exactly one cell per worker (``run_on_dask(pin=True)``).
-IN_FLIGHT_PER_WORKER = 2
+#: Cells in flight per worker thread: the scheduler runs one per thread and queues the rest
+#: (:func:`_cell_task`), so a freed worker starts its next cell without waiting for the driver.
+IN_FLIGHT_PER_THREAD = 2
 #: Tries per cell: the first run and one retry.
 ATTEMPTS = 2
 #: Dask's periodic housekeeping, turned down for a local cluster of busy single-task workers: idle,
@@ -74,8 +73,9 @@ def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TI
     from distributed import Client, LocalCluster
 
     # Local cluster only (a remote scheduler keeps its own configuration): a dead worker fails its
-    # task at once (our retry-once applies), and a single-threaded worker holds one task at a time,
-    # so a cell that kills its worker never takes an innocent cell down with it.
+    # task at once (our retry-once applies), and the scheduler sends a single-threaded worker one
+    # queued cell at a time (_cell_task), so a cell that kills its worker never takes an innocent
+    # cell down with it.
     settings = {"distributed.scheduler.allowed-failures": 0,
                 "distributed.scheduler.worker-saturation": 1.0,
                 "distributed.worker.daemon": False,
@@ -165,23 +165,36 @@ def _forget_failed_client() -> None:
         sys.unraisablehook = hook
 
 
-def run_on_dask(client, jobs, function, in_flight: int, *, pin: bool = False):
+def _cell_task(key: str, function, args):
+    """The cell as a Dask task marked as a data producer: the scheduler then holds it in its queue and
+    hands each worker only as many cells as it has threads (``worker-saturation`` 1.0 on a local
+    cluster), dispatching the next one itself the moment a worker frees up. So a cell that kills its
+    worker never takes a waiting cell down with it (Dask fails every task a dead worker held), and a
+    cell needs no worker restriction: a task restricted to a worker that died while no worker was
+    running stays in Dask's ``no-worker`` state for good, even with ``allow_other_workers`` (the
+    scheduler does not offer it to workers that join later). The flag is ``Task``'s, dask >= 2025.1.
+    """
+    from dask._task_spec import Task, parse_input
+
+    return Task(key, function, *(parse_input(a) for a in args), _data_producer=True)
+
+
+def run_on_dask(client, jobs, function, in_flight: int):
     """Yield (cell, attempt, result or None, failure message or None) as cells finish; a failed cell
     is submitted once more.
 
-    ``pin`` (a local cluster of single-threaded workers): each cell goes to a worker holding no other
-    cell, so a cell that kills its worker never takes another down with it. Without it (a remote
-    cluster, whose workers may have several threads) at most ``in_flight`` cells are submitted at once
-    and Dask places them; a second cell waiting on a worker that dies fails with it (Dask fails every
-    task a dead worker held), which on a local cluster recorded innocent cells as failed.
+    At most ``in_flight`` cells are submitted at once (keep it about twice the cluster's threads, so
+    a freed worker finds its next cell in the scheduler's queue); results are fetched as soon as a
+    cell finishes, so they rarely sit on a worker that may die running its next cell (if one does,
+    Dask computes it again).
     """
     from distributed import as_completed
 
     pending = iter(jobs)
     retries: collections.deque = collections.deque()
     lookahead: list = []
-    meta: dict = {}  # key -> (cell, args, attempt, worker or None)
-    queue = as_completed(loop=client.loop)
+    meta: dict = {}  # key -> (cell, args, attempt, future)
+    queue = as_completed(loop=client.loop, with_results=True, raise_errors=False)
 
     def take():
         if retries:
@@ -200,63 +213,38 @@ def run_on_dask(client, jobs, function, in_flight: int, *, pin: bool = False):
             return True
         return False
 
-    def submit(job, worker=None) -> None:
-        cell, args, attempt = job
-        # allow_other_workers: should the worker be gone by now, the cell still runs elsewhere
-        placement = {"workers": [worker], "allow_other_workers": True} if worker else {}
-        future = client.submit(function, *args, key=f"cell-{cell.key}-try{attempt}-{uuid.uuid4().hex[:8]}",
-                               pure=False, retries=0, **placement)
-        meta[future.key] = (cell, args, attempt, worker)
-        queue.add(future)
+    def fill() -> None:
+        while len(meta) < in_flight and (job := take()) is not None:
+            cell, args, attempt = job
+            key = f"cell-{cell.key}-try{attempt}-{uuid.uuid4().hex[:8]}"
+            future = client.get({key: _cell_task(key, function, args)}, key, sync=False)
+            meta[key] = (cell, args, attempt, future)
+            queue.add(future)
 
-    workers: list = []  # pin: the workers' addresses, as last asked of the scheduler
-    most = 0  # pin: the most workers seen at once
-
-    def fill(refresh: bool = False) -> None:
-        nonlocal workers, most
-        if not pin:
-            while len(meta) < in_flight and (job := take()) is not None:
-                submit(job)
-            return
-        # asked at the start, after a failure (a restarted worker has a new address) and until as
-        # many are back; otherwise a freed worker is reused at once (asking on every cell left each
-        # worker idle about 25 ms a cell)
-        if refresh or len(workers) < most:
-            workers = list(client.nthreads())
-            most = max(most, len(workers))
-        busy = {entry[3] for entry in meta.values()}
-        for worker in workers:
-            if worker not in busy and (job := take()) is not None:
-                submit(job, worker)
-
-    fill(refresh=True)
+    fill()
     try:
         while True:
-            for future in queue:
+            for future, result in queue:
                 cell, args, attempt, _ = meta.pop(future.key)
-                if future.status == "finished":
-                    fill()  # the freed worker starts its next cell while this one is fetched and committed
-                    result = future.result()
-                    future.release()
-                    yield cell, attempt, result, None
-                    continue
-                message = describe_failure(future.exception())
+                message = None if future.status == "finished" else describe_failure(future.exception())
                 future.release()
-                if attempt < ATTEMPTS:
+                if message is not None and attempt < ATTEMPTS:
                     retries.append((cell, args, attempt + 1))
-                fill(refresh=True)
-                if attempt >= ATTEMPTS:
+                fill()
+                if message is None:
+                    yield cell, attempt, result, None
+                elif attempt >= ATTEMPTS:
                     yield cell, attempt, None, message
             if not more():
                 return
-            # cells left but none in flight: every worker was restarting when they were placed
+            # cells left but none in flight (cannot happen while fill() tops up after every cell;
+            # kept so the loop never ends with cells not run)
             try:
                 client.wait_for_workers(1, timeout=WORKER_TIMEOUT)
             except (OSError, TimeoutError):
                 raise StudyRunError(f"no Dask worker came back within {WORKER_TIMEOUT:g} s") from None
-            time.sleep(0.2)
-            fill(refresh=True)
+            fill()
     finally:
-        for key in list(meta):
+        if meta:
             with contextlib.suppress(Exception):
-                client.cancel(key)
+                client.cancel([entry[3] for entry in meta.values()])

@@ -32,7 +32,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from ilcforce.study.cell import run_cell
-from ilcforce.study.dask_run import (ATTEMPTS, CONNECT_TIMEOUT, IN_FLIGHT_PER_WORKER, SharedClient,
+from ilcforce.study.dask_run import (ATTEMPTS, CONNECT_TIMEOUT, IN_FLIGHT_PER_THREAD, SharedClient,
                                      describe_failure, dask_client, run_on_dask)
 from ilcforce.study.spec import Cell, Study, StudyError
 from ilcforce.store.study import DONE, FAILED, StudyStore, check_usable
@@ -209,11 +209,10 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
                     if scheduler:
                         workers_seen = len(client.scheduler_info().get("workers", {}))
                         store.update_session(workers=workers_seen)
-                    n_workers = workers or max(1, len(client.scheduler_info().get("workers", {})))
+                    threads = max(1, sum(client.nthreads().values()))
                     if cell_function is run_cell:
                         _warm_up(lambda *a: client.run(*a), todo, study)
-                    outcomes = run_on_dask(client, jobs, cell_function, IN_FLIGHT_PER_WORKER * n_workers,
-                                           pin=not scheduler)
+                    outcomes = run_on_dask(client, jobs, cell_function, IN_FLIGHT_PER_THREAD * threads)
                 else:
                     if cell_function is run_cell:
                         _warm_up(lambda f, *a: f(*a), todo, study)
