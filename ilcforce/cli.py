@@ -1,7 +1,8 @@
 """Command-line interface: parse, call one library function, render. No science here.
 
 Exit codes: 0 success (a diverged method is a result, not a failure), 2 bad input or a store that
-cannot be used (one line on stderr, never a traceback), 130 interrupted.
+cannot be used (one line on stderr, never a traceback), 130 interrupted (Ctrl-C), 143 terminated
+(SIGTERM, which takes Ctrl-C's path: :mod:`ilcforce.cli_signals`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Annotated, Optional
 import typer
 
 from ilcforce import __version__
+from ilcforce.cli_signals import sigterm_as_interrupt, stop_code, stop_word
 from ilcforce.controllers import PAPER_METHODS, REGISTRY
 
 # Only what every command needs is imported here: `ilcforce --help` and one-line input errors must
@@ -88,8 +90,8 @@ def _guard(func):
         except (ConfigError, StoreError, UnknownMethodError, CliError) as exc:
             _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
         except KeyboardInterrupt:
-            _say("interrupted: every finished iteration is stored; continue with --resume", stderr=True)
-            raise typer.Exit(130)
+            _say(f"{stop_word()}: every finished iteration is stored; continue with --resume", stderr=True)
+            raise typer.Exit(stop_code())
         except OSError as exc:
             _fail(f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": "))
 
@@ -365,7 +367,8 @@ def main() -> None:
     ``os._exit``. An unexpected exception still goes the normal way, with its traceback.
     """
     try:
-        app()
+        with sigterm_as_interrupt():
+            app()
         code = 0
     except SystemExit as exc:  # typer ends every command with one
         if exc.code is None or isinstance(exc.code, int):

@@ -12,6 +12,7 @@ import threading
 from pathlib import Path
 
 from ilcforce.cli import CliError, _g, _say, err  # imported by cli's commands, once cli is loaded
+from ilcforce.cli_signals import TERMINATED
 
 
 def _progress_bar(disable: bool):
@@ -80,8 +81,8 @@ def run_several(config, jobs) -> None:
 
 @contextlib.contextmanager
 def deferred_interrupt():
-    """First Ctrl-C: stop within one chunk of the compiled loop (the iteration in flight is dropped,
-    every finished one is stored). Second: stop at once.
+    """First Ctrl-C or SIGTERM: stop within one chunk of the compiled loop (the iteration in flight is
+    dropped, every finished one is stored). Second: stop at once.
 
     A KeyboardInterrupt raised wherever the signal lands (e.g. inside a garbage-collection
     callback, where Python ignores it) could be lost; a flag checked between iterations cannot.
@@ -92,16 +93,19 @@ def deferred_interrupt():
     requested = []
 
     def handler(signum, frame):
+        if signum == signal.SIGTERM:
+            TERMINATED.append(signum)
         if requested:
             raise KeyboardInterrupt
         requested.append(signum)
         _say("stopping: the unfinished iteration is dropped, every finished one is stored", stderr=True)
 
-    previous = signal.signal(signal.SIGINT, handler)
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield lambda: bool(requested)
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, before in previous.items():
+            signal.signal(sig, before)
 
 
 def import_for_table() -> None:

@@ -6,16 +6,13 @@ Registered on the CLI's ``app`` when :mod:`ilcforce.cli` imports this module; th
 
 from __future__ import annotations
 
-import contextlib
-import signal
-import sys
-import threading
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
 from ilcforce.cli import _command_line, _fail, _say, app, err, out
+from ilcforce.cli_signals import TERMINATED, sigterm_as_interrupt, stop_code, stop_word
 
 
 def _fail_plain(message: str) -> None:
@@ -36,7 +33,7 @@ class _StudyProgress:
         import time
 
         self.name, self.quiet, self._time = name, quiet, time.monotonic
-        self._stop = stop if stop is not None else []  # non-empty: a SIGTERM came (see _sigterm_as_interrupt)
+        self._stop = stop if stop is not None else []  # non-empty: a SIGTERM came (cli_signals)
         self.bar = None
         self._next_line = 0.0
         self._started = self._time()
@@ -99,8 +96,7 @@ def study(
     from ilcforce.study import load_study, run_study
     from ilcforce.study.runner import SharedClient, check_store
 
-    terminated: list[int] = []
-    with _sigterm_as_interrupt(terminated):
+    with sigterm_as_interrupt():
         try:
             specs = [load_study(file) for file in files]  # every file valid before any cell runs
             names = [spec.name for spec in specs]
@@ -113,7 +109,7 @@ def study(
                 check_store(spec, results, resume=resume, overwrite=overwrite, replace_stale=replace_stale)
             with SharedClient() as shared:
                 for spec in specs:
-                    with _StudyProgress(spec.name, quiet, terminated) as progress:
+                    with _StudyProgress(spec.name, quiet, TERMINATED) as progress:
                         summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
                                             overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
                                             command=_command_line(ctx), progress=progress, timeout=timeout,
@@ -124,38 +120,8 @@ def study(
         except OSError as exc:
             _fail_plain(f"{exc.filename or results}: {exc.strerror or exc}")
         except KeyboardInterrupt:
-            how = "terminated (SIGTERM)" if terminated else "interrupted"
-            _say(f"{how}: every finished cell is stored; rerun the same command to continue", stderr=True)
-            raise typer.Exit(143 if terminated else 130)
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt(terminated: list[int]):
-    """SIGTERM (a batch system's or `timeout`'s stop) takes Ctrl-C's path: the cells in flight are
-    cancelled, every finished one is committed, the cluster is shut down, one line, exit 143. It
-    used to end the driver at once, silently (the store stayed readable, the journal held the rest).
-    The handler raises KeyboardInterrupt where the signal lands; should Python drop it there (in a
-    weakref or GC callback), the progress callback raises it after the next cell's commit."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum, frame):
-        terminated.append(signum)
-        raise KeyboardInterrupt
-
-    def unraisable(info) -> None:  # the dropped KeyboardInterrupt: no "Exception ignored" traceback
-        if not (terminated and info.exc_type is KeyboardInterrupt):
-            hook(info)
-
-    hook = sys.unraisablehook
-    previous = signal.signal(signal.SIGTERM, handler)
-    sys.unraisablehook = unraisable
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-        sys.unraisablehook = hook
+            _say(f"{stop_word()}: every finished cell is stored; rerun the same command to continue", stderr=True)
+            raise typer.Exit(stop_code())
 
 
 def _summarise(spec, summary, quiet: bool) -> None:

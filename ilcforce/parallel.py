@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ilcforce.cli_signals import TERMINATED
 from ilcforce.store import safeio
 
 #: Exit status of a worker stopped by an interrupt (as the CLI's 130).
@@ -73,6 +74,8 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
 
     def forward(signum, frame):
         interrupts.append(signum)
+        if signum == signal.SIGTERM:
+            TERMINATED.append(signum)  # the command then says "terminated (SIGTERM)", exit 143
         if len(interrupts) == 1 and on_interrupt is not None:
             on_interrupt()
         for method, worker in workers.items():

@@ -72,6 +72,21 @@ def _workers(parent_pid: int) -> list[int]:
     return children
 
 
+def test_sigterm_stops_compare_like_ctrl_c_and_says_so(tmp_path):
+    results = tmp_path / "results"
+    proc = _compare(results, LONG)
+    _wait_until_every_store_has(proc, results, 1)
+    proc.send_signal(signal.SIGTERM)  # to the parent only: it passes it on to its workers
+    _, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 143, stderr
+    assert "Traceback" not in stderr
+    assert stderr.strip().splitlines()[-1].startswith("terminated (SIGTERM): every finished iteration is stored")
+    for method in METHODS:
+        path = results / "paper" / f"{method}.h5"
+        store.validate(path)
+        assert store.read_provenance(path)["run_state"] == "partial"
+
+
 def test_ctrl_c_leaves_every_store_partial_and_valid_then_compare_resumes(tmp_path):
     results = tmp_path / "results"
     proc = _compare(results, LONG)

@@ -80,14 +80,19 @@ def test_kill_9_then_resume_is_bit_identical(tmp_path, uninterrupted):
     _assert_same_run(uninterrupted, out)
 
 
-def test_ctrl_c_leaves_a_partial_valid_store(tmp_path):
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"),
+                                             (signal.SIGTERM, 143, "terminated (SIGTERM)")])
+def test_ctrl_c_leaves_a_partial_valid_store(tmp_path, sig, code, word):
+    """Ctrl-C, and SIGTERM (a batch system's stop; it used to end the run silently), stop after the
+    iteration in flight: one line naming the signal, every finished iteration stored."""
     out = tmp_path / "c3.h5"
     proc = _start(out)
     _wait_for_iterations(proc, out, 2)
-    proc.send_signal(signal.SIGINT)
+    proc.send_signal(sig)
     _, stderr = proc.communicate(timeout=60)
-    assert proc.returncode == 130, stderr
+    assert proc.returncode == code, stderr
     assert "Traceback" not in stderr and "--resume" in stderr
+    assert stderr.strip().splitlines()[-1].startswith(f"{word}: every finished iteration is stored"), stderr
     store.validate(out)
     assert store.read_provenance(out)["run_state"] == "partial"
     assert len(store.iterations(out)) >= 2
