@@ -143,6 +143,44 @@ def test_a_worker_never_holds_a_second_cell_and_kills_spare_the_innocent(tmp_pat
         assert result["others"] == 0, f"cell {i} shared its worker with {result['others']} other cells"
 
 
+def losing_cell(marker_dir: str):
+    """Cell "fast" returns at once. Cell "lost" returns after 0.2 s and, the first time, its worker
+    process dies 0.3 s later, idle, holding the result; computed again, it takes 3 s."""
+
+    def cell(name):
+        import threading
+
+        marker = Path(marker_dir) / name
+        if name == "lost" and not marker.exists():
+            marker.write_text("lost")
+            time.sleep(0.2)
+            threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGKILL)).start()
+            return {"name": name, "run": 1}
+        time.sleep(3.0 if name == "lost" else 0.0)
+        return {"name": name, "run": 2 if name == "lost" else 1}
+
+    return cell
+
+
+def test_a_result_lost_with_its_worker_before_it_was_fetched_is_computed_again(tmp_path):
+    """While the driver commits one cell, another finishes and its worker dies before the driver
+    fetched its result. Dask computes the cell again; that is still the same attempt, not a failure
+    (it was recorded as failed, 'NoneType: None', when the driver took a lost future for a failed one)."""
+    from collections import namedtuple
+
+    from ilcforce.study.dask_run import dask_client, run_on_dask
+
+    Job = namedtuple("Job", "key")
+    outcomes = []
+    with dask_client(2, None) as client:
+        for cell, attempt, result, message in run_on_dask(
+                client, [(Job("fast"), ("fast",)), (Job("lost"), ("lost",))], losing_cell(str(tmp_path)), in_flight=2):
+            outcomes.append((cell.key, attempt, result, message))
+            time.sleep(1.5)  # a slow commit: "lost" finishes and loses its worker meanwhile
+    assert outcomes == [("fast", 1, {"name": "fast", "run": 1}, None),
+                        ("lost", 1, {"name": "lost", "run": 2}, None)]
+
+
 def _wait_for_a_committed_cell(driver: subprocess.Popen, journal: Path, log) -> None:
     """Until the study driver has committed a cell (a journal record), so a signal lands mid-study."""
     deadline = time.monotonic() + 120

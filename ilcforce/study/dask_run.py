@@ -184,9 +184,12 @@ def run_on_dask(client, jobs, function, in_flight: int):
     is submitted once more.
 
     At most ``in_flight`` cells are submitted at once (keep it about twice the cluster's threads, so
-    a freed worker finds its next cell in the scheduler's queue); results are fetched as soon as a
-    cell finishes, so they rarely sit on a worker that may die running its next cell (if one does,
-    Dask computes it again).
+    a freed worker finds its next cell in the scheduler's queue). Every outcome is read through
+    ``future.result()``: a result lost with its worker before it was fetched is computed again and
+    returned (the future is then not "finished" for a while, which is no failure), and a failure,
+    the cell's own or that recomputation's, raises and counts as an attempt. Not
+    ``as_completed(with_results=True)``: when the recomputation fails, it drops the future and its
+    iterator waits for ever.
     """
     from distributed import as_completed
 
@@ -194,7 +197,7 @@ def run_on_dask(client, jobs, function, in_flight: int):
     retries: collections.deque = collections.deque()
     lookahead: list = []
     meta: dict = {}  # key -> (cell, args, attempt, future)
-    queue = as_completed(loop=client.loop, with_results=True, raise_errors=False)
+    queue = as_completed(loop=client.loop)
 
     def take():
         if retries:
@@ -224,9 +227,13 @@ def run_on_dask(client, jobs, function, in_flight: int):
     fill()
     try:
         while True:
-            for future, result in queue:
+            for future in queue:
                 cell, args, attempt, _ = meta.pop(future.key)
-                message = None if future.status == "finished" else describe_failure(future.exception())
+                result = message = None
+                try:  # a result lost with its worker is computed again first (and that can fail)
+                    result = future.result()
+                except Exception as exc:  # noqa: BLE001 - the cell's error, or KilledWorker: this attempt failed
+                    message = describe_failure(exc)
                 future.release()
                 if message is not None and attempt < ATTEMPTS:
                     retries.append((cell, args, attempt + 1))
