@@ -18,7 +18,7 @@ from typing import Annotated, Optional
 import typer
 
 from ilcforce import __version__
-from ilcforce.cli_signals import sigterm_as_interrupt, stop_code, stop_word
+from ilcforce.cli_signals import ANNOUNCED, STOPS, announce, stop_code, stop_signals
 from ilcforce.controllers import PAPER_METHODS, REGISTRY
 
 # Only what every command needs is imported here: `ilcforce --help` and one-line input errors must
@@ -76,24 +76,33 @@ def _fail(message: str, code: int = 2) -> None:
     raise typer.Exit(code)
 
 
+#: What each command says after "interrupted: " or "terminated (SIGTERM): " when a stop signal ends it.
+_ON_STOP = {"simulate": "every finished iteration is stored; continue with --resume",
+            "compare": "every finished iteration is stored; continue with --resume",
+            "report": "the report was not finished; run `ilcforce report` again",
+            "validate": "nothing was changed"}
+
+
 def _guard(func):
-    """Turn the library's input errors into one line and exit code 2."""
+    """Turn the library's input errors into one line and exit code 2, and a stop signal (Ctrl-C,
+    SIGTERM) into one line and exit code 130 or 143."""
 
     @functools.wraps(func)
     def wrapper(*args, **kwargs):
-        from ilcforce.config import ConfigError
-        from ilcforce.experiment import UnknownMethodError
-        from ilcforce.store import StoreError
-
         try:
-            return func(*args, **kwargs)
-        except (ConfigError, StoreError, UnknownMethodError, CliError) as exc:
-            _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+            from ilcforce.config import ConfigError
+            from ilcforce.experiment import UnknownMethodError
+            from ilcforce.store import StoreError
+
+            try:
+                return func(*args, **kwargs)
+            except (ConfigError, StoreError, UnknownMethodError, CliError) as exc:
+                _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+            except OSError as exc:
+                _fail(f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": "))
         except KeyboardInterrupt:
-            _say(f"{stop_word()}: every finished iteration is stored; continue with --resume", stderr=True)
+            _say(announce(_ON_STOP[func.__name__]), stderr=True)
             raise typer.Exit(stop_code())
-        except OSError as exc:
-            _fail(f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": "))
 
     return wrapper
 
@@ -367,7 +376,7 @@ def main() -> None:
     ``os._exit``. An unexpected exception still goes the normal way, with its traceback.
     """
     try:
-        with sigterm_as_interrupt():
+        with stop_signals():
             app()
         code = 0
     except SystemExit as exc:  # typer ends every command with one
@@ -376,6 +385,15 @@ def main() -> None:
         else:  # a message: print it as sys.exit would
             print(exc.code, file=sys.stderr)
             code = 1
+    except KeyboardInterrupt:  # a stop signal outside typer's own handling
+        code = 130
+    if STOPS and not ANNOUNCED and code in (0, 130):
+        # the signal landed outside a command's own handling (while typer parsed the arguments or
+        # a command imported what it needs: typer turns that into a silent exit 130), or Python
+        # dropped its KeyboardInterrupt and the command finished. A command that failed with its
+        # own line (exit 2) has said what matters.
+        _say(announce("stopped before the command finished" if code else "the command had finished"), stderr=True)
+        code = stop_code()
     for stream in (sys.stdout, sys.stderr):
         try:
             stream.flush()

@@ -12,7 +12,7 @@ import threading
 from pathlib import Path
 
 from ilcforce.cli import CliError, _g, _say, err  # imported by cli's commands, once cli is loaded
-from ilcforce.cli_signals import TERMINATED
+from ilcforce.cli_signals import STOPS, note
 
 
 def _progress_bar(disable: bool):
@@ -63,7 +63,7 @@ def run_several(config, jobs) -> None:
         progress.refresh()
 
     def stopping() -> None:
-        err.print("stopping after the current iteration is stored (Ctrl-C again to stop now)", highlight=False)
+        err.print("stopping after the current iteration is stored (again to stop now)", highlight=False)
 
     try:
         outcomes = run_parallel(config, jobs, progress=tick, on_interrupt=stopping, meanwhile=import_for_table)
@@ -90,11 +90,10 @@ def deferred_interrupt():
     if threading.current_thread() is not threading.main_thread():
         yield lambda: False
         return
-    requested = []
+    requested = list(STOPS)  # a signal whose KeyboardInterrupt Python dropped (in a GC callback) still stops
 
     def handler(signum, frame):
-        if signum == signal.SIGTERM:
-            TERMINATED.append(signum)
+        note(signum)
         if requested:
             raise KeyboardInterrupt
         requested.append(signum)

@@ -1,8 +1,8 @@
-"""SIGTERM (a batch system's, `kill`'s or `timeout`'s stop) takes Ctrl-C's path in every command.
+"""Ctrl-C and SIGTERM (a batch system's, `kill`'s or `timeout`'s stop) in every command.
 
-Before, `simulate`, `report` and `validate` died silently on SIGTERM (exit 143, no line); now each
-command stops the way Ctrl-C stops it (a run keeps every finished iteration, a study every finished
-cell), prints one line saying it was terminated, and exits with 143 (130 for Ctrl-C).
+SIGTERM takes Ctrl-C's path: each command stops the way Ctrl-C stops it (a run keeps every finished
+iteration, a study every finished cell), prints one line saying how it was stopped, and exits with
+143 (130 for Ctrl-C). Before, `simulate`, `report` and `validate` died silently on SIGTERM.
 """
 
 from __future__ import annotations
@@ -12,42 +12,63 @@ import signal
 import sys
 import threading
 
-#: Non-empty once a SIGTERM reached the command running in this process (cleared as each starts).
-TERMINATED: list[int] = []
+#: The stop signals (SIGINT, SIGTERM) that reached the command running in this process; cleared
+#: as each command starts under :func:`stop_signals`.
+STOPS: list[int] = []
+#: Set once a command has printed its line about the stop (so the entry point does not add one).
+ANNOUNCED: list[bool] = []
+
+
+def terminated() -> bool:
+    return signal.SIGTERM in STOPS
 
 
 def stop_word() -> str:
-    return "terminated (SIGTERM)" if TERMINATED else "interrupted"
+    return "terminated (SIGTERM)" if terminated() else "interrupted"
 
 
 def stop_code() -> int:
-    return 143 if TERMINATED else 130
+    return 143 if terminated() else 130
+
+
+def announce(what: str) -> str:
+    """The one line a command prints when a stop signal ended it: ``"<how>: <what>"``."""
+    ANNOUNCED.append(True)
+    return f"{stop_word()}: {what}"
+
+
+def note(signum: int) -> None:
+    """Record a stop signal (for handlers that do not raise, e.g. one that asks a loop to stop)."""
+    STOPS.append(signum)
 
 
 @contextlib.contextmanager
-def sigterm_as_interrupt():
-    """Within: SIGTERM raises KeyboardInterrupt where it lands, as Ctrl-C does, after noting itself
-    in :data:`TERMINATED`. Should Python drop that KeyboardInterrupt (raised in a weakref or GC
-    callback), a command that checks :data:`TERMINATED` between units of work stops there, and the
-    dropped exception prints no "Exception ignored" traceback. Only the main thread sets handlers."""
-    TERMINATED.clear()
+def stop_signals():
+    """Within: SIGINT and SIGTERM note themselves in :data:`STOPS` and raise KeyboardInterrupt where
+    they land. Should Python drop that KeyboardInterrupt (raised in a weakref or GC callback), a
+    command that checks :data:`STOPS` between units of work stops there. Once a stop signal came,
+    errors Python cannot raise (a destructor of an object the interrupt left half-built, e.g.
+    llvmlite's) print nothing: the process is ending. Only the main thread sets handlers."""
+    STOPS.clear()
+    ANNOUNCED.clear()
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def handler(signum, frame):
-        TERMINATED.append(signum)
+        STOPS.append(signum)
         raise KeyboardInterrupt
 
     def unraisable(info) -> None:
-        if not (TERMINATED and info.exc_type is KeyboardInterrupt):
+        if not STOPS:
             hook(info)
 
     hook = sys.unraisablehook
-    previous = signal.signal(signal.SIGTERM, handler)
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     sys.unraisablehook = unraisable
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for sig, before in previous.items():
+            signal.signal(sig, before)
         sys.unraisablehook = hook

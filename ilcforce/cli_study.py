@@ -12,7 +12,7 @@ from typing import Annotated, Optional
 import typer
 
 from ilcforce.cli import _command_line, _fail, _say, app, err, out
-from ilcforce.cli_signals import TERMINATED, sigterm_as_interrupt, stop_code, stop_word
+from ilcforce.cli_signals import STOPS, announce, stop_code, stop_signals
 
 
 def _fail_plain(message: str) -> None:
@@ -33,7 +33,7 @@ class _StudyProgress:
         import time
 
         self.name, self.quiet, self._time = name, quiet, time.monotonic
-        self._stop = stop if stop is not None else []  # non-empty: a SIGTERM came (cli_signals)
+        self._stop = stop if stop is not None else []  # non-empty: a stop signal came (cli_signals)
         self.bar = None
         self._next_line = 0.0
         self._started = self._time()
@@ -96,7 +96,7 @@ def study(
     from ilcforce.study import load_study, run_study
     from ilcforce.study.runner import SharedClient, check_store
 
-    with sigterm_as_interrupt():
+    with stop_signals():
         try:
             specs = [load_study(file) for file in files]  # every file valid before any cell runs
             names = [spec.name for spec in specs]
@@ -109,7 +109,7 @@ def study(
                 check_store(spec, results, resume=resume, overwrite=overwrite, replace_stale=replace_stale)
             with SharedClient() as shared:
                 for spec in specs:
-                    with _StudyProgress(spec.name, quiet, TERMINATED) as progress:
+                    with _StudyProgress(spec.name, quiet, STOPS) as progress:
                         summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
                                             overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
                                             command=_command_line(ctx), progress=progress, timeout=timeout,
@@ -120,7 +120,7 @@ def study(
         except OSError as exc:
             _fail_plain(f"{exc.filename or results}: {exc.strerror or exc}")
         except KeyboardInterrupt:
-            _say(f"{stop_word()}: every finished cell is stored; rerun the same command to continue", stderr=True)
+            _say(announce("every finished cell is stored; rerun the same command to continue"), stderr=True)
             raise typer.Exit(stop_code())
 
 

@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ilcforce.cli_signals import TERMINATED
+from ilcforce.cli_signals import note
 from ilcforce.store import safeio
 
 #: Exit status of a worker stopped by an interrupt (as the CLI's 130).
@@ -74,8 +74,7 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
 
     def forward(signum, frame):
         interrupts.append(signum)
-        if signum == signal.SIGTERM:
-            TERMINATED.append(signum)  # the command then says "terminated (SIGTERM)", exit 143
+        note(signum)  # the command then says "interrupted" (130) or "terminated (SIGTERM)" (143)
         if len(interrupts) == 1 and on_interrupt is not None:
             on_interrupt()
         for method, worker in workers.items():

@@ -354,3 +354,20 @@ def test_file_size_limit_is_one_line_and_a_rerun_completes(tmp_path):
     run_study(small_study(sweep={"c3.eta": [5.0, 2.0]}), clean, workers=1)
     pd.testing.assert_frame_equal(tidy_metrics(results / "studies" / "tiny.h5"),
                                   tidy_metrics(clean / "studies" / "tiny.h5"), check_exact=True)
+
+
+def test_a_local_cluster_that_does_not_start_is_one_line(tmp_path, monkeypatch):
+    """Seen by killing both workers while the cluster started: Dask raised "Nanny failed to start"
+    and the study printed a 220-line traceback."""
+    import distributed
+
+    from ilcforce.study import StudyRunError
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("Nanny failed to start.\nworker process died")
+
+    monkeypatch.setattr(distributed, "LocalCluster", failing)
+    with pytest.raises(StudyRunError) as caught:
+        run_study(small_study(), tmp_path, workers=2)
+    assert str(caught.value) == ("the local Dask cluster of 2 workers did not start "
+                                 "(RuntimeError: Nanny failed to start. worker process died)")

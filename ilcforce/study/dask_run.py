@@ -104,11 +104,18 @@ def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TI
             finally:
                 client.close()
             return
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,
-                               dashboard_address=None, silence_logs=logging.CRITICAL,
-                               # the scheduler's HTTP endpoint (health, metrics) on a free local port:
-                               # no clash with another cluster on 8787, no "port in use" warning
-                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+        try:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,
+                                   dashboard_address=None, silence_logs=logging.CRITICAL,
+                                   # the scheduler's HTTP endpoint (health, metrics) on a free local
+                                   # port: no clash with another cluster on 8787, no "port in use" warning
+                                   scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+        except Exception as exc:  # noqa: BLE001 - e.g. a worker process killed while it started
+            failure = f"{type(exc).__name__}: {_one_line(exc)[:200]}"
+        else:
+            failure = None
+        if failure is not None:  # outside the except block: no chained traceback is kept alive
+            raise StudyRunError(f"the local Dask cluster of {workers} workers did not start ({failure})")
         try:
             client = Client(cluster, set_as_default=False)
             try:
