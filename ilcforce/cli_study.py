@@ -130,8 +130,9 @@ def _summarise(spec, summary, quiet: bool) -> None:
                   f"{message}", highlight=False, markup=False, soft_wrap=True)
     if not quiet:
         where = summary.scheduler if summary.workers == 0 else f"{summary.scheduler}, {summary.workers} worker(s)"
+        where = f"on {where}" if summary.ran else "(nothing to run)"
         out.print(f"{spec.name}: {summary.total} cells ({summary.skipped} already stored, {summary.ran} run, "
-                  f"{len(summary.failed)} failed) in {summary.wall_time:.1f} s on {where} -> {summary.path}",
+                  f"{len(summary.failed)} failed) in {summary.wall_time:.1f} s {where} -> {summary.path}",
                   highlight=False, markup=False, soft_wrap=True)
 
 

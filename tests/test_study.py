@@ -323,6 +323,10 @@ def test_cli_study_and_export_round_trip(tmp_path):
     runner = CliRunner()
     first = runner.invoke(app, ["study", str(path), "--results", str(results), "--workers", "1", "--quiet"])
     assert first.exit_code == 0, first.output
+    again = runner.invoke(app, ["study", str(path), "--results", str(results), "--workers", "2"])
+    assert again.exit_code == 0, again.output
+    assert "(8 already stored, 0 run, 0 failed)" in again.output and "(nothing to run)" in again.output
+    assert "LocalCluster" not in again.output  # no cluster was started for it
     store_file = results / "studies" / "tiny.h5"
     out = tmp_path / "t.csv"
     exported = runner.invoke(app, ["export", str(store_file), "--out", str(out)])
