@@ -78,7 +78,7 @@ def _fail(message: str, code: int = 2) -> None:
 
 #: What each command says after "interrupted: " or "terminated (SIGTERM): " when a stop signal ends it.
 _ON_STOP = {"simulate": "every finished iteration is stored; continue with --resume",
-            "compare": "every finished iteration is stored; continue with --resume",
+            "compare": "every finished iteration is stored; run the same command to continue",
             "report": "the report was not finished; run `ilcforce report` again",
             "validate": "nothing was changed"}
 

@@ -147,7 +147,7 @@ def _collect_dead(workers: dict, outcomes: dict[str, Outcome]) -> None:
             code = worker.exitcode
             how = f"was killed by signal {-code}" if code < 0 else f"exited with code {code}"
             outcomes[method] = Outcome(method, "error", f"the worker running {method} {how}; its store holds "
-                                                        "every iteration committed before (continue with --resume)")
+                                                        "every iteration committed before (run the same command to continue)")
 
 
 def _worker(config, job: Job, messages) -> None:  # messages: the write end of its pipe

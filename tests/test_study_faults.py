@@ -330,6 +330,29 @@ def test_unreachable_scheduler_is_one_line_in_bounded_time(tmp_path, kind):
     assert "scheduler" in result.stderr
     # 2 s to connect plus the interpreter's start-up (imports take a few seconds on a loaded machine)
     assert elapsed < 60, f"took {elapsed:.1f} s"
+    # no empty study store (nor its lock) is left for a later --resume or report to pick up
+    studies = tmp_path / "r" / "studies"
+    assert not studies.exists() or list(studies.iterdir()) == [], list(studies.iterdir())
+
+
+def test_a_study_that_cannot_start_keeps_an_existing_store(tmp_path, monkeypatch):
+    """Only a store the failed run made is removed: one with cells from before stays as it was."""
+    import distributed
+
+    from ilcforce.store.study import read_tables
+    from ilcforce.study import StudyRunError
+
+    run_study(small_study(seeds="0-1"), tmp_path, workers=1)
+    path = tmp_path / "studies" / "tiny.h5"
+    before = len(read_tables(path)[2])
+
+    def failing(*args, **kwargs):
+        raise RuntimeError("Nanny failed to start.")
+
+    monkeypatch.setattr(distributed, "LocalCluster", failing)
+    with pytest.raises(StudyRunError):
+        run_study(small_study(seeds="0-3"), tmp_path, workers=2)
+    assert len(read_tables(path)[2]) == before
 
 
 def test_file_size_limit_is_one_line_and_a_rerun_completes(tmp_path):

@@ -28,6 +28,7 @@ Layout (schema ``ilcforce.study`` 1.0)::
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import json
 import math
@@ -204,6 +205,8 @@ class StudyStore:
         self.consolidate_every = consolidate_every
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._lock_fd = self._lock()
+        self.created = not self.path.exists()  # this handle makes the store (see discard_if_unused)
+        self.committed = 0
         try:
             self._prepare(overwrite, replace_stale, require_existing)
         except BaseException:
@@ -278,6 +281,7 @@ class StudyStore:
         folder.mkdir(exist_ok=True)
         target = folder / f"{record['setting']}-{record['seed']}-{record['method']}.json"
         _write_json_atomic(target, record)
+        self.committed += 1
         self._pending.append({**record, "_file": target})
         key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
         if record["state"] == DONE:
@@ -332,6 +336,18 @@ class StudyStore:
 
     def update_session(self, **fields) -> None:
         self._session.update(fields)
+
+    def discard_if_unused(self) -> None:
+        """Remove the store this handle made when no cell was committed to it (the cluster could not
+        be reached, the run was stopped before its first cell): no empty study is left behind for a
+        later --resume or report to pick up. A store that existed before is never touched."""
+        if not self.created or self.committed or getattr(self, "_lock_fd", None) is None:
+            return
+        for leftover in (self.path, _lock_path(self.path)):
+            leftover.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):
+            journal_dir(self.path).rmdir()  # only if empty
+        self.close()
 
     def close(self) -> None:
         if getattr(self, "_lock_fd", None) is not None:

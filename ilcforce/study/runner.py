@@ -242,6 +242,9 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
         return StudySummary(path, len(cells), skipped, ran, tuple(failed_now), workers or 0,
                             scheduler or ("in-process" if workers == 1 else "LocalCluster"),
                             time.perf_counter() - start)
+    except BaseException:
+        store.discard_if_unused()  # e.g. an unreachable scheduler: no empty store left behind
+        raise
     finally:
         store.close()
 
