@@ -163,8 +163,8 @@ def _load_experiment(name: str, paths: Mapping[str, Path]) -> _Experiment:
         j = tables.chattering_iteration(loaded.metrics)
         if j is not None and j != paper.CHATTERING_ITERATION:
             experiment.warn(
-                f"{method}: iteration {paper.CHATTERING_ITERATION} not complete; Table 3 and Figs. 6, 7 use "
-                f"iteration {j}, the last complete one"
+                f"{method}: no complete iteration {paper.CHATTERING_ITERATION} (the paper's; not run, or not "
+                f"completed); Table 3 and Figs. 6, 7 use iteration {j}, the last complete one"
             )
     return experiment
 
