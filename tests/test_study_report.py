@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from ilcforce.experiment import run_method
@@ -173,3 +174,20 @@ def test_a_study_matches_only_the_same_setup():
     assert _same(base, c3_gain, "c1") and not _same(base, c3_gain, "c3"), "only the method's own gains count"
     assert not _same(base, longer, "c1"), "a 3-iteration study does not stand for a 30-iteration run"
     assert not _same(base, noise, "c1")
+
+
+def test_a_few_diverged_seeds_are_listed_not_given_an_interval():
+    """Two diverged seeds out of 100 read "j = 14.5 [12, 17]": a median and a 95% interval that were
+    only the middle and the range of two values. Up to four are listed; more get the interval."""
+    import math
+
+    from ilcforce.report.study_findings import _divergence_text
+
+    def div(firsts, n):
+        return pd.DataFrame({"seed": range(n), "method": "c3", "iterations": 20,
+                             "diverged_at": list(firsts) + [math.nan] * (n - len(firsts))})
+
+    assert _divergence_text(div([17, 12], 100)) == "j = 12, 17 (2 of 100 seeds)"
+    assert _divergence_text(div([], 20)) == "stable through j = 19 (0 of 20)"
+    many = _divergence_text(div([3, 4, 5, 6, 7, 8], 10))
+    assert many.startswith("j = 5.5 [") and many.endswith("(6 of 10 seeds)")

@@ -39,10 +39,18 @@ def first_divergence(frame: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["seed", "method", "iterations", "diverged_at"])
 
 
+#: Up to this many diverged seeds, their first diverged iterations are listed rather than summarised:
+#: a median with a bootstrap interval over two or three values is only their middle and their range.
+LIST_AT_MOST = 4
+
+
 def _divergence_text(div: pd.DataFrame) -> str:
     k, n = int(div["diverged_at"].notna().sum()), len(div)
     if k == 0:
         return f"stable through j = {int(div['iterations'].max()) - 1} (0 of {n})"
+    if k <= LIST_AT_MOST:
+        firsts = ", ".join(str(int(j)) for j in sorted(div["diverged_at"].dropna()))
+        return f"j = {firsts} ({k} of {n} seeds)"
     return f"j = {format_interval(median_interval(div['diverged_at']))} ({k} of {n} seeds)"
 
 
