@@ -18,7 +18,7 @@ from typing import Annotated, Optional
 import typer
 
 from ilcforce import __version__
-from ilcforce.cli_signals import ANNOUNCED, STOPS, announce, stop_code, stop_signals
+from ilcforce.cli_signals import announce, stop_code
 from ilcforce.controllers import PAPER_METHODS, REGISTRY
 
 # Only what every command needs is imported here: `ilcforce --help` and one-line input errors must
@@ -365,41 +365,8 @@ def version() -> None:
 # the `study` and `export` commands (registered on `app` when their module is imported)
 from ilcforce import cli_study  # noqa: E402,F401
 
-
-def main() -> None:
-    """The console entry point: run the command, then end the process at once with its exit code.
-
-    Python's normal exit tears down numba's compiled code and LLVM object by object: about 0.3 s of
-    a 1.6 s cold `ilcforce simulate` (measured: the same run ends 0.24-0.44 s sooner with os._exit).
-    Nothing is left to do by then (every store is closed, every worker process joined or its
-    cluster closed, inside the command), so after flushing stdout and stderr the process exits with
-    ``os._exit``. An unexpected exception still goes the normal way, with its traceback.
-    """
-    try:
-        with stop_signals():
-            app()
-        code = 0
-    except SystemExit as exc:  # typer ends every command with one
-        if exc.code is None or isinstance(exc.code, int):
-            code = exc.code or 0
-        else:  # a message: print it as sys.exit would
-            print(exc.code, file=sys.stderr)
-            code = 1
-    except KeyboardInterrupt:  # a stop signal outside typer's own handling
-        code = 130
-    if STOPS and not ANNOUNCED and code in (0, 130):
-        # the signal landed outside a command's own handling (while typer parsed the arguments or
-        # a command imported what it needs: typer turns that into a silent exit 130), or Python
-        # dropped its KeyboardInterrupt and the command finished. A command that failed with its
-        # own line (exit 2) has said what matters.
-        _say(announce("stopped before the command finished" if code else "the command had finished"), stderr=True)
-        code = stop_code()
-    for stream in (sys.stdout, sys.stderr):
-        try:
-            stream.flush()
-        except (OSError, ValueError):  # a closed or broken pipe: nothing more can be said
-            pass
-    os._exit(code)
+# the console entry point (pyproject: ilcforce.cli:main), in its own module
+from ilcforce.cli_main import main  # noqa: E402,F401
 
 
 if __name__ == "__main__":

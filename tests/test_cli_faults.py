@@ -142,3 +142,26 @@ def test_variant_folders_of_different_overrides_differ():
     long_a = samerun.variant_folder("paper", {f"c3.k{i}": i for i in range(40)})
     long_b = samerun.variant_folder("paper", {f"c3.k{i}": i + (i == 39) for i in range(40)})
     assert a != b and long_a != long_b and len(long_a) <= 120
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["compare", "--resume"], "error: No such option: --resume"),
+    (["simulate", "--iters", "abc"], "error: Invalid value for '--iters'"),
+    (["nosuch"], "error: No such command 'nosuch'."),
+    (["study"], "error: Missing argument 'files'."),
+    (["simulate", "--method"], "error: Option '--method' requires an argument."),
+])
+def test_usage_errors_of_the_entry_point_are_one_line(args, expected):
+    """Typer drew usage errors as a framed box of four or more lines; the entry point says them in
+    one line, exit 2, and names the help to read."""
+    done = subprocess.run([sys.executable, "-m", "ilcforce", *args], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(expected), done.stderr
+    assert done.stdout == ""
+
+
+def test_no_command_prints_the_help_and_nothing_more():
+    done = subprocess.run([sys.executable, "-m", "ilcforce"], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 2
+    assert "Usage: " in done.stdout + done.stderr and "error:" not in done.stdout + done.stderr

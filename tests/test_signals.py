@@ -21,7 +21,7 @@ def _main_with(app_body: str) -> subprocess.CompletedProcess:
     """Run ilcforce.cli.main() in a fresh process with its typer app replaced by ``app_body``."""
     code = ("import os, signal, time\n"
             "from ilcforce import cli, cli_signals\n"
-            f"def app():\n    {app_body}\n"
+            f"def app(**kwargs):\n    {app_body}\n"
             "cli.app = app\n"
             "cli.main()\n")
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
