@@ -101,7 +101,7 @@ def _guard(func):
             except OSError as exc:
                 _fail(f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": "))
         except KeyboardInterrupt:
-            _say(announce(_ON_STOP[func.__name__]), stderr=True)
+            _say(announce(_ON_STOP.get(func.__name__, "stopped")), stderr=True)
             raise typer.Exit(stop_code())
 
     return wrapper

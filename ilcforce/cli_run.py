@@ -7,12 +7,11 @@ Used by ``simulate`` and ``compare`` in :mod:`ilcforce.cli`; no science here eit
 from __future__ import annotations
 
 import contextlib
-import signal
 import threading
 from pathlib import Path
 
 from ilcforce.cli import CliError, _g, _say, err  # imported by cli's commands, once cli is loaded
-from ilcforce.cli_signals import STOPS, note
+from ilcforce.cli_signals import STOPS, note, on_stop_signals
 
 
 def _progress_bar(disable: bool):
@@ -99,12 +98,8 @@ def deferred_interrupt():
         requested.append(signum)
         _say("stopping: the unfinished iteration is dropped, every finished one is stored", stderr=True)
 
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
+    with on_stop_signals(handler):
         yield lambda: bool(requested)
-    finally:
-        for sig, before in previous.items():
-            signal.signal(sig, before)
 
 
 def import_for_table() -> None:

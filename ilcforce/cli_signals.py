@@ -37,6 +37,18 @@ def announce(what: str) -> str:
     return f"{stop_word()}: {what}"
 
 
+@contextlib.contextmanager
+def on_stop_signals(handler):
+    """Within: ``handler(signum, frame)`` answers SIGINT and SIGTERM; the previous handlers are put
+    back after (main thread only, as Python requires)."""
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, before in previous.items():
+            signal.signal(sig, before)
+
+
 def note(signum: int) -> None:
     """Record a stop signal (for handlers that do not raise, e.g. one that asks a loop to stop)."""
     STOPS.append(signum)
@@ -64,11 +76,9 @@ def stop_signals():
             hook(info)
 
     hook = sys.unraisablehook
-    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     sys.unraisablehook = unraisable
     try:
-        yield
+        with on_stop_signals(handler):
+            yield
     finally:
-        for sig, before in previous.items():
-            signal.signal(sig, before)
         sys.unraisablehook = hook

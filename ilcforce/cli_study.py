@@ -12,7 +12,7 @@ from typing import Annotated, Optional
 import typer
 
 from ilcforce.cli import _command_line, _fail, _say, app, err, out
-from ilcforce.cli_signals import STOPS, announce, stop_code, stop_signals
+from ilcforce.cli_signals import STOPS, announce, stop_code
 
 
 def _fail_plain(message: str) -> None:
@@ -96,32 +96,32 @@ def study(
     from ilcforce.study import load_study, run_study
     from ilcforce.study.runner import SharedClient, check_store
 
-    with stop_signals():
-        try:
-            specs = [load_study(file) for file in files]  # every file valid before any cell runs
-            names = [spec.name for spec in specs]
-            twice = sorted({n for n in names if names.count(n) > 1})
-            if twice:
-                same = [str(file) for file, name in zip(files, names) if name == twice[0]]
-                _fail_plain(f"two study files name the same study {twice[0]!r}: {' and '.join(same[:2])} (each is "
-                            f"stored as results/studies/<name>.h5)")
-            for spec in specs:  # every store usable before any cell runs
-                check_store(spec, results, resume=resume, overwrite=overwrite, replace_stale=replace_stale)
-            with SharedClient() as shared:
-                for spec in specs:
-                    with _StudyProgress(spec.name, quiet, STOPS) as progress:
-                        summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
-                                            overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
-                                            command=_command_line(ctx), progress=progress, timeout=timeout,
-                                            shared=shared)
-                    _summarise(spec, summary, quiet)
-        except _study_errors() as exc:
-            _fail_plain(str(exc) or type(exc).__name__)
-        except OSError as exc:
-            _fail_plain(f"{exc.filename or results}: {exc.strerror or exc}")
-        except KeyboardInterrupt:
-            _say(announce("every finished cell is stored; rerun the same command to continue"), stderr=True)
-            raise typer.Exit(stop_code())
+    # SIGTERM and Ctrl-C: the entry point's cli_signals.stop_signals raise KeyboardInterrupt here
+    try:
+        specs = [load_study(file) for file in files]  # every file valid before any cell runs
+        names = [spec.name for spec in specs]
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            same = [str(file) for file, name in zip(files, names) if name == twice[0]]
+            _fail_plain(f"two study files name the same study {twice[0]!r}: {' and '.join(same[:2])} (each is "
+                        f"stored as results/studies/<name>.h5)")
+        for spec in specs:  # every store usable before any cell runs
+            check_store(spec, results, resume=resume, overwrite=overwrite, replace_stale=replace_stale)
+        with SharedClient() as shared:
+            for spec in specs:
+                with _StudyProgress(spec.name, quiet, STOPS) as progress:
+                    summary = run_study(spec, results, workers=workers, scheduler=scheduler, resume=resume,
+                                        overwrite=overwrite, replace_stale=replace_stale, keep_stores=keep_stores,
+                                        command=_command_line(ctx), progress=progress, timeout=timeout,
+                                        shared=shared)
+                _summarise(spec, summary, quiet)
+    except _study_errors() as exc:
+        _fail_plain(str(exc) or type(exc).__name__)
+    except OSError as exc:
+        _fail_plain(f"{exc.filename or results}: {exc.strerror or exc}")
+    except KeyboardInterrupt:
+        _say(announce("every finished cell is stored; rerun the same command to continue"), stderr=True)
+        raise typer.Exit(stop_code())
 
 
 def _summarise(spec, summary, quiet: bool) -> None:

@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ilcforce.cli_signals import note
+from ilcforce.cli_signals import note, on_stop_signals
 from ilcforce.store import safeio
 
 #: Exit status of a worker stopped by an interrupt (as the CLI's 130).
@@ -84,42 +84,40 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
                 except ProcessLookupError:
                     pass
 
-    previous = {sig: signal.signal(sig, forward) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        for job in jobs:
-            reader, writer = context.Pipe(duplex=False)
-            worker = context.Process(target=_worker, args=(config, job, writer), name=f"ilcforce-{job.method}")
-            worker.start()
-            writer.close()  # the worker holds the only write end: its exit is seen as end of file
-            workers[job.method], readers[reader] = worker, job.method
-        if meanwhile is not None:
-            meanwhile()
-        while readers:
-            for reader in connection.wait(list(readers), timeout=0.5):
-                method = readers[reader]
-                try:
-                    kind, *payload = reader.recv()
-                except EOFError:
-                    del readers[reader]
-                    reader.close()
-                    continue
-                if kind == "progress":
-                    if progress is not None:
-                        progress(method, *payload)
-                elif kind == "written":  # the worker's store, closed: no need to walk it again here
-                    safeio.mark_walked(payload[0])
-                else:
-                    outcomes[method] = Outcome(method, *payload)
-        for worker in workers.values():
-            worker.join()
-        _collect_dead(workers, outcomes)
-    finally:
-        for sig, handler in previous.items():
-            signal.signal(sig, handler)
-        for worker in workers.values():  # only after an error in the parent itself
-            if worker.is_alive():
-                worker.terminate()
+    with on_stop_signals(forward):
+        try:
+            for job in jobs:
+                reader, writer = context.Pipe(duplex=False)
+                worker = context.Process(target=_worker, args=(config, job, writer), name=f"ilcforce-{job.method}")
+                worker.start()
+                writer.close()  # the worker holds the only write end: its exit is seen as end of file
+                workers[job.method], readers[reader] = worker, job.method
+            if meanwhile is not None:
+                meanwhile()
+            while readers:
+                for reader in connection.wait(list(readers), timeout=0.5):
+                    method = readers[reader]
+                    try:
+                        kind, *payload = reader.recv()
+                    except EOFError:
+                        del readers[reader]
+                        reader.close()
+                        continue
+                    if kind == "progress":
+                        if progress is not None:
+                            progress(method, *payload)
+                    elif kind == "written":  # the worker's store, closed: no need to walk it again here
+                        safeio.mark_walked(payload[0])
+                    else:
+                        outcomes[method] = Outcome(method, *payload)
+            for worker in workers.values():
                 worker.join()
+            _collect_dead(workers, outcomes)
+        finally:
+            for worker in workers.values():  # only after an error in the parent itself
+                if worker.is_alive():
+                    worker.terminate()
+                    worker.join()
     return outcomes
 
 

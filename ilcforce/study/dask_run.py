@@ -202,26 +202,15 @@ def run_on_dask(client, jobs, function, in_flight: int):
 
     pending = iter(jobs)
     retries: collections.deque = collections.deque()
-    lookahead: list = []
     meta: dict = {}  # key -> (cell, args, attempt, future)
     queue = as_completed(loop=client.loop)
 
     def take():
         if retries:
             return retries.popleft()
-        if lookahead:
-            return lookahead.pop()
         for cell, args in pending:
             return cell, args, 1
         return None
-
-    def more() -> bool:
-        if retries or lookahead:
-            return True
-        for cell, args in pending:
-            lookahead.append((cell, args, 1))
-            return True
-        return False
 
     def fill() -> None:
         while len(meta) < in_flight and (job := take()) is not None:
@@ -233,31 +222,23 @@ def run_on_dask(client, jobs, function, in_flight: int):
 
     fill()
     try:
-        while True:
-            for future in queue:
-                cell, args, attempt, _ = meta.pop(future.key)
-                result = message = None
-                try:  # a result lost with its worker is computed again first (and that can fail)
-                    result = future.result()
-                except Exception as exc:  # noqa: BLE001 - the cell's error, or KilledWorker: this attempt failed
-                    message = describe_failure(exc)
-                future.release()
-                if message is not None and attempt < ATTEMPTS:
-                    retries.append((cell, args, attempt + 1))
-                fill()
-                if message is None:
-                    yield cell, attempt, result, None
-                elif attempt >= ATTEMPTS:
-                    yield cell, attempt, None, message
-            if not more():
-                return
-            # cells left but none in flight (cannot happen while fill() tops up after every cell;
-            # kept so the loop never ends with cells not run)
-            try:
-                client.wait_for_workers(1, timeout=WORKER_TIMEOUT)
-            except (OSError, TimeoutError):
-                raise StudyRunError(f"no Dask worker came back within {WORKER_TIMEOUT:g} s") from None
+        # fill() tops up after every outcome (a retry included) and as_completed takes the futures
+        # added meanwhile, so the loop ends only when every cell has its outcome
+        for future in queue:
+            cell, args, attempt, _ = meta.pop(future.key)
+            result = message = None
+            try:  # a result lost with its worker is computed again first (and that can fail)
+                result = future.result()
+            except Exception as exc:  # noqa: BLE001 - the cell's error, or KilledWorker: this attempt failed
+                message = describe_failure(exc)
+            future.release()
+            if message is not None and attempt < ATTEMPTS:
+                retries.append((cell, args, attempt + 1))
             fill()
+            if message is None:
+                yield cell, attempt, result, None
+            elif attempt >= ATTEMPTS:
+                yield cell, attempt, None, message
     finally:
         if meta:
             with contextlib.suppress(Exception):
