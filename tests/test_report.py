@@ -480,6 +480,44 @@ def test_perturbation_iteration_is_a_parameter() -> None:
     assert verdicts(shifted, perturbation_iteration=10)[4] != "holds"
 
 
+def test_claim5_shows_the_ratio_before_the_perturbation_beside_the_one_at_19() -> None:
+    """Claim 5 reads H at j = 19, after the m3 change; the ratio at j = p - 1 is shown beside it, so a
+    reader sees how much of the ratio the perturbation makes (C1's H_y halving at p, here)."""
+    c1 = metrics_frame([1e-3] * 10 + [1.2e-3] * 10, [10.0] * 10 + [11.0] * 10, (0.06, 0.05))
+    c1.loc[10:, "chattering_task_y"] = 0.025
+    for p, before_y in ((10, 0.05 / 0.0205), (12, 0.025 / 0.0205)):
+        five = claims.judge_claims(good_case(c1=c1), perturbation_iteration=p)
+        five = five[five["claim"] == 5].set_index("part")
+        np.testing.assert_allclose(five.at["before_perturbation_y", "median"], before_y, rtol=1e-12)
+        np.testing.assert_allclose(five.at["before_perturbation_x", "median"], 0.06 / 0.0359, rtol=1e-12)
+        np.testing.assert_allclose(five.at["direction_y", "median"], 0.025 / 0.0205, rtol=1e-12)
+        assert five.at["before_perturbation_y", "role"] == "shown"
+    # no iteration before the perturbation, or C1 diverged before it: not evaluable (no number)
+    for case, p in ((good_case(), 0), (good_case(c1=metrics_frame([1e-3] * 20, [10.0] * 20, diverged_at=5)), 10)):
+        five = claims.judge_claims(case, perturbation_iteration=p)
+        five = five[five["part"].str.startswith("before_perturbation")]
+        assert len(five) == 2 and five["median"].isna().all() and (five["evaluable"] == 0).all(), five
+        assert five["notes"].str.contains("before it" if p == 0 else "c1 diverged at iteration 5").all()
+
+
+def test_claim4_reconvergence_is_read_at_19_whatever_the_baseline_did() -> None:
+    """C2 and C3 'converge again' is read at j = 19 (or the last iteration both completed): a C1 that
+    diverged at j = 12, or no C1 at all, neither shortens nor blocks it (C2 settles only by j = 16)."""
+    slow = sequence(3, 1e-5)
+    slow[11:16] = [3e-5] * 5
+    c2 = metrics_frame(slow, sequence(2, 0.1), (0.05, 0.04))
+    diverged_c1 = metrics_frame([1e-3] * 10 + [1.2e-3] * 10, [10.0] * 10 + [11.0] * 10, (0.06, 0.05), diverged_at=12)
+    for case in (good_case(c2=c2, c1=diverged_c1), {k: v for k, v in good_case(c2=c2).items() if k != "c1"}):
+        parts = claims.judge_claims(case)
+        again = parts[parts["part"] == "c2_again_position"].iloc[0]
+        np.testing.assert_allclose(again["median"], 1.0, rtol=1e-12)
+        assert again["part_verdict"] == "holds", again["notes"]
+    # C3 ending at j = 14 ends the reading there for both
+    short_c3 = metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.0359, 0.0205), diverged_at=15)
+    parts = claims.judge_claims(good_case(c2=c2, c3=short_c3)).set_index("part")
+    np.testing.assert_allclose(parts.at["c2_again_position", "median"], 3.0, rtol=1e-12)
+
+
 def test_perturbation_iteration_from_config() -> None:
     assert build.perturbation_iteration({"config_json": json.dumps(CONFIG)}) == 10
     eight = {"plant": {"perturbation": {"from_iteration": 8}}}
