@@ -181,6 +181,49 @@ def test_a_result_lost_with_its_worker_before_it_was_fetched_is_computed_again(t
                         ("lost", 1, {"name": "lost", "run": 2}, None)]
 
 
+def freezing_cell(marker_dir: str):
+    """Cell 1 freezes its worker process (SIGSTOP: no heartbeat, no progress) the first time."""
+
+    def cell(i):
+        marker = Path(marker_dir) / str(i)
+        if i == 1 and not marker.exists():
+            marker.write_text("froze")
+            os.kill(os.getpid(), signal.SIGSTOP)
+        time.sleep(0.2)
+        return {"i": i}
+
+    return cell
+
+
+def test_a_frozen_worker_is_restarted_and_its_cell_retried(tmp_path, monkeypatch):
+    """A worker that stops answering (kill -STOP, a hung machine) stalled the study for 10 minutes,
+    Dask's default heartbeat timeout checked at that period. The local scheduler now has the nanny
+    restart it after LOCAL_WORKER_TTL (shortened here; Dask's floor is 10 heartbeats, 5 s): the frozen
+    cell counts as a failed attempt and succeeds on its retry, every other cell on its first."""
+    import threading
+    from collections import namedtuple
+
+    from ilcforce.study import dask_run
+
+    monkeypatch.setattr(dask_run, "LOCAL_WORKER_TTL", 2.0)
+    Job = namedtuple("Job", "key")
+    outcomes: list = []
+
+    def drive() -> None:
+        with dask_run.dask_client(2, None) as client:
+            jobs = [(Job(str(i)), (i,)) for i in range(4)]
+            outcomes.extend(run for run in dask_run.run_on_dask(client, jobs, freezing_cell(str(tmp_path)), in_flight=4))
+
+    started = time.monotonic()
+    thread = threading.Thread(target=drive, daemon=True)
+    thread.start()
+    thread.join(timeout=120)
+    assert not thread.is_alive(), f"the study stalled on the frozen worker ({len(outcomes)} of 4 cells)"
+    by_key = {cell.key: (attempt, result, message) for cell, attempt, result, message in outcomes}
+    assert by_key == {str(i): (2 if i == 1 else 1, {"i": i}, None) for i in range(4)}, by_key
+    assert time.monotonic() - started < 60
+
+
 def _wait_for_a_committed_cell(driver: subprocess.Popen, journal: Path, log) -> None:
     """Until the study driver has committed a cell (a journal record), so a signal lands mid-study."""
     deadline = time.monotonic() + 120

@@ -18,6 +18,11 @@ WORKER_TIMEOUT = 30.0
 IN_FLIGHT_PER_THREAD = 2
 #: Tries per cell: the first run and one retry.
 ATTEMPTS = 2
+#: Seconds a local worker may go without a heartbeat before the scheduler has its nanny restart it
+#: (its cell then fails that attempt and is retried): a frozen worker (``kill -STOP``, a hung
+#: machine) no longer stalls a study. Dask's default is 5 minutes, checked every 5 minutes, so up to
+#: 10; a worker's event loop heartbeats every 0.5 s while the compiled loop runs without the GIL.
+LOCAL_WORKER_TTL = 30.0
 #: Dask's periodic housekeeping, turned down for a local cluster of busy single-task workers: idle,
 #: a default 2-worker LocalCluster used about 12% of one core (driver 4.6%, each worker 3.5%:
 #: system monitor every 0.5 s, memory monitor, work stealing, profiler); with these and
@@ -75,11 +80,12 @@ def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TI
     # Local cluster only (a remote scheduler keeps its own configuration): a dead worker fails its
     # task at once (our retry-once applies), and the scheduler sends a single-threaded worker one
     # queued cell at a time (_cell_task), so a cell that kills its worker never takes an innocent
-    # cell down with it.
+    # cell down with it; a worker that stops answering is restarted (LOCAL_WORKER_TTL).
     settings = {"distributed.scheduler.allowed-failures": 0,
                 "distributed.scheduler.worker-saturation": 1.0,
                 "distributed.worker.daemon": False,
                 "distributed.admin.system-monitor.gil.enabled": False,
+                "distributed.scheduler.worker-ttl": f"{LOCAL_WORKER_TTL:g}s",
                 "logging.distributed": "error",
                 **LEAN_LOCAL_CLUSTER}
     with _quiet_dask(), dask.config.set(settings):
