@@ -5,6 +5,9 @@ written on two processes is byte for byte the one written in one."""
 from __future__ import annotations
 
 import math
+import signal
+import time
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -87,3 +90,58 @@ def test_pool_raises_a_task_error_here():
     tasks = [pool.Task("fine", _square, (2,)), pool.Task("bad", _square, (-1,))]
     with pytest.raises(ValueError, match="negative -1"):
         pool.run_tasks(tasks, jobs=2)
+
+
+_STOPPED_POOL = """
+import os, sys, time
+from pathlib import Path
+from ilcforce.cli_signals import stop_signals
+from ilcforce.report import pool
+
+def piece(i, progress=None):
+    Path(sys.argv[1], str(os.getpid())).write_text("")
+    time.sleep(60)
+
+tasks = [pool.Task(str(i), piece, (i,)) for i in range(6)]
+with stop_signals():
+    try:
+        pool.run_tasks(tasks, jobs=2)
+    except KeyboardInterrupt:
+        print("stopped", flush=True)
+        sys.exit(143)
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_stopped_report_ends_at_once_and_leaves_no_worker(tmp_path, signum):
+    """Stopping `ilcforce report` mid-way waited for every queued piece (the pool's shutdown runs
+    them all) and left its forked workers running, orphaned, ignoring SIGTERM. Now the stop ends
+    the command within seconds and every worker with it."""
+    import subprocess
+    import sys
+
+    with subprocess.Popen([sys.executable, "-c", _STOPPED_POOL, str(tmp_path)], stdout=subprocess.PIPE,
+                          stderr=subprocess.PIPE, text=True) as proc:
+        deadline = time.monotonic() + 60
+        while len(list(tmp_path.iterdir())) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        workers = [int(p.name) for p in tmp_path.iterdir()]
+        assert len(workers) == 2, "the pool's two workers did not start"
+        sent = time.monotonic()
+        proc.send_signal(signum)
+        out, err = proc.communicate(timeout=30)
+        took = time.monotonic() - sent
+    assert proc.returncode == 143 and out.strip() == "stopped", (proc.returncode, out, err)
+    assert took < 5.0, f"the stop took {took:.1f} s"
+    assert "Traceback" not in err, err
+    for pid in workers:
+        assert not _alive(pid), f"worker {pid} outlived the command"
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` exists and is not a zombie."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import multiprocessing
 import queue as queue_module
+import signal
+import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
@@ -33,6 +35,27 @@ class Task:
 def _init_worker(queue: Any) -> None:
     global _QUEUE
     _QUEUE = queue
+    # a forked worker inherits the command's stop handlers; it leaves stopping to the parent, which
+    # ends it (SIGTERM, default action) when the report is stopped. A terminal's Ctrl-C reaches the
+    # whole process group: the parent alone acts on it.
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _end_workers(pool: ProcessPoolExecutor, grace: float = 2.0) -> None:
+    """Stop a pool at once: queued pieces cancelled, running workers terminated (killed after
+    ``grace`` seconds). ``shutdown`` alone runs every queued piece first (it took minutes)."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        if process.is_alive():
+            process.terminate()
+    deadline = time.monotonic() + grace
+    for process in processes:
+        process.join(max(0.0, deadline - time.monotonic()))
+        if process.is_alive():
+            process.kill()
+            process.join(1.0)
 
 
 def worker_progress(text: str) -> None:
@@ -74,8 +97,9 @@ def run_tasks(tasks: list[Task], *, jobs: int, progress: Callable[[str], None] |
     context = multiprocessing.get_context("fork")  # workers inherit the imported modules
     queue = context.Queue()
     order = sorted(range(len(tasks)), key=lambda k: -tasks[k].cost)  # stable: equal costs keep their order
-    with ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=context,
-                             initializer=_init_worker, initargs=(queue,)) as pool:
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=context,
+                               initializer=_init_worker, initargs=(queue,))
+    try:
         futures = {pool.submit(tasks[k].function, *tasks[k].args, progress=worker_progress): k for k in order}
         pending = set(futures)
         while pending:
@@ -84,5 +108,9 @@ def run_tasks(tasks: list[Task], *, jobs: int, progress: Callable[[str], None] |
             for future in sorted(finished_now, key=lambda f: futures[f]):
                 results[futures[future]] = future.result()
                 finished(futures[future])
+    except BaseException:  # a stop signal, or a piece's error: no worker outlives the command
+        _end_workers(pool)
+        raise
+    pool.shutdown(wait=True)
     _drain(queue, progress)
     return results
