@@ -12,7 +12,7 @@ from ilcforce.report.study import key_numbers, per_seed_numbers
 from ilcforce.stats import format_interval, median_interval
 from ilcforce.study import read_study, run_study
 
-from test_study import small_study
+from test_study import SMALL, small_study
 
 
 @pytest.fixture(scope="module")
@@ -191,3 +191,29 @@ def test_a_few_diverged_seeds_are_listed_not_given_an_interval():
     assert _divergence_text(div([], 20)) == "stable through j = 19 (0 of 20)"
     many = _divergence_text(div([3, 4, 5, 6, 7, 8], 10))
     assert many.startswith("j = 5.5 [") and many.endswith("(6 of 10 seeds)")
+
+
+def test_findings_judge_each_setting_with_its_own_perturbation_and_last_iteration(tmp_path):
+    """A study of 4 iterations with the m3 change at j = 2 or 3: the findings page (and the README's
+    section) judged it with the paper's p = 10 and read key numbers at j = 19 only, so claim 4 was
+    'not evaluable' and every key number '-', while the study's own report judged it with p = 2."""
+    from ilcforce.report import claims
+    from ilcforce.report.study_findings import study_markdown
+
+    from ilcforce.study import build_study
+
+    study = build_study({"study": {"name": "short", "seeds": "0-1", "methods": ["c1", "c2", "c3"],
+                                   "set": {**SMALL, "experiment.iterations": 4},
+                                   "sweep": {"plant.perturbation.from_iteration": [2, 3]}}})
+    run_study(study, tmp_path, workers=1)
+    results = read_study(tmp_path / "studies" / "short.h5")
+    page, summary = study_markdown(results)
+    for setting, p in ((0, 2), (1, 3)):
+        frame = results.setting_metrics(setting)
+        expected = claims.claim_summary(claims.judge_claims_over_seeds(frame, perturbation_iteration=p))
+        entry = summary[f"plant.perturbation.from_iteration = {p}"]
+        assert entry["verdicts"] == dict(zip(expected["claim"], expected["verdict"])), (entry["verdicts"], p)
+        assert entry["verdicts"][4] != "not evaluable", "claim 4 is judged at the setting's own p"
+        last = frame[(frame["method"] == "c3") & (frame["iteration"] == 3)]["force_error_2norm"]
+        row = next(r for r in entry["rows"] if r["method"] == "c3")
+        assert row["|e_F| 2-norm (N) at j = 3"] == format_interval(median_interval(last.to_numpy())) != "-"

@@ -54,7 +54,8 @@ def study_findings(name: str, found: Mapping[str, object]) -> list[str]:
         row.update({f"claim {k}": v for k, v in entry["verdicts"].items()})
         for method_row in entry["rows"]:
             row[f"{method_row['method']} divergence"] = method_row["divergence"]
-        row["unstable learning"] = ", ".join(entry["flags"]) or "none"
+        row["unstable learning"] = ", ".join(entry["flags"]) or (
+            "none" if entry.get("stability_fitted", True) else "not evaluable (too few iterations)")
         rows.append(row)
     if rows:
         from ilcforce.report.table_write import markdown_table
@@ -74,18 +75,20 @@ def _error_table(settings: Mapping[str, Mapping[str, object]]) -> list[str]:
     2-norms per setting, median [95% interval] over seeds, so the settings can be compared."""
     from ilcforce.report.table_write import markdown_table
 
-    rows, at = [], ""
+    rows, ats = [], set()
     for setting, entry in settings.items():
         row: dict[str, object] = {"setting": setting}
         for method_row in entry["rows"]:  # type: ignore[union-attr]
             for label in ERROR_LABELS:
                 key = next((k for k in method_row if k.startswith(label + " at j = ")), None)
                 if key is not None:
-                    at = key.removeprefix(label)
+                    ats.add(key.removeprefix(label + " at j = "))
                     row[f"{method_row['method']} {label.split(' ')[0]}"] = method_row[key]
         rows.append(row)
     if len(rows) < 2 or len(rows[0]) < 2:
         return []
+    # key numbers are read at j = 19, or at a shorter setting's last iteration
+    at = f" at j = {ats.pop()}" if len(ats) == 1 else f" at j = {', '.join(sorted(ats, key=int))} (each setting's)"
     return ["", f"Error 2-norms{at} per setting (median [95% interval] over seeds; |e_P| in m, |e_F| in N):", "",
             markdown_table(pd.DataFrame(rows))]
 

@@ -150,14 +150,16 @@ def _cell(interval: Interval, n_seeds: int) -> str:
     return text if interval.n == n_seeds else f"{text} (n = {interval.n})"
 
 
-def _perturbation(config_json: str) -> int:
+def setting_perturbation(config_json: str) -> int:
+    """A setting's perturbation iteration p, from its resolved configuration (the paper's 10 if absent)."""
     try:
         return int(json.loads(config_json)["plant"]["perturbation"]["from_iteration"])
     except (ValueError, KeyError, TypeError):
         return paper.PERTURBATION_ITERATION
 
 
-def _iterations(config_json: str) -> int:
+def setting_iterations(config_json: str) -> int:
+    """A setting's number of iterations, from its resolved configuration (the paper's 20 if absent)."""
     try:
         return int(json.loads(config_json)["experiment"]["iterations"])
     except (ValueError, KeyError, TypeError):
@@ -208,8 +210,8 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
             continue
         if progress is not None:
             progress(f"study {name}: setting {k + 1} of {len(results.settings)}")
-        p = _perturbation(setting.config_json)
-        iterations = _iterations(setting.config_json)
+        p = setting_perturbation(setting.config_json)
+        iterations = setting_iterations(setting.config_json)
         title = setting.label if results.sweep_keys else "the study's setting"
         lines += [f"## Setting {k}: {title}" if results.sweep_keys else "## Results", ""]
         numbers = key_numbers(mine, methods, iterations)

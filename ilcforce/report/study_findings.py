@@ -18,11 +18,12 @@ from matplotlib.figure import Figure
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import claims as claims_module
 from ilcforce.report import figures, paper, stability
+from ilcforce.report.study import setting_iterations, setting_perturbation
 from ilcforce.report.table_write import markdown_table
 from ilcforce.stats import format_interval, median_interval
 
-#: Key numbers per setting and method, read at the paper's Table 3 iteration (j = 19, or the last
-#: iteration a seed completed): grid-independent error norms (comparable across sample times) and H.
+#: Key numbers per setting and method, read at the paper's Table 3 iteration (j = 19, or the setting's
+#: last iteration when it runs fewer): grid-independent error norms (comparable across sample times) and H.
 KEY_COLUMNS = (("position_error_l2", "|e_P| L2 (m s^1/2)"), ("force_error_l2", "|e_F| L2 (N s^1/2)"),
                ("position_error_2norm", "|e_P| 2-norm (m)"), ("force_error_2norm", "|e_F| 2-norm (N)"),
                ("chattering_task_x", "H_x (N)"), ("chattering_task_y", "H_y (N)"),
@@ -54,32 +55,41 @@ def _divergence_text(div: pd.DataFrame) -> str:
     return f"j = {format_interval(median_interval(div['diverged_at']))} ({k} of {n} seeds)"
 
 
-def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int) -> tuple[list[dict], pd.DataFrame, dict]:
-    """One setting's per-method rows (key numbers, divergence, flag), its claim parts and flags."""
+#: Where no growth rate could be fitted (too few complete iterations), in place of a stability verdict.
+NOT_FITTED = "not evaluable (too few iterations)"
+
+
+def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int,
+                 iterations: int) -> tuple[list[dict], pd.DataFrame, dict, bool]:
+    """One setting's per-method rows (key numbers, divergence, flag), its claim parts, flags, and
+    whether any growth rate could be fitted (the stability test could run)."""
     parts = claims_module.judge_claims_over_seeds(frame, perturbation_iteration=perturbation_iteration)
     growth = stability.learning_growth(frame, perturbation_iteration=perturbation_iteration)
     flags = stability.unstable_methods(growth)
+    fitted = set(growth["method"].astype(str))
     divergence = first_divergence(frame)
+    j_key = min(paper.CHATTERING_ITERATION, iterations - 1)
     rows = []
     for method, per_method in frame.groupby("method", sort=False):
         row = {"method": method, "divergence": _divergence_text(divergence[divergence["method"] == method]),
-               "unstable learning": flags.get(str(method), "no").split(": ", 1)[-1]}
+               "unstable learning": (flags.get(str(method), "no").split(": ", 1)[-1] if str(method) in fitted
+                                     else NOT_FITTED)}
         for column, label in KEY_COLUMNS:
             if column not in per_method.columns:
                 continue
-            at = per_method[(per_method["iteration"] == paper.CHATTERING_ITERATION)
-                            & (per_method["status"].astype(str) == "complete")]
-            row[f"{label} at j = {paper.CHATTERING_ITERATION}"] = format_interval(median_interval(at[column]))
+            at = per_method[(per_method["iteration"] == j_key) & (per_method["status"].astype(str) == "complete")]
+            row[f"{label} at j = {j_key}"] = format_interval(median_interval(at[column]))
         rows.append(row)
-    return rows, parts, flags
+    return rows, parts, flags, bool(fitted)
 
 
 def _setting_name(values: dict) -> str:
     return ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in values.items()) or "-"
 
 
-def study_markdown(results, *, perturbation_iteration: int = paper.PERTURBATION_ITERATION) -> tuple[str, dict]:
-    """The study's findings page and a summary for the README (setting -> verdicts and flags)."""
+def study_markdown(results) -> tuple[str, dict]:
+    """The study's findings page and a summary for the README (setting -> verdicts and flags). Each
+    setting is judged with its own perturbation iteration and number of iterations (its configuration)."""
     lines = [f"# Study `{results.name}`", "", f"**{results.description or 'no description'}**", "",
              "Every number is a median over seeds with its 95% percentile-bootstrap interval; divergence "
              "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
@@ -90,17 +100,19 @@ def study_markdown(results, *, perturbation_iteration: int = paper.PERTURBATION_
         frame = results.setting_metrics(int(setting))
         if frame.empty:
             continue
-        rows, parts, flags = setting_rows(frame, perturbation_iteration=perturbation_iteration)
+        config_json = str(results.settings.loc[setting, "config_json"])
+        rows, parts, flags, fitted = setting_rows(frame, perturbation_iteration=setting_perturbation(config_json),
+                                                  iterations=setting_iterations(config_json))
         verdicts = claims_module.claim_summary(parts)
         # a listed setting is named by its label (its key values are in the study report and the table)
         name = (str(results.settings.loc[setting, "label"]) if getattr(results, "labelled", False)
                 else _setting_name(values))
         entry = {"setting": name}
         entry.update({f"claim {r.claim}": f"{r.verdict}" for r in verdicts.itertuples(index=False)})
-        entry["unstable learning"] = ", ".join(flags) or "none"
+        entry["unstable learning"] = ", ".join(flags) or ("none" if fitted else NOT_FITTED)
         overview.append(entry)
         summary[name] = {"verdicts": dict(zip(verdicts["claim"], verdicts["verdict"])), "flags": dict(flags),
-                         "rows": rows, "seeds": int(frame["seed"].nunique())}
+                         "rows": rows, "seeds": int(frame["seed"].nunique()), "stability_fitted": fitted}
         body += [f"## Setting: {name}", "", markdown_table(pd.DataFrame(rows))]
         body.append(markdown_table(verdicts[["claim", "verdict", "frequency", "statement"]]))
     if overview:
@@ -144,7 +156,8 @@ def figure_boundary(results) -> Figure | None:
                                 fontsize="x-small", color=color)
             else:
                 ax_div.plot([xm], [div["iterations"].max()], marker="^", markerfacecolor="none", color=color)
-            growth = stability.learning_growth(frame, perturbation_iteration=paper.PERTURBATION_ITERATION)
+            p = setting_perturbation(str(results.settings.loc[setting, "config_json"]))
+            growth = stability.learning_growth(frame, perturbation_iteration=p)
             hx = growth[growth["quantity"] == "chattering_task_x"]
             if len(hx):
                 r = hx.iloc[0]
