@@ -243,6 +243,19 @@ def test_resume_needs_a_store(tmp_path):
         run_study(small_study(), tmp_path, workers=1, resume=True)
 
 
+def test_resume_and_overwrite_together_are_refused_and_keep_the_store(tmp_path):
+    """--resume --overwrite asks for two opposite things: refused (as simulate does), nothing discarded."""
+    run_study(small_study(), tmp_path, workers=1)
+    stored = (tmp_path / "studies" / "tiny.h5").read_bytes()
+    with pytest.raises(StudyStoreError, match="mutually exclusive"):
+        run_study(small_study(), tmp_path, workers=1, resume=True, overwrite=True)
+    assert (tmp_path / "studies" / "tiny.h5").read_bytes() == stored
+    path = write_study_file(tmp_path, ONE_CELL_TOML)
+    result = CliRunner().invoke(app, ["study", str(path), "--results", str(tmp_path), "--resume", "--overwrite"])
+    assert result.exit_code == 2 and "mutually exclusive" in result.output, result.output
+    assert len(result.output.strip().splitlines()) == 1, result.output
+
+
 def test_foreign_file_is_never_replaced(tmp_path):
     target = tmp_path / "studies" / "tiny.h5"
     target.parent.mkdir()

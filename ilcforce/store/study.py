@@ -150,6 +150,8 @@ def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_s
     :class:`StudyStoreError` (one line) when it may not be touched.
     """
     path = Path(path)
+    if overwrite and require_existing:
+        raise StudyStoreError(f"{path}: --overwrite and --resume are mutually exclusive; choose one")
     if os.path.lexists(path) and (path.is_symlink() or not path.is_file()):
         raise StudyStoreError(f"{path}: exists and is not a regular file; refusing to touch it")
     if not path.exists():
