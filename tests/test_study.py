@@ -77,6 +77,8 @@ def test_sweep_is_full_factorial_first_key_slowest():
     ({"sweep": {"simulation.sampel_time": [1e-4]}}, "did you mean 'sample_time'"),
     ({"sweep": {"simulaton.sample_time": [1e-4]}}, "did you mean 'simulation'"),
     ({"sweep": {"c3.eta": []}}, "empty list"),
+    ({"sweep": {"c3.eta": [5.0, 2.0, 5.0]}}, "lists a value twice"),
+    ({"sweep": {"c3.eta": [5, 5.0]}}, "lists a value twice"),  # the same setting, as an int and a float
     ({"seeds": "5-2"}, "empty: 5 > 2"),
     ({"seeds": "-3-2"}, "range"),
     ({"seeds": [1, -2]}, ">= 0"),

@@ -217,6 +217,13 @@ def _check_methods(value) -> tuple[str, ...]:
     return tuple(names)
 
 
+def _same_value(value) -> tuple:
+    """A sweep value's identity: 5 and 5.0 are one value (the same setting twice), True is not 1."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return ("number", float(value))
+    return ("other", repr(value))
+
+
 def _check_table(name: str, value) -> dict:
     if value is None:
         return {}
@@ -291,7 +298,7 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
             raise StudyError(f"study.sweep.\"{key}\" must be a list of values, got {values!r}")
         if not values:
             raise StudyError(f"study.sweep.\"{key}\" is an empty list")
-        if len(set(map(repr, values))) != len(values):
+        if len(set(map(_same_value, values))) != len(values):
             raise StudyError(f"study.sweep.\"{key}\" lists a value twice")
         if key in fixed:
             raise StudyError(f"study: {key} is both in [study.set] and [study.sweep]")
