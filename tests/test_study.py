@@ -569,3 +569,26 @@ def test_several_study_files_run_in_one_command_on_one_cluster(tmp_path, monkeyp
     assert refused.exit_code == 2 and "same study 'first'" in refused.output
     assert len(refused.output.strip().splitlines()) == 1
     assert not (tmp_path / "r2" / "studies").exists()
+
+
+@pytest.mark.parametrize("args", [[], ["--resume"], ["--overwrite"], ["python"]])
+def test_a_study_store_given_as_a_run_store_is_named_and_untouched(tmp_path, args):
+    """`simulate --out` (plain, --resume, --overwrite) or ilcforce.open on a study store: one line saying
+    it is a study store, the study and its journal folder untouched (found by an attack: it read the
+    study's journal folder as an interrupted run commit, 'cannot undo an unfinished commit (Is a directory)')."""
+    import ilcforce
+
+    run_study(small_study(seeds="0-0", methods=("c3",)), tmp_path, workers=1)
+    path = tmp_path / "studies" / "tiny.h5"
+    journal = tmp_path / "studies" / "tiny.h5.journal"
+    before = path.read_bytes(), sorted(p.name for p in journal.iterdir())
+    if args == ["python"]:
+        with pytest.raises(store.StoreError, match="is a study store, not a run store") as info:
+            ilcforce.open(path)
+        assert "\n" not in str(info.value)
+    else:
+        result = CliRunner().invoke(app, ["simulate", "--method", "c3", "--iters", "1", "--out", str(path), *args])
+        assert result.exit_code == 2, result.output
+        assert "is a study store, not a run store" in result.output, result.output
+        assert len(result.output.strip().splitlines()) == 1, result.output
+    assert (path.read_bytes(), sorted(p.name for p in journal.iterdir())) == before

@@ -26,8 +26,8 @@ from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, itera
 from ilcforce.records import IterationRecord
 from ilcforce.store import schema
 from ilcforce.store.template import verify
-from ilcforce.store.safeio import (StoreError, check_regular_file, one_line, probe, read_locked,
-                                   superblock_version, writer_active)
+from ilcforce.store.safeio import (IS_A_STUDY_STORE, StoreError, check_regular_file, one_line, probe,
+                                   read_locked, superblock_version, writer_active)
 
 _H5_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError)
 
@@ -110,6 +110,8 @@ def check_header(handle: h5py.File, path: Path) -> int:
     if "schema" not in handle.attrs:
         raise StoreError(f"{path}: not an ilcforce store (HDF5 file without a 'schema' attribute)")
     name = py(handle.attrs["schema"])
+    if name == "ilcforce.study":  # store/study_read.py SCHEMA_NAME, not imported here to keep reads light
+        raise StoreError(f"{path}: {IS_A_STUDY_STORE}")
     if name != schema.SCHEMA_NAME:
         raise StoreError(f"{path}: not an ilcforce store (schema {name!r}, expected {schema.SCHEMA_NAME!r})")
     version = py(handle.attrs.get("schema_version", ""))

@@ -310,8 +310,24 @@ def read_locked(path: Path) -> Iterator[int]:
         os.close(fd)
 
 
+#: Why a study store is refused where a run store is expected (reading, --resume, --overwrite).
+IS_A_STUDY_STORE = ("is a study store, not a run store; read it with ilcforce.study.read_study, "
+                    "`ilcforce report` or `ilcforce export`")
+
+
+def not_a_run_store(path: Path) -> str:
+    """Why ``path``, whose journal is a folder, is not read as a run store (one line)."""
+    from ilcforce.store.study_read import is_study_store
+
+    if is_study_store(path):
+        return f"{path}: {IS_A_STUDY_STORE}"
+    return f"{path}: {journal_path(path)} is a folder, not a run store's journal; move it away"
+
+
 def repair_interrupted_commit(path: Path) -> bool:
     """Undo the unfinished commit of a killed writer (exclusive lock on the store while doing so)."""
+    if journal_path(path).is_dir():  # a study store keeps its journal as a folder (store/study.py)
+        raise StoreError(not_a_run_store(path))
     try:
         fd = os.open(path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
     except OSError as error:
