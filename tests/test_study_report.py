@@ -217,3 +217,50 @@ def test_findings_judge_each_setting_with_its_own_perturbation_and_last_iteratio
         last = frame[(frame["method"] == "c3") & (frame["iteration"] == 3)]["force_error_2norm"]
         row = next(r for r in entry["rows"] if r["method"] == "c3")
         assert row["|e_F| 2-norm (N) at j = 3"] == format_interval(median_interval(last.to_numpy())) != "-"
+
+
+def test_a_stopped_study_is_reported_as_incomplete_until_it_is_finished(tmp_path):
+    """A study whose latest run was stopped says so, with the numbers, in its report, the index and
+    the findings; the finished study does not. Only the latest plan's cells count: a rerun with other
+    seeds that stops early is incomplete however many earlier cells are stored."""
+    from ilcforce.report.readme import findings_markdown
+    from ilcforce.report.study import incomplete_text, write_study_report
+    from ilcforce.report.study_findings import write_study_findings
+    from ilcforce.study import load_study
+    from ilcforce.study.cell import run_cell
+
+    from test_study import TINY_TOML, write_study_file
+
+    calls = []
+
+    def stops_after(n):
+        def cell(config, method, keep):
+            if len(calls) == n:
+                raise KeyboardInterrupt  # the user's Ctrl-C during cell n + 1
+            calls.append(method)
+            return run_cell(config, method, keep)
+        return cell
+
+    study = load_study(write_study_file(tmp_path, TINY_TOML))  # 2 settings x 2 seeds x 2 methods
+    with pytest.raises(KeyboardInterrupt):
+        run_study(study, tmp_path, workers=1, cell_function=stops_after(3))
+    path = tmp_path / "studies" / "tiny.h5"
+    expected = "Incomplete: 3 of the 8 planned cells are stored"
+    assert expected in incomplete_text(read_study(path))
+    report = write_study_report(path, tmp_path / "report")
+    assert expected in (tmp_path / "report" / "tiny" / "report.md").read_text(encoding="utf-8")
+    assert expected in "\n".join(report.index_lines)
+    assert any("incomplete" in w for w in report.warnings)
+    _written, name, found = write_study_findings(path, tmp_path / "findings")
+    assert expected in (tmp_path / "findings" / "tiny" / "findings.md").read_text(encoding="utf-8")
+    assert expected in findings_markdown({}, {name: found})
+    run_study(study, tmp_path, workers=1)  # the rerun finishes it
+    assert incomplete_text(read_study(path)) == ""
+    other = load_study(write_study_file(tmp_path, TINY_TOML.replace('seeds = "0-1"', 'seeds = "2-3"')))
+    calls.clear()
+    with pytest.raises(KeyboardInterrupt):
+        run_study(other, tmp_path, workers=1, cell_function=stops_after(1))
+    results = read_study(path)
+    assert len(results.cells) == 9 and results.planned_cells == 8
+    assert "Incomplete: 1 of the 8 planned cells are stored" in incomplete_text(results)
+    assert 'seeds = "2-3"' in results.latest_study_toml and 'seeds = "0-1"' in results.study_toml

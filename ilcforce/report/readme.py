@@ -47,7 +47,11 @@ def experiment_findings(name: str, description: str, parts: pd.DataFrame, flags:
 
 def study_findings(name: str, found: Mapping[str, object]) -> list[str]:
     """One study's findings: per setting, the claim verdicts, flags and each method's divergence."""
+    from ilcforce.report import stability
+
     lines = [f"**Study `{name}`**: {found.get('description') or 'no description'}", ""]
+    if found.get("incomplete"):
+        lines += [str(found["incomplete"]), ""]
     rows = []
     for setting, entry in found["settings"].items():  # type: ignore[union-attr]
         row = {"setting": setting, "seeds": entry["seeds"]}
@@ -55,7 +59,7 @@ def study_findings(name: str, found: Mapping[str, object]) -> list[str]:
         for method_row in entry["rows"]:
             row[f"{method_row['method']} divergence"] = method_row["divergence"]
         row["unstable learning"] = ", ".join(entry["flags"]) or (
-            "none" if entry.get("stability_fitted", True) else "not evaluable (too few iterations)")
+            "none" if entry.get("stability_fitted", True) else stability.NOT_FITTED)
         rows.append(row)
     if rows:
         from ilcforce.report.table_write import markdown_table

@@ -40,6 +40,8 @@ MIN_WINDOW = 9
 #: Quantities always watched (metric columns); memory norms are added when present.
 WATCHED = ("chattering_task_x", "chattering_task_y", "position_error_2norm", "force_error_2norm")
 UNSTABLE = "unstable learning"
+#: In place of a stability verdict where no growth rate could be fitted (too few complete iterations).
+NOT_FITTED = "not evaluable (too few iterations)"
 #: Learned-memory norm columns: ``memory_norm_<name>`` (ilcforce.metrics.memory_norms, the one
 #: function single-run reports and study cells share).
 MEMORY_PREFIXES = ("memory_norm_",)

@@ -194,8 +194,12 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         lines += [results.description, ""]
     lines += [f"{done} cells done, {len(failed)} failed; {len(seeds)} seeds "
               f"({_seed_text(seeds)}), methods {', '.join(methods) or '-'}, {len(results.settings)} setting(s)"
-              + _settings_text(results) + ".", "",
-              "## How to read the numbers", "", INTERVAL_TEXT, ""]
+              + _settings_text(results) + ".", ""]
+    incomplete = incomplete_text(results)
+    if incomplete:
+        report.warnings.append(f"study {name}: incomplete (its latest run stopped early); see its report")
+        lines += [incomplete, ""]
+    lines += ["## How to read the numbers", "", INTERVAL_TEXT, ""]
     if len(failed):
         report.warnings.append(f"study {name}: {len(failed)} cell(s) failed; see its report")
         lines += ["## Failed cells", "", table_write.markdown_table(failed[["setting", "seed", "method", "attempts",
@@ -239,7 +243,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         sweep_files, sweep_lines = study_figures.sweep_figures(results, directory, formats)
         report.files += sweep_files
         lines += ["## Over the sweep", ""] + sweep_lines
-    lines += ["## The study file", "", "```toml", results.study_toml.rstrip(), "```", "",
+    lines += ["## The study file", "", "```toml", results.latest_study_toml.rstrip(), "```", "",
               "## Provenance", ""]
     for session in results.sessions:
         versions = ", ".join(f"{k} {v}" for k, v in session.get("versions", {}).items() if v)
@@ -251,6 +255,26 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
     report.files.append(text_path)
     report.index_lines = _index_lines(name, results, headline, len(seeds), done, len(failed))
     return report
+
+
+def incomplete_text(results) -> str:
+    """A sentence for a study whose latest run stopped before storing every cell it planned
+    (settings x seeds x methods of its study file); '' for a complete study or an older store."""
+    from ilcforce.report.study_match import study_methods_and_seeds
+
+    planned, cells = results.planned_cells, results.cells
+    if planned is None:
+        return ""
+    methods, seeds = study_methods_and_seeds(results.latest_study_toml)
+    mine = cells
+    if len(cells) and seeds:  # count only the cells of the latest plan (an earlier run may have had more)
+        mine = cells[cells["seed"].isin(seeds)]
+        mine = mine[mine["method"].isin(methods)] if methods else mine
+    if len(mine) >= planned:
+        return ""
+    return (f"**Incomplete: {len(mine)} of the {planned} planned cells are stored** (its latest run was stopped "
+            "or is still running; rerun `ilcforce study` on its file to finish it). Every number here is "
+            "over the stored cells only.")
 
 
 def _settings_text(results) -> str:
@@ -274,6 +298,8 @@ def _index_lines(name: str, results, headline: pd.DataFrame, n_seeds: int, done:
     if results.description:
         lines += [results.description, ""]
     lines += [f"{n_seeds} seeds, {len(results.settings)} setting(s), {done} cells done, {failed} failed.", ""]
+    if incomplete_text(results):
+        lines += [incomplete_text(results), ""]
     if len(headline):
         what = "first setting" if results.sweep_keys else "verdicts over seeds"
         lines += [f"The paper's claims ({what}):", "",

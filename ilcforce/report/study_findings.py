@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import claims as claims_module
 from ilcforce.report import figures, paper, stability
-from ilcforce.report.study import setting_iterations, setting_perturbation
+from ilcforce.report.study import incomplete_text, setting_iterations, setting_perturbation
 from ilcforce.report.table_write import markdown_table
 from ilcforce.stats import format_interval, median_interval
 
@@ -55,8 +55,7 @@ def _divergence_text(div: pd.DataFrame) -> str:
     return f"j = {format_interval(median_interval(div['diverged_at']))} ({k} of {n} seeds)"
 
 
-#: Where no growth rate could be fitted (too few complete iterations), in place of a stability verdict.
-NOT_FITTED = "not evaluable (too few iterations)"
+NOT_FITTED = stability.NOT_FITTED
 
 
 def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int,
@@ -90,10 +89,12 @@ def _setting_name(values: dict) -> str:
 def study_markdown(results) -> tuple[str, dict]:
     """The study's findings page and a summary for the README (setting -> verdicts and flags). Each
     setting is judged with its own perturbation iteration and number of iterations (its configuration)."""
-    lines = [f"# Study `{results.name}`", "", f"**{results.description or 'no description'}**", "",
-             "Every number is a median over seeds with its 95% percentile-bootstrap interval; divergence "
-             "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
-             "(a claim fails when a central part fails); unstable learning follows the stated growth test.", ""]
+    lines = [f"# Study `{results.name}`", "", f"**{results.description or 'no description'}**", ""]
+    if incomplete_text(results):
+        lines += [incomplete_text(results), ""]
+    lines += ["Every number is a median over seeds with its 95% percentile-bootstrap interval; divergence "
+              "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
+              "(a claim fails when a central part fails); unstable learning follows the stated growth test.", ""]
     overview, summary, body = [], {}, []
     for setting in results.settings.index:
         values = {k: results.settings.loc[setting, k] for k in results.sweep_keys}
@@ -201,4 +202,5 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
     (directory / "findings.md").write_text(text, encoding="utf-8")
     written.append(directory / "findings.md")
     return written, results.name, {"description": results.description, "settings": summary,
+                                   "incomplete": incomplete_text(results),
                                    "labelled": bool(getattr(results, "labelled", False))}

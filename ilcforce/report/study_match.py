@@ -44,7 +44,8 @@ class StudyMatch:
         return f"../studies/{self.name}/{BAND_FIGURES[stem]}_s{self.setting}.png"
 
 
-def _study_methods_and_seeds(study_toml: str) -> tuple[tuple[str, ...] | None, tuple[int, ...]]:
+def study_methods_and_seeds(study_toml: str) -> tuple[tuple[str, ...] | None, tuple[int, ...]]:
+    """The methods (None: not listed) and seeds of a study file's text; (None, ()) if unreadable."""
     from ilcforce.study.spec import StudyError, parse_seeds
     from ilcforce.tomlfile import parse_toml
 
@@ -55,6 +56,15 @@ def _study_methods_and_seeds(study_toml: str) -> tuple[tuple[str, ...] | None, t
         return None, ()
     methods = table.get("methods")
     return (tuple(methods) if isinstance(methods, list) else None), seeds
+
+
+def _latest_study_toml(header: dict) -> str:
+    """The study file as its latest run read it (a rerun may add seeds): StudyResults.latest_study_toml."""
+    try:
+        files = [s["study_toml"] for s in json.loads(str(header.get("sessions_json", "[]"))) if s.get("study_toml")]
+    except (ValueError, TypeError, AttributeError):
+        files = []
+    return str(files[-1]) if files else str(header.get("study_toml", ""))
 
 
 def _same(setting: dict, run: dict, method: str) -> bool:
@@ -78,7 +88,7 @@ def find_study(results_dir: Path, configs: dict[str, dict]) -> StudyMatch | None
             header = read_header(path)
         except (StudyStoreError, OSError):
             continue  # the study's own report says why
-        methods, seeds = _study_methods_and_seeds(str(header.get("study_toml", "")))
+        methods, seeds = study_methods_and_seeds(_latest_study_toml(header))
         n_seeds = len(seeds)
         shared = [m for m in configs if methods is None or m in methods]
         if not shared or (best is not None and n_seeds <= best.n_seeds):

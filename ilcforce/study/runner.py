@@ -182,7 +182,9 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
     path = store_path(results_dir, study.name)
     session = {"id": uuid.uuid4().hex, "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
                "command": command, "scheduler": scheduler or ("in-process" if workers == 1 else "LocalCluster"),
-               "workers": workers, "host": platform.node(), "versions": _versions()}
+               "workers": workers, "host": platform.node(), "versions": _versions(),
+               # what this run set out to store, so that a report can say a stopped study is incomplete
+               "cells_planned": len(study.cells()), "study_toml": study.source}
     store = StudyStore(path, header=_header(study), session=session, overwrite=overwrite,
                        replace_stale=replace_stale, require_existing=resume)
     try:

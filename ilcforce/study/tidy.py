@@ -77,6 +77,19 @@ class StudyResults:
         return frame.drop(columns=self.leading_columns).reset_index(drop=True)
 
     @property
+    def planned_cells(self) -> int | None:
+        """The cells (settings x seeds x methods) the latest run set out to store; None for a store
+        written before runs recorded it. Fewer stored cells than this: the run was stopped."""
+        planned = [s["cells_planned"] for s in self.sessions if "cells_planned" in s]
+        return int(planned[-1]) if planned else None
+
+    @property
+    def latest_study_toml(self) -> str:
+        """The study file as the latest run read it (a rerun may add seeds or methods)."""
+        files = [s["study_toml"] for s in self.sessions if s.get("study_toml")]
+        return str(files[-1]) if files else self.study_toml
+
+    @property
     def leading_columns(self) -> list[str]:
         """The tidy frame's setting columns: ``setting_label`` (settings list only), then the keys."""
         return [*([LABEL_COLUMN] if self.labelled else []), *self.sweep_keys]
