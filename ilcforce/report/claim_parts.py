@@ -78,6 +78,14 @@ CLAIMS: tuple[Claim, ...] = (
 )
 
 
+def statement_at(claim: Claim, perturbation_iteration: int) -> str:
+    """The claim as stated, plus where it is judged when a setting changes m3 at another iteration
+    than the paper's j = 10 (claims 1 and 4 are about that change)."""
+    if claim.number in (1, 4) and perturbation_iteration != paper.PERTURBATION_ITERATION:
+        return f"{claim.statement} Judged here at this setting's m3 change, j = {perturbation_iteration}."
+    return claim.statement
+
+
 class _Stop(Exception):
     """Ends one part's evaluation in one seed: ``passed`` False (a failure) or None (not evaluable)."""
 

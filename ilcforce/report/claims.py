@@ -37,7 +37,7 @@ import pandas as pd
 
 from ilcforce.report import paper
 from ilcforce.report.claim_parts import (CENTRAL, CLAIMS, PARTS, SECONDARY,  # noqa: F401 (CLAIMS: re-exported)
-                                         SHOWN, _Part, _Seed, _Stop)
+                                         SHOWN, _Part, _Seed, _Stop, statement_at)
 from ilcforce.report.seedframes import split_seeds
 from ilcforce.stats import frequency_interval, median_interval
 
@@ -119,7 +119,8 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
                 verdicts[part.key] = NOT_EVALUABLE
             stat = median_interval(values)  # an infinite ratio (a diverged baseline) is dropped and counted in n
             notes = sorted({r[2] for r in results[part] if r[2]})
-            rows.append({"claim": claim.number, "statement": claim.statement, "part": part.key,
+            rows.append({"claim": claim.number, "statement": statement_at(claim, perturbation_iteration),
+                         "part": part.key,
                          "part_text": part.text, "role": part.role, "statistic": part.statistic,
                          "median": stat.estimate, "low": stat.low, "high": stat.high,
                          "distribution": _distribution(values), "passed": k if part.role != SHOWN else pd.NA,
@@ -158,7 +159,8 @@ def claim_summary(parts: pd.DataFrame) -> pd.DataFrame:
         mine = parts[parts["claim"] == claim.number] if not parts.empty else parts
         verdict = str(mine["verdict"].iloc[0]) if len(mine) else NOT_EVALUABLE
         frequency = str(mine["claim_frequency"].iloc[0]) if len(mine) else "-"
-        rows.append({"claim": claim.number, "statement": claim.statement, "verdict": verdict,
+        statement = str(mine["statement"].iloc[0]) if len(mine) else claim.statement
+        rows.append({"claim": claim.number, "statement": statement, "verdict": verdict,
                      "frequency": frequency, "paper": claim.paper, "rule": claim.rule})
     return pd.DataFrame(rows)
 
