@@ -183,10 +183,11 @@ def default_config() -> Config:
 def _set_path(data: dict, dotted: str, value) -> None:
     keys = dotted.split(".")
     node = data
-    for key in keys[:-1]:
+    for depth, key in enumerate(keys[:-1]):
         node = node.setdefault(key, {})
         if not isinstance(node, dict):
-            raise ConfigError(f"--set {dotted}: {key} is not a table")
+            above = ".".join(keys[:depth + 1])
+            raise ConfigError(f"{above} = {node!r} is not a table ([{above}]), so {dotted} cannot be set")
     node[keys[-1]] = value
 
 
@@ -211,7 +212,10 @@ def load_config(path: Path | str | None = None, overrides: dict[str, object] | N
         path = Path(path)
         data, _ = read_toml(path, "config file", ConfigError)
     for key, value in (overrides or {}).items():
-        _set_path(data, key, value)
+        try:
+            _set_path(data, key, value)
+        except ConfigError as exc:  # a value in the file where a table belongs (e.g. experiment = 3)
+            raise ConfigError(f"{path}: {exc}" if path is not None else f"--set {key}: {exc}") from None
     try:
         return config_from_dict(data)
     except ConfigError as exc:

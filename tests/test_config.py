@@ -97,6 +97,25 @@ def test_bad_files(tmp_path):
         load_config(wrong)
 
 
+@pytest.mark.parametrize("text, key, message", [
+    ("experiment = 3\n", "experiment.iterations",
+     "e.toml: experiment = 3 is not a table ([experiment]), so experiment.iterations cannot be set"),
+    ("[plant]\nperturbation = 3\n", "plant.perturbation.from_iteration",
+     "e.toml: plant.perturbation = 3 is not a table ([plant.perturbation]), so "
+     "plant.perturbation.from_iteration cannot be set"),
+])
+def test_a_value_where_the_file_needs_a_table_is_named_in_the_file(tmp_path, text, key, message):
+    """`experiment = 3` in the file with `--iters` (an override) said '--set experiment.iterations:
+    experiment is not a table', blaming an option the user never gave."""
+    path = tmp_path / "e.toml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_config(path, {key: 2})
+    assert str(info.value).endswith(message), str(info.value)
+    with pytest.raises(ConfigError, match=r"--set c3.eta: c3 = 2 is not a table"):
+        load_config(None, {"c3": 2, "c3.eta": 1.0})
+
+
 def test_overrides():
     assert parse_override("c3.eta=2") == ("c3.eta", 2)
     assert parse_override("wall.force_sign=paper") == ("wall.force_sign", "paper")

@@ -98,6 +98,20 @@ def test_bad_study_names_the_key(table, message):
     assert "\n" not in str(info.value)
 
 
+def test_a_fault_of_the_experiment_file_is_named_as_the_file_s(tmp_path):
+    """A fault of the study's experiment file itself is the file's, not the settings': it was
+    reported as 'study.set: e.toml: unknown key simulation.seed'."""
+    (tmp_path / "e.toml").write_text("[simulation]\nseed = 3\n", encoding="utf-8")
+    path = write_study_file(tmp_path, '[study]\nname = "x"\nexperiment = "e.toml"\nseeds = "0-1"\n'
+                                      '[study.set]\n"experiment.iterations" = 2\n')
+    with pytest.raises(StudyError, match=r"study.experiment: .*e.toml: unknown key simulation.seed"):
+        load_study(path)
+    (tmp_path / "e.toml").write_text("[experiment]\niterations = 3\n", encoding="utf-8")
+    path.write_text(path.read_text().replace('= 2', '= -2'), encoding="utf-8")
+    with pytest.raises(StudyError, match=r"study.set: .*experiment.iterations"):
+        load_study(path)
+
+
 @pytest.mark.parametrize("text, message", [
     ('[study]\nname = "x"\nseeds = "0-1"\n[study.sweep]\n"c3.etaa" = [1.0]\n', "did you mean 'eta'"),
     ('[study]\nname = "x"\nseeds = "5-2"\n', "5 > 2"),

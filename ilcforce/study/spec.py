@@ -329,6 +329,11 @@ def _load(experiment: Path | None, overrides: dict, where: str) -> Config:
     try:
         return load_config(experiment, {**overrides, "experiment.seed": 0})
     except ConfigError as exc:
+        if experiment is not None:  # the experiment file's own fault is not the setting's
+            try:
+                load_config(experiment)
+            except ConfigError as own:
+                raise StudyError(f"study.experiment: {own}") from None
         raise StudyError(f"{where}: {exc}") from None
 
 
