@@ -13,6 +13,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 
+def _bound(value) -> str:
+    """A bound as a user would write it: an integer in full (2**63 - 1, not 9.22337e+18), a float short."""
+    return str(value) if isinstance(value, int) and not isinstance(value, bool) else f"{value:g}"
+
+
 @dataclass(frozen=True)
 class Range:
     """The valid interval of a numeric field: low/high with open or closed ends."""
@@ -28,7 +33,8 @@ class Range:
         return above and below
 
     def __str__(self) -> str:
-        return f"{'(' if self.low_open else '['}{self.low:g}, {self.high:g}{')' if self.high_open else ']'}"
+        low, high = _bound(self.low), _bound(self.high)
+        return f"{'(' if self.low_open else '['}{low}, {high}{')' if self.high_open else ']'}"
 
 
 #: Ranges by dotted key; ``section.*`` covers a whole section, list entries use their list's key.

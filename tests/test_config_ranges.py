@@ -21,7 +21,7 @@ from ilcforce.config_ranges import RANGES, range_of
 
 HUGE = "99999999999999999999"
 CASES = [
-    (["--seed", HUGE], "experiment.seed must be in [0, "),
+    (["--seed", HUGE], "experiment.seed must be in [0, 9223372036854775807], got"),  # not 9.22337e+18
     (["--iters", HUGE], "experiment.iterations must be in [1, 100000]"),
     (["--set", "wall.stiffness=" + "1" * 400], "wall.stiffness must be finite, got an integer with 400 digits"),
     (["--set", "reference.duration=1e308"], "reference.duration must be in (0, 600]"),

@@ -85,6 +85,8 @@ def test_sweep_is_full_factorial_first_key_slowest():
     ({"sweep": {"c3.eta": [5.0, -1.0]}}, "setting 1 (c3.eta=-1.0)"),
     ({"name": "../escape"}, "escape the results folder"),
     ({"name": ".hidden"}, "escape the results folder"),
+    ({"name": "my study"}, "not a plain file name (letters, digits, '.', '_', '-'; no '/' or leading '.'): it "
+                           "names the study's store file"),
     ({"methods": ["c4"]}, "unknown method"),
     ({"set": {"experiment.seed": 3}}, "study.seeds"),
     ({"sweeps": {}}, "did you mean 'sweep'"),

@@ -192,8 +192,10 @@ def _check_name(name) -> str:
     if not isinstance(name, str) or not name:
         raise StudyError(f"study.name must be a non-empty string, got {name!r}")
     if not _NAME.fullmatch(name) or name in (".", ".."):
+        escapes = "/" in name or "\\" in name or name.startswith(".")
+        why = "it would escape the results folder" if escapes else "it names the study's store file"
         raise StudyError(f"study.name {name!r} is not a plain file name (letters, digits, '.', '_', '-'; "
-                         "no '/' or leading '.'): it would escape the results folder")
+                         f"no '/' or leading '.'): {why}")
     return name
 
 
