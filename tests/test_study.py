@@ -250,8 +250,11 @@ def test_rerun_skips_finished_cells_and_extends_seeds(tmp_path):
 def test_changed_settings_are_refused_then_overwritten(tmp_path):
     run_study(small_study(), tmp_path, workers=1)
     changed = small_study(sweep={"c3.eta": [1.0]})
-    with pytest.raises(StudyStoreError, match="different settings"):
+    with pytest.raises(StudyStoreError, match=r"different settings \(setting columns \[\] -> \['c3.eta'\]\)"):
         run_study(changed, tmp_path, workers=1)
+    fixed = small_study(**{"set": {**SMALL, "c3.eta": 1.0}})
+    with pytest.raises(StudyStoreError, match=r"different settings \(setting 0: c3.eta 5.0 -> 1.0\)"):
+        run_study(fixed, tmp_path, workers=1)
     summary = run_study(changed, tmp_path, workers=1, overwrite=True)
     assert summary.ran == 4 and summary.skipped == 0
 

@@ -164,7 +164,9 @@ def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_s
     stored = read_header(path)
     reason = None
     if stored.get("definition_json") != header["definition_json"]:
-        reason = "its study has different settings (sweep, fixed values or experiment)"
+        reason = ("its study has different settings ("
+                  + (settings_difference(str(stored.get("definition_json")), header["definition_json"])
+                     or "sweep, fixed values or experiment") + ")")
     elif stored.get("fingerprint") != header["fingerprint"]:
         reason = "its cells were computed by different simulation code"
     if overwrite or (reason and replace_stale):
@@ -172,6 +174,38 @@ def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_s
     if reason:
         raise StudyStoreError(f"{path}: {reason}; pass --overwrite to start the study over")
     return False
+
+
+def _flat(node: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in node.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def settings_difference(stored: str, new: str) -> str:
+    """The first difference between two studies' definitions (JSON), stored -> new, for the refusal:
+    e.g. "setting 1: c3.eta 2.0 -> 3.0"; '' when it cannot be told."""
+    try:
+        was, now = json.loads(stored), json.loads(new)
+        if was.get("sweep_keys") != now.get("sweep_keys"):
+            return f"setting columns {was.get('sweep_keys')} -> {now.get('sweep_keys')}"
+        if len(was["settings"]) != len(now["settings"]):
+            return f"{len(was['settings'])} settings -> {len(now['settings'])}"
+        if was.get("labels") != now.get("labels"):
+            return f"setting labels {was.get('labels')} -> {now.get('labels')}"
+        for k, (a, b) in enumerate(zip(was["settings"], now["settings"])):
+            a, b = _flat(json.loads(a)), _flat(json.loads(b))
+            keys = sorted(key for key in a.keys() | b.keys() if a.get(key) != b.get(key))
+            if keys:
+                more = f" and {len(keys) - 1} more key(s)" if len(keys) > 1 else ""
+                return f"setting {k}: {keys[0]} {a.get(keys[0], '-')} -> {b.get(keys[0], '-')}{more}"
+    except (ValueError, TypeError, AttributeError, KeyError):
+        pass
+    return ""
 
 
 class StudyStore:
