@@ -362,8 +362,8 @@ def version() -> None:
     _say(f"ilcforce {__version__}")
 
 
-# the `study` and `export` commands (registered on `app` when their module is imported)
-from ilcforce import cli_study  # noqa: E402,F401
+# the `study`, `export` and `config` commands (registered on `app` when their module is imported)
+from ilcforce import cli_config, cli_study  # noqa: E402,F401
 
 # the console entry point (pyproject: ilcforce.cli:main), in its own module
 from ilcforce.cli_main import main  # noqa: E402,F401

@@ -1,7 +1,10 @@
-"""Reading a user's TOML file (an experiment or a study) with one clear line for every way it can fail."""
+"""Reading a user's TOML file (an experiment or a study) with one clear line for every way it can fail;
+writing a configuration back as TOML (``ilcforce config``)."""
 
 from __future__ import annotations
 
+import json
+import re
 import tomllib
 from pathlib import Path
 
@@ -58,3 +61,42 @@ def read_toml(path: Path, what: str, error: type[Exception]) -> tuple[dict, str]
         return parse_toml(text), text
     except tomllib.TOMLDecodeError as exc:
         raise error(f"{what} {path} is not valid TOML: {exc}") from None
+
+
+def _toml_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
+
+
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)  # floats round-trip exactly; inf and nan are TOML too
+    if isinstance(value, str):
+        return json.dumps(value)  # JSON's escapes are TOML basic-string escapes
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"no TOML form for {type(value).__name__} {value!r}")
+
+
+def dump_toml(data: dict, comments: dict[str, str] | None = None) -> str:
+    """TOML text of nested tables of scalars and lists (what a configuration holds), every table
+    written out (``[a.b]``) so that each key reads as the dotted name ``--set`` takes; ``comments``
+    maps a table's dotted name to a comment line above it. ``parse_toml`` reads it back equal."""
+    lines: list[str] = []
+
+    def table(node: dict, name: str) -> None:
+        scalars = {k: v for k, v in node.items() if not isinstance(v, dict)}
+        if name and (scalars or not node):
+            if lines:
+                lines.append("")
+            if comments and name in comments:
+                lines.append(f"# {comments[name]}")
+            lines.append(f"[{name}]")
+        lines.extend(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in scalars.items())
+        for key, value in node.items():
+            if isinstance(value, dict):
+                table(value, f"{name}.{_toml_key(key)}" if name else _toml_key(key))
+
+    table(data, "")
+    return "\n".join(lines) + "\n"

@@ -122,3 +122,36 @@ def test_overrides():
     assert load_config(None, dict([parse_override("c3.k=[1.0, 2.0]")])).gains["c3"].k == (1.0, 2.0)
     with pytest.raises(ConfigError, match="KEY=VALUE"):
         parse_override("c3.eta")
+
+
+def _experiment_files():
+    root = Path(__file__).resolve().parents[1] / "experiments"
+    return sorted(p for p in root.glob("*.toml") if "[study]" not in p.read_text(encoding="utf-8"))
+
+
+@pytest.mark.parametrize("path", [None, *_experiment_files()], ids=lambda p: p.stem if p else "default")
+def test_config_command_prints_every_key_as_an_experiment_file_that_loads_back_the_same(tmp_path, path):
+    """`ilcforce config [-c FILE] [--set ...]` prints the resolved configuration as TOML; run as an
+    experiment file it gives exactly the same configuration (every key, each method's gains)."""
+    from typer.testing import CliRunner
+
+    from ilcforce.cli import app
+    from ilcforce.controllers import REGISTRY
+
+    args = ["config", "--set", "c3.eta=2.5", "--seed", "7"] + (["--config", str(path)] if path else [])
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    printed = tmp_path / "printed.toml"
+    printed.write_text(result.stdout, encoding="utf-8")
+    expected = load_config(path, {"c3.eta": 2.5, "experiment.seed": 7})
+    assert load_config(printed).to_json() == expected.to_json()
+    data = tomllib.loads(result.stdout)
+    assert all(name in data for name in REGISTRY), "every method's gains section is listed"
+
+
+def test_dump_toml_quotes_what_toml_needs():
+    from ilcforce.tomlfile import dump_toml
+
+    data = {"a": {"plain-key_1": 1, "with space": 'say "hi"\n', "x": [1.5, float("inf")], "b": True,
+                  "inner": {"tiny": 1e-300}}}
+    assert tomllib.loads(dump_toml(data)) == data
