@@ -239,6 +239,26 @@ def test_overwrite_refuses_what_is_not_a_store(path: Path, make):
     assert os.lstat(path).st_mode == kind
 
 
+TARGETS = {**THINGS, "folder": lambda p: p.mkdir()}
+
+
+@pytest.mark.parametrize("mode", [{}, {"overwrite": True}, {"resume": True}], ids=["plain", "overwrite", "resume"])
+@pytest.mark.parametrize("kind", TARGETS)
+def test_a_target_no_option_may_write_is_refused_without_a_hint_or_a_lock_file(path: Path, kind, mode):
+    """Found by an attack: `simulate --out FOLDER` (or a text file) left FOLDER.lock behind and, plain,
+    advised '--overwrite replaces it or --resume continues it', both of which are refused. A foreign
+    HDF5 file is told apart only by opening it, under the lock (its lock file stays)."""
+    path.parent.mkdir(parents=True)
+    TARGETS[kind](path)
+    with pytest.raises(StoreError) as error:
+        with writer(path, **mode) as w:
+            w.append(make_record(0))
+    assert_one_line_naming(error, path)
+    assert "--overwrite replaces it" not in str(error.value)
+    if kind != "foreign HDF5":
+        assert sorted(p.name for p in path.parent.iterdir()) == ["c3.h5"], "nothing made beside it"
+
+
 def test_overwrite_replaces_a_store(path: Path):
     write_run(path, 2)
     with writer(path, overwrite=True) as w:

@@ -611,3 +611,23 @@ def test_a_study_store_given_as_a_run_store_is_named_and_untouched(tmp_path, arg
         assert "is a study store, not a run store" in result.output, result.output
         assert len(result.output.strip().splitlines()) == 1, result.output
     assert (path.read_bytes(), sorted(p.name for p in journal.iterdir())) == before
+
+
+def test_a_damaged_study_store_is_not_told_to_lose_its_journal(tmp_path):
+    """A truncated study store whose journal folder holds cells not yet merged, read as a run store
+    (`simulate --out`, ilcforce.open): the line says it is damaged and to keep the journal folder (it
+    said 'move it away', which would lose the cells). Found by an attack."""
+    import ilcforce
+
+    run_study(small_study(seeds="0-0", methods=("c3",)), tmp_path, workers=1)
+    path = tmp_path / "studies" / "tiny.h5"
+    journal = tmp_path / "studies" / "tiny.h5.journal"
+    (journal / "0-5-c3.json").write_text("{}", encoding="utf-8")  # a cell not yet merged
+    os.truncate(path, 1000)
+    with pytest.raises(store.StoreError) as info:
+        ilcforce.open(path)
+    message = str(info.value)
+    assert "truncated" in message and "keep it" in message and "move it away" not in message, message
+    result = CliRunner().invoke(app, ["simulate", "--method", "c3", "--iters", "1", "--out", str(path)])
+    assert result.exit_code == 2 and "keep it" in result.output, result.output
+    assert (journal / "0-5-c3.json").exists() and path.stat().st_size == 1000

@@ -19,7 +19,8 @@ import numpy as np
 from ilcforce.records import REFERENCE_SIGNALS
 from ilcforce.store.provenance import SameRunCheck
 from ilcforce.store.read import open_store
-from ilcforce.store.safeio import StoreError, journal_path, os_reason, repair_interrupted_commit
+from ilcforce.store.safeio import (StoreError, journal_path, not_a_run_store, os_reason, repair_interrupted_commit,
+                                   superblock_version)
 
 
 def make_parent(path: Path) -> None:
@@ -77,15 +78,42 @@ def check_replaceable(path: Path) -> None:
         raise StoreError(f"refusing to overwrite: {error}; --overwrite replaces only an ilcforce store") from None
 
 
-def describe_existing(path: Path) -> str:
-    """What is at ``path`` (run state and iterations, or why it is not a store), for a refusal."""
+def refuse_foreign_target(path: Path) -> None:
+    """Refuse, before a lock file is made beside it, a target no option may write: a folder or other
+    non-file, a study store (its journal is a folder), a file that is not HDF5 (--overwrite replaces
+    only an ilcforce store). What needs the store opened is checked under the lock."""
+    if not os.path.lexists(path):
+        return
+    if journal_path(path).is_dir():
+        raise StoreError(not_a_run_store(path))
+    try:
+        info = os.stat(path)
+        if stat.S_ISDIR(info.st_mode):
+            raise StoreError(f"{path}: is a directory, not a store file; choose another --out")
+        if not stat.S_ISREG(info.st_mode):
+            raise StoreError(f"{path}: is not a regular file, not a store; choose another --out")
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK)
+    except OSError:
+        return  # a dangling link, no permission: the checks under the lock say why
+    try:
+        foreign = superblock_version(fd) is None
+    finally:
+        os.close(fd)
+    if foreign:
+        raise StoreError(f"{path}: exists and is not an ilcforce store (not an HDF5 file); neither --overwrite "
+                         "nor --resume touches it: move it away or choose another --out")
+
+
+def existing_refusal(path: Path) -> str:
+    """Why a plain run refuses the existing ``path``: what it holds and which option applies."""
     from ilcforce.store.access import iterations, read_provenance
     try:
         provenance = read_provenance(path)
         done = iterations(path)
-    except StoreError as error:
-        return f"not a valid store: {error}"
-    return f"run_state {provenance['run_state']!r}, {len(done)} complete iterations"
+    except StoreError as error:  # neither --overwrite nor --resume takes a store that cannot be read
+        return f"{path} already exists and is not a usable store ({error}); move it away or choose another --out"
+    return (f"{path} already exists (run_state {provenance['run_state']!r}, {len(done)} complete iterations); "
+            "--overwrite replaces it or --resume continues it")
 
 
 def check_resumable(path: Path, *, experiment: str, method: str, seed: int, same_run: SameRunCheck,

@@ -316,12 +316,16 @@ IS_A_STUDY_STORE = ("is a study store, not a run store; read it with ilcforce.st
 
 
 def not_a_run_store(path: Path) -> str:
-    """Why ``path``, whose journal is a folder, is not read as a run store (one line)."""
-    from ilcforce.store.study_read import is_study_store
+    """Why ``path``, whose journal is a folder (as a study store's is), is not read as a run store:
+    a study store, or a damaged one whose journal folder may hold cells not yet merged (one line)."""
+    from ilcforce.store.study_read import StudyStoreError, read_header
 
-    if is_study_store(path):
-        return f"{path}: {IS_A_STUDY_STORE}"
-    return f"{path}: {journal_path(path)} is a folder, not a run store's journal; move it away"
+    try:
+        read_header(Path(path))
+    except StudyStoreError as error:
+        return (f"{one_line(str(error))}; {journal_path(path)} is a study store's journal folder: keep it, "
+                "it may hold cells not yet merged")
+    return f"{path}: {IS_A_STUDY_STORE}"
 
 
 def repair_interrupted_commit(path: Path) -> bool:

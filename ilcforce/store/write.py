@@ -21,7 +21,8 @@ from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, itera
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.store import commit, schema
 from ilcforce.store.provenance import SameRunCheck, default_same_run as _default_same_run, git_state, text, utc_now
-from ilcforce.store.prepare import check_replaceable, check_resumable, clean_leftovers, describe_existing, make_parent
+from ilcforce.store.prepare import (check_replaceable, check_resumable, clean_leftovers, existing_refusal, make_parent,
+                                    refuse_foreign_target)
 from ilcforce.store.template import IterationTemplate
 from ilcforce.store.safeio import StoreError, StoreExistsError, acquire_writer_lock, one_line
 
@@ -128,6 +129,7 @@ class StoreWriter:
         if self._entered:
             raise RuntimeError("a StoreWriter can be entered only once")
         make_parent(self._path)
+        refuse_foreign_target(self._path)  # before the lock file: a refused target leaves nothing beside it
         self._lock_fd = acquire_writer_lock(self._path)
         try:
             clean_leftovers(self._path)
@@ -138,8 +140,7 @@ class StoreWriter:
                 elif self._overwrite:
                     check_replaceable(self._path)
                 else:
-                    raise StoreExistsError(f"{self._path} already exists ({describe_existing(self._path)}); "
-                                           "--overwrite replaces it or --resume continues it")
+                    raise StoreExistsError(existing_refusal(self._path))
         except BaseException:
             self._release_lock()
             raise
