@@ -37,12 +37,12 @@ def config(
 ) -> None:
     """Print the resolved configuration as TOML: every key (`--set section.key=value`) and its value."""
     from ilcforce.controllers import REGISTRY
-    from ilcforce.tomlfile import dump_toml
+    from ilcforce.tomlfile import dump_toml, toml_comment
 
     cfg = _load(config, seed, iters, sets)
     comments = dict(SECTIONS)
     comments.update({name: f"{spec.title}: gains" for name, spec in REGISTRY.items()})
     source = str(config) if config is not None else "the paper's setup (SPEC defaults)"
-    out.print(f"# ilcforce config: {source}" + (f" with {' '.join('--set ' + s for s in sets)}" if sets else ""),
-              highlight=False, markup=False, soft_wrap=True)
+    header = f"ilcforce config: {source}" + (f" with {' '.join('--set ' + s for s in sets)}" if sets else "")
+    out.print(toml_comment(header), highlight=False, markup=False, soft_wrap=True)
     out.print(dump_toml(cfg.to_dict(), comments), end="", highlight=False, markup=False, soft_wrap=True)

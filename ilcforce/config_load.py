@@ -187,7 +187,7 @@ def _set_path(data: dict, dotted: str, value) -> None:
         node = node.setdefault(key, {})
         if not isinstance(node, dict):
             above = ".".join(keys[:depth + 1])
-            raise ConfigError(f"{above} = {node!r} is not a table ([{above}]), so {dotted} cannot be set")
+            raise ConfigError(f"{above} = {_short(node)} is not a table ([{above}]), so {dotted} cannot be set")
     node[keys[-1]] = value
 
 

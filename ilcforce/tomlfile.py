@@ -63,8 +63,20 @@ def read_toml(path: Path, what: str, error: type[Exception]) -> tuple[dict, str]
         raise error(f"{what} {path} is not valid TOML: {exc}") from None
 
 
+def _toml_string(text: str) -> str:
+    """A TOML basic string: JSON's escapes (TOML's too) for the control characters, every other
+    character as itself (JSON's ASCII escapes would split a character beyond U+FFFF into two
+    surrogate halves, which TOML refuses), and DEL escaped, which JSON leaves bare."""
+    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
+
+
+def toml_comment(text: str) -> str:
+    """``text`` as one TOML comment line: control characters (a newline in a --set value) escaped."""
+    return "# " + "".join(c if c.isprintable() or c == " " else f"\\u{ord(c):04x}" for c in text)
+
+
 def _toml_key(key: str) -> str:
-    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key)
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else _toml_string(key)
 
 
 def _toml_value(value) -> str:
@@ -73,7 +85,7 @@ def _toml_value(value) -> str:
     if isinstance(value, (int, float)):
         return repr(value)  # floats round-trip exactly; inf and nan are TOML too
     if isinstance(value, str):
-        return json.dumps(value)  # JSON's escapes are TOML basic-string escapes
+        return _toml_string(value)
     if isinstance(value, (list, tuple)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
     raise TypeError(f"no TOML form for {type(value).__name__} {value!r}")
@@ -91,7 +103,7 @@ def dump_toml(data: dict, comments: dict[str, str] | None = None) -> str:
             if lines:
                 lines.append("")
             if comments and name in comments:
-                lines.append(f"# {comments[name]}")
+                lines.append(toml_comment(comments[name]))
             lines.append(f"[{name}]")
         lines.extend(f"{_toml_key(k)} = {_toml_value(v)}" for k, v in scalars.items())
         for key, value in node.items():

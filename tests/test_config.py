@@ -114,6 +114,9 @@ def test_a_value_where_the_file_needs_a_table_is_named_in_the_file(tmp_path, tex
     assert str(info.value).endswith(message), str(info.value)
     with pytest.raises(ConfigError, match=r"--set c3.eta: c3 = 2 is not a table"):
         load_config(None, {"c3": 2, "c3.eta": 1.0})
+    with pytest.raises(ConfigError) as info:  # a huge value is shortened, as in every other message
+        load_config(None, {"c3": "x" * 100_000, "c3.eta": 1.0})
+    assert len(str(info.value)) < 300
 
 
 def test_overrides():
@@ -153,5 +156,22 @@ def test_dump_toml_quotes_what_toml_needs():
     from ilcforce.tomlfile import dump_toml
 
     data = {"a": {"plain-key_1": 1, "with space": 'say "hi"\n', "x": [1.5, float("inf")], "b": True,
-                  "inner": {"tiny": 1e-300}}}
-    assert tomllib.loads(dump_toml(data)) == data
+                  "inner": {"tiny": 1e-300}, "smile \U0001f600": "tab\t del\x7f \U0001f600 \u2028 é"}}
+    text = dump_toml(data, {"a.inner": "a comment\nwith a newline\x7f and \U0001f600"})
+    assert tomllib.loads(text) == data, text
+
+
+def test_config_command_output_loads_back_whatever_the_user_typed(tmp_path):
+    """An emoji in a --set string was written as two surrogate escapes, and a newline in a --set
+    argument broke the header comment: either made the printed file invalid TOML (an attack)."""
+    from typer.testing import CliRunner
+
+    from ilcforce.cli import app
+
+    sets = ['experiment.description="smile \U0001f600"', "c3.k=[1.0,\n2.0]"]
+    result = CliRunner().invoke(app, ["config", *[a for s in sets for a in ("--set", s)]])
+    assert result.exit_code == 0, result.output
+    printed = tmp_path / "printed.toml"
+    printed.write_text(result.stdout, encoding="utf-8")
+    loaded = load_config(printed)
+    assert loaded.experiment.description == "smile \U0001f600" and loaded.gains["c3"].k == (1.0, 2.0)

@@ -220,9 +220,12 @@ def _check_methods(value) -> tuple[str, ...]:
 
 
 def _same_value(value) -> tuple:
-    """A sweep value's identity: 5 and 5.0 are one value (the same setting twice), True is not 1."""
+    """A sweep value's identity: 5 and 5.0 are one value (the same setting twice), and so are
+    [1, 2] and [1.0, 2.0]; True is not 1."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         return ("number", float(value))
+    if isinstance(value, list):
+        return ("list", tuple(_same_value(v) for v in value))
     return ("other", repr(value))
 
 
