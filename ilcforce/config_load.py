@@ -93,7 +93,8 @@ def _build(cls, data, path: str, base=None):
     kwargs = {}
     for key, value in data.items():
         if key not in names:
-            raise ConfigError(f"unknown key {path}.{key}{_did_you_mean(key, names)}")
+            shown = f"{path}.{key}" if key.strip() == key and key.isprintable() else repr(f"{path}.{key}")
+            raise ConfigError(f"unknown key {shown}{_did_you_mean(key.strip(), names)}")  # repr: 'eta ' shows its space
         annotation = hints[key]
         if dataclasses.is_dataclass(annotation):
             kwargs[key] = _build(annotation, value, f"{path}.{key}", getattr(base, key) if base else None)

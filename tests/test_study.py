@@ -77,6 +77,7 @@ def test_sweep_is_full_factorial_first_key_slowest():
     ({"sweep": {"simulation.sampel_time": [1e-4]}}, "did you mean 'sample_time'"),
     ({"sweep": {"simulaton.sample_time": [1e-4]}}, "did you mean 'simulation'"),
     ({"sweep": {"c3.eta": []}}, "empty list"),
+    ({"sweep": {"c3.eta ": [1.0]}}, "unknown key 'c3.eta ' (did you mean 'eta'?)"),  # the space is shown
     ({"sweep": {"c3.eta": [5.0, 2.0, 5.0]}}, "lists a value twice"),
     ({"sweep": {"c3.eta": [5, 5.0]}}, "lists a value twice"),  # the same setting, as an int and a float
     ({"sweep": {"c3.k": [[1.0, 2.0], [1, 2]]}}, "lists a value twice"),
