@@ -121,6 +121,8 @@ def config_from_dict(data: dict) -> Config:
         elif key in REGISTRY:
             gains[key] = _build(REGISTRY[key].gains_class, value, key)
         else:
+            if key == "study":  # a study file given where an experiment file belongs
+                raise ConfigError("is a study file ([study]), not an experiment file: run it with `ilcforce study`")
             raise ConfigError(f"unknown section [{key}]{_did_you_mean(key, [*sections, *REGISTRY])}")
     try:
         config = Config(**kwargs, gains=gains)

@@ -119,6 +119,14 @@ def test_a_value_where_the_file_needs_a_table_is_named_in_the_file(tmp_path, tex
     assert len(str(info.value)) < 300
 
 
+def test_a_study_file_given_as_an_experiment_file_says_so(tmp_path):
+    path = tmp_path / "s.toml"
+    path.write_text('[study]\nname = "s"\nseeds = "0-1"\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"s.toml: is a study file \(\[study\]\), not an experiment file: run "
+                                          r"it with `ilcforce study`"):
+        load_config(path)
+
+
 def test_overrides():
     assert parse_override("c3.eta=2") == ("c3.eta", 2)
     assert parse_override("wall.force_sign=paper") == ("wall.force_sign", "paper")
