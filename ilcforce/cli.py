@@ -342,7 +342,11 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
         try:
             if is_study_store(path):
                 s = check_study_store(path)
-                _say(f"{path}: ok (study {s['name']}, {s['cells']} cells: {s['done']} done, {s['failed']} failed)")
+                ignored = (f"; {len(s['ignored'])} journal entries ignored ({', '.join(s['ignored'][:3])}"
+                           f"{', ...' if len(s['ignored']) > 3 else ''}); a damaged record's cell runs again"
+                           if s["ignored"] else "")
+                _say(f"{path}: ok (study {s['name']}, {s['cells']} cells: {s['done']} done, {s['failed']} failed)"
+                     + ignored)
                 continue
             store.validate(path)
             prov = store.read_provenance(path)

@@ -633,3 +633,21 @@ def test_a_damaged_study_store_is_not_told_to_lose_its_journal(tmp_path):
     result = CliRunner().invoke(app, ["simulate", "--method", "c3", "--iters", "1", "--out", str(path)])
     assert result.exit_code == 2 and "keep it" in result.output, result.output
     assert (journal / "0-5-c3.json").exists() and path.stat().st_size == 1000
+
+
+def test_validate_names_what_the_study_journal_ignores(tmp_path):
+    """A damaged record, a stray file and a folder in the journal: readers skip them (the cell runs
+    again), and `validate` now says so instead of a plain 'ok' (found by an attack)."""
+    run_study(small_study(seeds="0-0", methods=("c3",)), tmp_path, workers=1)
+    path = tmp_path / "studies" / "tiny.h5"
+    journal = tmp_path / "studies" / "tiny.h5.journal"
+    result = CliRunner().invoke(app, ["validate", str(path)])
+    assert result.exit_code == 0 and "ignored" not in result.output, result.output
+    (journal / "0-9-c3.json").write_text('{"trunc', encoding="utf-8")
+    (journal / "notes.txt").write_text("x", encoding="utf-8")
+    (journal / "sub").mkdir()
+    result = CliRunner().invoke(app, ["validate", str(path)])
+    assert result.exit_code == 0, result.output
+    assert ("3 journal entries ignored (0-9-c3.json: not a cell record (damaged or foreign), notes.txt: not a "
+            ".json record, sub: a folder); a damaged record's cell runs again") in result.output, result.output
+    assert len(result.output.strip().splitlines()) == 1

@@ -89,6 +89,24 @@ def _journal_records(path: Path) -> list[dict]:
     return records
 
 
+def ignored_journal_entries(path: Path) -> list[str]:
+    """What the journal folder holds that is not a usable cell record (a damaged or foreign .json,
+    a folder, another file), each as 'name: why'; hidden files (a record being written) are left out.
+    Readers skip them, so their cells run again."""
+    folder = journal_dir(path)
+    if not folder.is_dir():
+        return []
+    usable = {record["_file"].name for record in _journal_records(path)}
+    found = []
+    for item in sorted(folder.iterdir()):
+        if item.name.startswith(".") or item.name in usable:
+            continue
+        why = ("a folder" if item.is_dir() else "not a cell record (damaged or foreign)" if item.suffix == ".json"
+               else "not a .json record")
+        found.append(f"{item.name}: {why}")
+    return found
+
+
 def _probe(path: Path) -> None:
     """Bounded time on a damaged file: walk its structure in a forked child first (the run store's
     :func:`ilcforce.store.safeio.probe`); StudyStoreError if that fails."""
@@ -172,11 +190,11 @@ def _keys(frame: pd.DataFrame):
 def check_study_store(path: Path) -> dict:
     """Read all of the study store at ``path`` as ``ilcforce validate`` does: the header and every
     table, with their checksums, and the journal's records. Returns its name and cell counts
-    (``cells``, ``done``, ``failed``); raises :class:`StudyStoreError` (one line) on any damage."""
+    (``cells``, ``done``, ``failed``) and the journal entries it ignores (``ignored``); raises :class:`StudyStoreError` (one line) on any damage."""
     header, _, cells = read_tables(Path(path))
     states = cells["state"].tolist() if len(cells) else []
     return {"name": str(header.get("name", "")), "cells": len(states), "done": states.count(DONE),
-            "failed": states.count(FAILED)}
+            "failed": states.count(FAILED), "ignored": ignored_journal_entries(Path(path))}
 
 
 # ------------------------------------------------------------------------------------------------
