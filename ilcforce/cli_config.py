@@ -8,12 +8,14 @@ paper's setup, an experiment file, and ``--set`` on top; the output is itself an
 
 from __future__ import annotations
 
+import shlex
+import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
 
-from ilcforce.cli import _guard, _load, app, out
+from ilcforce.cli import _guard, _load, app
 
 #: The comment above each section (methods' gain sections are named by the registry's titles).
 SECTIONS = {
@@ -42,7 +44,11 @@ def config(
     cfg = _load(config, seed, iters, sets)
     comments = dict(SECTIONS)
     comments.update({name: f"{spec.title}: gains" for name, spec in REGISTRY.items()})
-    source = str(config) if config is not None else "the paper's setup (SPEC defaults)"
-    header = f"ilcforce config: {source}" + (f" with {' '.join('--set ' + s for s in sets)}" if sets else "")
-    out.print(toml_comment(header), highlight=False, markup=False, soft_wrap=True)
-    out.print(dump_toml(cfg.to_dict(), comments), end="", highlight=False, markup=False, soft_wrap=True)
+    given = [*(["--config", str(config)] if config is not None else []),
+             *(["--seed", str(seed)] if seed is not None else []),
+             *(["--iters", str(iters)] if iters is not None else []),
+             *[arg for text in sets or [] for arg in ("--set", text)]]
+    header = "ilcforce config" + (f" {shlex.join(given)}" if given else ": the paper's setup (SPEC defaults)")
+    # plain ASCII on stdout, not through rich (which would turn ':smile:' in a string into an emoji)
+    sys.stdout.write(toml_comment(header) + "\n" + dump_toml(cfg.to_dict(), comments))
+    sys.stdout.flush()

@@ -10,6 +10,7 @@ spells the same values out and a test pins that the two agree.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import difflib
 import math
@@ -122,7 +123,8 @@ def config_from_dict(data: dict) -> Config:
             gains[key] = _build(REGISTRY[key].gains_class, value, key)
         else:
             if key == "study":  # a study file given where an experiment file belongs
-                raise ConfigError("is a study file ([study]), not an experiment file: run it with `ilcforce study`")
+                raise ConfigError("[study] is a study file's table, not an experiment's: run a study file with "
+                                  "`ilcforce study`")
             raise ConfigError(f"unknown section [{key}]{_did_you_mean(key, [*sections, *REGISTRY])}")
     try:
         config = Config(**kwargs, gains=gains)
@@ -183,15 +185,31 @@ def default_config() -> Config:
     return config_from_dict({})
 
 
-def _set_path(data: dict, dotted: str, value) -> None:
+class _NotATable(ConfigError):
+    def __init__(self, message: str, *, from_file: bool) -> None:
+        super().__init__(message)
+        self.from_file = from_file
+
+
+def _set_path(data: dict, dotted: str, value, file_data: dict) -> None:
+    """Set ``dotted`` in ``data``; a value where a table belongs is named, with the file's name when
+    it is the file's (``file_data``: the file as read, None without a file) and without when an
+    earlier override put it there."""
     keys = dotted.split(".")
-    node = data
+    node, in_file = data, file_data
     for depth, key in enumerate(keys[:-1]):
         node = node.setdefault(key, {})
+        in_file = in_file.get(key) if isinstance(in_file, dict) else None
         if not isinstance(node, dict):
             above = ".".join(keys[:depth + 1])
-            raise ConfigError(f"{above} = {_short(node)} is not a table ([{above}]), so {dotted} cannot be set")
+            message = f"{above} = {_short(node)} is not a table ([{above}]), so {dotted} cannot be set"
+            raise _NotATable(message, from_file=in_file is not None and not isinstance(in_file, dict))
     node[keys[-1]] = value
+
+
+def _from_overrides(message: str, overrides: dict) -> bool:
+    """Whether a validation message names an overridden key (the fault is not the file's)."""
+    return any(message.startswith(f"{key} ") for key in overrides)
 
 
 def parse_override(text: str) -> tuple[str, object]:
@@ -211,15 +229,19 @@ def parse_override(text: str) -> tuple[str, object]:
 def load_config(path: Path | str | None = None, overrides: dict[str, object] | None = None) -> Config:
     """Load ``path`` (None: the paper's setup), apply dotted ``overrides``, validate everything."""
     data: dict = {}
+    file_data: dict = {}
+    overrides = overrides or {}
     if path is not None:
         path = Path(path)
         data, _ = read_toml(path, "config file", ConfigError)
-    for key, value in (overrides or {}).items():
+        file_data = copy.deepcopy(data)
+    for key, value in overrides.items():
         try:
-            _set_path(data, key, value)
-        except ConfigError as exc:  # a value in the file where a table belongs (e.g. experiment = 3)
-            raise ConfigError(f"{path}: {exc}" if path is not None else f"--set {key}: {exc}") from None
+            _set_path(data, key, value, file_data)
+        except _NotATable as exc:  # a value where a table belongs: the file's (experiment = 3) or an override's
+            raise ConfigError(f"{path}: {exc}" if exc.from_file else str(exc)) from None
     try:
         return config_from_dict(data)
-    except ConfigError as exc:
-        raise ConfigError(f"{path}: {exc}" if path is not None else str(exc)) from None
+    except ConfigError as exc:  # the file is named unless the message names an overridden key
+        blame = path is not None and not _from_overrides(str(exc), overrides)
+        raise ConfigError(f"{path}: {exc}" if blame else str(exc)) from None

@@ -3,7 +3,6 @@ writing a configuration back as TOML (``ilcforce config``)."""
 
 from __future__ import annotations
 
-import json
 import re
 import tomllib
 from pathlib import Path
@@ -63,16 +62,22 @@ def read_toml(path: Path, what: str, error: type[Exception]) -> tuple[dict, str]
         raise error(f"{what} {path} is not valid TOML: {exc}") from None
 
 
+def _escape(char: str) -> str:
+    code = ord(char)
+    return f"\\u{code:04x}" if code <= 0xFFFF else f"\\U{code:08x}"
+
+
 def _toml_string(text: str) -> str:
-    """A TOML basic string: JSON's escapes (TOML's too) for the control characters, every other
-    character as itself (JSON's ASCII escapes would split a character beyond U+FFFF into two
-    surrogate halves, which TOML refuses), and DEL escaped, which JSON leaves bare."""
-    return json.dumps(text, ensure_ascii=False).replace("\x7f", "\\u007f")
+    """A TOML basic string in ASCII: TOML's own escapes for quotes, backslashes, control and non-ASCII
+    characters (JSON's would split a character beyond U+FFFF into two surrogate halves, which TOML
+    refuses), so the text survives any terminal encoding and loads back equal."""
+    short = {'"': '\\"', "\\": "\\\\", "\n": "\\n", "\t": "\\t", "\r": "\\r"}
+    return '"' + "".join(short.get(c) or (c if " " <= c <= "~" else _escape(c)) for c in text) + '"'
 
 
 def toml_comment(text: str) -> str:
-    """``text`` as one TOML comment line: control characters (a newline in a --set value) escaped."""
-    return "# " + "".join(c if c.isprintable() or c == " " else f"\\u{ord(c):04x}" for c in text)
+    """``text`` as one ASCII TOML comment line: control and non-ASCII characters escaped."""
+    return "# " + "".join(c if " " <= c <= "~" else _escape(c) for c in text)
 
 
 def _toml_key(key: str) -> str:

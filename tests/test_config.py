@@ -112,8 +112,17 @@ def test_a_value_where_the_file_needs_a_table_is_named_in_the_file(tmp_path, tex
     with pytest.raises(ConfigError) as info:
         load_config(path, {key: 2})
     assert str(info.value).endswith(message), str(info.value)
-    with pytest.raises(ConfigError, match=r"--set c3.eta: c3 = 2 is not a table"):
+    with pytest.raises(ConfigError, match=r"^c3 = 2 is not a table"):
         load_config(None, {"c3": 2, "c3.eta": 1.0})
+    with pytest.raises(ConfigError, match=r"^c3 = 2 is not a table"):  # the override's, not the file's
+        load_config(path, {"c3": 2, "c3.eta": 1.0})
+    good = tmp_path / "good.toml"
+    good.write_text("[experiment]\niterations = 3\n[c3]\neta = 2.0\n", encoding="utf-8")
+    with pytest.raises(ConfigError, match=r"^c3.eta must be a number, got 'x'"):  # a bad override
+        load_config(good, {"c3.eta": "x"})
+    with pytest.raises(ConfigError, match=r"good.toml: c1.alpha must be a number, got 'x'"):  # the file's
+        good.write_text('[c1]\nalpha = "x"\n', encoding="utf-8")
+        load_config(good, {"c3.eta": 1.0})
     with pytest.raises(ConfigError) as info:  # a huge value is shortened, as in every other message
         load_config(None, {"c3": "x" * 100_000, "c3.eta": 1.0})
     assert len(str(info.value)) < 300
@@ -122,9 +131,11 @@ def test_a_value_where_the_file_needs_a_table_is_named_in_the_file(tmp_path, tex
 def test_a_study_file_given_as_an_experiment_file_says_so(tmp_path):
     path = tmp_path / "s.toml"
     path.write_text('[study]\nname = "s"\nseeds = "0-1"\n', encoding="utf-8")
-    with pytest.raises(ConfigError, match=r"s.toml: is a study file \(\[study\]\), not an experiment file: run "
-                                          r"it with `ilcforce study`"):
+    with pytest.raises(ConfigError, match=r"s.toml: \[study\] is a study file's table, not an experiment's: run a "
+                                          r"study file with `ilcforce study`"):
         load_config(path)
+    with pytest.raises(ConfigError, match=r"^\[study\] is a study file's table"):  # from --set study.name=x
+        load_config(None, {"study.name": "x"})
 
 
 def test_overrides():
@@ -170,16 +181,18 @@ def test_dump_toml_quotes_what_toml_needs():
 
 
 def test_config_command_output_loads_back_whatever_the_user_typed(tmp_path):
-    """An emoji in a --set string was written as two surrogate escapes, and a newline in a --set
-    argument broke the header comment: either made the printed file invalid TOML (an attack)."""
+    """An emoji in a --set string was written as two surrogate escapes, a newline in a --set argument
+    broke the header comment, and rich turned ':smile:' into an emoji: each printed something that
+    did not load back as typed (an attack, a review)."""
     from typer.testing import CliRunner
 
     from ilcforce.cli import app
 
-    sets = ['experiment.description="smile \U0001f600"', "c3.k=[1.0,\n2.0]"]
+    sets = ['experiment.description="smile \U0001f600 :smile: caf\u00e9"', "c3.k=[1.0,\n2.0]"]
     result = CliRunner().invoke(app, ["config", *[a for s in sets for a in ("--set", s)]])
     assert result.exit_code == 0, result.output
     printed = tmp_path / "printed.toml"
     printed.write_text(result.stdout, encoding="utf-8")
     loaded = load_config(printed)
-    assert loaded.experiment.description == "smile \U0001f600" and loaded.gains["c3"].k == (1.0, 2.0)
+    assert result.stdout.isascii(), "plain ASCII whatever the terminal's encoding"
+    assert loaded.experiment.description == "smile \U0001f600 :smile: caf\u00e9" and loaded.gains["c3"].k == (1.0, 2.0)

@@ -81,6 +81,7 @@ def test_sweep_is_full_factorial_first_key_slowest():
     ({"sweep": {"c3.eta": [5.0, 2.0, 5.0]}}, "lists a value twice"),
     ({"sweep": {"c3.eta": [5, 5.0]}}, "lists a value twice"),  # the same setting, as an int and a float
     ({"sweep": {"c3.k": [[1.0, 2.0], [1, 2]]}}, "lists a value twice"),
+    ({"sweep": {"wall.stiffness": [int("1" * 400), 5]}}, "wall.stiffness"),  # no OverflowError on 400 digits
     ({"seeds": "5-2"}, "empty: 5 > 2"),
     ({"seeds": "-3-2"}, "range"),
     ({"seeds": [1, -2]}, ">= 0"),

@@ -223,7 +223,7 @@ def _same_value(value) -> tuple:
     """A sweep value's identity: 5 and 5.0 are one value (the same setting twice), and so are
     [1, 2] and [1.0, 2.0]; True is not 1."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return ("number", float(value))
+        return ("number", value)  # == and hash take 5 == 5.0 exactly (no float(): 2**53 + 1, 400 digits)
     if isinstance(value, list):
         return ("list", tuple(_same_value(v) for v in value))
     return ("other", repr(value))
@@ -334,11 +334,12 @@ def _load(experiment: Path | None, overrides: dict, where: str) -> Config:
     try:
         return load_config(experiment, {**overrides, "experiment.seed": 0})
     except ConfigError as exc:
-        if experiment is not None:  # the experiment file's own fault is not the setting's
+        if experiment is not None:  # the experiment file's own fault (the same one alone) is not the setting's
             try:
                 load_config(experiment)
             except ConfigError as own:
-                raise StudyError(f"study.experiment: {own}") from None
+                if str(own) == str(exc):
+                    raise StudyError(f"study.experiment: {own}") from None
         raise StudyError(f"{where}: {exc}") from None
 
 
