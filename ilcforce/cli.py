@@ -335,7 +335,7 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
     Every file is checked, one line each; the exit code is 2 if any is not a valid store.
     """
     from ilcforce import store
-    from ilcforce.store.study_read import StudyStoreError, check_study_store, is_study_store
+    from ilcforce.store.study_read import DAMAGED_RECORD, StudyStoreError, check_study_store, is_study_store
 
     invalid = 0
     for path in paths:
@@ -343,8 +343,9 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
             if is_study_store(path):
                 s = check_study_store(path)
                 ignored = (f"; {len(s['ignored'])} journal entries ignored ({', '.join(s['ignored'][:3])}"
-                           f"{', ...' if len(s['ignored']) > 3 else ''}); a damaged record's cell runs again"
-                           if s["ignored"] else "")
+                           f"{', ...' if len(s['ignored']) > 3 else ''})" if s["ignored"] else "")
+                if any(DAMAGED_RECORD in entry for entry in s["ignored"]):
+                    ignored += "; a damaged record's cell runs again on the next study run"
                 _say(f"{path}: ok (study {s['name']}, {s['cells']} cells: {s['done']} done, {s['failed']} failed)"
                      + ignored)
                 continue

@@ -614,6 +614,11 @@ def test_a_study_store_given_as_a_run_store_is_named_and_untouched(tmp_path, arg
         assert "is a study store, not a run store" in result.output, result.output
         assert len(result.output.strip().splitlines()) == 1, result.output
     assert (path.read_bytes(), sorted(p.name for p in journal.iterdir())) == before
+    alone = tmp_path / "copy" / "tiny.h5"  # the store copied without its journal folder: read by its schema
+    alone.parent.mkdir()
+    alone.write_bytes(path.read_bytes())
+    with pytest.raises(store.StoreError, match="is a study store, not a run store"):
+        ilcforce.open(alone)
 
 
 def test_a_damaged_study_store_is_not_told_to_lose_its_journal(tmp_path):
@@ -644,11 +649,28 @@ def test_validate_names_what_the_study_journal_ignores(tmp_path):
     journal = tmp_path / "studies" / "tiny.h5.journal"
     result = CliRunner().invoke(app, ["validate", str(path)])
     assert result.exit_code == 0 and "ignored" not in result.output, result.output
+    (journal / "sub").mkdir()
+    result = CliRunner().invoke(app, ["validate", str(path)])
+    assert result.exit_code == 0 and "1 journal entries ignored (sub: a folder)" in result.output, result.output
+    assert "runs again" not in result.output, "no cell is lost to a folder"
     (journal / "0-9-c3.json").write_text('{"trunc', encoding="utf-8")
     (journal / "notes.txt").write_text("x", encoding="utf-8")
-    (journal / "sub").mkdir()
     result = CliRunner().invoke(app, ["validate", str(path)])
     assert result.exit_code == 0, result.output
     assert ("3 journal entries ignored (0-9-c3.json: not a cell record (damaged or foreign), notes.txt: not a "
-            ".json record, sub: a folder); a damaged record's cell runs again") in result.output, result.output
+            ".json record, sub: a folder); a damaged record's cell runs again on the next study run"
+            ) in result.output, result.output
     assert len(result.output.strip().splitlines()) == 1
+
+
+def test_a_study_journal_without_its_store_is_not_written_beside(tmp_path):
+    """Only `x.h5.journal/` left (the store moved or lost): `simulate --out x.h5` made a run store beside
+    the study's unmerged cells, then failed at iteration 1 with 'cannot commit (File exists)'."""
+    run_study(small_study(seeds="0-0", methods=("c3",)), tmp_path, workers=1)
+    path = tmp_path / "studies" / "tiny.h5"
+    (tmp_path / "studies" / "tiny.h5.journal" / "0-5-c3.json").write_text("{}", encoding="utf-8")
+    path.unlink()
+    before = sorted(p.name for p in path.parent.iterdir())
+    result = CliRunner().invoke(app, ["simulate", "--method", "c3", "--iters", "2", "--out", str(path)])
+    assert result.exit_code == 2 and "is a study store's journal folder" in result.output, result.output
+    assert sorted(p.name for p in path.parent.iterdir()) == before

@@ -304,8 +304,8 @@ def _index_lines(name: str, results, headline: pd.DataFrame, n_seeds: int, done:
         lines += [results.description, ""]
     lines += [f"{_count(n_seeds, 'seed')}, {len(results.settings)} setting(s), {done} cells done, {failed} failed.",
               ""]
-    if incomplete_text(results):
-        lines += [incomplete_text(results), ""]
+    incomplete = incomplete_text(results)
+    lines += [incomplete, ""] if incomplete else []
     if len(headline):
         what = "first setting" if results.sweep_keys else "verdicts over seeds"
         lines += [f"The paper's claims ({what}):", "",

@@ -90,8 +90,8 @@ def study_markdown(results) -> tuple[str, dict]:
     """The study's findings page and a summary for the README (setting -> verdicts and flags). Each
     setting is judged with its own perturbation iteration and number of iterations (its configuration)."""
     lines = [f"# Study `{results.name}`", "", f"**{results.description or 'no description'}**", ""]
-    if incomplete_text(results):
-        lines += [incomplete_text(results), ""]
+    incomplete = incomplete_text(results)
+    lines += [incomplete, ""] if incomplete else []
     lines += ["Every number is a median over seeds with its 95% percentile-bootstrap interval; divergence "
               "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
               "(a claim fails when a central part fails); unstable learning follows the stated growth test.", ""]

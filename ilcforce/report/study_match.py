@@ -59,12 +59,13 @@ def study_methods_and_seeds(study_toml: str) -> tuple[tuple[str, ...] | None, tu
 
 
 def _latest_study_toml(header: dict) -> str:
-    """The study file as its latest run read it (a rerun may add seeds): StudyResults.latest_study_toml."""
+    from ilcforce.store.study_read import latest_study_toml
+
     try:
-        files = [s["study_toml"] for s in json.loads(str(header.get("sessions_json", "[]"))) if s.get("study_toml")]
-    except (ValueError, TypeError, AttributeError):
-        files = []
-    return str(files[-1]) if files else str(header.get("study_toml", ""))
+        sessions = json.loads(str(header.get("sessions_json", "[]")))
+    except ValueError:
+        sessions = []
+    return latest_study_toml(sessions if isinstance(sessions, list) else [], str(header.get("study_toml", "")))
 
 
 def _same(setting: dict, run: dict, method: str) -> bool:

@@ -82,12 +82,16 @@ def refuse_foreign_target(path: Path) -> None:
     """Refuse, before a lock file is made beside it, a target no option may write: a folder or other
     non-file, a study store (its journal is a folder), a file that is not HDF5 (--overwrite replaces
     only an ilcforce store). What needs the store opened is checked under the lock."""
+    journal_folder = journal_path(path).is_dir()  # a study store's journal: cells not yet merged
     if not os.path.lexists(path):
+        if journal_folder:
+            raise StoreError(f"{path}: {journal_path(path)} is a study store's journal folder (it may hold cells "
+                             "not yet merged) and the store beside it is missing; choose another --out")
         return
-    if journal_path(path).is_dir():
-        raise StoreError(not_a_run_store(path))
     try:
         info = os.stat(path)
+        if journal_folder and stat.S_ISREG(info.st_mode):
+            raise StoreError(not_a_run_store(path))
         if stat.S_ISDIR(info.st_mode):
             raise StoreError(f"{path}: is a directory, not a store file; choose another --out")
         if not stat.S_ISREG(info.st_mode):

@@ -70,41 +70,56 @@ def _table(group: h5py.Group) -> pd.DataFrame:
     return pd.DataFrame(data)
 
 
+#: How :func:`ignored_journal_entries` names a .json that is not a readable cell record.
+DAMAGED_RECORD = "not a cell record (damaged or foreign)"
+
+
+def _read_record(item: Path) -> dict | None:
+    """A journal file's cell record; None when it is damaged or not one (its cell runs again)."""
+    try:
+        record = json.loads(item.read_text(encoding="utf-8"))
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+    if not isinstance(record, dict) or not all(k in record for k in (*KEY_COLUMNS, "state", "rows")):
+        return None
+    record["_file"] = item
+    return record
+
+
 def _journal_records(path: Path) -> list[dict]:
-    records = []
-    folder = journal_dir(path)
-    if not folder.is_dir():
-        return records
-    for item in sorted(folder.iterdir()):
-        if item.suffix != ".json" or item.name.startswith("."):
-            continue
-        try:
-            record = json.loads(item.read_text(encoding="utf-8"))
-            if not all(k in record for k in (*KEY_COLUMNS, "state", "rows")):
-                continue
-        except (OSError, ValueError, UnicodeDecodeError):
-            continue  # a damaged record: its cell runs again
-        record["_file"] = item
-        records.append(record)
-    return records
-
-
-def ignored_journal_entries(path: Path) -> list[str]:
-    """What the journal folder holds that is not a usable cell record (a damaged or foreign .json,
-    a folder, another file), each as 'name: why'; hidden files (a record being written) are left out.
-    Readers skip them, so their cells run again."""
     folder = journal_dir(path)
     if not folder.is_dir():
         return []
-    usable = {record["_file"].name for record in _journal_records(path)}
+    records = (_read_record(item) for item in sorted(folder.iterdir())
+               if item.suffix == ".json" and not item.name.startswith("."))
+    return [record for record in records if record is not None]
+
+
+def ignored_journal_entries(path: Path) -> list[str]:
+    """What the journal folder holds that readers skip, each as 'name: why', in one pass over it (a
+    record committed meanwhile is not taken for a damaged one): a damaged or foreign .json (its cell
+    runs again), a folder, another file. Hidden files (a record being written) are left out."""
+    folder = journal_dir(path)
+    if not folder.is_dir():
+        return []
     found = []
     for item in sorted(folder.iterdir()):
-        if item.name.startswith(".") or item.name in usable:
+        if item.name.startswith("."):
             continue
-        why = ("a folder" if item.is_dir() else "not a cell record (damaged or foreign)" if item.suffix == ".json"
-               else "not a .json record")
-        found.append(f"{item.name}: {why}")
+        if item.is_dir():
+            found.append(f"{item.name}: a folder")
+        elif item.suffix != ".json":
+            found.append(f"{item.name}: not a .json record")
+        elif _read_record(item) is None:
+            found.append(f"{item.name}: {DAMAGED_RECORD}")
     return found
+
+
+def latest_study_toml(sessions: list, first: str) -> str:
+    """The study file as the latest run that recorded it read it (a rerun may add seeds or methods);
+    ``first`` (the file the store was made from) for a store from before runs recorded it."""
+    files = [s["study_toml"] for s in sessions if isinstance(s, dict) and s.get("study_toml")]
+    return str(files[-1]) if files else first
 
 
 def _probe(path: Path) -> None:

@@ -86,8 +86,9 @@ class StudyResults:
     @property
     def latest_study_toml(self) -> str:
         """The study file as the latest run read it (a rerun may add seeds or methods)."""
-        files = [s["study_toml"] for s in self.sessions if s.get("study_toml")]
-        return str(files[-1]) if files else self.study_toml
+        from ilcforce.store.study_read import latest_study_toml
+
+        return latest_study_toml(self.sessions, self.study_toml)
 
     @property
     def leading_columns(self) -> list[str]:
