@@ -878,3 +878,30 @@ def test_a_report_with_nothing_usable_leaves_an_earlier_report_whole(results_dir
     assert "no usable ilcforce stores" in result.output
     assert {p.name: p.read_bytes() for p in (out / "index.md", out / "findings.md")} == before
     assert not (bad / "report").exists()
+
+
+def test_a_figure_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
+    """Report workers are terminated mid-figure on a stop (report/pool.py): a figure goes to a
+    temporary name and is renamed over its target, so a failed or stopped write leaves the previous
+    figure, not a truncated one, and no temporary file (found by a review)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    from ilcforce.report.figure_files import save_figure
+
+    fig = Figure()
+    fig.add_subplot().plot([0, 1], [0, 1])
+    [path] = save_figure(fig, tmp_path, "f", ("png",))
+    before = path.read_bytes()
+    assert before.startswith(b"\x89PNG")
+
+    def dies_midway(self, target, **kwargs):
+        Path(target).write_bytes(b"\x89PNG half")
+        raise KeyboardInterrupt  # the stop arrives while the file is being written
+
+    monkeypatch.setattr(Figure, "savefig", dies_midway)
+    with pytest.raises(KeyboardInterrupt):
+        save_figure(fig, tmp_path, "f", ("png",))
+    assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["f.png"]

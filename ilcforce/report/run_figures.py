@@ -14,6 +14,7 @@ from matplotlib.figure import Figure
 
 from ilcforce import store
 from ilcforce.report import figures, sections, stability, tables
+from ilcforce.report.figure_files import save_figure
 
 #: Figures written per experiment: file stem -> caption.
 FIGURES = {
@@ -33,17 +34,6 @@ DEFAULT_FORMATS = ("png",)
 
 #: Errors a store reader may raise for a bad file (StoreError) or unexpected contents.
 READ_ERRORS = (store.StoreError, OSError, KeyError, ValueError, TypeError)
-
-
-def _save(fig: Figure, directory: Path, stem: str, formats: tuple[str, ...]) -> list[Path]:
-    written = []
-    for fmt in formats:
-        path = directory / f"{stem}.{fmt}"
-        # No creation date in the PDF, so that an unchanged report is byte-identical.
-        metadata = {"CreationDate": None} if fmt == "pdf" else None
-        fig.savefig(path, format=fmt, metadata=metadata)
-        written.append(path)
-    return written
 
 
 def _figure_builders(experiment, p: int,
@@ -141,7 +131,7 @@ def write_figures(experiment, directory: Path, p: int, formats: tuple[str, ...],
                 if isinstance(made, str):
                     experiment.notes[stem] = made
                     continue
-                written += _save(made, directory, stem, formats)
+                written += save_figure(made, directory, stem, formats)
         except READ_ERRORS as error:
             experiment.notes[stem] = f"not drawn: {' '.join(str(error).split())}"
             experiment.warn(f"{stem} not drawn: {error}")

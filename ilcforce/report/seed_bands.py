@@ -36,7 +36,8 @@ from matplotlib.ticker import MaxNLocator
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import paper, tables
 from ilcforce.report.figures import TRACKING_ITERATIONS, _color, _label
-from ilcforce.report.study_figures import _band_plot, _bands, _log_scale, _save
+from ilcforce.report.figure_files import save_figure
+from ilcforce.report.study_figures import _band_plot, _bands, _log_scale
 from ilcforce.stats import BOOTSTRAP_SEED, LEVEL, N_BOOTSTRAP
 
 #: Methods Figs. 6 and 7 compare (the paper's).
@@ -212,7 +213,7 @@ def seed_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: t
         if isinstance(made, str):
             notes.append(f"{stem}: not drawn ({made}).")
             continue
-        written += _save(made, directory, f"{stem}_{tag}", formats)
+        written += save_figure(made, directory, f"{stem}_{tag}", formats)
     seed = _single_seed(frame)
     lines = [CAPTION.format(seed_text=f"seed {seed}" if seed is not None else "one seed"), ""]
     lines += [f"![{f.stem}]({f.name})" for f in written if f.suffix == ".png"] + notes + [""]

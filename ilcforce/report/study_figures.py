@@ -20,21 +20,13 @@ from matplotlib.ticker import MaxNLocator
 
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import table_write, tables
+from ilcforce.report.figure_files import save_figure
 from ilcforce.report.figures import _color, _label
 from ilcforce.stats import median_interval
 
 BAND_CAPTION = ("Line: median over seeds. Dark band: 95% percentile-bootstrap interval of that median. "
                 "Light band: central 95% of the seeds (2.5th-97.5th percentile). A seed that diverged "
                 "leaves the median from its divergence on (the legend gives the seeds counted at the end).")
-
-
-def _save(fig: Figure, directory: Path, stem: str, formats: tuple[str, ...]) -> list[Path]:
-    written = []
-    for fmt in formats:
-        path = directory / f"{stem}.{fmt}"
-        fig.savefig(path, format=fmt, metadata={"CreationDate": None} if fmt == "pdf" else None)
-        written.append(path)
-    return written
 
 
 def _bands(values: np.ndarray) -> tuple[float, float, float, float, float, int]:
@@ -101,7 +93,7 @@ def norm_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: t
         ax.set_ylabel(ylabel)
         ax.set_title(f"{'Fig. 3' if stem.startswith('fig3') else 'Fig. 4'} over {n_seeds} seeds")
         ax.legend(fontsize="small")
-        written += _save(fig, directory, f"{stem}_{tag}", formats)
+        written += save_figure(fig, directory, f"{stem}_{tag}", formats)
     return written
 
 
@@ -214,7 +206,7 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
         axes[0].legend(fontsize="small")
         axes[0].set_title(f"key numbers {'per setting' if labelled else 'against ' + key}; "
                           "seeds that diverged are left out")
-        files += _save(fig, directory, "sweep_key_numbers", formats)
+        files += save_figure(fig, directory, "sweep_key_numbers", formats)
         caption = BAND_CAPTION if not labelled else (
             "Marker: median over seeds. Thick bar: 95% percentile-bootstrap interval of that median. Thin bar: "
             "central 95% of the seeds. The settings are listed, not ordered, so no line joins them.")
@@ -255,7 +247,7 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
             ax.set_ylabel(first)
             ax.set_title(f"{_label(method)}: first diverged iteration", fontsize="small")
         fig.colorbar(image, ax=list(axes), label="earliest diverged iteration over seeds")
-        files += _save(fig, directory, "sweep_divergence_heatmap", formats)
+        files += save_figure(fig, directory, "sweep_divergence_heatmap", formats)
         extra = f" ({', '.join(keys[2:])} pooled)" if len(keys) > 2 else ""
         lines += ["![sweep_divergence_heatmap](sweep_divergence_heatmap.png)", "",
                   f"Earliest diverged iteration over seeds per cell of the {first} x {second} grid{extra}, "
