@@ -134,8 +134,8 @@ def key_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -> pd.
             values = np.asarray(values, dtype=float)
             if quantity.startswith("first diverged"):
                 k = int(np.isfinite(values).sum())
-                row[method] = (f"{k} of {_count(n_seeds, 'seed')} diverged" + (f"; {format_interval(median_interval(values))}"
-                               if k else ""))
+                row[method] = (f"{k} of {_count(n_seeds, 'seed')} diverged"
+                               + (f"; {format_interval(median_interval(values))}" if k else ""))
                 continue
             row[method] = _cell(median_interval(values), n_seeds)
         rows.append(row)

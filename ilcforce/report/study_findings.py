@@ -56,9 +56,6 @@ def _divergence_text(div: pd.DataFrame) -> str:
     return f"j = {format_interval(median_interval(div['diverged_at']))} ({k} of {n} seeds)"
 
 
-NOT_FITTED = stability.NOT_FITTED
-
-
 def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int,
                  iterations: int) -> tuple[list[dict], pd.DataFrame, dict, bool]:
     """One setting's per-method rows (key numbers, divergence, flag), its claim parts, flags, and
@@ -73,7 +70,7 @@ def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int,
     for method, per_method in frame.groupby("method", sort=False):
         row = {"method": method, "divergence": _divergence_text(divergence[divergence["method"] == method]),
                "unstable learning": (flags.get(str(method), "no").split(": ", 1)[-1] if str(method) in fitted
-                                     else NOT_FITTED)}
+                                     else stability.NOT_FITTED)}
         for column, label in KEY_COLUMNS:
             if column not in per_method.columns:
                 continue
@@ -111,7 +108,7 @@ def study_markdown(results) -> tuple[str, dict]:
                 else _setting_name(values))
         entry = {"setting": name}
         entry.update({f"claim {r.claim}": f"{r.verdict}" for r in verdicts.itertuples(index=False)})
-        entry["unstable learning"] = ", ".join(flags) or ("none" if fitted else NOT_FITTED)
+        entry["unstable learning"] = ", ".join(flags) or ("none" if fitted else stability.NOT_FITTED)
         overview.append(entry)
         summary[name] = {"verdicts": dict(zip(verdicts["claim"], verdicts["verdict"])), "flags": dict(flags),
                          "rows": rows, "seeds": int(frame["seed"].nunique()), "stability_fitted": fitted}

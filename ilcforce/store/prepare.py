@@ -19,8 +19,8 @@ import numpy as np
 from ilcforce.records import REFERENCE_SIGNALS
 from ilcforce.store.provenance import SameRunCheck
 from ilcforce.store.read import open_store
-from ilcforce.store.safeio import (StoreError, journal_path, not_a_run_store, os_reason, repair_interrupted_commit,
-                                   superblock_version)
+from ilcforce.store.safeio import (StoreError, check_regular_file, journal_path, not_a_run_store, os_reason,
+                                   repair_interrupted_commit, superblock_version)
 
 
 def make_parent(path: Path) -> None:
@@ -88,17 +88,15 @@ def refuse_foreign_target(path: Path) -> None:
             raise StoreError(f"{path}: {journal_path(path)} is a study store's journal folder (it may hold cells "
                              "not yet merged) and the store beside it is missing; choose another --out")
         return
+    if not os.path.exists(path):
+        return  # a dangling link: the checks under the lock say why
+    check_regular_file(path)  # a folder, a FIFO, an empty file: refused here, before anything opens it
+    if journal_folder:
+        raise StoreError(not_a_run_store(path))
     try:
-        info = os.stat(path)
-        if journal_folder and stat.S_ISREG(info.st_mode):
-            raise StoreError(not_a_run_store(path))
-        if stat.S_ISDIR(info.st_mode):
-            raise StoreError(f"{path}: is a directory, not a store file; choose another --out")
-        if not stat.S_ISREG(info.st_mode):
-            raise StoreError(f"{path}: is not a regular file, not a store; choose another --out")
         fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK)
     except OSError:
-        return  # a dangling link, no permission: the checks under the lock say why
+        return  # no permission: the checks under the lock say why
     try:
         foreign = superblock_version(fd) is None
     finally:

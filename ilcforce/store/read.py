@@ -110,7 +110,7 @@ def check_header(handle: h5py.File, path: Path) -> int:
     if "schema" not in handle.attrs:
         raise StoreError(f"{path}: not an ilcforce store (HDF5 file without a 'schema' attribute)")
     name = py(handle.attrs["schema"])
-    if name == "ilcforce.study":  # store/study_read.py SCHEMA_NAME, not imported here to keep reads light
+    if name == schema.STUDY_SCHEMA_NAME:
         raise StoreError(f"{path}: {IS_A_STUDY_STORE}")
     if name != schema.SCHEMA_NAME:
         raise StoreError(f"{path}: not an ilcforce store (schema {name!r}, expected {schema.SCHEMA_NAME!r})")

@@ -18,6 +18,8 @@ import numpy as np
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS
 
 SCHEMA_NAME = "ilcforce.store"
+#: The study store's schema name (ilcforce/store/study.py); here so that a run-store reader can name it.
+STUDY_SCHEMA_NAME = "ilcforce.study"
 SCHEMA_VERSION = "2.0"
 
 #: HDF5 file-format bounds: "v108" gives version-2 object headers and superblock, whose metadata

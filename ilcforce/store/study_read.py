@@ -13,8 +13,9 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.store.safeio import HDF5_SIGNATURE
+from ilcforce.store.schema import STUDY_SCHEMA_NAME
 
-SCHEMA_NAME = "ilcforce.study"
+SCHEMA_NAME = STUDY_SCHEMA_NAME
 SCHEMA_VERSION = "1.0"
 CELL_COLUMNS = ("setting", "seed", "method", "state", "attempts", "message", "elapsed", "worker")
 KEY_COLUMNS = ("setting", "seed", "method")
@@ -205,7 +206,8 @@ def _keys(frame: pd.DataFrame):
 def check_study_store(path: Path) -> dict:
     """Read all of the study store at ``path`` as ``ilcforce validate`` does: the header and every
     table, with their checksums, and the journal's records. Returns its name and cell counts
-    (``cells``, ``done``, ``failed``) and the journal entries it ignores (``ignored``); raises :class:`StudyStoreError` (one line) on any damage."""
+    (``cells``, ``done``, ``failed``) and the journal entries it ignores (``ignored``); raises
+    :class:`StudyStoreError` (one line) on any damage."""
     header, _, cells = read_tables(Path(path))
     states = cells["state"].tolist() if len(cells) else []
     return {"name": str(header.get("name", "")), "cells": len(states), "done": states.count(DONE),
