@@ -5,6 +5,7 @@ written on two processes is byte for byte the one written in one."""
 from __future__ import annotations
 
 import math
+import os
 import signal
 import time
 from pathlib import Path
@@ -13,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from ilcforce.cli_signals import STOPS, stop_signals
 from ilcforce.report import pool, tables
 from ilcforce.report.seedframes import SeedMetrics, split_seeds
 
@@ -90,6 +92,47 @@ def test_pool_raises_a_task_error_here():
     tasks = [pool.Task("fine", _square, (2,)), pool.Task("bad", _square, (-1,))]
     with pytest.raises(ValueError, match="negative -1"):
         pool.run_tasks(tasks, jobs=2)
+
+
+class _Worker:
+    """A pool worker stand-in; terminating the first one delivers a stop signal to this process."""
+
+    def __init__(self, signal_on_terminate: int | None) -> None:
+        self.signal_on_terminate, self.alive, self.joined = signal_on_terminate, True, False
+
+    def is_alive(self) -> bool:
+        return self.alive
+
+    def terminate(self) -> None:
+        self.alive = False
+        if self.signal_on_terminate is not None:
+            os.kill(os.getpid(), self.signal_on_terminate)
+
+    kill = terminate
+
+    def join(self, timeout=None) -> None:
+        self.joined = True
+
+
+class _Pool:
+    def __init__(self, workers) -> None:
+        self._processes = dict(enumerate(workers))
+
+    def shutdown(self, wait=True, cancel_futures=False) -> None:
+        pass
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_second_stop_while_workers_are_ended_ends_every_worker_first(signum):
+    """A second Ctrl-C arriving while a stopped report ended its workers raised at once, in the
+    middle of the loop, and left the workers not yet terminated running, orphaned. Now it is
+    answered (the command stops, exit 130 / 143) only after every worker is ended."""
+    workers = [_Worker(signum), _Worker(None), _Worker(None)]
+    with stop_signals():
+        with pytest.raises(KeyboardInterrupt):
+            pool._end_workers(_Pool(workers), grace=0.0)
+        assert STOPS == [signum]
+    assert not any(w.alive for w in workers) and all(w.joined for w in workers)
 
 
 _STOPPED_POOL = """

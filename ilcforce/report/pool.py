@@ -9,14 +9,18 @@ are printed by the parent through its ``progress`` callable, so ``--quiet`` sile
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import queue as queue_module
 import signal
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any
+
+from ilcforce.cli_signals import on_stop_signals
 
 #: In a worker: the queue its progress lines go to (set by the pool's initializer).
 _QUEUE: Any = None
@@ -44,18 +48,28 @@ def _init_worker(queue: Any) -> None:
 
 def _end_workers(pool: ProcessPoolExecutor, grace: float = 2.0) -> None:
     """Stop a pool at once: queued pieces cancelled, running workers terminated (killed after
-    ``grace`` seconds). ``shutdown`` alone runs every queued piece first (it took minutes)."""
-    processes = list((getattr(pool, "_processes", None) or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        if process.is_alive():
-            process.terminate()
-    deadline = time.monotonic() + grace
-    for process in processes:
-        process.join(max(0.0, deadline - time.monotonic()))
-        if process.is_alive():
-            process.kill()
-            process.join(1.0)
+    ``grace`` seconds). ``shutdown`` alone runs every queued piece first (it took minutes).
+
+    A stop signal arriving meanwhile (a second Ctrl-C) is answered only once every worker is
+    ended: raised inside, it would leave the rest of them running, orphaned.
+    """
+    deferred: list[int] = []
+    shield = (on_stop_signals(lambda signum, frame: deferred.append(signum))
+              if threading.current_thread() is threading.main_thread() else contextlib.nullcontext())
+    with shield:
+        processes = list((getattr(pool, "_processes", None) or {}).values())
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            if process.is_alive():
+                process.terminate()
+        deadline = time.monotonic() + grace
+        for process in processes:
+            process.join(max(0.0, deadline - time.monotonic()))
+            if process.is_alive():
+                process.kill()
+                process.join(1.0)
+    for signum in deferred:  # now answered by the command's own handlers
+        signal.raise_signal(signum)
 
 
 def worker_progress(text: str) -> None:
