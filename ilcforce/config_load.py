@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import datetime
 import difflib
 import math
 import tomllib
@@ -47,28 +48,28 @@ def _coerce(path: str, value, annotation):
     origin = typing.get_origin(annotation)
     if annotation is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{path} must be a number, got {_short(value)}")
+            raise ConfigError(f"{path} must be a number, got {shown(value)}")
         try:
             value = float(value)
         except OverflowError:
-            raise ConfigError(f"{path} must be finite, got {_short(value)}") from None
+            raise ConfigError(f"{path} must be finite, got {shown(value)}") from None
         if not math.isfinite(value):
             raise ConfigError(f"{path} must be finite, got {value!r}")
         return _in_range(path, value, float)
     if annotation is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{path} must be an integer, got {_short(value)}")
+            raise ConfigError(f"{path} must be an integer, got {shown(value)}")
         return _in_range(path, value, int)
     if annotation is str:
         if not isinstance(value, str):
-            raise ConfigError(f"{path} must be a string, got {_short(value)}")
+            raise ConfigError(f"{path} must be a string, got {shown(value)}")
         if len(value) > MAX_STRING or not value.replace("\n", " ").replace("\t", " ").isprintable():
-            raise ConfigError(f"{path} must be at most {MAX_STRING} printable characters, got {_short(value)}")
+            raise ConfigError(f"{path} must be at most {MAX_STRING} printable characters, got {shown(value)}")
         return value
     if origin is tuple:
         args = typing.get_args(annotation)
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"{path} must be a list of numbers, got {value!r}")
+            raise ConfigError(f"{path} must be a list of numbers, got {shown(value)}")
         if len(args) == 2 and args[1] is Ellipsis:
             items = [_coerce(f"{path}[{i}]", v, args[0]) for i, v in enumerate(value)]
         else:
@@ -79,8 +80,16 @@ def _coerce(path: str, value, annotation):
     raise TypeError(f"unsupported annotation {annotation!r} at {path}")
 
 
-def _short(value) -> str:
-    """repr of a value, cut to 60 characters (a 400-digit number stays readable)."""
+def shown(value) -> str:
+    """repr of a value, cut to 60 characters (a 400-digit number stays readable); a TOML date or
+    time as the user wrote it, not as Python's repr."""
+    if isinstance(value, (datetime.date, datetime.time)):  # datetime.datetime is a date too
+        kind = ("a date-time" if isinstance(value, datetime.datetime)
+                else "a date" if isinstance(value, datetime.date) else "a time")
+        return f"{kind} ({value.isoformat()})"
+    if isinstance(value, list):
+        text = "[" + ", ".join(shown(item) for item in value[:20]) + (", ..." if len(value) > 20 else "") + "]"
+        return text if len(text) <= 60 else text[:57] + "..."
     text = repr(value) if not isinstance(value, int) or abs(value) < 10**40 else f"an integer with {len(str(abs(value)))} digits"
     return text if len(text) <= 60 else text[:57] + "..."
 
@@ -88,14 +97,14 @@ def _short(value) -> str:
 def _build(cls, data, path: str, base=None):
     """Instantiate dataclass ``cls`` from ``data`` (a dict), starting from ``base`` or defaults."""
     if not isinstance(data, dict):
-        raise ConfigError(f"[{path}] must be a table, got {data!r}")
+        raise ConfigError(f"[{path}] must be a table, got {shown(data)}")
     hints = typing.get_type_hints(cls)
     names = [f.name for f in dataclasses.fields(cls)]
     kwargs = {}
     for key, value in data.items():
         if key not in names:
-            shown = f"{path}.{key}" if key.strip() == key and key.isprintable() else repr(f"{path}.{key}")
-            raise ConfigError(f"unknown key {shown}{_did_you_mean(key.strip(), names)}")  # repr: 'eta ' shows its space
+            where = f"{path}.{key}" if key.strip() == key and key.isprintable() else repr(f"{path}.{key}")
+            raise ConfigError(f"unknown key {where}{_did_you_mean(key.strip(), names)}")  # repr: 'eta ' shows its space
         annotation = hints[key]
         if dataclasses.is_dataclass(annotation):
             kwargs[key] = _build(annotation, value, f"{path}.{key}", getattr(base, key) if base else None)
@@ -202,7 +211,7 @@ def _set_path(data: dict, dotted: str, value, file_data: dict) -> None:
         in_file = in_file.get(key) if isinstance(in_file, dict) else None
         if not isinstance(node, dict):
             above = ".".join(keys[:depth + 1])
-            message = f"{above} = {_short(node)} is not a table ([{above}]), so {dotted} cannot be set"
+            message = f"{above} = {shown(node)} is not a table ([{above}]), so {dotted} cannot be set"
             raise _NotATable(message, from_file=in_file is not None and not isinstance(in_file, dict))
     node[keys[-1]] = value
 

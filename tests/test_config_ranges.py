@@ -108,3 +108,22 @@ def test_no_runtime_warning_leaks_for_a_long_reference():
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0 and "RuntimeWarning" not in result.stderr, result.stderr
     assert "reference.duration must be in" in result.stdout
+
+
+@pytest.mark.parametrize("toml, expected", [
+    ('[experiment]\ndescription = 1979-05-27\n', "experiment.description must be a string, got a date (1979-05-27)"),
+    ('[experiment]\nname = 1979-05-27T07:32:00Z\n', "got a date-time (1979-05-27T07:32:00+00:00)"),
+    ('[wall]\nstiffness = 07:32:00\n', "wall.stiffness must be a number, got a time (07:32:00)"),
+    ('[plant]\nperturbation = [1979-05-27]\n', "[plant.perturbation] must be a table, got [a date (1979-05-27)]"),
+    ('[study]\nname = "s"\nmethods = ["c3"]\nseeds = 2020-01-01\n', "study.seeds must be a range"),
+])
+def test_a_toml_date_or_time_is_shown_as_written(tmp_path: Path, toml: str, expected: str):
+    """TOML dates and times were echoed as Python's repr (``datetime.date(1979, 5, 27)``), which the
+    user never wrote; they are now named and shown as in the file."""
+    path = tmp_path / "dated.toml"
+    path.write_text(toml, encoding="utf-8")
+    command = ["study", str(path)] if toml.startswith("[study]") else ["config", "-c", str(path)]
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 2, result.output
+    assert expected in result.output and "datetime" not in result.output, result.output
+    assert "Traceback" not in result.output and len(result.output.strip().splitlines()) == 1

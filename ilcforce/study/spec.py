@@ -49,7 +49,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ilcforce.config import Config, ConfigError
-from ilcforce.config_load import load_config
+from ilcforce.config_load import load_config, shown
 from ilcforce.study import settings_list
 from ilcforce.tomlfile import read_toml
 
@@ -164,7 +164,7 @@ def parse_seeds(value) -> tuple[int, ...]:
     if isinstance(value, str):
         match = re.fullmatch(r"\s*(\d+)\s*-\s*(\d+)\s*", value)
         if not match:
-            raise StudyError(f"study.seeds must be a range \"a-b\" of integers >= 0 or a list of integers, got {value!r}")
+            raise StudyError(f"study.seeds must be a range \"a-b\" of integers >= 0 or a list of integers, got {shown(value)}")
         first, last = int(match.group(1)), int(match.group(2))
         if first > last:
             raise StudyError(f"study.seeds range {value!r} is empty: {first} > {last}")
@@ -176,7 +176,7 @@ def parse_seeds(value) -> tuple[int, ...]:
             raise StudyError("study.seeds is an empty list")
         for item in value:
             if isinstance(item, bool) or not isinstance(item, int):
-                raise StudyError(f"study.seeds must hold integers, got {item!r}")
+                raise StudyError(f"study.seeds must hold integers, got {shown(item)}")
             if item < 0:
                 raise StudyError(f"study.seeds must be >= 0, got {item}")
         if len(set(value)) != len(value):
@@ -185,12 +185,12 @@ def parse_seeds(value) -> tuple[int, ...]:
         if len(value) > MAX_SEEDS:
             raise StudyError(f"study.seeds lists {len(value)} seeds; at most {MAX_SEEDS}")
         return tuple(sorted(value))
-    raise StudyError(f"study.seeds must be a range \"a-b\" or a list of integers, got {value!r}")
+    raise StudyError(f"study.seeds must be a range \"a-b\" or a list of integers, got {shown(value)}")
 
 
 def _check_name(name) -> str:
     if not isinstance(name, str) or not name:
-        raise StudyError(f"study.name must be a non-empty string, got {name!r}")
+        raise StudyError(f"study.name must be a non-empty string, got {shown(name)}")
     if not _NAME.fullmatch(name) or name in (".", ".."):
         escapes = "/" in name or "\\" in name or name.startswith(".")
         why = "it would escape the results folder" if escapes else "it names the study's store file"
@@ -205,7 +205,7 @@ def _check_methods(value) -> tuple[str, ...]:
     if value is None:
         return tuple(REGISTRY)
     if not isinstance(value, list) or not value:
-        raise StudyError(f"study.methods must be a non-empty list of method names, got {value!r}")
+        raise StudyError(f"study.methods must be a non-empty list of method names, got {shown(value)}")
     names = []
     for item in value:
         name = str(item).strip().lower() if isinstance(item, str) else item
@@ -233,7 +233,7 @@ def _check_table(name: str, value) -> dict:
     if value is None:
         return {}
     if not isinstance(value, dict):
-        raise StudyError(f"study.{name} must be a table of \"section.key\" = value, got {value!r}")
+        raise StudyError(f"study.{name} must be a table of \"section.key\" = value, got {shown(value)}")
     for key in value:
         if isinstance(value[key], dict):
             raise StudyError(f"study.{name}: write keys as quoted dotted names, e.g. \"{key}.x\" = ..., "
@@ -247,7 +247,7 @@ def _resolve_experiment(value, study_path: Path | None) -> Path | None:
     if value is None:
         return None
     if not isinstance(value, str) or not value:
-        raise StudyError(f"study.experiment must be a path to an experiment TOML file, got {value!r}")
+        raise StudyError(f"study.experiment must be a path to an experiment TOML file, got {shown(value)}")
     candidates = []
     if study_path is not None and not Path(value).is_absolute():
         candidates.append(study_path.parent / value)
@@ -292,7 +292,7 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
     name = _check_name(table["name"])
     description = table.get("description", "")
     if not isinstance(description, str):
-        raise StudyError(f"study.description must be a string, got {description!r}")
+        raise StudyError(f"study.description must be a string, got {shown(description)}")
     methods = _check_methods(table.get("methods"))
     seeds = parse_seeds(table["seeds"])
     fixed = _check_table("set", table.get("set"))
@@ -300,7 +300,7 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
     sweep: dict[str, tuple] = {}
     for key, values in sweep_raw.items():
         if not isinstance(values, list):
-            raise StudyError(f"study.sweep.\"{key}\" must be a list of values, got {values!r}")
+            raise StudyError(f"study.sweep.\"{key}\" must be a list of values, got {shown(values)}")
         if not values:
             raise StudyError(f"study.sweep.\"{key}\" is an empty list")
         if len(set(map(_same_value, values))) != len(values):
