@@ -53,3 +53,27 @@ def test_run_object_reads_back_what_is_stored(tmp_path: Path):
     assert memory.index[1] == run.config.simulation.sample_time
     np.testing.assert_array_equal(record.memory["alpha_hat"], stored["alpha_hat"])
     assert run.metrics.equals(store.read_metrics(out))
+
+
+def test_a_run_object_shows_the_file_as_it_is_now(tmp_path: Path):
+    """A run object read its iterations and metrics once and kept them: a store extended by another
+    process (``simulate --resume``, or a run still going) showed the old numbers in a notebook. It
+    now reads again when the file has changed, and only then."""
+    out = tmp_path / "c3.h5"
+
+    def simulate(*extra: str) -> None:
+        made = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c3", "--out", str(out), *SHORT,
+                               *extra], capture_output=True, text=True, timeout=300)
+        assert made.returncode == 0, made.stderr
+
+    simulate("-n", "2")
+    run = ilcforce.open(out)
+    assert run.iterations == [0, 1] and len(run.metrics) == 2
+    before = run.metrics
+    assert run.metrics is not before and run.metrics.equals(before)  # a copy: editing it changes nothing here
+    before.loc[0, "position_error_2norm"] = -1.0
+    assert run.metrics.loc[0, "position_error_2norm"] > 0
+    simulate("-n", "3", "--resume")
+    assert run.iterations == [0, 1, 2]
+    assert run.metrics.equals(store.read_metrics(out)) and len(run.metrics) == 3
+    assert run.provenance["run_state"] == "complete" and run.config.experiment.iterations == 3

@@ -7,22 +7,23 @@
     run.memory(19)              # learned memory after iteration 19 (DataFrame on the control grid)
     run.config                  # the Config the run was made with
 
-Every read goes through the store's readers (checked, checksummed, one-line StoreError).
+Every read goes through the store's readers (checked, checksummed, one-line StoreError). What a
+run object shows is the file as it is now: a store that another process extends (``simulate
+--resume``, a run still going) is read again when the file has changed.
 """
 
 from __future__ import annotations
 
 import os
 from dataclasses import dataclass
-from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import pandas as pd
 
 from ilcforce.records import IterationRecord
-from ilcforce.store import access
+from ilcforce.store import access, safeio
 
 
 @dataclass(frozen=True)
@@ -43,16 +44,29 @@ class Run:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         access.validate(self.path)  # a damaged file fails here, in bounded time, with one line
+        self._read: dict[str, tuple[tuple, Any]] = {}  # name -> (version of the file, value read)
+
+    def _current(self, name: str, load: Callable[[], Any]) -> Any:
+        """``load()``, read again only when the file has changed since (another process wrote it)."""
+        try:
+            version = safeio.file_key(self.path)
+        except OSError:
+            return load()  # gone or unreadable: the reader names the problem
+        known = self._read.get(name)
+        if known is None or known[0] != version:
+            known = (version, load())
+            self._read[name] = known
+        return known[1]
 
     def __repr__(self) -> str:
         p = self.provenance
         return (f"<ilcforce run {p.get('experiment')}/{p.get('method')}: {len(self.iterations)} iterations, "
                 f"{p.get('run_state')}, {self.path}>")
 
-    @cached_property
+    @property
     def provenance(self) -> dict[str, Any]:
         """Root attributes: experiment, method, seed, git_commit, command, run_state, ..."""
-        return access.read_provenance(self.path)
+        return self._current("provenance", lambda: access.read_provenance(self.path))
 
     @property
     def method(self) -> str:
@@ -62,28 +76,28 @@ class Run:
     def experiment(self) -> str:
         return str(self.provenance["experiment"])
 
-    @cached_property
+    @property
     def iterations(self) -> list[int]:
         """Complete iterations, ascending."""
-        return access.iterations(self.path)
+        return list(self._current("iterations", lambda: access.iterations(self.path)))
 
-    @cached_property
+    @property
     def metrics(self) -> pd.DataFrame:
         """One row per iteration (index ``iteration``); ``attrs["units"]`` column -> unit."""
-        return access.read_metrics(self.path)
+        return self._current("metrics", lambda: access.read_metrics(self.path)).copy()
 
-    @cached_property
+    @property
     def config(self):
         """The run's configuration as a :class:`ilcforce.config.Config`."""
         from ilcforce.config_load import config_from_dict
         from ilcforce.samerun import stored_config
 
-        return config_from_dict(stored_config(self.provenance))
+        return self._current("config", lambda: config_from_dict(stored_config(self.provenance)))
 
-    @cached_property
+    @property
     def reference(self) -> pd.DataFrame:
         """The reference trajectories on the log grid (index ``time``, units in attrs)."""
-        return access.read_reference(self.path)
+        return self._current("reference", lambda: access.read_reference(self.path)).copy()
 
     def iteration(self, j: int) -> StoredIteration:
         """Iteration ``j``: logs (arrays on the log grid), memory, status; ``.to_pandas()``."""
