@@ -1,8 +1,9 @@
 """Load the two LAPACK/BLAS modules numba needs without importing all of ``scipy.linalg``.
 
 numba reaches BLAS and LAPACK through ``scipy.linalg.cython_blas`` and ``scipy.linalg.cython_lapack``
-(its ``np.linalg.solve`` and ``@`` call them), and checks for them the moment its CPU target first
-loads (``numba.np.arraymath`` runs ``ensure_blas()`` at import). Importing a submodule imports its
+(its ``np.linalg.solve`` and ``@`` call them): it checks for them when it compiles
+(``numba.np.arraymath`` runs ``ensure_blas()`` at import), and a compiled solve imports
+``cython_lapack`` the first time it runs (numba's C helper). Importing a submodule imports its
 package first, and ``scipy.linalg/__init__`` imports the whole of scipy.linalg: about 170 ms of a
 cold ``ilcforce simulate`` (measured with ``python -X importtime``), for two extension modules that
 load in 9 ms on their own.

@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
 from numba import njit
 
 from ilcforce.config_load import default_config

@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import ilcforce._lapack  # noqa: F401, I001 - before numba: numba's LAPACK modules without all of scipy.linalg
+import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
 from numba import njit, types
 
 from ilcforce.controllers.base import (

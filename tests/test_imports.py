@@ -49,3 +49,43 @@ def test_a_simulation_loads_numbas_lapack_without_all_of_scipy_linalg():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert "LINALG False True" in proc.stdout
+
+
+_LIGHT_OR_FULL = """
+import hashlib, sys
+import numpy as np
+if sys.argv[1] == "full":  # numba's own start: every lowering registry installed before any load
+    import numba.core.registry
+    numba.core.registry.cpu_target.target_context.refresh()
+from ilcforce import _numba_start
+from ilcforce.config_load import load_config
+from ilcforce.controllers import REGISTRY
+from ilcforce.experiment import simulate_iterations
+digest = hashlib.sha256()
+short = {"experiment.iterations": 2, "reference.duration": 0.05, "plant.perturbation.from_iteration": 1}
+runs = [("fivebar", method) for method in REGISTRY] + [("serial2r", "c1"), ("serial2r", "sl-adapt")]
+for model, method in runs:
+    for record in simulate_iterations(load_config(None, {**short, "plant.model": model}), method):
+        for name in sorted(record.log):
+            digest.update(np.ascontiguousarray(record.log[name]).tobytes())
+        for name in sorted(record.memory):
+            digest.update(np.ascontiguousarray(record.memory[name]).tobytes())
+print("LIGHT", _numba_start.LIGHT_CACHE_LOADS, "numba.np.arraymath" in sys.modules, digest.hexdigest())
+"""
+
+
+def test_cached_kernels_load_without_numbas_compiler_and_give_the_same_numbers():
+    """ilcforce._numba_start: a process that only loads cached kernels skips the CPU target's refresh
+    (every lowering registry imported and installed, about 0.2 s of a cold command), and every method
+    on both robots computes exactly what it computes after numba's own full start."""
+    def run(mode: str) -> list[str]:
+        proc = subprocess.run([sys.executable, "-c", _LIGHT_OR_FULL, mode], capture_output=True, text=True,
+                              timeout=600)
+        assert proc.returncode == 0, proc.stderr
+        return next(line for line in proc.stdout.splitlines() if line.startswith("LIGHT")).split()
+
+    run("light")  # fills numba's cache for whatever is not in it yet (that run compiles, and refreshes)
+    light, full = run("light"), run("full")
+    assert light[1:3] == ["True", "False"], f"the cached kernels did not load the light way: {light}"
+    assert full[2] == "True"  # the full start did install the registries: the comparison means something
+    assert light[3] == full[3], "the numbers differ between the light and numba's full start"

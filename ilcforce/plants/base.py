@@ -39,7 +39,7 @@ from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
-import ilcforce._lapack  # noqa: F401, I001 - before numba: numba's LAPACK modules without all of scipy.linalg
+import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
 from numba import carray, njit, types
 from numba.extending import intrinsic
 
