@@ -116,8 +116,9 @@ def _value_text(value: Any) -> str:
         return "true" if value else "false"
     if isinstance(value, (list, tuple)):
         return ",".join(_value_text(v) for v in value)
-    if isinstance(value, float):
-        return repr(value)
+    if isinstance(value, float):  # 2, 2.0 and 2e0 are one value of a float key: one folder
+        text = repr(value)
+        return text[:-2] if text.endswith(".0") else text
     return str(value)
 
 
