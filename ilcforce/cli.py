@@ -197,8 +197,9 @@ def simulate(
         status = row["status"] if row["status"] == "complete" else f"[red]diverged at t = {row['diverged_time']:.4f} s[/]"
         table.add_row(str(row["iteration"]), _g(row["position_error_2norm"]), _g(row["force_error_2norm"]),
                       _g(row["chattering_task_x"]), _g(row["chattering_task_y"]), str(row["fallback_count"]), status)
-    out.print(table)
-    if not summary.rows:
+    if summary.rows:
+        out.print(table)
+    else:
         _say(f"nothing to run: {path} already holds iterations 0..{summary.first_iteration - 1}")
     if summary.diverged:
         _say(f"{names[0]} diverged; later iterations were not run (the store records where).")
@@ -218,7 +219,7 @@ def compare(
 ) -> None:
     """Run the methods that have no complete result for this experiment, then compare them side by side.
 
-    Methods to run run at once, one worker process each, sharing the cores.
+    Methods that need running run at once, one worker process each, sharing the cores.
     """
     from ilcforce import cli_run, store
     from ilcforce.experiment import default_store_path
@@ -240,11 +241,19 @@ def compare(
 
     from ilcforce.report.tables import comparison_frame
 
-    frame = comparison_frame({name: store.read_metrics(path) for name, path in paths.items()})
+    # a store may hold more iterations than asked for (the first ones are the same run): the table,
+    # like its title, is over the experiment's iterations
+    n = cfg.experiment.iterations
+    frame = comparison_frame({name: _first(store.read_metrics(path), n) for name, path in paths.items()})
     units = dict(frame.attrs.get("units", {}))
     if "method" in frame.columns:
         frame = frame.set_index("method")
-    _print_frame(frame.T, _comparison_title(cfg), units)
+    _print_frame(frame.T, f"{_comparison_title(cfg)}  ->  {paths[names[0]].parent}", units)
+
+
+def _first(metrics, n: int):
+    """The metrics rows of iterations 0 .. n - 1 (attributes kept)."""
+    return metrics[metrics.index < n]
 
 
 def _comparison_title(cfg) -> str:

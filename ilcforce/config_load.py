@@ -235,6 +235,20 @@ def parse_override(text: str) -> tuple[str, object]:
     return key, value
 
 
+def _name_after_file(data: dict, path: Path) -> None:
+    """An experiment file without ``experiment.name`` (or description) is named after the file: with
+    the paper's name its runs went to the paper's own results folder (results/paper/)."""
+    experiment = data.setdefault("experiment", {})
+    if not isinstance(experiment, dict):  # not a table: config_from_dict names the fault
+        return
+    if "name" not in experiment:
+        if not path.stem or path.stem.startswith(".") or not path.stem.isprintable():
+            raise ConfigError(f"{path}: experiment.name is not set and the file's name cannot name a results "
+                              "folder; set experiment.name")
+        experiment["name"] = path.stem
+    experiment.setdefault("description", f"experiment file {path.name}")
+
+
 def load_config(path: Path | str | None = None, overrides: dict[str, object] | None = None) -> Config:
     """Load ``path`` (None: the paper's setup), apply dotted ``overrides``, validate everything."""
     data: dict = {}
@@ -244,6 +258,7 @@ def load_config(path: Path | str | None = None, overrides: dict[str, object] | N
         path = Path(path)
         data, _ = read_toml(path, "config file", ConfigError)
         file_data = copy.deepcopy(data)
+        _name_after_file(data, path)
     for key, value in overrides.items():
         try:
             _set_path(data, key, value, file_data)

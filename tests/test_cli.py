@@ -182,3 +182,33 @@ def test_the_entry_point_exits_at_once_with_the_commands_code_and_its_output(tmp
     assert run.returncode == 0, run.stderr
     assert "complete" in (tmp_path / "stdout.txt").read_text()  # the table's row, written just before the exit
     store.validate(out)
+
+
+def test_compare_over_fewer_iterations_than_stored_shows_the_first_ones(runner, tmp_path):
+    """`compare --iters 2` reused a store holding more iterations (the first ones are the same run)
+    but showed all of them (j19 values under a "2 iterations" title); the table is over the
+    iterations asked for, like its title, and names the folder its stores are in."""
+    args = ["compare", "--methods", "c1,c3", "--results", str(tmp_path), *SHORT]
+    assert runner.invoke(app, [*args, "--iters", "3"]).exit_code == 0
+    result = runner.invoke(app, [*args, "--iters", "2"])
+    assert result.exit_code == 0, result.output
+    words = " ".join(result.output.split())  # the title wraps at the table's width
+    assert "(seed 0, 2 iterations) ->" in words and VARIANT in words, result.output
+    cells = {line.split("│")[1].strip(): [c.strip() for c in line.split("│")[2:-1]]
+             for line in result.output.splitlines() if line.startswith("│")}
+    assert cells["iterations"] == ["2", "2"], result.output
+    assert cells["position_error_2norm_j0 (m)"] != ["-", "-"], result.output
+    assert store.iterations(tmp_path / VARIANT / "c3.h5") == [0, 1, 2]  # the store itself is untouched
+
+
+def test_an_experiment_file_without_a_name_is_named_after_the_file(runner, tmp_path):
+    """Its runs went to the paper's own folder, results/paper/."""
+    mine = tmp_path / "mine.toml"
+    mine.write_text("[c3]\neta = 2.0\n", encoding="utf-8")
+    result = runner.invoke(app, ["simulate", "-m", "c3", "-n", "1", "-c", str(mine), "--results", str(tmp_path), *SHORT])
+    assert result.exit_code == 0, result.output
+    assert store.iterations(tmp_path / "mine--reference.duration=0.2" / "c3.h5") == [0]
+    assert not (tmp_path / "paper--reference.duration=0.2").exists()
+    hidden = tmp_path / ".hidden.toml"
+    hidden.write_text("[c3]\neta = 2.0\n", encoding="utf-8")
+    _one_clear_line(runner.invoke(app, ["config", "-c", str(hidden)]), "set experiment.name")

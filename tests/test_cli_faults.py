@@ -119,9 +119,9 @@ def test_changing_a_c3_gain_does_not_make_the_c1_store_stale(runner, tmp_path: P
 def test_compare_refusal_names_the_keys_that_differ(runner, tmp_path: Path):
     base = ["compare", "--methods", "c1", "-n", "1", "--results", str(tmp_path), *SHORT]
     assert runner.invoke(app, base).exit_code == 0
-    # the same folder with a changed common value: only reachable through a config file
+    # the same folder with a changed common value: only reachable through a config file named "paper"
     toml = tmp_path / "paper-changed.toml"
-    toml.write_text("[wall]\nstiffness = 1100.0\n", encoding="utf-8")
+    toml.write_text('[experiment]\nname = "paper"\n[wall]\nstiffness = 1100.0\n', encoding="utf-8")
     result = runner.invoke(app, [*base, "-c", str(toml)])
     assert result.exit_code == 2, result.output
     assert "wall.stiffness (stored 1000.0, new 1100.0)" in result.output, result.output
@@ -165,3 +165,11 @@ def test_no_command_prints_the_help_and_nothing_more():
     done = subprocess.run([sys.executable, "-m", "ilcforce"], capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
     assert "Usage: " in done.stdout + done.stderr and "error:" not in done.stdout + done.stderr
+
+
+def test_one_value_written_three_ways_is_one_variant():
+    """``--set c3.eta=2``, ``=2.0`` and ``=2e0`` are the same configuration but made three results
+    folders (the first with the folder name of the text "2", the others "2.0"); they are one now."""
+    assert {samerun.variant_folder("paper", {"c3.eta": v}) for v in (2, 2.0, 2e0)} == {"paper--c3.eta=2"}
+    assert samerun.variant_folder("paper", {"c3.eta": 2.5}) == "paper--c3.eta=2.5"
+    assert samerun.variant_folder("paper", {"wall.stiffness": 1e20}) == "paper--wall.stiffness=1e+20"
