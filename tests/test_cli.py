@@ -212,3 +212,15 @@ def test_an_experiment_file_without_a_name_is_named_after_the_file(runner, tmp_p
     hidden = tmp_path / ".hidden.toml"
     hidden.write_text("[c3]\neta = 2.0\n", encoding="utf-8")
     _one_clear_line(runner.invoke(app, ["config", "-c", str(hidden)]), "set experiment.name")
+
+
+def test_report_names_a_file_given_as_a_folder(runner, tmp_path):
+    """`report --out FILE` printed the raw "File exists" and `report --results FILE` said the file
+    "does not exist"; each is named now, and the file is left as it was."""
+    (tmp_path / "results").mkdir()
+    text = tmp_path / "notes.txt"
+    text.write_text("mine\n", encoding="utf-8")
+    _one_clear_line(runner.invoke(app, ["report", "--results", str(tmp_path / "results"), "--out", str(text)]),
+                    "is a file, not a folder")
+    _one_clear_line(runner.invoke(app, ["report", "--results", str(text)]), "is a file, not a folder of stores")
+    assert text.read_text(encoding="utf-8") == "mine\n"

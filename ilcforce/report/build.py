@@ -250,7 +250,7 @@ def _report_experiment(name: str, paths: Mapping[str, Path], out_dir: Path, form
         experiment.warn("no readable store; no report written")
         return [], None, experiment.warnings
     if progress is not None:
-        progress(f"experiment {name}: {len(experiment.methods)} stores read and checked; tables, claims, figures")
+        progress(f"experiment {name}: {len(experiment.methods)} store{'' if len(experiment.methods) == 1 else 's'} read and checked; tables, claims, figures")
     files, claims = _write_experiment(experiment, out_dir / name, formats)
     return files, claims, experiment.warnings
 

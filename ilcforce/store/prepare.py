@@ -106,6 +106,10 @@ def refuse_foreign_target(path: Path) -> None:
                          "nor --resume touches it: move it away or choose another --out")
 
 
+def _iterations(n: int) -> str:
+    return f"{n} iteration" + ("" if n == 1 else "s")
+
+
 def existing_refusal(path: Path) -> str:
     """Why a plain run refuses the existing ``path``: what it holds and which option applies."""
     from ilcforce.store.access import iterations, read_provenance
@@ -114,7 +118,7 @@ def existing_refusal(path: Path) -> str:
         done = iterations(path)
     except StoreError as error:  # neither --overwrite nor --resume takes a store that cannot be read
         return f"{path} already exists and is not a usable store ({error}); move it away or choose another --out"
-    return (f"{path} already exists (run_state {provenance['run_state']!r}, {len(done)} complete iterations); "
+    return (f"{path} already exists (run_state {provenance['run_state']!r}, {_iterations(len(done))} stored); "
             "--overwrite replaces it or --resume continues it")
 
 

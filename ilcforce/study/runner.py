@@ -173,7 +173,7 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
     if scheduler is not None and not _ADDRESS.fullmatch(scheduler):
         raise StudyError(f"--scheduler expects an address like tcp://HOST:PORT, got {scheduler!r}")
     if not (timeout > 0 and timeout < 3600):
-        raise StudyError(f"--timeout must be between 0 and 3600 s, got {timeout}")
+        raise StudyError(f"--timeout must be more than 0 s and less than 3600 s, got {timeout:g}")
     if workers is not None and workers < 1:
         raise StudyError(f"--workers must be >= 1, got {workers}")
     if workers is None and not scheduler:
