@@ -346,13 +346,19 @@ def report(
 def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stores to check")]) -> None:
     """Check HDF5 stores against the ilcforce schema: run stores and study stores (results/studies).
 
-    Every file is checked, one line each; the exit code is 2 if any is not a valid store.
+    Every file is checked, one line each; the exit code is 2 if any is not a valid store. The files
+    ilcforce keeps beside a store (<store>.lock, a study's <store>.journal) are named and skipped, so
+    `ilcforce validate results/paper/*` checks the stores.
     """
     from ilcforce import store
     from ilcforce.store.study_read import DAMAGED_RECORD, StudyStoreError, check_study_store, is_study_store
 
     invalid = 0
     for path in paths:
+        companion = _companion_of(path)
+        if companion is not None:  # e.g. from `validate results/paper/*`: ilcforce's own, not damage
+            _say(f"{path}: skipped ({companion})")
+            continue
         try:
             if is_study_store(path):
                 s = check_study_store(path)
@@ -373,6 +379,18 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
             invalid += 1
     if invalid:
         raise typer.Exit(2)
+
+
+def _companion_of(path: Path) -> str | None:
+    """What ``path`` is if it is a file ilcforce keeps beside a store (its writers' lock file, a
+    study's journal folder), else None."""
+    for suffix, what in ((".lock", "the writers' lock file of {}"), (".journal", "the journal of {}")):
+        if path.name.endswith(".h5" + suffix) and not path.is_symlink():
+            store_path = path.with_name(path.name[:-len(suffix)])
+            kind_ok = path.is_file() if suffix == ".lock" else path.exists()
+            if kind_ok:
+                return what.format(store_path) + ("" if store_path.exists() else ", which is not there")
+    return None
 
 
 @app.command()

@@ -224,3 +224,22 @@ def test_report_names_a_file_given_as_a_folder(runner, tmp_path):
                     "is a file, not a folder")
     _one_clear_line(runner.invoke(app, ["report", "--results", str(text)]), "is a file, not a folder of stores")
     assert text.read_text(encoding="utf-8") == "mine\n"
+
+
+def test_validate_skips_the_files_kept_beside_a_store(runner, tmp_path):
+    """`ilcforce validate results/paper/*` exited 2 on the writers' lock files beside the stores."""
+    out = tmp_path / "c3.h5"
+    assert runner.invoke(app, ["simulate", "-m", "c3", "-n", "1", "--out", str(out), *SHORT]).exit_code == 0
+    assert (tmp_path / "c3.h5.lock").is_file()
+    orphan = tmp_path / "gone.h5.lock"
+    orphan.write_text("", encoding="utf-8")
+    (tmp_path / "study.h5.journal").mkdir()  # a study's journal folder
+    result = runner.invoke(app, ["validate", *map(str, sorted(tmp_path.iterdir()))])
+    assert result.exit_code == 0, result.output
+    assert f"c3.h5.lock: skipped (the writers' lock file of {out})" in result.output
+    assert "gone.h5.lock: skipped (the writers' lock file of" in result.output and "which is not there" in result.output
+    assert "study.h5.journal: skipped (the journal of" in result.output
+    assert "c3.h5: ok" in result.output
+    stray = tmp_path / "notes.lock"  # not beside a store's name: checked, and not a store
+    stray.write_text("x", encoding="utf-8")
+    assert runner.invoke(app, ["validate", str(stray)]).exit_code == 2
