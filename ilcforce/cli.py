@@ -108,6 +108,10 @@ def _guard(func):
 
 
 def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], sets: Optional[list[str]]):
+    if err.is_terminal:  # a first run compiles for about a minute: say so (ilcforce/compile_note.py)
+        from ilcforce.compile_note import announce_compiles
+
+        announce_compiles(lambda text: _say(text, stderr=True))
     from ilcforce.config_load import load_config, parse_override
 
     overrides = dict(parse_override(s) for s in (sets or []))

@@ -89,3 +89,28 @@ def test_cached_kernels_load_without_numbas_compiler_and_give_the_same_numbers()
     assert light[1:3] == ["True", "False"], f"the cached kernels did not load the light way: {light}"
     assert full[2] == "True"  # the full start did install the registries: the comparison means something
     assert light[3] == full[3], "the numbers differ between the light and numba's full start"
+
+
+def test_a_compile_is_announced_once(monkeypatch):
+    """A first run after an install compiles for about a minute with the progress display at 0; the
+    terminal now says so, once (ilcforce/compile_note.py)."""
+    from numba import njit
+    from numba.core import event
+
+    from ilcforce import compile_note
+
+    monkeypatch.setattr(compile_note, "_installed", [])
+    lines: list[str] = []
+    compile_note.announce_compiles(lines.append)
+    compile_note.announce_compiles(lines.append)  # a second call adds no second listener
+    assert len(compile_note._installed) == 1
+    try:
+        @njit(cache=False)
+        def plus_one(x):
+            return x + 1
+
+        assert lines == []
+        assert plus_one(1) == 2 and plus_one(2.5) == 3.5  # two compiles (int, float): one line
+        assert lines == [compile_note.NOTE]
+    finally:
+        event.unregister("numba:compile", compile_note._installed[0])

@@ -1,0 +1,43 @@
+"""One line on the terminal when numba compiles, so that a first run does not look hung.
+
+After an install or a change to the simulation code, numba compiles the kernels before the first
+iteration can start: 10 s for one method's kernels, over a minute for every method's, on a 2-core
+machine, with the progress display still at 0.
+Later runs load them from numba's on-disk cache (``NUMBA_CACHE_DIR``) in a fraction of a second
+and say nothing. numba announces each compile as a ``numba:compile`` event (a cache load is not
+one); the first such event in this process prints the note, once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
+
+NOTE = ("compiling the simulation kernels (only the first run after an install or a code change; "
+        "later runs load them from numba's cache)")
+
+_installed: list = []
+
+
+def announce_compiles(say: Callable[[str], None]) -> None:
+    """From now on, ``say(NOTE)`` at the first compile numba starts in this process (once)."""
+    from numba.core import event
+
+    if _installed:
+        return
+
+    class _FirstCompile(event.Listener):
+        said = False
+
+        def on_start(self, ev) -> None:
+            if not self.said:
+                self.said = True
+                say(NOTE)
+
+        def on_end(self, ev) -> None:
+            pass
+
+    listener = _FirstCompile()
+    event.register("numba:compile", listener)
+    _installed.append(listener)
