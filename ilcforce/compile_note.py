@@ -1,8 +1,8 @@
 """One line on the terminal when numba compiles, so that a first run does not look hung.
 
 After an install or a change to the simulation code, numba compiles the kernels before the first
-iteration can start: 10 s for one method's kernels, over a minute for every method's, on a 2-core
-machine, with the progress display still at 0.
+iteration can start (10 s for C3 on the five-bar on a 2-core machine, measured; more when several
+methods compile), with the progress display still at 0.
 Later runs load them from numba's on-disk cache (``NUMBA_CACHE_DIR``) in a fraction of a second
 and say nothing. numba announces each compile as a ``numba:compile`` event (a cache load is not
 one); the first such event in this process prints the note, once.
