@@ -269,3 +269,30 @@ def test_a_stopped_study_is_reported_as_incomplete_until_it_is_finished(tmp_path
     assert len(results.cells) == 9 and results.planned_cells == 8
     assert "Incomplete: 1 of the 8 planned cells are stored" in incomplete_text(results)
     assert 'seeds = "2-3"' in results.latest_study_toml and 'seeds = "0-1"' in results.study_toml
+
+
+@pytest.mark.parametrize("stored_name", ["/abs/elsewhere", "../../../escaped", "a/b", ".."])
+def test_a_stored_study_name_never_makes_a_path_outside_the_report(tmp_path, stored_name):
+    """A study store whose name attribute was a path (edited or damaged) made the report write, and
+    overwrite, files outside --out (found by an attack on the CLI). Readers now take such a store
+    for the damaged file it is: validate refuses it, the report skips it with a warning."""
+    import h5py
+
+    from ilcforce.store.study_read import StudyStoreError, check_study_store
+    from ilcforce.study import load_study
+
+    from test_study import TINY_TOML, write_study_file
+
+    run_study(load_study(write_study_file(tmp_path, TINY_TOML)), tmp_path / "results", workers=1)
+    path = tmp_path / "results" / "studies" / "tiny.h5"
+    target = (tmp_path / "results" / "report" / stored_name).resolve() if not stored_name.startswith("/") \
+        else tmp_path / "abs" / "elsewhere"
+    with h5py.File(path, "r+") as handle:
+        handle.attrs["name"] = str(tmp_path / "abs" / "elsewhere") if stored_name.startswith("/") else stored_name
+    with pytest.raises(StudyStoreError, match="not a plain file name"):
+        check_study_store(path)
+    before = sorted(p for p in tmp_path.rglob("*") if "report" not in p.parts)
+    summary = write_report(tmp_path / "results", tmp_path / "results" / "report", formats=("png",), jobs=1)
+    assert summary.studies == () and any("tiny.h5" in w for w in summary.warnings)
+    assert sorted(p for p in tmp_path.rglob("*") if "report" not in p.parts) == before
+    assert not target.exists() or target == (tmp_path / "results").resolve()

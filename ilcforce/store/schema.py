@@ -10,6 +10,7 @@ without checksums) are still read; see :mod:`ilcforce.store.safeio` for how they
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 from typing import Any
 
@@ -20,6 +21,9 @@ from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS
 SCHEMA_NAME = "ilcforce.store"
 #: The study store's schema name (ilcforce/store/study.py); here so that a run-store reader can name it.
 STUDY_SCHEMA_NAME = "ilcforce.study"
+#: A study's name, which names its store and its report folder: a plain file name (checked when a
+#: study file is read, and again when a store is read, so that a stored name never makes a path).
+STUDY_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
 SCHEMA_VERSION = "2.0"
 
 #: HDF5 file-format bounds: "v108" gives version-2 object headers and superblock, whose metadata

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.store.safeio import HDF5_SIGNATURE
-from ilcforce.store.schema import STUDY_SCHEMA_NAME
+from ilcforce.store.schema import STUDY_NAME, STUDY_SCHEMA_NAME
 
 SCHEMA_NAME = STUDY_SCHEMA_NAME
 SCHEMA_VERSION = "1.0"
@@ -155,6 +155,10 @@ def read_header(path: Path, *, check: bool = True) -> dict:
             if version.split(".")[0] != SCHEMA_VERSION.split(".")[0]:
                 raise StudyStoreError(f"{path}: study store schema {version!r}; this ilcforce reads {SCHEMA_VERSION}")
             attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in handle.attrs.items()}
+            name = attrs.get("name")
+            if not isinstance(name, str) or not STUDY_NAME.fullmatch(name) or name in (".", ".."):
+                # the name makes the report's folder: never a path from a damaged or edited file
+                raise StudyStoreError(f"{path}: damaged study store (its name {str(name)[:60]!r} is not a plain file name)")
             settings = _table(handle["settings"])
     except StudyStoreError:
         raise

@@ -50,6 +50,7 @@ from pathlib import Path
 
 from ilcforce.config import Config, ConfigError
 from ilcforce.config_load import load_config, shown
+from ilcforce.store.schema import STUDY_NAME
 from ilcforce.study import settings_list
 from ilcforce.tomlfile import read_toml
 
@@ -61,7 +62,7 @@ class StudyError(ValueError):
 #: Keys allowed in the [study] table.
 STUDY_KEYS = ("name", "description", "experiment", "methods", "seeds", "set", "sweep", "settings")
 #: A study name becomes a file name under results/studies/: no separators, no leading dot.
-_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
+_NAME = STUDY_NAME
 #: Seeds allowed per study (a guard against "0-99999999999" typos, not a limit of the method).
 MAX_SEEDS = 100_000
 #: Cells allowed per study.
