@@ -370,3 +370,59 @@ def test_without_hdf5_locking_every_commit_copies(path: Path, monkeypatch: pytes
     assert not list(path.parent.glob(path.name + ".tmp-*"))
     np.testing.assert_array_equal(store.read_memory(path, 2)["alpha_hat"], records[2].memory["alpha_hat"])
 
+
+
+def _crashed_commit(path: Path) -> bytes:
+    """Leave ``path`` as a writer killed in mid-commit would: its first bytes overwritten, their old
+    contents in the journal. Returns the file as it was before."""
+    import os
+
+    from ilcforce.store import journal
+
+    before = path.read_bytes()
+    fd = os.open(path, os.O_RDWR)
+    try:
+        jfd = journal.start(path.with_name(path.name + ".journal"), len(before), fd)
+        half = journal.JournaledFile(fd, jfd, len(before))
+        half.seek(0)
+        half.write(b"\0" * 64)  # the superblock: the file is unreadable until the commit is undone
+        os.close(jfd)
+    finally:
+        os.close(fd)
+    return before
+
+
+def test_an_interrupted_commit_is_undone_by_the_next_reader(path: Path):
+    write_run(path, 2)
+    before = _crashed_commit(path)
+    assert path.read_bytes() != before
+    store.validate(path)
+    assert path.read_bytes() == before and not path.with_name(path.name + ".journal").exists()
+
+
+def test_a_journal_left_beside_another_file_is_refused_not_applied(path: Path):
+    """A journal was applied to whatever file had the store's name: a good store moved into place
+    after a crash (a backup restored) was cut to the crashed store's old size, and a forged
+    16-byte journal grew a store to 1 GB (found by an attack on the CLI). A journal now names its
+    file (device and inode) and is refused, left as it is with the store untouched, otherwise."""
+    import struct
+
+    write_run(path, 2)
+    _crashed_commit(path)
+    other = path.with_name("other.h5")
+    write_run(other, 3)
+    good = other.read_bytes()
+    other.replace(path)  # the backup moved into place; the crashed store's journal is still there
+    jpath = path.with_name(path.name + ".journal")
+    with pytest.raises(StoreError, match="journal of another file") as error:
+        store.validate(path)
+    assert_one_line_naming(error, path)
+    assert path.read_bytes() == good and jpath.exists()
+    jpath.write_bytes(b"ILCJRNL1" + struct.pack("<Q", 10**9))  # an old-format journal: no identity
+    with pytest.raises(StoreError, match="does not fit this store"):
+        store.validate(path)
+    assert path.read_bytes() == good
+    jpath.write_bytes(b"junk")  # not ours, and short: left alone, not taken for a torn header
+    with pytest.raises(StoreError, match="not an ilcforce journal"):
+        store.validate(path)
+    assert jpath.read_bytes() == b"junk" and path.read_bytes() == good

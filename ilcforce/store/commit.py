@@ -130,7 +130,7 @@ def update(path: Path, change: Change) -> None:
 def _update_in_place(path: Path, fd: int, size: int, change: Change) -> None:
     jpath = journal_path(path)
     try:
-        jfd = journal.start(jpath, size)
+        jfd = journal.start(jpath, size, fd)
     except OSError as error:
         raise _fail(path, error) from None
     stream = journal.JournaledFile(fd, jfd, size)

@@ -8,8 +8,12 @@ the journal. A commit that did not finish (kill -9, a full disk, an exception) i
 :func:`roll_back`: the saved bytes are written back, the file is truncated to its old size, and
 the journal is removed, giving back exactly the file of the last commit.
 
-Journal format: a 16-byte header ``b"ILCJRNL1"`` + the store's size at the start (uint64 LE);
-then records ``offset (uint64 LE) | length (uint64 LE) | old bytes``. A record is written (one
+Journal format: a 32-byte header ``b"ILCJRNL2"`` + the store's size at the start, its device and
+its inode (uint64 LE each); then records ``offset (uint64 LE) | length (uint64 LE) | old bytes``.
+The device and inode tie the journal to its file: a journal beside another file of that name (a
+backup moved into place after the crash) is refused, not applied, and so is one whose store is
+now smaller than it was at the start (a commit only appends). A ``ILCJRNL1`` journal (16-byte
+header, no identity; ilcforce before 2026-12-02) is applied under the size check only. A record is written (one
 ``write`` call) before the store bytes it covers are overwritten, so a torn last record covers
 bytes that were never overwritten and is ignored.
 
@@ -23,8 +27,10 @@ import io
 import os
 import struct
 
-MAGIC = b"ILCJRNL1"
-_HEADER = struct.Struct("<8sQ")
+MAGIC = b"ILCJRNL2"
+_HEADER = struct.Struct("<8sQQQ")  # magic, size at the start, st_dev, st_ino of the store
+_MAGIC_V1 = b"ILCJRNL1"
+_HEADER_V1 = struct.Struct("<8sQ")
 _RECORD = struct.Struct("<QQ")
 
 
@@ -154,11 +160,13 @@ def _gaps(saved: list[tuple[int, int]], start: int, stop: int) -> list[tuple[int
     return gaps
 
 
-def start(journal_path: str | os.PathLike[str], base_size: int) -> int:
-    """Create the journal (it must not exist; never through a symlink) and return its fd."""
+def start(journal_path: str | os.PathLike[str], base_size: int, store_fd: int) -> int:
+    """Create the journal of the store open as ``store_fd`` (it must not exist; never through a
+    symlink) and return its fd."""
+    identity = os.fstat(store_fd)
     fd = os.open(journal_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
     try:
-        header = _HEADER.pack(MAGIC, base_size)
+        header = _HEADER.pack(MAGIC, base_size, identity.st_dev, identity.st_ino)
         if os.write(fd, header) != len(header):
             raise OSError("short write to the journal")
     except BaseException:
@@ -188,15 +196,11 @@ def roll_back(store_fd: int, journal_path: str | os.PathLike[str]) -> bool:
             data += chunk
     finally:
         os.close(fd)
-    if len(data) < _HEADER.size:
-        # killed while writing the header: nothing in the store was changed yet
+    base, offset = _check_header(data, journal_path, os.fstat(store_fd))
+    if base is None:  # killed while writing the header: nothing in the store was changed yet
         os.unlink(journal_path)
         return True
-    magic, base = _HEADER.unpack_from(data, 0)
-    if magic != MAGIC:
-        raise JournalError(f"{journal_path} is not an ilcforce journal")
     records = []
-    offset = _HEADER.size
     while offset + _RECORD.size <= len(data):
         where, length = _RECORD.unpack_from(data, offset)
         body = data[offset + _RECORD.size: offset + _RECORD.size + length]
@@ -210,3 +214,23 @@ def roll_back(store_fd: int, journal_path: str | os.PathLike[str]) -> bool:
     os.fsync(store_fd)
     os.unlink(journal_path)
     return True
+
+
+def _check_header(data: bytes, journal_path, store) -> tuple[int | None, int]:
+    """(size at the start, where the records begin) of a journal that belongs to ``store`` (its
+    ``os.stat_result``); (None, 0) for a header torn by a kill; JournalError for anything else,
+    which is then left as it is, and the store untouched."""
+    for magic, header in ((MAGIC, _HEADER), (_MAGIC_V1, _HEADER_V1)):
+        if len(data) < header.size and (magic.startswith(data[:8]) if len(data) < 8 else data[:8] == magic):
+            return None, 0
+        if data[:8] != magic:
+            continue
+        base, *identity = header.unpack_from(data, 0)[1:]
+        if identity and tuple(identity) != (store.st_dev, store.st_ino):
+            raise JournalError(f"{journal_path} is the journal of another file, not of this store "
+                               "(was the store replaced after a crash?)")
+        if store.st_size < base:
+            raise JournalError(f"{journal_path} does not fit this store (made when it had {base} bytes; "
+                               f"it has {store.st_size})")
+        return base, header.size
+    raise JournalError(f"{journal_path} is not an ilcforce journal")
