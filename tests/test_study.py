@@ -674,3 +674,32 @@ def test_a_study_journal_without_its_store_is_not_written_beside(tmp_path):
     result = CliRunner().invoke(app, ["simulate", "--method", "c3", "--iters", "2", "--out", str(path)])
     assert result.exit_code == 2 and "is a study store's journal folder" in result.output, result.output
     assert sorted(p.name for p in path.parent.iterdir()) == before
+
+
+def test_fifos_where_files_belong_are_named_not_waited_on(tmp_path):
+    """A FIFO as a store, as a study store, or inside a study's journal folder blocked validate,
+    export, report and study for ever (each opened it for reading before looking at what it was;
+    found by an attack on the CLI). Each is now named, or skipped, in bounded time."""
+    import os
+    import subprocess
+    import sys
+
+    study = load_study(write_study_file(tmp_path, TINY_TOML))
+    run_study(study, tmp_path / "results", workers=1)
+    os.mkfifo(tmp_path / "fifo.h5")
+    journal = tmp_path / "results" / "studies" / "tiny.h5.journal"
+    journal.mkdir(exist_ok=True)
+    os.mkfifo(journal / "0-5-c1.json")
+    os.mkfifo(tmp_path / "results" / "studies" / "piped.h5")
+
+    def ilcforce(*args):
+        return subprocess.run([sys.executable, "-m", "ilcforce", *args], capture_output=True, text=True,
+                              timeout=120, cwd=tmp_path)
+
+    fifo = ilcforce("validate", "fifo.h5")
+    assert fifo.returncode == 2 and "not a regular file" in fifo.stderr and "Traceback" not in fifo.stderr, fifo
+    checked = ilcforce("validate", "results/studies/tiny.h5")
+    assert checked.returncode == 0 and "0-5-c1.json: not a regular file" in checked.stdout, checked
+    assert ilcforce("export", "results/studies/tiny.h5", "--out", "cells.csv").returncode == 0
+    report = ilcforce("report", "--results", "results", "--quiet")
+    assert report.returncode == 0 and "piped.h5" in report.stderr, report

@@ -39,6 +39,8 @@ def _lock_path(path: Path) -> Path:
 def is_study_store(path: Path) -> bool:
     """True if ``path`` is an HDF5 file carrying the study schema (never raises, bounded time)."""
     try:
+        if not Path(path).is_file():  # a FIFO would block the open below for ever
+            return False
         with open(path, "rb") as handle:
             if handle.read(len(HDF5_SIGNATURE)) != HDF5_SIGNATURE:
                 return False
@@ -77,6 +79,8 @@ DAMAGED_RECORD = "not a cell record (damaged or foreign)"
 
 def _read_record(item: Path) -> dict | None:
     """A journal file's cell record; None when it is damaged or not one (its cell runs again)."""
+    if not item.is_file():  # a FIFO (or a device) would block the read for ever
+        return None
     try:
         record = json.loads(item.read_text(encoding="utf-8"))
     except (OSError, ValueError, UnicodeDecodeError):
@@ -109,6 +113,8 @@ def ignored_journal_entries(path: Path) -> list[str]:
             continue
         if item.is_dir():
             found.append(f"{item.name}: a folder")
+        elif not item.is_file():
+            found.append(f"{item.name}: not a regular file")
         elif item.suffix != ".json":
             found.append(f"{item.name}: not a .json record")
         elif _read_record(item) is None:
@@ -126,8 +132,12 @@ def latest_study_toml(sessions: list, first: str) -> str:
 def _probe(path: Path) -> None:
     """Bounded time on a damaged file: walk its structure in a forked child first (the run store's
     :func:`ilcforce.store.safeio.probe`); StudyStoreError if that fails."""
-    from ilcforce.store.safeio import StoreError, probe
+    from ilcforce.store.safeio import StoreError, check_regular_file, probe
 
+    try:
+        check_regular_file(Path(path))  # a FIFO would block the open below for ever
+    except StoreError as exc:
+        raise StudyStoreError(str(exc)) from None
     try:
         fd = os.open(path, os.O_RDONLY)
     except OSError as exc:
