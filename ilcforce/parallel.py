@@ -148,12 +148,28 @@ def _collect_dead(workers: dict, outcomes: dict[str, Outcome]) -> None:
                                                         "every iteration committed before (run the same command to continue)")
 
 
+def _stop_with_parent(parent: int, requested: list[int]) -> None:
+    """A worker whose parent dies (kill -9) gets SIGTERM and stops like at a Ctrl-C, after the
+    iteration it is on is stored, releasing its store's lock; it ran on, orphaned, holding the lock,
+    and a rerun of `compare` was refused. Linux's PR_SET_PDEATHSIG; elsewhere the worker runs on."""
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGTERM, 0, 0, 0)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # the parent died before the request was in place
+        requested.append(signal.SIGTERM)
+
+
 def _worker(config, job: Job, messages) -> None:  # messages: the write end of its pipe
     """In the forked process: run one method, report progress and how it ended, then exit."""
     from ilcforce.config import ConfigError
     from ilcforce.experiment import UnknownMethodError, run_method
     from ilcforce.store import StoreError
 
+    parent = os.getppid()
     os.setpgrp()  # Ctrl-C at the terminal reaches the parent only; it forwards each one
     requested: list[int] = []
 
@@ -164,6 +180,7 @@ def _worker(config, job: Job, messages) -> None:  # messages: the write end of i
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    _stop_with_parent(parent, requested)
 
     def tell(message: tuple) -> None:
         try:

@@ -142,3 +142,39 @@ def test_compare_runs_only_what_is_missing(tmp_path):
     assert second.returncode == 0, err2
     assert before == {m: _store(results, m).stat().st_mtime_ns for m in METHODS}
     assert out2 == out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as handle:
+            return handle.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_workers_stop_when_compare_is_killed_and_a_rerun_continues(tmp_path):
+    """kill -9 of `compare` left its workers running, orphaned, holding their stores' locks: a rerun
+    was refused ("being written by another ilcforce process") until they finished every iteration
+    (found by an attack on the CLI). Each now stops after the iteration it is on is stored."""
+    results = tmp_path / "results"
+    proc = _compare(results, LONG)
+    _wait_until_every_store_has(proc, results, 1)
+    workers = _workers(proc.pid)
+    assert len(workers) == len(METHODS), workers
+    proc.kill()
+    proc.communicate(timeout=60)
+    deadline = time.monotonic() + 60
+    while any(_alive(pid) for pid in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(pid) for pid in workers), "the workers outlived their killed parent"
+    stored = {}
+    for method in METHODS:
+        path = results / "paper" / f"{method}.h5"
+        store.validate(path)
+        stored[method] = len(store.iterations(path))
+        assert store.read_provenance(path)["run_state"] == "partial" and stored[method] < int(LONG)
+    again = _compare(results, LONG)
+    _wait_until_every_store_has(again, results, max(stored.values()) + 1)  # not refused: resumed
+    again.send_signal(signal.SIGINT)
+    _, stderr = again.communicate(timeout=120)
+    assert again.returncode == 130 and "being written by another" not in stderr, stderr
