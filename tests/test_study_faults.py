@@ -324,8 +324,9 @@ def test_remote_scheduler_runs_a_study(tmp_path):
         _stop(scheduler)
 
 
-def _foreign_service():
-    """A TCP service on 127.0.0.1 that is not a Dask scheduler (it answers like an HTTP server)."""
+def _foreign_service(silent: bool = False):
+    """A TCP service on 127.0.0.1 that is not a Dask scheduler: it answers like an HTTP server, or
+    (``silent``) accepts and says nothing, as an HTTP server does until it has a request."""
     import threading
 
     server = socket.socket()
@@ -341,13 +342,16 @@ def _foreign_service():
             except OSError:
                 continue
             with conn:
+                if silent:  # Dask's client waited for its handshake for ever (found by an attack)
+                    stop.wait(30)
+                    continue
                 conn.sendall(b"HTTP/1.0 200 OK\r\nContent-Length: 5\r\n\r\nhello" * 50)
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
     return server, stop, thread
 
 
-@pytest.mark.parametrize("kind", ["refused", "malformed", "foreign"])
+@pytest.mark.parametrize("kind", ["refused", "malformed", "foreign", "silent"])
 def test_unreachable_scheduler_is_one_line_in_bounded_time(tmp_path, kind):
     study_file = write_study_file(tmp_path, TINY_TOML)
     service = None
@@ -356,7 +360,7 @@ def test_unreachable_scheduler_is_one_line_in_bounded_time(tmp_path, kind):
     elif kind == "malformed":
         address = "nonsense-address"
     else:
-        service = _foreign_service()
+        service = _foreign_service(silent=kind == "silent")
         address = f"tcp://127.0.0.1:{service[0].getsockname()[1]}"
     try:
         start = time.monotonic()

@@ -8,6 +8,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import logging
+import time
 import uuid
 
 #: Seconds allowed to reach a remote scheduler, and then for a first worker to be there.
@@ -153,15 +154,26 @@ class SharedClient:
 
 
 def _probe(scheduler: str, timeout: float) -> None:
-    """Fail fast, with one line, when nothing listens at the scheduler's address."""
+    """Fail fast, with one line, when nothing listens at the scheduler's address, or when what
+    listens is not a Dask scheduler: a scheduler sends its handshake the moment it accepts a
+    connection, and Dask's own client waited for ever on a server that never does (an HTTP server,
+    a listener that only accepts)."""
+    import select
     import socket
 
     host, port = scheduler.split("://")[-1].rsplit(":", 1)
+    started = time.monotonic()
     try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout).close()
+        connection = socket.create_connection((host.strip("[]"), int(port)), timeout=timeout)
     except OSError as exc:
         reason = "timed out" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
         raise StudyRunError(f"cannot reach the Dask scheduler at {scheduler} within {timeout:g} s ({reason})") from None
+    with connection:
+        left = max(0.0, timeout - (time.monotonic() - started))
+        readable, _, _ = select.select([connection], [], [], left)
+    if not readable:
+        raise StudyRunError(f"{scheduler} accepts connections but sent no Dask handshake within {timeout:g} s: "
+                            "not a Dask scheduler?")
 
 
 def _forget_failed_client() -> None:
