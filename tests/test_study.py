@@ -703,3 +703,14 @@ def test_fifos_where_files_belong_are_named_not_waited_on(tmp_path):
     assert ilcforce("export", "results/studies/tiny.h5", "--out", "cells.csv").returncode == 0
     report = ilcforce("report", "--results", "results", "--quiet")
     assert report.returncode == 0 and "piped.h5" in report.stderr, report
+
+
+@pytest.mark.parametrize("workers", ["100000", str(4 * (__import__("os").cpu_count() or 1) + 1)])
+def test_more_workers_than_the_machine_runs_usefully_is_one_line(tmp_path, workers):
+    """--workers had no upper bound: 64 workers on 2 cores took 48 s for 2 cells, and 100000 printed
+    nothing for minutes (found by an attack on the CLI)."""
+    path = write_study_file(tmp_path, TINY_TOML)
+    result = CliRunner().invoke(app, ["study", str(path), "--results", str(tmp_path / "r"), "--workers", workers])
+    assert result.exit_code == 2, result.output
+    assert "4 per core" in result.output and len(result.output.strip().splitlines()) == 1, result.output
+    assert not (tmp_path / "r").exists()
