@@ -905,3 +905,34 @@ def test_a_figure_is_written_whole_or_not_at_all(tmp_path, monkeypatch):
     with pytest.raises(KeyboardInterrupt):
         save_figure(fig, tmp_path, "f", ("png",))
     assert path.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["f.png"]
+
+
+def test_a_report_that_cannot_be_written_fails_naming_the_file_and_keeps_the_old_one(tmp_path):
+    """Under a full disk or a file-size limit, report warned "figure not drawn" and exited 0, and a
+    rerun over an earlier report left a truncated claim_parts.csv beside the old files (found by an
+    attack on the CLI). Every report file is now written whole or not at all, and a write that
+    fails ends the command with one line naming the file, exit 2."""
+    import resource
+    import subprocess
+    import sys
+
+    def ilcforce(*args, limit=None):
+        def limited():
+            resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+        return subprocess.run([sys.executable, "-m", "ilcforce", *args], capture_output=True, text=True,
+                              timeout=600, preexec_fn=limited if limit else None)
+
+    results = tmp_path / "results"
+    made = ilcforce("compare", "-n", "2", "--results", str(results), "--set", "reference.duration=0.2")
+    assert made.returncode == 0, made.stderr
+    out = tmp_path / "report"
+    assert ilcforce("report", "--results", str(results), "--out", str(out), "-j", "1", "-q").returncode == 0
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    failed = ilcforce("report", "--results", str(results), "--out", str(out), "-j", "1", "-q", limit=8192)
+    assert failed.returncode == 2, failed.stderr
+    lines = failed.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: ") and str(out) in lines[0] \
+        and "File too large" in lines[0], failed.stderr
+    after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before, sorted(str(p) for p in set(after) ^ set(before) or
+                                   [p for p in after if after[p] != before.get(p)])

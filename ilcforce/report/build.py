@@ -28,6 +28,7 @@ import pandas as pd
 from ilcforce import store
 from ilcforce.report import claims as claims_module
 from ilcforce.report import paper, pool, readme, sections, stability, table_write, tables, tasks
+from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.run_figures import DEFAULT_FORMATS, FIGURE_FORMATS, FIGURES, READ_ERRORS as _READ_ERRORS
 from ilcforce.report.run_figures import write_figures as _write_figures
 from ilcforce.report.run_text import divergence_lines as _divergence_lines
@@ -208,20 +209,17 @@ def _write_experiment(
     figure_files = _write_figures(experiment, directory, p, formats, flags)
     written += figure_files
     report = directory / "report.md"
-    report.write_text(
-        _report_text(
-            experiment,
-            p=p,
-            table2=table2,
-            table3=table3,
-            comparison=comparison,
-            claims=claims,
-            growth=growth,
-            flags=flags,
-            figure_files=figure_files,
-        ),
-        encoding="utf-8",
-    )
+    write_text_whole(report, _report_text(
+        experiment,
+        p=p,
+        table2=table2,
+        table3=table3,
+        comparison=comparison,
+        claims=claims,
+        growth=growth,
+        flags=flags,
+        figure_files=figure_files,
+    ))
     written.append(report)
     summary.attrs["description"] = sections.description(experiment.config())
     summary.attrs["flags"] = dict(flags)
@@ -340,13 +338,13 @@ def write_report(
         return ReportSummary(out_dir=out_dir, experiments=(), files=tuple(written), warnings=tuple(warnings))
     index = out_dir / "index.md"
     title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
-    index.write_text("\n".join([title, "", *study_section]) + rest, encoding="utf-8")  # studies lead
+    write_text_whole(index, "\n".join([title, "", *study_section]) + rest)  # studies lead
     written.append(index)
     findings = out_dir / "findings.md"
-    findings.write_text(readme.findings_markdown({
+    write_text_whole(findings, readme.findings_markdown({
         name: {"description": frame.attrs.get("description", ""), "parts": pd.DataFrame(frame.attrs.get("parts", {})),
                "flags": frame.attrs.get("flags", {}), "divergence": frame.attrs.get("divergence", [])}
-        for name, frame in verdicts.items()}, studies), encoding="utf-8")
+        for name, frame in verdicts.items()}, studies))
     written.append(findings)
     return ReportSummary(
         out_dir=out_dir,

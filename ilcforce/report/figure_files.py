@@ -1,31 +1,54 @@
-"""Writing a report's figure files: each format written whole or not at all.
+"""Writing a report's files (figures, tables, pages): each written whole or not at all.
 
-A report's figures are drawn in worker processes that a stop (Ctrl-C, SIGTERM) terminates at once
-(:mod:`ilcforce.report.pool`), so a figure is written to a temporary name beside its target and
-renamed over it: a stopped report leaves the previous figure or the new one, never a truncated file.
+A report's pieces run in worker processes that a stop (Ctrl-C, SIGTERM) terminates at once
+(:mod:`ilcforce.report.pool`), and a disk can fill in the middle of a file, so every file is
+written to a temporary name beside its target and renamed over it: a stopped or failed report
+leaves the previous file or the new one, never a truncated one. A failed write raises
+:class:`ReportWriteError` naming the file; it ends the report (exit 2), where a figure that cannot
+be drawn from its data is only a warning.
 """
 
 from __future__ import annotations
 
 import contextlib
 import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from matplotlib.figure import Figure
+if TYPE_CHECKING:  # tables use this module too, without matplotlib
+    from matplotlib.figure import Figure
+
+
+class ReportWriteError(OSError):
+    """A report file could not be written (a full disk, a file-size limit, no permission)."""
+
+
+def write_whole(path: Path, write: Callable[[Path], object]) -> Path:
+    """``write(tmp)`` to a temporary name beside ``path``, then rename it over ``path``; returns
+    ``path``. ReportWriteError naming ``path`` if that fails (``path`` is then as it was)."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except OSError as error:
+        raise ReportWriteError(error.errno, error.strerror or str(error), str(path)) from None
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+    return path
+
+
+def write_text_whole(path: Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` whole or not at all; returns ``path``."""
+    return write_whole(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
 
 
 def save_figure(fig: Figure, directory: Path, stem: str, formats: tuple[str, ...]) -> list[Path]:
-    """Write ``<directory>/<stem>.<fmt>`` for each format (via a temporary file and a rename);
-    returns the paths. PDFs carry no creation date, so an unchanged report is byte-identical."""
-    written = []
-    for fmt in formats:
-        path = Path(directory) / f"{stem}.{fmt}"
-        tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-        try:
-            fig.savefig(tmp, format=fmt, metadata={"CreationDate": None} if fmt == "pdf" else None)
-            os.replace(tmp, path)
-        finally:
-            with contextlib.suppress(FileNotFoundError):
-                tmp.unlink()
-        written.append(path)
-    return written
+    """Write ``<directory>/<stem>.<fmt>`` for each format, each whole or not at all; returns the
+    paths. PDFs carry no creation date, so an unchanged report is byte-identical."""
+    return [write_whole(Path(directory) / f"{stem}.{fmt}",
+                        lambda tmp, fmt=fmt: fig.savefig(tmp, format=fmt,
+                                                         metadata={"CreationDate": None} if fmt == "pdf" else None))
+            for fmt in formats]

@@ -14,7 +14,7 @@ from matplotlib.figure import Figure
 
 from ilcforce import store
 from ilcforce.report import figures, sections, stability, tables
-from ilcforce.report.figure_files import save_figure
+from ilcforce.report.figure_files import ReportWriteError, save_figure
 
 #: Figures written per experiment: file stem -> caption.
 FIGURES = {
@@ -132,6 +132,8 @@ def write_figures(experiment, directory: Path, p: int, formats: tuple[str, ...],
                     experiment.notes[stem] = made
                     continue
                 written += save_figure(made, directory, stem, formats)
+        except ReportWriteError:
+            raise
         except READ_ERRORS as error:
             experiment.notes[stem] = f"not drawn: {' '.join(str(error).split())}"
             experiment.warn(f"{stem} not drawn: {error}")

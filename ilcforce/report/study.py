@@ -26,6 +26,7 @@ import pandas as pd
 
 from ilcforce.metrics import convergence_iteration
 from ilcforce.report import paper, table_write, tables
+from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.seedframes import SeedMetrics, split_seeds
 from ilcforce.stats import Interval, format_interval, median_interval
 
@@ -251,7 +252,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
                      f"{session.get('scheduler', '?')} ({session.get('workers', '?')} workers), {versions}")
     lines.append("")
     text_path = directory / "report.md"
-    text_path.write_text("\n".join(lines), encoding="utf-8")
+    write_text_whole(text_path, "\n".join(lines))
     report.files.append(text_path)
     report.index_lines = _index_lines(name, results, headline, len(seeds), done, len(failed))
     return report

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import claims as claims_module
 from ilcforce.report import figures, paper, stability
-from ilcforce.report.figure_files import save_figure
+from ilcforce.report.figure_files import save_figure, write_text_whole
 from ilcforce.report.study import incomplete_text, setting_iterations, setting_perturbation
 from ilcforce.report.table_write import markdown_table
 from ilcforce.stats import format_interval, median_interval
@@ -196,7 +196,7 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
             [path] = save_figure(fig, directory, "fig_stability_boundary", ("png",))
             written.append(path)
             text += f"\n![stability boundary]({path.name})\n"
-    (directory / "findings.md").write_text(text, encoding="utf-8")
+    write_text_whole(directory / "findings.md", text)
     written.append(directory / "findings.md")
     return written, results.name, {"description": results.description, "settings": summary,
                                    "incomplete": incomplete_text(results),

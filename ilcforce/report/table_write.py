@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ilcforce.report.figure_files import write_text_whole, write_whole
+
 
 def is_missing(value: object) -> bool:
     """None, pd.NA or NaN (a cell shown as "–"); False for a value pd.isna cannot judge."""
@@ -71,8 +73,7 @@ def markdown_table(frame: pd.DataFrame, *, float_format: str = "{:.4g}") -> str:
 def write_csv(frame: pd.DataFrame, path: Path) -> Path:
     """Write ``frame`` (no index) to ``path`` as CSV at full precision; returns ``path``."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    frame.to_csv(path, index=False)
-    return path
+    return write_whole(path, lambda tmp: frame.to_csv(tmp, index=False))
 
 
 def write_markdown(frame: pd.DataFrame, path: Path, *, title: str | None = None) -> Path:
@@ -81,8 +82,7 @@ def write_markdown(frame: pd.DataFrame, path: Path, *, title: str | None = None)
     text = markdown_table(frame)
     if title:
         text = f"# {title}\n\n{text}"
-    path.write_text(text, encoding="utf-8")
-    return path
+    return write_text_whole(path, text)
 
 
 def write_table(frame: pd.DataFrame, directory: Path, stem: str, *, title: str | None = None) -> list[Path]:

@@ -8,6 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ilcforce.report import study_findings
+from ilcforce.report.figure_files import ReportWriteError
 
 
 def experiment_cost(paths) -> float:
@@ -46,5 +47,7 @@ def study_findings_page(path: Path, out_dir: Path, progress: Callable[[str], Non
     """One study's findings page (a pool task): (files, name, findings), or a warning line."""
     try:
         return study_findings.write_study_findings(path, out_dir)
+    except ReportWriteError:  # a full disk ends the report; a bad store does not
+        raise
     except Exception as error:  # one bad study store never aborts the report  # noqa: BLE001
         return f"{path}: study findings not written: {' '.join(str(error).split())}"
