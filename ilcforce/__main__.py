@@ -1,3 +1,3 @@
-from ilcforce.cli import main
+from ilcforce._entry import main
 
 main()

@@ -406,7 +406,7 @@ def version() -> None:
 # the `study`, `export` and `config` commands (registered on `app` when their module is imported)
 from ilcforce import cli_config, cli_study  # noqa: E402,F401
 
-# the console entry point (pyproject: ilcforce.cli:main), in its own module
+# the command runner the console entry point calls (pyproject: ilcforce._entry:main), in its own module
 from ilcforce.cli_main import main  # noqa: E402,F401
 
 

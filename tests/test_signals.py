@@ -88,3 +88,24 @@ def test_sigterm_early_in_simulate_is_one_line_and_143(tmp_path, delay):
     assert proc.returncode == 143, stderr
     assert "Traceback" not in stderr and "Exception ignored" not in stderr, stderr
     assert stderr.strip().splitlines()[-1].startswith("terminated (SIGTERM): "), stderr
+
+
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"),
+                                             (signal.SIGTERM, 143, "terminated (SIGTERM)")])
+def test_a_signal_while_the_command_is_still_importing_is_one_line(sig, code, word):
+    """In the first tenth of a second the entry point is still importing typer and the CLI; a Ctrl-C
+    there raised KeyboardInterrupt inside an import, a traceback (found by an attack on the CLI).
+    The entry point's first module (ilcforce/_entry.py) answers stop signals from its first line."""
+    child = ("import os, signal, time\nimport ilcforce._entry\n"
+             f"os.kill(os.getpid(), {int(sig)})\ntime.sleep(10)\nimport typer\n")
+    done = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
+    assert done.returncode == code, done.stderr
+    assert done.stderr.strip().splitlines() == [f"{word}: stopped before the command started"]
+
+
+def test_both_entry_points_start_with_the_early_signal_handling():
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    assert 'ilcforce = "ilcforce._entry:main"' in (root / "pyproject.toml").read_text(encoding="utf-8")
+    assert (root / "ilcforce" / "__main__.py").read_text(encoding="utf-8").startswith("from ilcforce._entry import")
