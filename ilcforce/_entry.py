@@ -1,6 +1,6 @@
 """The console entry point's first lines: stop signals answered from the first moment.
 
-``ilcforce`` and ``python -m ilcforce`` import this module before anything else of the command.
+``ilcforce`` and ``python -m ilcforce`` call :func:`main` before importing anything else of the command.
 Until the command's own handling starts (:func:`ilcforce.cli_main.main`, under
 :func:`ilcforce.cli_signals.stop_signals`), Python is importing typer, the CLI and what the command
 needs, and a Ctrl-C there raised KeyboardInterrupt in the middle of an import: a traceback. A stop
@@ -25,12 +25,13 @@ def _stopped_while_starting(signum, frame) -> None:
         os._exit(stop_code())
 
 
-for _signal in (signal.SIGINT, signal.SIGTERM):
-    signal.signal(_signal, _stopped_while_starting)
-
-
 def main() -> None:
-    """Run the command (:func:`ilcforce.cli_main.main`)."""
+    """Run the command (:func:`ilcforce.cli_main.main`), stop signals answered from here on.
+
+    Set here, not at import: a process that multiprocessing spawns (a Dask worker of a study)
+    imports the console script again, but does not call ``main``."""
+    for stop in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(stop, _stopped_while_starting)
     from ilcforce.cli import main as run
 
     run()

@@ -96,8 +96,9 @@ def test_a_signal_while_the_command_is_still_importing_is_one_line(sig, code, wo
     """In the first tenth of a second the entry point is still importing typer and the CLI; a Ctrl-C
     there raised KeyboardInterrupt inside an import, a traceback (found by an attack on the CLI).
     The entry point's first module (ilcforce/_entry.py) answers stop signals from its first line."""
-    child = ("import os, signal, time\nimport ilcforce._entry\n"
-             f"os.kill(os.getpid(), {int(sig)})\ntime.sleep(10)\nimport typer\n")
+    child = ("import os, signal, time\nimport ilcforce._entry, ilcforce.cli\n"
+             "ilcforce.cli.main = lambda: (os.kill(os.getpid(), %d), time.sleep(10))\n"  # mid-import stand-in
+             "ilcforce._entry.main()\n" % int(sig))
     done = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
     assert done.returncode == code, done.stderr
     assert done.stderr.strip().splitlines() == [f"{word}: stopped before the command started"]

@@ -441,3 +441,24 @@ def test_a_local_cluster_that_does_not_start_is_one_line(tmp_path, monkeypatch):
         run_study(small_study(), tmp_path, workers=2)
     assert str(caught.value) == ("the local Dask cluster of 2 workers did not start "
                                  "(RuntimeError: Nanny failed to start. worker process died)")
+
+
+def test_ctrl_c_at_the_terminal_reaches_the_driver_not_the_workers(tmp_path):
+    """A terminal's Ctrl-C goes to the whole process group: the local cluster's worker processes
+    printed KeyboardInterrupt tracebacks from wherever it found them (found by an attack on the
+    CLI). They now start with SIGINT ignored; the driver stops the study and the cluster."""
+    study_file = write_study_file(tmp_path, TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-5"'))
+    results = tmp_path / "r"
+    journal = results / "studies" / "tiny.h5.journal"
+    driver = subprocess.Popen([*CLI, "study", str(study_file), "--results", str(results), "--workers", "2",
+                               "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)  # its own process group, as a terminal's job
+    try:
+        _wait_for_a_committed_cell(driver, journal, lambda: "(stderr is read at the end)")
+        os.killpg(driver.pid, signal.SIGINT)
+        _, stderr = driver.communicate(timeout=60)
+    finally:
+        _stop(driver)
+    assert driver.returncode == 130, stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert stderr.splitlines()[0] == "interrupted: every finished cell is stored; rerun the same command to continue"

@@ -112,11 +112,12 @@ def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TI
                 client.close()
             return
         try:
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,
-                                   dashboard_address=None, silence_logs=logging.CRITICAL,
-                                   # the scheduler's HTTP endpoint (health, metrics) on a free local
-                                   # port: no clash with another cluster on 8787, no "port in use" warning
-                                   scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+            with _ctrl_c_for_the_driver_only():
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,
+                                       dashboard_address=None, silence_logs=logging.CRITICAL,
+                                       # the scheduler's HTTP endpoint (health, metrics) on a free local
+                                       # port: no clash with another cluster on 8787, no "port in use" warning
+                                       scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
         except Exception as exc:  # noqa: BLE001 - e.g. a worker process killed while it started
             failure = f"{type(exc).__name__}: {_one_line(exc)[:200]}"
         else:
@@ -131,6 +132,29 @@ def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TI
                 client.close()
         finally:
             cluster.close()
+
+
+@contextlib.contextmanager
+def _ctrl_c_for_the_driver_only():
+    """Within: SIGINT ignored, so the worker processes started meanwhile inherit it ignored (an
+    ignored signal stays ignored across exec, and Python keeps it so) and a terminal's Ctrl-C, which
+    reaches the whole process group, is the driver's alone: the workers printed KeyboardInterrupt
+    tracebacks from wherever it found them. The driver stops the cluster itself. Meanwhile SIGINT is
+    also blocked in this thread (and in the threads started meanwhile), so a Ctrl-C that comes now
+    is kept pending, not discarded, and reaches the driver's own handler when this ends."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 class SharedClient:
