@@ -714,3 +714,19 @@ def test_more_workers_than_the_machine_runs_usefully_is_one_line(tmp_path, worke
     assert result.exit_code == 2, result.output
     assert "4 per core" in result.output and len(result.output.strip().splitlines()) == 1, result.output
     assert not (tmp_path / "r").exists()
+
+
+def test_a_damaged_study_store_is_called_damaged_not_foreign(tmp_path):
+    """Rerunning a study over its damaged store said the file "is not an ilcforce study store" (it
+    is one, damaged; found by an attack on the CLI). The refusal now says what is wrong with it."""
+    path = write_study_file(tmp_path, TINY_TOML)
+    results = tmp_path / "r"
+    assert CliRunner().invoke(app, ["study", str(path), "--results", str(results), "--workers", "1"]).exit_code == 0
+    store_path = results / "studies" / "tiny.h5"
+    data = bytearray(store_path.read_bytes())
+    data[2000:6000] = bytes(b ^ 0xFF for b in data[2000:6000])
+    store_path.write_bytes(bytes(data))
+    result = CliRunner().invoke(app, ["study", str(path), "--results", str(results), "--workers", "1"])
+    assert result.exit_code == 2, result.output
+    assert "damaged" in result.output and "is not an ilcforce study store" not in result.output, result.output
+    assert store_path.read_bytes() == bytes(data)

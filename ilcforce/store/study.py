@@ -39,6 +39,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from ilcforce.store.safeio import HDF5_SIGNATURE, one_line
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
     _journal_records, _keys, _lock_path, _table, is_study_store, journal_dir, read_header, read_tables,
@@ -159,8 +160,15 @@ def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_s
             raise StudyStoreError(f"{path}: no study store to resume (run without --resume to start it)")
         return True
     if not is_study_store(path):
-        raise StudyStoreError(f"{path}: exists and is not an ilcforce study store; refusing to replace it "
-                              "(move it away)")
+        why = f"{path}: exists and is not an ilcforce study store"
+        with open(path, "rb") as handle:
+            hdf5 = handle.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
+        if hdf5:  # say which: another HDF5 file, or a damaged study store
+            try:
+                read_header(path)
+            except StudyStoreError as error:
+                why = one_line(str(error))
+        raise StudyStoreError(f"{why}; refusing to replace it (move it away)")
     stored = read_header(path)
     reason = None
     if stored.get("definition_json") != header["definition_json"]:
