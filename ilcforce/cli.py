@@ -355,11 +355,12 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
     `ilcforce validate results/paper/*` checks the stores.
     """
     from ilcforce import store
+    from ilcforce.store.safeio import companion_of
     from ilcforce.store.study_read import DAMAGED_RECORD, StudyStoreError, check_study_store, is_study_store
 
     invalid = 0
     for path in paths:
-        companion = _companion_of(path)
+        companion = companion_of(path)
         if companion is not None:  # e.g. from `validate results/paper/*`: ilcforce's own, not damage
             _say(f"{path}: skipped ({companion})")
             continue
@@ -383,18 +384,6 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
             invalid += 1
     if invalid:
         raise typer.Exit(2)
-
-
-def _companion_of(path: Path) -> str | None:
-    """What ``path`` is if it is a file ilcforce keeps beside a store (its writers' lock file, a
-    study's journal folder), else None."""
-    for suffix, what in ((".lock", "the writers' lock file of {}"), (".journal", "the journal of {}")):
-        if path.name.endswith(".h5" + suffix) and not path.is_symlink():
-            store_path = path.with_name(path.name[:-len(suffix)])
-            kind_ok = path.is_file() if suffix == ".lock" else path.exists()
-            if kind_ok:
-                return what.format(store_path) + ("" if store_path.exists() else ", which is not there")
-    return None
 
 
 @app.command()

@@ -71,6 +71,18 @@ def tmp_path(path: Path) -> Path:
     return path.with_name(path.name + ".tmp")
 
 
+def companion_of(path: Path) -> str | None:
+    """What ``path`` is if it is a file ilcforce keeps beside a store (its writers' lock file, a
+    study's journal folder), else None."""
+    for suffix, what in ((".lock", "the writers' lock file of {}"), (".journal", "the journal of {}")):
+        if path.name.endswith(".h5" + suffix) and not path.is_symlink():
+            store_path = path.with_name(path.name[:-len(suffix)])
+            kind_ok = path.is_file() if suffix == ".lock" else path.exists()
+            if kind_ok:
+                return what.format(store_path) + ("" if store_path.exists() else ", which is not there")
+    return None
+
+
 # ----------------------------------------------------------------------------------------------
 # the writer's lock file
 
