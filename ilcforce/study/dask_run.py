@@ -152,8 +152,8 @@ def _ctrl_c_for_the_driver_only():
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+    finally:  # None: a handler not set from Python; Python's own is the nearest
+        signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
