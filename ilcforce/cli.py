@@ -108,7 +108,7 @@ def _guard(func):
 
 
 def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], sets: Optional[list[str]]):
-    if err.is_terminal:  # a first run compiles for about a minute: say so (ilcforce/compile_note.py)
+    if err.is_terminal:  # a first run compiles before iteration 0: say so (ilcforce/compile_note.py)
         from ilcforce.compile_note import announce_compiles
 
         announce_compiles(lambda text: _say(text, stderr=True))

@@ -169,7 +169,7 @@ def _worker(config, job: Job, messages) -> None:  # messages: the write end of i
     from ilcforce.experiment import UnknownMethodError, run_method
     from ilcforce.store import StoreError
 
-    parent = os.getppid()
+    parent = multiprocessing.parent_process().pid  # as forked: os.getppid() now may already be init's
     os.setpgrp()  # Ctrl-C at the terminal reaches the parent only; it forwards each one
     requested: list[int] = []
 

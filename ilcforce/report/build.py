@@ -29,6 +29,7 @@ from ilcforce import store
 from ilcforce.report import claims as claims_module
 from ilcforce.report import paper, pool, readme, sections, stability, table_write, tables, tasks
 from ilcforce.report.figure_files import write_text_whole
+from ilcforce.report.study import count_text
 from ilcforce.report.run_figures import DEFAULT_FORMATS, FIGURE_FORMATS, FIGURES, READ_ERRORS as _READ_ERRORS
 from ilcforce.report.run_figures import write_figures as _write_figures
 from ilcforce.report.run_text import divergence_lines as _divergence_lines
@@ -248,7 +249,8 @@ def _report_experiment(name: str, paths: Mapping[str, Path], out_dir: Path, form
         experiment.warn("no readable store; no report written")
         return [], None, experiment.warnings
     if progress is not None:
-        progress(f"experiment {name}: {len(experiment.methods)} store{'' if len(experiment.methods) == 1 else 's'} read and checked; tables, claims, figures")
+        progress(f"experiment {name}: {count_text(len(experiment.methods), 'store')} read and checked; tables, claims, "
+                 "figures")
     files, claims = _write_experiment(experiment, out_dir / name, formats)
     return files, claims, experiment.warnings
 

@@ -135,7 +135,7 @@ def key_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -> pd.
             values = np.asarray(values, dtype=float)
             if quantity.startswith("first diverged"):
                 k = int(np.isfinite(values).sum())
-                row[method] = (f"{k} of {_count(n_seeds, 'seed')} diverged"
+                row[method] = (f"{k} of {count_text(n_seeds, 'seed')} diverged"
                                + (f"; {format_interval(median_interval(values))}" if k else ""))
                 continue
             row[method] = _cell(median_interval(values), n_seeds)
@@ -193,7 +193,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
     lines = [f"# Study `{name}`", ""]
     if results.description:
         lines += [results.description, ""]
-    lines += [f"{done} cells done, {len(failed)} failed; {_count(len(seeds), 'seed')} "
+    lines += [f"{done} cells done, {len(failed)} failed; {count_text(len(seeds), 'seed')} "
               f"({_seed_text(seeds)}), methods {', '.join(methods) or '-'}, {len(results.settings)} setting(s)"
               + _settings_text(results) + ".", ""]
     incomplete = incomplete_text(results)
@@ -286,7 +286,7 @@ def _settings_text(results) -> str:
     return f" over {', '.join(results.sweep_keys)}" if results.sweep_keys else ""
 
 
-def _count(n: int, noun: str) -> str:
+def count_text(n: int, noun: str) -> str:
     """'1 seed', '3 seeds'."""
     return f"{n} {noun}{'' if n == 1 else 's'}"
 
@@ -303,7 +303,7 @@ def _index_lines(name: str, results, headline: pd.DataFrame, n_seeds: int, done:
     lines = [f"### [{name}](studies/{name}/report.md)", ""]
     if results.description:
         lines += [results.description, ""]
-    lines += [f"{_count(n_seeds, 'seed')}, {len(results.settings)} setting(s), {done} cells done, {failed} failed.",
+    lines += [f"{count_text(n_seeds, 'seed')}, {len(results.settings)} setting(s), {done} cells done, {failed} failed.",
               ""]
     incomplete = incomplete_text(results)
     lines += [incomplete, ""] if incomplete else []

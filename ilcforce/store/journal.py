@@ -220,11 +220,13 @@ def _check_header(data: bytes, journal_path, store) -> tuple[int | None, int]:
     """(size at the start, where the records begin) of a journal that belongs to ``store`` (its
     ``os.stat_result``); (None, 0) for a header torn by a kill; JournalError for anything else,
     which is then left as it is, and the store untouched."""
+    if len(data) < 8 and MAGIC.startswith(data):  # both versions begin "ILCJRNL"
+        return None, 0
     for magic, header in ((MAGIC, _HEADER), (_MAGIC_V1, _HEADER_V1)):
-        if len(data) < header.size and (magic.startswith(data[:8]) if len(data) < 8 else data[:8] == magic):
-            return None, 0
         if data[:8] != magic:
             continue
+        if len(data) < header.size:
+            return None, 0
         base, *identity = header.unpack_from(data, 0)[1:]
         if identity and tuple(identity) != (store.st_dev, store.st_ino):
             raise JournalError(f"{journal_path} is the journal of another file, not of this store "

@@ -195,6 +195,22 @@ def superblock_version(fd: int) -> int | None:
     return None
 
 
+def is_hdf5_file(path: Path) -> bool:
+    """Whether ``path`` is a regular file with an HDF5 signature (never blocks on a FIFO, never raises)."""
+    try:
+        if not stat.S_ISREG(os.stat(path).st_mode):
+            return False
+        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK)
+    except OSError:
+        return False
+    try:
+        return superblock_version(fd) is not None
+    except OSError:
+        return False
+    finally:
+        os.close(fd)
+
+
 _probed: set[tuple[int, int, int, int]] = set()
 
 

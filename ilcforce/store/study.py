@@ -39,7 +39,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ilcforce.store.safeio import HDF5_SIGNATURE, one_line
+from ilcforce.store.safeio import is_hdf5_file, one_line
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
     _journal_records, _keys, _lock_path, _table, is_study_store, journal_dir, read_header, read_tables,
@@ -161,9 +161,7 @@ def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_s
         return True
     if not is_study_store(path):
         why = f"{path}: exists and is not an ilcforce study store"
-        with open(path, "rb") as handle:
-            hdf5 = handle.read(len(HDF5_SIGNATURE)) == HDF5_SIGNATURE
-        if hdf5:  # say which: another HDF5 file, or a damaged study store
+        if is_hdf5_file(path):  # say which: another HDF5 file, or a damaged study store
             try:
                 read_header(path)
             except StudyStoreError as error:

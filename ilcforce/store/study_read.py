@@ -12,7 +12,7 @@ import h5py
 import numpy as np
 import pandas as pd
 
-from ilcforce.store.safeio import HDF5_SIGNATURE
+from ilcforce.store.safeio import is_hdf5_file
 from ilcforce.store.schema import STUDY_NAME, STUDY_SCHEMA_NAME
 
 SCHEMA_NAME = STUDY_SCHEMA_NAME
@@ -39,11 +39,8 @@ def _lock_path(path: Path) -> Path:
 def is_study_store(path: Path) -> bool:
     """True if ``path`` is an HDF5 file carrying the study schema (never raises, bounded time)."""
     try:
-        if not Path(path).is_file():  # a FIFO would block the open below for ever
+        if not is_hdf5_file(Path(path)):  # also: a FIFO, which an open would wait on for ever
             return False
-        with open(path, "rb") as handle:
-            if handle.read(len(HDF5_SIGNATURE)) != HDF5_SIGNATURE:
-                return False
         _probe(Path(path))
         with h5py.File(path, "r") as handle:
             return handle.attrs.get("schema") == SCHEMA_NAME
