@@ -58,6 +58,7 @@ def _end_workers(pool: ProcessPoolExecutor, grace: float = 2.0) -> None:
               if threading.current_thread() is threading.main_thread() else contextlib.nullcontext())
     with shield:
         processes = list((getattr(pool, "_processes", None) or {}).values())
+        manager = getattr(pool, "_executor_manager_thread", None)
         pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
             if process.is_alive():
@@ -68,6 +69,12 @@ def _end_workers(pool: ProcessPoolExecutor, grace: float = 2.0) -> None:
             if process.is_alive():
                 process.kill()
                 process.join(1.0)
+        # the pool's manager thread sees its workers gone and closes its wake-up pipe: wait for that,
+        # or Python's exit may write to the pipe as it closes ("Exception ignored ... Bad file
+        # descriptor": a check-then-write race in Python 3.11's concurrent.futures, seen in a full test
+        # run). shutdown(wait=False) above forgot the thread, so it is taken before.
+        if manager is not None:
+            manager.join(grace)
     for signum in deferred:  # now answered by the command's own handlers
         signal.raise_signal(signum)
 
