@@ -24,15 +24,24 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test]'
 	touch $@
 
-install: $(STAMP) ## create .venv and install ilcforce with its test extras
+# the simulation kernels compiled ahead of time (ilcforce/aot.py): commands then run without numba
+# in the process. Rebuilt when a source changes (a no-op when none of the kernels' sources did);
+# a failed build is recorded and commands run through numba instead.
+AOT := ilcforce/_kernels_aot.json
+SOURCES := $(shell find ilcforce -name '*.py' -o -name '*.mplstyle')
 
-test: $(STAMP) ## run the fast test suite (slow paper-level studies excluded)
+$(AOT): $(STAMP) $(SOURCES)
+	$(PY) -m ilcforce.aot_build
+
+install: $(STAMP) $(AOT) ## create .venv, install ilcforce with its test extras and compile its kernels
+
+test: $(STAMP) $(AOT) ## run the fast test suite (slow paper-level studies excluded)
 	$(PY) -m pytest -q
 
-test-slow: $(STAMP) ## run only the slow paper-level regression studies
+test-slow: $(STAMP) $(AOT) ## run only the slow paper-level regression studies
 	$(PY) -m pytest -q -m slow
 
-bench: $(STAMP) ## print speed figures (medians over repeated runs)
+bench: $(STAMP) $(AOT) ## print speed figures (medians over repeated runs)
 	@# bytecode as a regular install has it (an editable one under PYTHONDONTWRITEBYTECODE never writes it)
 	$(PY) -m compileall -q ilcforce
 	$(PY) -m ilcforce.bench
@@ -42,11 +51,9 @@ comma := ,
 empty :=
 space := $(empty) $(empty)
 
-SOURCES := $(shell find ilcforce -name '*.py' -o -name '*.mplstyle')
-
 # a store is rebuilt when the code or its experiment file changes
 .SECONDEXPANSION:
-$(RESULTS)/%.h5: $(STAMP) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).toml
+$(RESULTS)/%.h5: $(STAMP) $(AOT) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).toml
 	$(VENV)/bin/ilcforce simulate --config experiments/$(word 1,$(subst /, ,$*)).toml \
 	    --method $(word 2,$(subst /, ,$*)) --out $@ --overwrite
 
@@ -54,7 +61,7 @@ $(RESULTS)/%.h5: $(STAMP) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).to
 # worker process each, sharing the cores): one cold start per experiment instead of one per store.
 # All of an experiment's stores are rerun when the code or its experiment file changes (the marker
 # .stores records when they were made). A single store can still be made: make results/paper/c3.h5
-$(RESULTS)/%/.stores: $(STAMP) $(SOURCES) experiments/%.toml
+$(RESULTS)/%/.stores: $(STAMP) $(AOT) $(SOURCES) experiments/%.toml
 	@rm -f $(foreach m,$(METHODS),$(RESULTS)/$*/$(m).h5)
 	$(VENV)/bin/ilcforce compare --config experiments/$*.toml --results $(RESULTS) \
 	    --methods $(subst $(space),$(comma),$(strip $(METHODS)))
@@ -72,10 +79,10 @@ STUDY_FILES := $(shell grep -l '^\[study\]' experiments/*.toml 2>/dev/null)
 # the paper's Monte Carlo first: the report leads with it
 STUDY_FILES := $(filter experiments/paper-mc.toml,$(STUDY_FILES)) $(filter-out experiments/paper-mc.toml,$(STUDY_FILES))
 
-studies: $(STAMP) ## run every study in experiments/ (on all cores, one after another, one cluster)
+studies: $(STAMP) $(AOT) ## run every study in experiments/ (on all cores, one after another, one cluster)
 	$(VENV)/bin/ilcforce study $(STUDY_FILES) --results $(RESULTS) --replace-stale
 
-reproduce: $(STAMP) ## run every experiment (every registered method, in parallel) and every study in experiments/, then write the report
+reproduce: $(STAMP) $(AOT) ## run every experiment (every registered method, in parallel) and every study in experiments/, then write the report
 	$(MAKE) --no-print-directory -j $(JOBS) -O stores
 	$(MAKE) --no-print-directory studies
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
@@ -88,7 +95,7 @@ check-readme: $(STAMP) ## fail when README.md's findings differ from the report'
 	$(PY) -m ilcforce.report.readme check README.md $(RESULTS)/report/findings.md
 
 clean: ## remove generated results, caches and the virtual environment
-	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info
+	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info ilcforce/_kernels_aot*
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
 .PHONY: help install test test-slow bench stores studies reproduce readme-findings check-readme clean

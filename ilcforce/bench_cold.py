@@ -66,24 +66,32 @@ def cold_walls(repeat: int, extra: Sequence[str] = (), iterations: int = ITERATI
 def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIONS,
                  overrides: dict | None = None) -> dict[str, float]:
     """Median in-process time of the compiled simulation loop alone, per method, for ``iterations``."""
+    from ilcforce import aot, loop
     from ilcforce.config_load import load_config
     from ilcforce.experiment import simulate_iterations
 
-    home = _kernel_module()
     config = load_config(None, {"experiment.iterations": iterations, **(overrides or {})})
-    kernel = home._simulate
     spent = [0.0]
 
-    def timed(*args):
-        t0 = time.perf_counter()
-        try:
-            return kernel(*args)
-        finally:
-            spent[0] += time.perf_counter() - t0
+    def timed(kernel):
+        def run(*args):
+            t0 = time.perf_counter()
+            try:
+                return kernel(*args)
+            finally:
+                spent[0] += time.perf_counter() - t0
+        return run
 
-    out = {}
-    home._simulate = timed
+    # the loop a command runs: the ahead-of-time compiled one (ilcforce.aot), or else numba's
+    find, kernel = aot.simulator, loop._simulate
+
+    def timed_simulator(*args):
+        found = find(*args)
+        return None if found is None else timed(found)
+
+    aot.simulator, loop._simulate = timed_simulator, timed(kernel)
     try:
+        out = {}
         for method in methods:
             runs = []
             for _ in range(repeat):
@@ -92,20 +100,9 @@ def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIO
                     pass
                 runs.append(spent[0])
             out[method] = statistics.median(runs)
+        return out
     finally:
-        home._simulate = kernel
-    return out
-
-
-def _kernel_module():
-    """The module holding the compiled simulation loop ``_simulate`` (called through the module)."""
-    import importlib
-
-    for name in ("ilcforce.loop", "ilcforce.simulate"):
-        module = importlib.import_module(name)
-        if hasattr(module, "_simulate"):
-            return module
-    raise RuntimeError("no compiled simulation loop `_simulate` found")
+        aot.simulator, loop._simulate = find, kernel
 
 
 #: Categories of the cold-run split: (label, test on a profiled function (file, line, name)).
@@ -167,8 +164,10 @@ def report(repeat: int = 5, loop_repeat: int = 3, extra: Sequence[str] = (), ite
     loops = loop_seconds(METHODS, loop_repeat, iterations, overrides)
     med = {k: statistics.median(v) for k, v in walls.items()}
     rng = {k: f"{min(v):.2f}-{max(v):.2f}" for k, v in walls.items()}
+    from ilcforce import aot
+
     print(f"cold processes of {' '.join(entry_point())} (median of {repeat}, range; numba caches warm; "
-          f"{cores} cores):")
+          f"{cores} cores); kernels: {aot.status()}:")
     print(f"  ilcforce --help                                   : {med['help']:8.2f} s wall   ({rng['help']})")
     sim_loop = loops["c3"]
     print(f"  ilcforce simulate --method c3 --iters {iterations:<3}          : {med['simulate']:8.2f} s wall   "

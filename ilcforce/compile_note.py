@@ -12,20 +12,27 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
+from ilcforce import _jit
 
 NOTE = ("compiling the simulation kernels (only the first run after an install or a code change; "
         "later runs load them from numba's cache)")
 
-_installed: list = []
+_asked: list = []  # announce_compiles was called (once is enough)
+_installed: list = []  # the listener registered with numba, once numba is imported
 
 
 def announce_compiles(say: Callable[[str], None]) -> None:
-    """From now on, ``say(NOTE)`` at the first compile numba starts in this process (once)."""
-    from numba.core import event
-
-    if _installed:
+    """From now on, ``say(NOTE)`` at the first compile numba starts in this process (once). numba
+    is not imported for it: the listener is installed when numba is (ahead-of-time kernels,
+    :mod:`ilcforce.aot`, need no numba and compile nothing)."""
+    if _asked:
         return
+    _asked.append(say)
+    _jit.on_load(lambda numba: _listen(say))
+
+
+def _listen(say: Callable[[str], None]) -> None:
+    from numba.core import event
 
     class _FirstCompile(event.Listener):
         said = False

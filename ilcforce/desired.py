@@ -9,21 +9,26 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
-from numba import njit, types
 
-from ilcforce.plants.base import DYN_TYPE, IK_TYPE
-
-_DESIRED_SIGNATURE = types.int64(
-    DYN_TYPE, IK_TYPE, types.intp,  # the plant's joint-space model, inverse kinematics, parameters (address)
-    types.float64[:, ::1],  # reference (n, 12), ilcforce.task layout
-    types.float64,  # w, the wall's force sign
-    types.float64[:, ::1],  # out: tau_d (n, 2)
-    types.float64[:, ::1],  # out: J^-T tau_d (n, 2)
-)
+from ilcforce import _jit
+from ilcforce._jit import Sig, njit  # numba's, imported only when this runs through numba (ilcforce/_jit.py)
+from ilcforce.plants.base import kernel_type
 
 
-@njit(_DESIRED_SIGNATURE, cache=True, error_model="numpy", nogil=True)
+def _desired_signature():
+    """The kernel's numba signature (made when numba is imported)."""
+    types = _jit.numba().types
+    return types.int64(
+        kernel_type("DYN"), kernel_type("IK"), types.intp,  # the plant's joint-space model, inverse kinematics,
+        #                                                     parameters (address)
+        types.float64[:, ::1],  # reference (n, 12), ilcforce.task layout
+        types.float64,  # w, the wall's force sign
+        types.float64[:, ::1],  # out: tau_d (n, 2)
+        types.float64[:, ::1],  # out: J^-T tau_d (n, 2)
+    )
+
+
+@njit(Sig(_desired_signature), cache=True, error_model="numpy", nogil=True)
 def desired_kernel(dyn, ik, p, ref, w, tau_d, task_d):
     """tau_d = Dq ddtheta_d + Cq dtheta_d + G_q - J^T f_d along the reference (eq. 1), f_d = -w F_d
     the wall's reaction to the desired force; and J^-T tau_d, with dtheta_d = J^-1 dP_d and

@@ -17,15 +17,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
-from numba import njit, types
 
+from ilcforce import _jit
+from ilcforce._jit import Sig, njit  # numba's, imported only when the loop runs through numba (ilcforce/_jit.py)
 from ilcforce.controllers.base import (
-    DIAG_SIGMA, DIAG_WIDTH, LAW_TYPE, MEAS_ACCEL, MEAS_DTHETA, MEAS_FORCE, MEAS_FORCE_ACCEL,
+    DIAG_SIGMA, DIAG_WIDTH, MEAS_ACCEL, MEAS_DTHETA, MEAS_FORCE, MEAS_FORCE_ACCEL,
     MEAS_FORCE_RATE, MEAS_JACOBIAN, MEAS_POSITION, MEAS_TASK_CORIOLIS, MEAS_TASK_GRAVITY,
     MEAS_TASK_INERTIA, MEAS_THETA, MEAS_VELOCITY, MEAS_WIDTH,
 )
-from ilcforce.plants.base import ACCEL_TYPE, KIN_TYPE, TASK_TYPE
+from ilcforce.plants.base import kernel_type
 from ilcforce.task import wall_force, wall_stiffness
 
 #: Watchdog outcomes of the compiled loop.
@@ -128,31 +128,36 @@ def _fallback(least_residual, a_prev, bb, c2):
     return a_prev
 
 
-_SIM_SIGNATURE = types.UniTuple(types.int64, 2)(
-    LAW_TYPE,
-    ACCEL_TYPE,  # true plant: forward dynamics terms
-    KIN_TYPE,  # nominal plant: kinematics
-    TASK_TYPE,  # nominal plant: task-space model
-    types.intp,  # true plant parameters (address of the packed vector, see ilcforce.plants.base)
-    types.intp,  # nominal plant parameters (address)
-    types.float64[::1],  # wall: y_e, K_e, w
-    types.float64[::1],  # law gains
-    types.float64[:, ::1],  # mem_prev
-    types.float64[:, ::1],  # mem_new
-    types.float64[:, ::1],  # reference (n_control, 12)
-    types.float64[:, ::1],  # disturbance on this chunk's half-step grid: stage indices 2 substeps k_start
-    #                          .. 2 substeps min(k_stop, n_control - 1), i.e. the samples' times and RK4 stages
-    types.float64[:, ::1],  # sensor noise (n_control, 6)
-    types.float64[::1],  # float settings
-    types.int64[::1],  # integer settings
-    types.float64[:, ::1],  # log output (n_log, LOG_WIDTH), pre-filled with NaN
-    types.float64[::1],  # carry (CARRY_WIDTH,), read at k_start and written back at the end
-    types.int64,  # k_start
-    types.int64,  # k_stop (exclusive; n_control ends the iteration)
-)
+def _sim_signature():
+    """The loop's numba signature (made when numba is imported)."""
+    from ilcforce.controllers.base import law_signature
+
+    types = _jit.numba().types
+    return types.UniTuple(types.int64, 2)(
+        types.FunctionType(law_signature()),
+        kernel_type("ACCEL"),  # true plant: forward dynamics terms
+        kernel_type("KIN"),  # nominal plant: kinematics
+        kernel_type("TASK"),  # nominal plant: task-space model
+        types.intp,  # true plant parameters (address of the packed vector, see ilcforce.plants.base)
+        types.intp,  # nominal plant parameters (address)
+        types.float64[::1],  # wall: y_e, K_e, w
+        types.float64[::1],  # law gains
+        types.float64[:, ::1],  # mem_prev
+        types.float64[:, ::1],  # mem_new
+        types.float64[:, ::1],  # reference (n_control, 12)
+        types.float64[:, ::1],  # disturbance on this chunk's half-step grid: stage indices 2 substeps k_start
+        #                          .. 2 substeps min(k_stop, n_control - 1), i.e. the samples' times and RK4 stages
+        types.float64[:, ::1],  # sensor noise (n_control, 6)
+        types.float64[::1],  # float settings
+        types.int64[::1],  # integer settings
+        types.float64[:, ::1],  # log output (n_log, LOG_WIDTH), pre-filled with NaN
+        types.float64[::1],  # carry (CARRY_WIDTH,), read at k_start and written back at the end
+        types.int64,  # k_start
+        types.int64,  # k_stop (exclusive; n_control ends the iteration)
+    )
 
 
-@njit(_SIM_SIGNATURE, cache=True, error_model="numpy", nogil=True)  # nogil: the store writes beside it (pipeline.py)
+@njit(Sig(_sim_signature), cache=True, error_model="numpy", nogil=True)  # nogil: the store writes beside it (pipeline.py)
 def _simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset,
               iset, log, carry, k_start, k_stop):
     """Control samples k_start .. k_stop - 1 of one iteration.

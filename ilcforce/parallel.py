@@ -127,14 +127,19 @@ def preload_kernels(config, methods: Sequence[str]) -> None:
     Forked workers inherit the imported modules and numba's loaded kernels (the simulation loop,
     the plant's kernels, each method's law), so each pays for none of them again.
     """
-    from ilcforce import experiment, loop  # noqa: F401  (loop: the compiled simulation loop)
+    from ilcforce import aot, experiment
     from ilcforce.plants import make_plant
     from ilcforce.simulate import desired_inputs
 
     robot = make_plant(config.plant.links())
-    robot.kernels()
+    robot.calls()
     for method in methods:
-        experiment.make_controller(config, method).law  # noqa: B018  (the law's kernel)
+        controller = experiment.make_controller(config, method)
+        if aot.simulator(controller, type(robot), type(robot)) is None:  # numba's loop, law and kernels
+            from ilcforce import loop  # noqa: F401
+
+            robot.kernels()
+            controller.law  # noqa: B018
     desired_inputs(config.plant.links(), config.wall, config.reference_samples()[:1])  # its kernels
 
 

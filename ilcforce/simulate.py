@@ -158,7 +158,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     :data:`CHUNK_RK4_STEPS` RK4 steps); between chunks Python handles signals, and if
     ``stop_requested()`` is true the iteration is abandoned with KeyboardInterrupt.
     """
-    from ilcforce import loop  # compiled on first use only
+    from ilcforce import aot, loop  # loop: numba's, loaded on first use only
 
     s = inputs.settings
     ref = np.ascontiguousarray(inputs.reference, dtype=np.float64)
@@ -185,15 +185,20 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     wall = np.array([inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign])
     log = np.full((n_log, loop.LOG_WIDTH), np.nan)
     carry = loop.new_carry(theta0, dtheta0)
-    true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
-    head = (controller.law, true_k.accel, nominal_k.kin, nominal_k.task, true_robot.address,
-            nominal_robot.address, wall, np.ascontiguousarray(controller.gains(), dtype=np.float64), mem_prev,
-            mem_new, ref)
+    head = (true_robot.address, nominal_robot.address, wall, np.ascontiguousarray(controller.gains(), dtype=np.float64),
+            mem_prev, mem_new, ref)
     tail = (np.ascontiguousarray(inputs.draws.sensor), fset, iset, log, carry)
+    # the ahead-of-time compiled loop of this law and plant (no numba in the process), or numba's
+    # with the law and the plant's kernels as arguments: the same code, the same numbers
+    simulate_chunk = aot.simulator(controller, type(true_robot), type(nominal_robot))
+    if simulate_chunk is None:
+        true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
+        head = (controller.law, true_k.accel, nominal_k.kin, nominal_k.task, *head)
+        simulate_chunk = loop._simulate
     chunk = chunk_steps if chunk_steps is not None else max(1, CHUNK_RK4_STEPS // s.substeps)
     k = 0
     while True:
-        status, k_fail = loop._simulate(*head, chunk_disturbance(k, k + chunk), *tail, k, k + chunk)
+        status, k_fail = simulate_chunk(*head, chunk_disturbance(k, k + chunk), *tail, k, k + chunk)
         k += chunk
         if status != loop.RUN_CONTINUE:
             break
@@ -225,15 +230,21 @@ def desired_inputs(plant, wall: Wall, reference_log: np.ndarray) -> tuple[np.nda
     desired contact force, so the wall's reaction -w F_d is balanced. ``reference_log`` is (n, 12);
     returns two (n, 2) arrays (N m, N).
     """
-    from ilcforce import desired  # compiled on first use only
+    from ilcforce import aot
     from ilcforce.plants import UnreachableError
 
     robot = make_plant(plant)
-    kernels = robot.kernels()
     ref = np.ascontiguousarray(reference_log, dtype=np.float64)
     tau_d = np.empty((ref.shape[0], 2))
     task_d = np.empty((ref.shape[0], 2))
-    bad = desired.desired_kernel(kernels.dyn, kernels.ik, robot.address, ref, float(wall.sign), tau_d, task_d)
+    compiled = aot.desired(type(robot))  # ahead-of-time compiled, or numba's (same code, same numbers)
+    if compiled is not None:
+        bad = compiled(robot.address, ref, float(wall.sign), tau_d, task_d)
+    else:
+        from ilcforce import desired  # numba's, loaded on first use only
+
+        kernels = robot.kernels()
+        bad = desired.desired_kernel(kernels.dyn, kernels.ik, robot.address, ref, float(wall.sign), tau_d, task_d)
     if bad >= 0:
         raise UnreachableError(f"the desired pose ({ref[bad, 0]:.6g}, {ref[bad, 1]:.6g}) m is not reachable "
                                f"in {robot.working_mode}")

@@ -15,8 +15,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
-from numba import njit
+
+from ilcforce._jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/_jit.py)
 
 FORCE_SIGNS = {"applied": 1.0, "paper": -1.0}
 

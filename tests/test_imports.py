@@ -6,6 +6,7 @@ which heavy modules each path leaves unimported. A failure names the module that
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 
@@ -37,16 +38,19 @@ def test_compare_tables_do_not_import_matplotlib():
     assert "matplotlib" not in _imported_after("import ilcforce.report.tables")
 
 
-def test_a_simulation_loads_numbas_lapack_without_all_of_scipy_linalg():
+@pytest.mark.parametrize("ahead_of_time", ["1", "0"])
+def test_a_simulation_loads_numbas_lapack_without_all_of_scipy_linalg(ahead_of_time):
     """ilcforce._lapack: numba's BLAS/LAPACK modules come without scipy.linalg's 170 ms package
-    import, and the compiled solves still work (the tau_d kernel uses np.linalg.solve)."""
+    import, and the compiled solves still work (the tau_d kernel uses np.linalg.solve), with the
+    ahead-of-time kernels (ilcforce/aot.py) and with numba's."""
     code = ("import sys\nfrom ilcforce.config_load import load_config\n"
             "from ilcforce.experiment import simulate_iterations\n"
             "cfg = load_config(None, {'experiment.iterations': 1, 'reference.duration': 0.05})\n"
             "rec = next(simulate_iterations(cfg, 'c3'))\n"
             "import numpy as np\nassert np.isfinite(rec.log['desired_torque']).all()\n"
             "print('LINALG', 'scipy.linalg' in sys.modules, 'scipy.linalg.cython_lapack' in sys.modules)")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "ILCFORCE_AOT": ahead_of_time})
     assert proc.returncode == 0, proc.stderr
     assert "LINALG False True" in proc.stdout
 
@@ -80,7 +84,7 @@ def test_cached_kernels_load_without_numbas_compiler_and_give_the_same_numbers()
     on both robots computes exactly what it computes after numba's own full start."""
     def run(mode: str) -> list[str]:
         proc = subprocess.run([sys.executable, "-c", _LIGHT_OR_FULL, mode], capture_output=True, text=True,
-                              timeout=600)
+                              timeout=600, env={**os.environ, "ILCFORCE_AOT": "0"})  # numba's kernels
         assert proc.returncode == 0, proc.stderr
         return next(line for line in proc.stdout.splitlines() if line.startswith("LIGHT")).split()
 
@@ -93,16 +97,18 @@ def test_cached_kernels_load_without_numbas_compiler_and_give_the_same_numbers()
 
 def test_a_compile_is_announced_once(monkeypatch):
     """A first run after an install compiles for about a minute with the progress display at 0; the
-    terminal now says so, once (ilcforce/compile_note.py)."""
-    from numba import njit
-    from numba.core import event
+    terminal now says so, once (ilcforce/compile_note.py). The listener waits for numba's import
+    (a run of ahead-of-time kernels imports none)."""
+    from ilcforce import _jit, compile_note
 
-    from ilcforce import compile_note
-
+    monkeypatch.setattr(compile_note, "_asked", [])
     monkeypatch.setattr(compile_note, "_installed", [])
     lines: list[str] = []
     compile_note.announce_compiles(lines.append)
     compile_note.announce_compiles(lines.append)  # a second call adds no second listener
+    njit = _jit.numba().njit  # numba imported (or already): the listener is in place
+    from numba.core import event
+
     assert len(compile_note._installed) == 1
     try:
         @njit(cache=False)

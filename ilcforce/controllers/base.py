@@ -37,12 +37,14 @@ method module loads no kernel.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable, Mapping
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
-import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
-from numba import njit, types
+
+from ilcforce import _jit
+from ilcforce._jit import njit
 
 if TYPE_CHECKING:
     from ilcforce.records import IterationRecord
@@ -73,18 +75,33 @@ GAIN_LAMBDA_F2 = 6  # lambda_F2 diagonal
 GAIN_FEEDFORWARD_SIGN = 8  # w of task.Wall: +1 adds +F (SPEC default), -1 the paper's -F
 GAIN_SPECIFIC = 9  # first index of a controller's own gains
 
-LAW_SIGNATURE = types.UniTuple(types.float64, 2)(
-    types.int64,
-    types.float64,
-    types.float64[::1],
-    types.float64[:, ::1],
-    types.float64[::1],
-    types.float64[:, ::1],
-    types.float64[:, ::1],
-    types.boolean,
-    types.float64[::1],
-)
-LAW_TYPE = types.FunctionType(LAW_SIGNATURE)
+
+
+@functools.cache
+def law_signature():
+    """:data:`LAW_SIGNATURE` (imports numba)."""
+    types = _jit.numba().types
+    return types.UniTuple(types.float64, 2)(
+        types.int64,
+        types.float64,
+        types.float64[::1],
+        types.float64[:, ::1],
+        types.float64[::1],
+        types.float64[:, ::1],
+        types.float64[:, ::1],
+        types.boolean,
+        types.float64[::1],
+    )
+
+
+def __getattr__(name: str):
+    """``LAW_SIGNATURE`` (the numba signature of every law) and ``LAW_TYPE`` (its first-class
+    function type), built on first use: importing this module does not import numba."""
+    if name == "LAW_SIGNATURE":
+        return law_signature()
+    if name == "LAW_TYPE":
+        return _jit.numba().types.FunctionType(law_signature())
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @njit(cache=True, error_model="numpy")
@@ -222,7 +239,7 @@ class compiled_law:  # noqa: N801 (used as a decorator-like descriptor)
 
     def dispatcher(self):
         if self._dispatcher is None:
-            self._dispatcher = njit(LAW_SIGNATURE, cache=True, error_model="numpy")(self.py_func)
+            self._dispatcher = _jit.numba().njit(law_signature(), cache=True, error_model="numpy")(self.py_func)
         return self._dispatcher
 
     def __get__(self, obj, owner=None):

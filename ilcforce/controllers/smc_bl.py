@@ -20,9 +20,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
-from numba import njit
 
+from ilcforce._jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/_jit.py)
 from ilcforce.controllers.base import (
     DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law,
     gain_indices, joint_torque, pack_gains, surface_terms,

@@ -34,35 +34,53 @@ of shape (2,) or (2, 2), SI units); a subclass provides its parameters class and
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
-import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
-from numba import carray, njit, types
-from numba.extending import intrinsic
 
-__all__ = ["UnreachableError", "PlantKernels", "Plant", "params_view", "KIN_TYPE", "ACCEL_TYPE", "TASK_TYPE", "DYN_TYPE",
-           "IK_TYPE", "check_pair"]
+from ilcforce import _jit
+from ilcforce._jit import intrinsic, njit, numba_global
 
-_P = types.intp  # address of the packed float64 parameter vector
-_F = types.float64
-KIN_SIGNATURE = types.UniTuple(_F, 7)(_P, _F, _F)
-ACCEL_SIGNATURE = types.UniTuple(_F, 14)(_P, _F, _F, _F, _F)
-TASK_SIGNATURE = types.UniTuple(_F, 18)(_P, _F, _F, _F, _F)
-DYN_SIGNATURE = types.UniTuple(_F, 20)(_P, _F, _F, _F, _F)
-IK_SIGNATURE = types.UniTuple(_F, 3)(_P, _F, _F)
-KIN_TYPE = types.FunctionType(KIN_SIGNATURE)
-ACCEL_TYPE = types.FunctionType(ACCEL_SIGNATURE)
-TASK_TYPE = types.FunctionType(TASK_SIGNATURE)
-DYN_TYPE = types.FunctionType(DYN_SIGNATURE)
-IK_TYPE = types.FunctionType(IK_SIGNATURE)
+__all__ = ["UnreachableError", "PlantKernels", "Plant", "params_view", "kernel_signature", "kernel_type", "check_pair"]
+
+#: the kernels' outputs (a tuple of this many floats) and scalar inputs after ``p``, in
+#: PlantKernels order; their numba signatures are made on first use (importing this module does
+#: not import numba): ``KIN_SIGNATURE`` ... and the first-class function types ``KIN_TYPE`` ...
+_SHAPES = {"KIN": (7, 2), "ACCEL": (14, 4), "TASK": (18, 4), "DYN": (20, 4), "IK": (3, 2)}
+
+
+@functools.cache
+def kernel_signature(kind: str):
+    """The numba signature of kernel ``kind`` ("KIN", "ACCEL", "TASK", "DYN" or "IK")."""
+    types = _jit.numba().types
+    n_out, n_in = _SHAPES[kind]
+    return types.UniTuple(types.float64, n_out)(types.intp, *([types.float64] * n_in))
+
+
+def kernel_type(kind: str):
+    """The first-class function type of kernel ``kind``, as the compiled loop takes it."""
+    return _jit.numba().types.FunctionType(kernel_signature(kind))
+
+
+def __getattr__(name: str):
+    kind, _, suffix = name.partition("_")
+    if kind in _SHAPES and suffix == "SIGNATURE":
+        return kernel_signature(kind)
+    if kind in _SHAPES and suffix == "TYPE":
+        return kernel_type(kind)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+carray = numba_global("carray")
 
 
 @intrinsic
 def _address_to_pointer(typingctx, address):
     """An integer address as a float64 pointer (no reference counting, no bounds)."""
+    types = _jit.numba().types
     sig = types.CPointer(types.float64)(address)
 
     def codegen(context, builder, signature, args):
@@ -94,10 +112,12 @@ class PlantKernels(NamedTuple):
 def compile_kernels(kin, accel, task, dyn, ik) -> PlantKernels:
     """A plant's five interface functions compiled with the fixed signatures above (or loaded from
     numba's on-disk cache, which is keyed by each function's own module)."""
-    def jit(sig, fn):
-        return njit(sig, cache=True, error_model="numpy")(fn)
-    return PlantKernels(kin=jit(KIN_SIGNATURE, kin), accel=jit(ACCEL_SIGNATURE, accel),
-                        task=jit(TASK_SIGNATURE, task), dyn=jit(DYN_SIGNATURE, dyn), ik=jit(IK_SIGNATURE, ik))
+    nb = _jit.numba()
+
+    def jit(kind, fn):
+        return nb.njit(kernel_signature(kind), cache=True, error_model="numpy")(fn)
+    return PlantKernels(kin=jit("KIN", kin), accel=jit("ACCEL", accel), task=jit("TASK", task), dyn=jit("DYN", dyn),
+                        ik=jit("IK", ik))
 
 
 def check_pair(name: str, value) -> tuple[float, float]:
@@ -140,7 +160,15 @@ class Plant:
 
     @staticmethod
     def kernels() -> PlantKernels:
+        """The numba dispatchers of the five kernels (what numba-compiled code takes)."""
         raise NotImplementedError
+
+    def calls(self) -> PlantKernels:
+        """The five kernels as Python calls them: the ahead-of-time compiled ones when built
+        (:mod:`ilcforce.aot`, numba is then not imported), else :meth:`kernels`."""
+        from ilcforce import aot
+
+        return aot.plant_kernels(type(self)) or self.kernels()
 
     @property
     def packed(self) -> np.ndarray:
@@ -157,7 +185,7 @@ class Plant:
 
     def _kin(self, theta):
         th1, th2 = check_pair("theta", theta)
-        out = self.kernels().kin(self._address, th1, th2)
+        out = self.calls().kin(self._address, th1, th2)
         if not out[0]:
             raise self._outside(th1, th2)
         return out
@@ -165,7 +193,7 @@ class Plant:
     def _dyn(self, theta, dtheta):
         th1, th2 = check_pair("theta", theta)
         d1, d2 = check_pair("dtheta", dtheta)
-        out = self.kernels().dyn(self._address, th1, th2, d1, d2)
+        out = self.calls().dyn(self._address, th1, th2, d1, d2)
         if not out[0]:
             raise self._outside(th1, th2)
         return out
@@ -173,7 +201,7 @@ class Plant:
     def _task(self, theta, dtheta):
         th1, th2 = check_pair("theta", theta)
         d1, d2 = check_pair("dtheta", dtheta)
-        out = self.kernels().task(self._address, th1, th2, d1, d2)
+        out = self.calls().task(self._address, th1, th2, d1, d2)
         if not out[0]:
             raise self._outside(th1, th2)
         return out
@@ -187,7 +215,7 @@ class Plant:
     def inverse_kinematics(self, position) -> np.ndarray:
         """Joint angles (rad) in the working mode for end-effector position P (m); raises if unreachable."""
         px, py = check_pair("position", position)
-        k = self.kernels()
+        k = self.calls()
         ok, th1, th2 = k.ik(self._address, px, py)
         fk = k.kin(self._address, th1, th2) if ok else (0.0,)
         # the angles must map back to P in the working mode (e.g. the five-bar's lower assembly
@@ -266,7 +294,7 @@ class Plant:
         t1, t2 = check_pair("tau", tau)
         fx, fy = check_pair("force_on_end_effector", force_on_end_effector)
         self._kin(theta)
-        out = self.kernels().accel(self._address, th1, th2, d1, d2)
+        out = self.calls().accel(self._address, th1, th2, d1, d2)
         r1 = t1 + out[3] * fx + out[5] * fy - out[9]
         r2 = t2 + out[4] * fx + out[6] * fy - out[10]
         return np.array([out[11] * r1 + out[12] * r2, out[12] * r1 + out[13] * r2])

@@ -36,9 +36,8 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
-import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
-from numba import njit
 
+from ilcforce._jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/_jit.py)
 from ilcforce.plants.base import (
     PackedParams,
     compile_kernels,

@@ -1,0 +1,195 @@
+"""numba, imported only when a kernel runs through it: the decorators of every kernel module.
+
+A process that runs the ahead-of-time compiled kernels (:mod:`ilcforce.aot`) never imports numba,
+which is about a third of a cold ``ilcforce simulate`` (numba's import and its cache loads). So
+the kernel modules do not import numba themselves: they decorate with :func:`njit` and
+:func:`intrinsic` from here and name numba's own globals (``carray``) with :func:`numba_global`,
+and build numba types only inside functions (:class:`Sig`).
+
+Until numba is needed these return placeholders. The first time a placeholder is called from
+Python (or :func:`numba` is asked for, e.g. to compile a law), numba is imported, every
+placeholder made so far becomes numba's real object (the same ``numba.njit(...)`` the module
+would have made), and every module global that held a placeholder is rebound to it, so kernels
+that call each other find real dispatchers when numba compiles or loads them. From then on the
+decorators here are numba's own. The kernels, their numba options and numba's on-disk cache are
+exactly those of a module that imported numba at the top; only when numba is imported changes.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from collections.abc import Callable
+
+_numba = None
+_lock = threading.RLock()
+_pending: list = []  # placeholders made before numba was imported, in the order they were made
+_on_load: list[Callable[[object], None]] = []
+
+
+class Sig:
+    """A kernel signature built only when numba is imported: ``Sig(lambda: types.f8(types.f8))``."""
+
+    def __init__(self, build: Callable[[], object]) -> None:
+        self.build = build
+
+
+def _resolve(args: tuple) -> tuple:
+    return tuple(a.build() if isinstance(a, Sig) else a for a in args)
+
+
+class _Placeholder:
+    """A numba object not made yet; :attr:`real` makes it (importing numba first)."""
+
+    _made = None
+
+    @property
+    def real(self):
+        if self._made is None:
+            numba()
+        return self._made
+
+    def _make(self, nb) -> None:
+        raise NotImplementedError
+
+
+class LazyKernel(_Placeholder):
+    """``njit(*args, **options)(py_func)``, made when numba is imported."""
+
+    def __init__(self, py_func: Callable, args: tuple, options: dict) -> None:
+        self.py_func = py_func
+        self._args = args
+        self._options = options
+        self.__name__ = py_func.__name__
+        self.__qualname__ = py_func.__qualname__
+        self.__module__ = py_func.__module__
+        self.__doc__ = py_func.__doc__
+
+    def _make(self, nb) -> None:
+        self._made = nb.njit(*_resolve(self._args), **self._options)(self.py_func)
+
+    def __call__(self, *args, **kwargs):
+        return self.real(*args, **kwargs)
+
+    def __getattr__(self, name: str):  # dispatcher attributes (signatures, overloads, ...)
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.real, name)
+
+    def __repr__(self) -> str:
+        return f"<ilcforce kernel {self.__qualname__} (numba not imported yet)>"
+
+
+class LazyIntrinsic(_Placeholder):
+    """``numba.extending.intrinsic(fn)``, made when numba is imported."""
+
+    def __init__(self, fn: Callable) -> None:
+        self.fn = fn
+
+    def _make(self, nb) -> None:
+        from numba.extending import intrinsic as real_intrinsic
+
+        self._made = real_intrinsic(self.fn)
+
+
+class LazyGlobal(_Placeholder):
+    """``getattr(numba, name)`` for a kernel's global (e.g. ``carray``)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+
+    def _make(self, nb) -> None:
+        self._made = getattr(nb, self.name)
+
+
+def njit(*args, **options):
+    """``numba.njit`` with the same call forms (``@njit``, ``@njit(sig, cache=True, ...)``);
+    signatures given as :class:`Sig`."""
+    if _numba is not None:
+        return _numba.njit(*_resolve(args), **options)
+    if len(args) == 1 and callable(args[0]) and not isinstance(args[0], Sig) and not options:
+        return _remember(LazyKernel(args[0], (), {}))
+
+    def decorate(py_func: Callable):
+        if _numba is not None:
+            return _numba.njit(*_resolve(args), **options)(py_func)
+        return _remember(LazyKernel(py_func, args, options))
+    return decorate
+
+
+def intrinsic(fn: Callable):
+    """``numba.extending.intrinsic``."""
+    if _numba is not None:
+        from numba.extending import intrinsic as real_intrinsic
+
+        return real_intrinsic(fn)
+    return _remember(LazyIntrinsic(fn))
+
+
+def numba_global(name: str):
+    """numba's ``name`` (e.g. ``"carray"``) as a kernel module's global."""
+    if _numba is not None:
+        return getattr(_numba, name)
+    return _remember(LazyGlobal(name))
+
+
+def _remember(placeholder: _Placeholder):
+    with _lock:
+        if _numba is not None:  # numba arrived meanwhile (another thread)
+            placeholder._make(_numba)
+            return placeholder._made
+        _pending.append(placeholder)
+    return placeholder
+
+
+def loaded() -> bool:
+    """True once numba is imported through here."""
+    return _numba is not None
+
+
+def on_load(callback: Callable[[object], None]) -> None:
+    """``callback(numba)`` once numba is imported (at once if it is already)."""
+    with _lock:
+        if _numba is None:
+            _on_load.append(callback)
+            return
+    callback(_numba)
+
+
+def numba():
+    """Import numba (its lighter start first), make every placeholder real and rebind the module
+    globals that hold them; return the numba module."""
+    global _numba
+    with _lock:
+        if _numba is not None:
+            return _numba
+        import ilcforce._numba_start  # noqa: F401 - before numba: cached kernels load without the compiler
+        import numba as nb
+
+        _numba = nb  # from here on the decorators are numba's own
+        for callback in _on_load:
+            callback(nb)
+        # a kernel with an explicit signature compiles (or loads) when made, so every kernel it
+        # calls must already be real and bound where it looks it up: make the others first
+        eager = [p for p in _pending if isinstance(p, LazyKernel) and p._args]
+        for placeholder in _pending:
+            if not (isinstance(placeholder, LazyKernel) and placeholder._args):
+                placeholder._make(nb)
+        _rebind()
+        for placeholder in eager:
+            placeholder._make(nb)
+        _rebind()
+        _pending.clear()
+    return nb
+
+
+def _rebind() -> None:
+    """Replace every made placeholder held as a module global by its real object."""
+    made = {id(p): p._made for p in _pending if p._made is not None}
+    for module in list(sys.modules.values()):
+        namespace = getattr(module, "__dict__", None)
+        if not isinstance(namespace, dict):
+            continue
+        for name, value in list(namespace.items()):
+            if isinstance(value, _Placeholder) and id(value) in made:
+                namespace[name] = made[id(value)]

@@ -1,0 +1,168 @@
+"""Build the ahead-of-time kernels of :mod:`ilcforce.aot` (``make install`` runs it).
+
+    python -m ilcforce.aot_build [--force]
+
+Compiles with numba.pycc, into ``ilcforce/_kernels_aot*.so`` beside the package's sources:
+
+* ``sim__<law>__<plant>``: the compiled loop ``ilcforce.loop._simulate`` with that law and that
+  plant's kernels bound (every built-in law on every built-in plant), taking the loop's other
+  arguments;
+* ``<plant>__kin`` ... ``<plant>__ik``: the plant's kernels (for the plant's Python API);
+* ``desired__<plant>``: ``ilcforce.desired.desired_kernel`` with the plant's kernels bound.
+
+Each export calls the very dispatchers numba runs (same source, same compiler, same options), so
+the numbers are numba's. The code is built for the generic x86-64 (or the machine's own family)
+CPU, so the module runs on any machine that runs this Python. Then the stamp
+``_kernels_aot.json`` records the sources' fingerprint. A build that fails (no C compiler, a numba
+without pycc) records why and exits 0: commands then run through numba as before.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+from ilcforce import _jit, aot
+
+
+def _exports():
+    """(name, signature, python function) of every export."""
+    nb = _jit.numba()
+    types = nb.types
+    from ilcforce import desired, loop
+    from ilcforce.controllers import REGISTRY
+    from ilcforce.plants import MODELS, plant_class
+    from ilcforce.plants.base import PlantKernels, kernel_signature
+
+    laws = {}
+    for spec in REGISTRY.values():
+        cls = spec.controller_class
+        key = aot.law_key(cls)
+        if key is not None:
+            laws[key] = cls.law
+    sim_args = loop._simulate.nopython_signatures[0].args[4:]
+    sim_sig = types.UniTuple(types.int64, 2)(*sim_args)
+    desired_sig = types.int64(*desired.desired_kernel.nopython_signatures[0].args[2:])
+    simulate, desired_kernel = loop._simulate, desired.desired_kernel
+    out = []
+    for model in MODELS:
+        cls = plant_class(model)
+        plant = aot.plant_key(cls)
+        kernels = cls.kernels()
+        for kind, kernel in zip(PlantKernels._fields, kernels):
+            out.append((f"{plant}__{kind}", kernel_signature(kind.upper()), kernel.py_func))
+        out.append((f"desired__{plant}", desired_sig, _bind_desired(desired_kernel, kernels)))
+        for key, law in laws.items():
+            out.append((aot.simulator_name(key, plant), sim_sig, _bind_loop(simulate, law, kernels)))
+    return out
+
+
+def _bind_loop(simulate, law, kernels):
+    accel, kin, task = kernels.accel, kernels.kin, kernels.task
+
+    def bound(p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset, log, carry,
+              k_start, k_stop):
+        return simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise,
+                        fset, iset, log, carry, k_start, k_stop)
+    return bound
+
+
+def _bind_desired(desired_kernel, kernels):
+    dyn, ik = kernels.dyn, kernels.ik
+
+    def bound(p, ref, w, tau_d, task_d):
+        return desired_kernel(dyn, ik, p, ref, w, tau_d, task_d)
+    return bound
+
+
+@contextlib.contextmanager
+def _releasing_the_gil():
+    """Exports that release the GIL while they run, as numba's ``nogil=True``: the store's writes
+    and the next iteration's simulation overlap (ilcforce/pipeline.py). pycc has no option for it;
+    its compiler takes numba's compile flags from ``Flags()``, and ``release_gil`` is the flag
+    ``nogil=True`` sets."""
+    from numba.pycc import compiler
+
+    plain = compiler.Flags
+
+    class NoGilFlags(plain):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.release_gil = True
+
+    compiler.Flags = NoGilFlags
+    try:
+        yield
+    finally:
+        compiler.Flags = plain
+
+
+def _write_stamp(stamp: dict) -> None:
+    tmp = aot.STAMP.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(stamp, indent=1) + "\n")
+    tmp.replace(aot.STAMP)
+
+
+def _current(fingerprint: str) -> bool:
+    """The stamp records a built module of these sources, and the module is there."""
+    try:
+        stamp = json.loads(aot.STAMP.read_text())
+    except (OSError, ValueError):
+        return False
+    name = aot.MODULE.rpartition(".")[2]
+    return (isinstance(stamp, dict) and stamp.get("built") is True and stamp.get("fingerprint") == fingerprint
+            and any(aot.PACKAGE.glob(f"{name}*.so")))
+
+
+def build(verbose: bool = True, force: bool = False) -> bool:
+    """Build the module and its stamp (unless they are current); True if built. A failure is
+    recorded in the stamp."""
+    fingerprint = aot.source_fingerprint()
+    if not force and _current(fingerprint):
+        os.utime(aot.STAMP)  # for make: checked against the sources now
+        return True
+    t0 = time.perf_counter()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # numba.pycc's pending-deprecation notice
+            from numba.pycc import CC
+        exports = _exports()
+        with tempfile.TemporaryDirectory(prefix="ilcforce-aot-") as tmp:
+            cc = CC(aot.MODULE.rpartition(".")[2])
+            cc.output_dir = tmp
+            cc.verbose = False
+            for name, signature, function in exports:
+                cc.export(name, signature)(function)
+            with warnings.catch_warnings(), _releasing_the_gil():
+                warnings.simplefilter("ignore")
+                cc.compile()
+            built = list(Path(tmp).glob(aot.MODULE.rpartition(".")[2] + "*"))
+            if len(built) != 1:
+                raise RuntimeError(f"expected one extension module, found {[p.name for p in built]}")
+            for old in aot.PACKAGE.glob(aot.MODULE.rpartition(".")[2] + "*.so"):
+                old.unlink()
+            target = aot.PACKAGE / built[0].name
+            shutil.copyfile(built[0], target.with_suffix(".so.tmp"))
+            target.with_suffix(".so.tmp").replace(target)
+    except Exception as exc:  # noqa: BLE001 - recorded; commands run through numba instead
+        reason = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}".rstrip(": ")
+        _write_stamp({"built": False, "reason": reason, "fingerprint": fingerprint})
+        print(f"ilcforce: ahead-of-time kernels not built ({reason}); commands will run through numba "
+              "(same numbers, a slower start)", file=sys.stderr)
+        return False
+    _write_stamp({"built": True, "fingerprint": fingerprint, "exports": sorted(n for n, _, _ in exports)})
+    if verbose:
+        print(f"ilcforce: ahead-of-time kernels built ({len(exports)} exports, "
+              f"{time.perf_counter() - t0:.0f} s): {target.name}")
+    return True
+
+
+if __name__ == "__main__":
+    build(force="--force" in sys.argv[1:])
