@@ -11,8 +11,8 @@ Compiles with numba.pycc, into ``ilcforce/_kernels_aot*.so`` beside the package'
 * ``desired__<plant>``: ``ilcforce.desired.desired_kernel`` with the plant's kernels bound.
 
 Each export calls the very dispatchers numba runs (same source, same compiler, same options), so
-the numbers are numba's. The code is built for the generic x86-64 (or the machine's own family)
-CPU, so the module runs on any machine that runs this Python. Then the stamp
+the numbers are numba's. The code is built for the generic CPU of the machine's architecture (pycc's
+default: no instruction-set extensions), so the module runs on any machine that runs this Python. Then the stamp
 ``_kernels_aot.json`` records the sources' fingerprint. A build that fails (no C compiler, a numba
 without pycc) records why and exits 0: commands then run through numba as before.
 """
@@ -20,6 +20,7 @@ without pycc) records why and exits 0: commands then run through numba as before
 from __future__ import annotations
 
 import contextlib
+import importlib.machinery
 import json
 import os
 import shutil
@@ -105,9 +106,11 @@ def _releasing_the_gil():
 
 
 def _write_stamp(stamp: dict) -> None:
-    tmp = aot.STAMP.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(stamp, indent=1) + "\n")
-    tmp.replace(aot.STAMP)
+    fd, partial = tempfile.mkstemp(prefix=f".{aot.STAMP.name}.", dir=aot.PACKAGE)
+    with os.fdopen(fd, "w") as handle:
+        handle.write(json.dumps(stamp, indent=1) + "\n")
+    os.chmod(partial, 0o644)
+    os.replace(partial, aot.STAMP)
 
 
 def _current(fingerprint: str) -> bool:
@@ -116,9 +119,9 @@ def _current(fingerprint: str) -> bool:
         stamp = json.loads(aot.STAMP.read_text())
     except (OSError, ValueError):
         return False
-    name = aot.MODULE.rpartition(".")[2]
+    name = aot.MODULE.rpartition(".")[2] + importlib.machinery.EXTENSION_SUFFIXES[0]  # this Python's
     return (isinstance(stamp, dict) and stamp.get("built") is True and stamp.get("fingerprint") == fingerprint
-            and any(aot.PACKAGE.glob(f"{name}*.so")))
+            and (aot.PACKAGE / name).is_file())
 
 
 def build(verbose: bool = True, force: bool = False) -> bool:
@@ -146,11 +149,17 @@ def build(verbose: bool = True, force: bool = False) -> bool:
             built = list(Path(tmp).glob(aot.MODULE.rpartition(".")[2] + "*"))
             if len(built) != 1:
                 raise RuntimeError(f"expected one extension module, found {[p.name for p in built]}")
-            for old in aot.PACKAGE.glob(aot.MODULE.rpartition(".")[2] + "*.so"):
-                old.unlink()
             target = aot.PACKAGE / built[0].name
-            shutil.copyfile(built[0], target.with_suffix(".so.tmp"))
-            target.with_suffix(".so.tmp").replace(target)
+            # whole or not at all, also beside a concurrent build or a process that has it loaded
+            fd, partial = tempfile.mkstemp(prefix=f".{target.name}.", dir=aot.PACKAGE)
+            os.close(fd)
+            try:
+                shutil.copyfile(built[0], partial)
+                os.chmod(partial, 0o755)
+                os.replace(partial, target)
+            except BaseException:
+                Path(partial).unlink(missing_ok=True)
+                raise
     except Exception as exc:  # noqa: BLE001 - recorded; commands run through numba instead
         reason = f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}".rstrip(": ")
         _write_stamp({"built": False, "reason": reason, "fingerprint": fingerprint})

@@ -124,12 +124,14 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
 def preload_kernels(config, methods: Sequence[str]) -> None:
     """Import and load in the parent what every worker would otherwise load for itself.
 
-    Forked workers inherit the imported modules and numba's loaded kernels (the simulation loop,
-    the plant's kernels, each method's law), so each pays for none of them again.
+    Forked workers inherit the imported modules (the store's h5py among them) and the loaded
+    kernels (ahead-of-time compiled, or numba's: the simulation loop, the plant's kernels, each
+    method's law), so each pays for none of them again.
     """
     from ilcforce import aot, experiment
     from ilcforce.plants import make_plant
     from ilcforce.simulate import desired_inputs
+    from ilcforce.store import StoreWriter  # noqa: F401  (h5py and the writer, imported once for all workers)
 
     robot = make_plant(config.plant.links())
     robot.calls()

@@ -25,12 +25,27 @@ leave the store with every finished iteration. A second writer is refused. Error
 :class:`StoreError`, one line naming the file and the problem.
 """
 
-from ilcforce.store.access import (find_stores, iterations, read_control_time, read_iteration, read_memory,
-                                   read_memory_info, read_memory_units, read_metrics, read_provenance,
-                                   read_reference, validate)
+import importlib
+
 from ilcforce.store.safeio import StoreError, StoreExistsError, StoreLockedError, writer_active
 from ilcforce.store.schema import ITERATION_ATTRS, ROOT_ATTRS, RUN_STATES, SCHEMA_NAME, SCHEMA_VERSION
-from ilcforce.store.write import StoreWriter
+
+#: the names that need h5py, imported on first use: the errors above cost no h5py import (a
+#: command's error handling imports them before anything else; issue 12)
+_LAZY = {
+    **dict.fromkeys(("find_stores", "iterations", "read_control_time", "read_iteration", "read_memory",
+                     "read_memory_info", "read_memory_units", "read_metrics", "read_provenance", "read_reference",
+                     "validate"), "ilcforce.store.access"),
+    "StoreWriter": "ilcforce.store.write",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "ITERATION_ATTRS", "ROOT_ATTRS", "RUN_STATES", "SCHEMA_NAME", "SCHEMA_VERSION", "StoreError",
