@@ -24,24 +24,24 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test]'
 	touch $@
 
-# the simulation kernels compiled ahead of time (ilcforce/aot.py): commands then run without numba
-# in the process. Rebuilt when a source changes (a no-op when none of the kernels' sources did);
-# a failed build is recorded and commands run through numba instead.
-AOT := ilcforce/_kernels_aot.json
 SOURCES := $(shell find ilcforce -name '*.py' -o -name '*.mplstyle')
 
-$(AOT): $(STAMP) $(SOURCES)
-	$(PY) -m ilcforce.aot_build
+# the simulation kernels compiled ahead of time (ilcforce/aot.py): commands then run without numba
+# in the process. Checked at every make (a fraction of a second): rebuilt when a kernel's source
+# changed or the module is missing or damaged; a failed build is recorded and commands run through
+# numba instead. Results never depend on it (same numbers either way), so stores only wait for it.
+aot: $(STAMP)
+	@$(PY) -m ilcforce.aot_build
 
-install: $(STAMP) $(AOT) ## create .venv, install ilcforce with its test extras and compile its kernels
+install: $(STAMP) aot ## create .venv, install ilcforce with its test extras and compile its kernels
 
-test: $(STAMP) $(AOT) ## run the fast test suite (slow paper-level studies excluded)
+test: $(STAMP) aot ## run the fast test suite (slow paper-level studies excluded)
 	$(PY) -m pytest -q
 
-test-slow: $(STAMP) $(AOT) ## run only the slow paper-level regression studies
+test-slow: $(STAMP) aot ## run only the slow paper-level regression studies
 	$(PY) -m pytest -q -m slow
 
-bench: $(STAMP) $(AOT) ## print speed figures (medians over repeated runs)
+bench: $(STAMP) aot ## print speed figures (medians over repeated runs)
 	@# bytecode as a regular install has it (an editable one under PYTHONDONTWRITEBYTECODE never writes it)
 	$(PY) -m compileall -q ilcforce
 	$(PY) -m ilcforce.bench
@@ -53,7 +53,7 @@ space := $(empty) $(empty)
 
 # a store is rebuilt when the code or its experiment file changes
 .SECONDEXPANSION:
-$(RESULTS)/%.h5: $(STAMP) $(AOT) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).toml
+$(RESULTS)/%.h5: $(STAMP) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$$*)).toml | aot
 	$(VENV)/bin/ilcforce simulate --config experiments/$(word 1,$(subst /, ,$*)).toml \
 	    --method $(word 2,$(subst /, ,$*)) --out $@ --overwrite
 
@@ -61,7 +61,7 @@ $(RESULTS)/%.h5: $(STAMP) $(AOT) $(SOURCES) experiments/$$(word 1,$$(subst /, ,$
 # worker process each, sharing the cores): one cold start per experiment instead of one per store.
 # All of an experiment's stores are rerun when the code or its experiment file changes (the marker
 # .stores records when they were made). A single store can still be made: make results/paper/c3.h5
-$(RESULTS)/%/.stores: $(STAMP) $(AOT) $(SOURCES) experiments/%.toml
+$(RESULTS)/%/.stores: $(STAMP) $(SOURCES) experiments/%.toml | aot
 	@rm -f $(foreach m,$(METHODS),$(RESULTS)/$*/$(m).h5)
 	$(VENV)/bin/ilcforce compare --config experiments/$*.toml --results $(RESULTS) \
 	    --methods $(subst $(space),$(comma),$(strip $(METHODS)))
@@ -79,10 +79,10 @@ STUDY_FILES := $(shell grep -l '^\[study\]' experiments/*.toml 2>/dev/null)
 # the paper's Monte Carlo first: the report leads with it
 STUDY_FILES := $(filter experiments/paper-mc.toml,$(STUDY_FILES)) $(filter-out experiments/paper-mc.toml,$(STUDY_FILES))
 
-studies: $(STAMP) $(AOT) ## run every study in experiments/ (on all cores, one after another, one cluster)
+studies: $(STAMP) aot ## run every study in experiments/ (on all cores, one after another, one cluster)
 	$(VENV)/bin/ilcforce study $(STUDY_FILES) --results $(RESULTS) --replace-stale
 
-reproduce: $(STAMP) $(AOT) ## run every experiment (every registered method, in parallel) and every study in experiments/, then write the report
+reproduce: $(STAMP) aot ## run every experiment (every registered method, in parallel) and every study in experiments/, then write the report
 	$(MAKE) --no-print-directory -j $(JOBS) -O stores
 	$(MAKE) --no-print-directory studies
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
@@ -98,4 +98,4 @@ clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info ilcforce/_kernels_aot*
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
-.PHONY: help install test test-slow bench stores studies reproduce readme-findings check-readme clean
+.PHONY: help aot install test test-slow bench stores studies reproduce readme-findings check-readme clean

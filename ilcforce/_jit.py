@@ -17,6 +17,7 @@ exactly those of a module that imported numba at the top; only when numba is imp
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 from collections.abc import Callable
@@ -78,6 +79,18 @@ class LazyKernel(_Placeholder):
 
     def __repr__(self) -> str:
         return f"<ilcforce kernel {self.__qualname__} (numba not imported yet)>"
+
+    def __reduce__(self):  # by reference, as a function or a numba dispatcher is
+        return _module_attribute, (self.__module__, self.__qualname__)
+
+
+def _module_attribute(module: str, qualname: str):
+    import importlib
+
+    found = importlib.import_module(module)
+    for part in qualname.split("."):
+        found = getattr(found, part)
+    return found
 
 
 class LazyIntrinsic(_Placeholder):
@@ -163,8 +176,12 @@ def numba():
     with _lock:
         if _numba is not None:
             return _numba
+        _key_the_cache()
         import ilcforce._numba_start  # noqa: F401 - before numba: cached kernels load without the compiler
         import numba as nb
+
+        if os.environ.get("NUMBA_CACHE_DIR") and nb.config.CACHE_DIR != os.environ["NUMBA_CACHE_DIR"]:
+            nb.config.CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]  # numba was imported before, by someone else
 
         _numba = nb  # from here on the decorators are numba's own
         for callback in _on_load:
@@ -181,6 +198,30 @@ def numba():
         _rebind()
         _pending.clear()
     return nb
+
+
+def _key_the_cache() -> None:
+    """numba's on-disk cache (``NUMBA_CACHE_DIR``) in a folder named after the kernels' sources.
+
+    numba finds a cached kernel stale only when the kernel's own file changed, not when a kernel
+    it calls did (an edit of ``joint_torque`` in ``controllers/base.py`` left every law's cached
+    code as it was, and the ahead-of-time build, which compiles through the same cache, compiled
+    the old code). A folder per fingerprint of every kernel source (:data:`ilcforce.aot.SOURCES`)
+    makes any such edit start from an empty cache. Without ``NUMBA_CACHE_DIR`` numba keeps its
+    cache beside the sources, as it does by default.
+    """
+    from pathlib import Path
+
+    from ilcforce import aot
+
+    base = os.environ.get("NUMBA_CACHE_DIR")
+    fingerprint = aot.source_fingerprint()
+    if not base or fingerprint is None or Path(base).name.startswith(_CACHE_PREFIX):  # keyed already (a child)
+        return
+    os.environ["NUMBA_CACHE_DIR"] = str(Path(base) / f"{_CACHE_PREFIX}{fingerprint[:16]}")
+
+
+_CACHE_PREFIX = "ilcforce-sources-"
 
 
 def _rebind() -> None:

@@ -20,8 +20,10 @@ from __future__ import annotations
 import functools
 import hashlib
 import importlib
+import importlib.machinery
 import json
 import os
+import stat
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent
@@ -31,32 +33,100 @@ STAMP = PACKAGE / "_kernels_aot.json"
 SOURCES = ("_jit.py", "aot_build.py", "loop.py", "desired.py", "task.py", "controllers/*.py", "plants/*.py")
 
 
-def source_fingerprint() -> str:
-    """sha256 over the names and bytes of :data:`SOURCES`."""
-    digest = hashlib.sha256()
+#: ``ILCFORCE_AOT`` values that turn the ahead-of-time kernels off (case and spaces ignored)
+OFF = ("0", "false", "no", "off")
+#: a stamp is a few hundred bytes; anything much larger is not one
+_STAMP_LIMIT = 1 << 16
+
+
+def _source_files() -> list[Path]:
+    """The regular, visible files of :data:`SOURCES` (an editor's ``.#c3.py`` lock link is not one)."""
+    found = []
     for pattern in SOURCES:
         for path in sorted(PACKAGE.glob(pattern)):
+            if not path.name.startswith(".") and not path.is_symlink() and path.is_file():
+                found.append(path)
+    return found
+
+
+@functools.cache
+def source_fingerprint() -> str | None:
+    """sha256 over the names and bytes of :data:`SOURCES`; None if one cannot be read."""
+    digest = hashlib.sha256()
+    try:
+        for path in _source_files():
             digest.update(path.relative_to(PACKAGE).as_posix().encode() + b"\0")
             digest.update(path.read_bytes())
+    except OSError:
+        return None
     return digest.hexdigest()
+
+
+def module_path() -> Path:
+    """Where the extension module for this Python is (or would be)."""
+    return PACKAGE / (MODULE.rpartition(".")[2] + importlib.machinery.EXTENSION_SUFFIXES[0])
+
+
+def file_digest(path: Path) -> str:
+    """sha256 of a file's bytes (the module's: a truncated or replaced module is not loaded, since
+    loading a damaged shared object can crash the process)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def read_stamp() -> dict | None:
+    """The stamp as a dict; None if there is none; ValueError naming what is wrong with it."""
+    try:
+        fd = os.open(STAMP, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise ValueError(exc.strerror or str(exc)) from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise ValueError("not a regular file")
+        if info.st_size > _STAMP_LIMIT:
+            raise ValueError(f"{info.st_size} bytes, not a stamp")
+        data = os.read(fd, _STAMP_LIMIT + 1)
+    except OSError as exc:
+        raise ValueError(exc.strerror or str(exc)) from None
+    finally:
+        os.close(fd)
+    try:
+        stamp = json.loads(data)
+    except (ValueError, RecursionError):
+        raise ValueError("not JSON") from None
+    if not isinstance(stamp, dict):
+        raise ValueError("malformed stamp")
+    return stamp
 
 
 @functools.cache
 def _loaded():
     """(the extension module or None, why not)."""
-    if os.environ.get("ILCFORCE_AOT", "1").strip() == "0":
-        return None, "ILCFORCE_AOT=0"
+    if os.environ.get("ILCFORCE_AOT", "1").strip().lower() in OFF:
+        return None, f"ILCFORCE_AOT={os.environ['ILCFORCE_AOT'].strip()}"
     try:
-        stamp = json.loads(STAMP.read_text())
-    except FileNotFoundError:
-        return None, "not built (make install builds it)"
-    except (OSError, ValueError) as exc:
+        stamp = read_stamp()
+    except ValueError as exc:
         return None, f"unreadable stamp {STAMP.name} ({exc})"
-    if not isinstance(stamp, dict) or not stamp.get("built"):
-        reason = stamp.get("reason", "unknown") if isinstance(stamp, dict) else "malformed stamp"
-        return None, f"its build failed ({reason})"
-    if stamp.get("fingerprint") != source_fingerprint():
+    if stamp is None:
+        return None, "not built (make install builds it)"
+    if stamp.get("built") is not True:
+        return None, f"its build failed ({stamp.get('reason', 'unknown')})"
+    fingerprint = source_fingerprint()
+    if fingerprint is None or stamp.get("fingerprint") != fingerprint:
         return None, "built from other sources (make install builds it again)"
+    path = module_path()
+    try:
+        if not (stat.S_ISREG(os.stat(path).st_mode) and file_digest(path) == stamp.get("module_sha256")):
+            return None, f"{path.name} is not the module that was built (make install builds it again)"
+    except OSError as exc:
+        return None, f"{path.name}: {exc.strerror or exc} (make install builds it again)"
     import ilcforce._lapack  # noqa: F401 - the LAPACK module a compiled solve imports, without all of scipy.linalg
     try:
         return importlib.import_module(MODULE), ""
@@ -74,7 +144,7 @@ def status() -> str:
     mod, why = _loaded()
     if mod is None:
         return f"numba (ahead-of-time kernels not used: {why})"
-    return "ahead-of-time compiled (numba not imported)"
+    return "ahead-of-time compiled (no numba needed)"
 
 
 def plant_key(plant_cls: type) -> str | None:
@@ -109,9 +179,10 @@ def simulator_name(law: str, plant: str) -> str:
 
 def simulator(controller, true_plant_cls: type, nominal_plant_cls: type):
     """The compiled loop for this law and plant, taking ``ilcforce.loop._simulate``'s arguments
-    after its four kernels; None if there is none (numba's loop is then used)."""
+    after its four kernels; None if there is none (numba's loop is then used). A law set on the
+    controller object itself (``controller.law = my_law``) is always numba's."""
     mod = module()
-    if mod is None or true_plant_cls is not nominal_plant_cls:
+    if mod is None or true_plant_cls is not nominal_plant_cls or "law" in getattr(controller, "__dict__", {}):
         return None
     law, plant = law_key(type(controller)), plant_key(true_plant_cls)
     if law is None or plant is None:

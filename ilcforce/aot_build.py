@@ -20,7 +20,6 @@ without pycc) records why and exits 0: commands then run through numba as before
 from __future__ import annotations
 
 import contextlib
-import importlib.machinery
 import json
 import os
 import shutil
@@ -113,15 +112,15 @@ def _write_stamp(stamp: dict) -> None:
     os.replace(partial, aot.STAMP)
 
 
-def _current(fingerprint: str) -> bool:
-    """The stamp records a built module of these sources, and the module is there."""
+def _current(fingerprint: str | None) -> bool:
+    """The stamp records a built module of these sources, and that very module is there."""
     try:
-        stamp = json.loads(aot.STAMP.read_text())
+        stamp = aot.read_stamp()
+        return (fingerprint is not None and stamp is not None and stamp.get("built") is True
+                and stamp.get("fingerprint") == fingerprint
+                and aot.file_digest(aot.module_path()) == stamp.get("module_sha256"))
     except (OSError, ValueError):
         return False
-    name = aot.MODULE.rpartition(".")[2] + importlib.machinery.EXTENSION_SUFFIXES[0]  # this Python's
-    return (isinstance(stamp, dict) and stamp.get("built") is True and stamp.get("fingerprint") == fingerprint
-            and (aot.PACKAGE / name).is_file())
 
 
 def build(verbose: bool = True, force: bool = False) -> bool:
@@ -129,7 +128,6 @@ def build(verbose: bool = True, force: bool = False) -> bool:
     recorded in the stamp."""
     fingerprint = aot.source_fingerprint()
     if not force and _current(fingerprint):
-        os.utime(aot.STAMP)  # for make: checked against the sources now
         return True
     t0 = time.perf_counter()
     try:
@@ -149,7 +147,9 @@ def build(verbose: bool = True, force: bool = False) -> bool:
             built = list(Path(tmp).glob(aot.MODULE.rpartition(".")[2] + "*"))
             if len(built) != 1:
                 raise RuntimeError(f"expected one extension module, found {[p.name for p in built]}")
-            target = aot.PACKAGE / built[0].name
+            target = aot.module_path()
+            if built[0].name != target.name:
+                raise RuntimeError(f"built {built[0].name}, this Python loads {target.name}")
             # whole or not at all, also beside a concurrent build or a process that has it loaded
             fd, partial = tempfile.mkstemp(prefix=f".{target.name}.", dir=aot.PACKAGE)
             os.close(fd)
@@ -166,7 +166,8 @@ def build(verbose: bool = True, force: bool = False) -> bool:
         print(f"ilcforce: ahead-of-time kernels not built ({reason}); commands will run through numba "
               "(same numbers, a slower start)", file=sys.stderr)
         return False
-    _write_stamp({"built": True, "fingerprint": fingerprint, "exports": sorted(n for n, _, _ in exports)})
+    _write_stamp({"built": True, "fingerprint": fingerprint, "module_sha256": aot.file_digest(target),
+                  "exports": sorted(n for n, _, _ in exports)})
     if verbose:
         print(f"ilcforce: ahead-of-time kernels built ({len(exports)} exports, "
               f"{time.perf_counter() - t0:.0f} s): {target.name}")

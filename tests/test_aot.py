@@ -127,9 +127,90 @@ def test_without_a_usable_module_the_kernels_run_through_numba(stamp, content, w
     assert why in aot.status()
 
 
-def test_ilcforce_aot_0_turns_it_off(stamp, monkeypatch):
-    monkeypatch.setenv("ILCFORCE_AOT", "0")
-    assert aot.module() is None and "ILCFORCE_AOT=0" in aot.status()
+@pytest.mark.parametrize("value, on", [("0", False), ("false", False), (" Off ", False), ("no", False),
+                                       ("1", True), ("", True)])
+def test_ilcforce_aot_turns_it_off(stamp, monkeypatch, value, on):
+    monkeypatch.setenv("ILCFORCE_AOT", value)
+    assert (aot.module() is not None) is on
+    if not on:
+        assert f"ILCFORCE_AOT={value.strip()}" in aot.status()
+
+
+def test_a_damaged_module_is_never_loaded(stamp, tmp_path, monkeypatch):
+    """Loading a truncated shared object crashes the process (SIGBUS in dlopen): the module's
+    sha256 in the stamp must match before it is imported."""
+    damaged = tmp_path / aot.module_path().name
+    damaged.write_bytes(aot.module_path().read_bytes()[:600_000])
+    monkeypatch.setattr(aot, "module_path", lambda: damaged)
+    assert aot.module() is None
+    assert "is not the module that was built" in aot.status()
+    from ilcforce import aot_build
+
+    assert not aot_build._current(aot.source_fingerprint())  # make's check rebuilds it
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory", "huge", "nested"])
+def test_a_stamp_that_is_not_one_is_refused_at_once(stamp, kind):
+    """A FIFO (would block for ever), a folder, a huge file, JSON nested past the recursion limit."""
+    stamp.unlink()
+    if kind == "fifo":
+        os.mkfifo(stamp)
+    elif kind == "directory":
+        stamp.mkdir()
+    elif kind == "huge":
+        stamp.write_text(json.dumps({"built": True, "pad": "x" * 200_000}))
+    else:
+        stamp.write_text("[" * 100_000 + "]" * 100_000)
+    assert aot.module() is None
+    assert "unreadable stamp" in aot.status()
+
+
+def test_the_fingerprint_skips_editor_files(tmp_path, monkeypatch):
+    """Emacs keeps ``.#c3.py``, a dangling link, beside a file with unsaved edits: it is not a source."""
+    import shutil
+
+    copy = tmp_path / "ilcforce"
+    shutil.copytree(aot.PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__", "*.so", "*.json"))
+    monkeypatch.setattr(aot, "PACKAGE", copy)
+    clean = aot.source_fingerprint.__wrapped__()
+    (copy / "controllers" / ".#c3.py").symlink_to("root@host.1234:1700000000")
+    (copy / "plants" / "odd.py").mkdir()
+    assert aot.source_fingerprint.__wrapped__() == clean is not None
+    (copy / "controllers" / "c3.py").write_text((copy / "controllers" / "c3.py").read_text() + "\n# edited\n")
+    assert aot.source_fingerprint.__wrapped__() != clean
+
+
+def test_numbas_cache_is_kept_per_version_of_the_kernel_sources(tmp_path, monkeypatch):
+    """numba finds a cached kernel stale only when its own file changed, not when a kernel it
+    calls did; a cache folder per fingerprint of every kernel source makes any edit start afresh."""
+    from ilcforce import _jit
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    _jit._key_the_cache()
+    keyed = os.environ["NUMBA_CACHE_DIR"]
+    assert keyed == str(tmp_path / f"ilcforce-sources-{aot.source_fingerprint()[:16]}")
+    _jit._key_the_cache()  # a child process, which inherits the keyed folder, keeps it
+    assert os.environ["NUMBA_CACHE_DIR"] == keyed
+
+
+def test_a_placeholder_pickles_by_reference():
+    code = ("import pickle, sys\nfrom ilcforce.controllers import base\n"
+            "assert type(base.sgn).__name__ == 'LazyKernel' and 'numba' not in sys.modules\n"
+            "assert pickle.loads(pickle.dumps(base.sgn)) is base.sgn\nprint('OK')")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and "OK" in proc.stdout, proc.stderr
+
+
+def test_a_law_set_on_the_controller_object_runs_through_numba():
+    """``controller.law = my_law`` (as tests/test_simulate.py does) must run my_law, not the class's."""
+    from ilcforce.config_load import load_config
+    from ilcforce.experiment import make_controller
+
+    controller = make_controller(load_config(None, {}), "c1")
+    fivebar = plant_class("fivebar")
+    assert aot.simulator(controller, fivebar, fivebar) is not None
+    controller.law = object()
+    assert aot.simulator(controller, fivebar, fivebar) is None
 
 
 def _own_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
