@@ -47,7 +47,9 @@ class _Placeholder:
     @property
     def real(self):
         if self._made is None:
-            numba()
+            nb = numba()
+            if self._made is None:  # numba's import went on after another placeholder failed to be made
+                self._make(nb)
         return self._made
 
     def _make(self, nb) -> None:
@@ -227,10 +229,14 @@ _CACHE_PREFIX = "ilcforce-sources-"
 def _rebind() -> None:
     """Replace every made placeholder held as a module global by its real object."""
     made = {id(p): p._made for p in _pending if p._made is not None}
+    kinds = (LazyKernel, LazyIntrinsic, LazyGlobal)
     for module in list(sys.modules.values()):
-        namespace = getattr(module, "__dict__", None)
+        try:
+            namespace = object.__getattribute__(module, "__dict__")
+        except (AttributeError, TypeError):
+            continue
         if not isinstance(namespace, dict):
             continue
         for name, value in list(namespace.items()):
-            if isinstance(value, _Placeholder) and id(value) in made:
+            if type(value) in kinds and id(value) in made:  # type(), not isinstance: a proxy's __class__ may raise
                 namespace[name] = made[id(value)]

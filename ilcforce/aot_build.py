@@ -2,6 +2,9 @@
 
     python -m ilcforce.aot_build [--force]
 
+A build that is current (same sources, same module) is not repeated, nor is one that failed for
+the same sources; ``--force`` builds anyway.
+
 Compiles with numba.pycc, into ``ilcforce/_kernels_aot*.so`` beside the package's sources:
 
 * ``sim__<law>__<plant>``: the compiled loop ``ilcforce.loop._simulate`` with that law and that
@@ -11,10 +14,11 @@ Compiles with numba.pycc, into ``ilcforce/_kernels_aot*.so`` beside the package'
 * ``desired__<plant>``: ``ilcforce.desired.desired_kernel`` with the plant's kernels bound.
 
 Each export calls the very dispatchers numba runs (same source, same compiler, same options), so
-the numbers are numba's. The code is built for the generic CPU of the machine's architecture (pycc's
-default: no instruction-set extensions), so the module runs on any machine that runs this Python. Then the stamp
-``_kernels_aot.json`` records the sources' fingerprint. A build that fails (no C compiler, a numba
-without pycc) records why and exits 0: commands then run through numba as before.
+the numbers are numba's. The code is built for the generic CPU of the machine's architecture
+(pycc's default: no instruction-set extensions), so the module runs on any machine that runs this
+Python. Then the stamp ``_kernels_aot.json`` records the sources' fingerprint and the module's
+sha256. A build that fails (no C compiler, a numba without pycc) records why and exits 0: commands
+then run through numba as before.
 """
 
 from __future__ import annotations
@@ -105,7 +109,7 @@ def _releasing_the_gil():
 
 
 def _write_stamp(stamp: dict) -> None:
-    fd, partial = tempfile.mkstemp(prefix=f".{aot.STAMP.name}.", dir=aot.PACKAGE)
+    fd, partial = tempfile.mkstemp(prefix=f".{aot.STAMP.name}.", dir=aot.STAMP.parent)
     with os.fdopen(fd, "w") as handle:
         handle.write(json.dumps(stamp, indent=1) + "\n")
     os.chmod(partial, 0o644)
@@ -123,12 +127,28 @@ def _current(fingerprint: str | None) -> bool:
         return False
 
 
+def _failed_before(fingerprint: str | None) -> str | None:
+    """Why the last build of these very sources failed, or None."""
+    try:
+        stamp = aot.read_stamp()
+    except ValueError:
+        return None
+    if stamp is None or stamp.get("built") is not False or stamp.get("fingerprint") != fingerprint:
+        return None
+    return str(stamp.get("reason", "unknown"))
+
+
 def build(verbose: bool = True, force: bool = False) -> bool:
     """Build the module and its stamp (unless they are current); True if built. A failure is
     recorded in the stamp."""
     fingerprint = aot.source_fingerprint()
     if not force and _current(fingerprint):
         return True
+    failed = _failed_before(fingerprint)
+    if not force and failed is not None:  # do not try again at every make (about 30 s each)
+        print(f"ilcforce: ahead-of-time kernels not built ({failed}); commands run through numba. "
+              "`python -m ilcforce.aot_build --force` tries again", file=sys.stderr)
+        return False
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():
@@ -156,6 +176,7 @@ def build(verbose: bool = True, force: bool = False) -> bool:
             try:
                 shutil.copyfile(built[0], partial)
                 os.chmod(partial, 0o755)
+                digest = aot.file_digest(Path(partial))
                 os.replace(partial, target)
             except BaseException:
                 Path(partial).unlink(missing_ok=True)
@@ -166,7 +187,7 @@ def build(verbose: bool = True, force: bool = False) -> bool:
         print(f"ilcforce: ahead-of-time kernels not built ({reason}); commands will run through numba "
               "(same numbers, a slower start)", file=sys.stderr)
         return False
-    _write_stamp({"built": True, "fingerprint": fingerprint, "module_sha256": aot.file_digest(target),
+    _write_stamp({"built": True, "fingerprint": fingerprint, "module_sha256": digest,
                   "exports": sorted(n for n, _, _ in exports)})
     if verbose:
         print(f"ilcforce: ahead-of-time kernels built ({len(exports)} exports, "

@@ -127,6 +127,29 @@ def test_without_a_usable_module_the_kernels_run_through_numba(stamp, content, w
     assert why in aot.status()
 
 
+def test_a_failed_build_is_not_tried_again_at_every_make(stamp, monkeypatch, capsys):
+    """Without a C compiler each try costs about 30 s: make's check skips a build that failed for
+    the same sources, and says how to try again; other sources are built."""
+    from ilcforce import aot_build
+
+    tries: list[int] = []
+
+    def no_compiler():
+        tries.append(1)
+        raise RuntimeError("no compiler")
+
+    monkeypatch.setattr(aot_build, "_exports", no_compiler)
+    stamp.write_text(json.dumps({"built": False, "reason": "CompileError: no compiler",
+                                 "fingerprint": aot.source_fingerprint()}))
+    assert aot_build.build() is False and tries == []
+    err = capsys.readouterr().err
+    assert "CompileError: no compiler" in err and "--force" in err
+    stamp.write_text(json.dumps({"built": False, "reason": "old", "fingerprint": "0" * 64}))  # other sources
+    assert aot_build.build() is False and tries == [1]
+    assert json.loads(stamp.read_text())["reason"] == "RuntimeError: no compiler"
+    assert aot_build.build(force=True) is False and tries == [1, 1]
+
+
 @pytest.mark.parametrize("value, on", [("0", False), ("false", False), (" Off ", False), ("no", False),
                                        ("1", True), ("", True)])
 def test_ilcforce_aot_turns_it_off(stamp, monkeypatch, value, on):
