@@ -185,8 +185,8 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     wall = np.array([inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign])
     log = np.full((n_log, loop.LOG_WIDTH), np.nan)
     carry = loop.new_carry(theta0, dtheta0)
-    head = (true_robot.address, nominal_robot.address, wall, np.ascontiguousarray(controller.gains(), dtype=np.float64),
-            mem_prev, mem_new, ref)
+    gains = np.ascontiguousarray(controller.gains(), dtype=np.float64)
+    head = (true_robot.address, nominal_robot.address, wall, gains, mem_prev, mem_new, ref)
     tail = (np.ascontiguousarray(inputs.draws.sensor), fset, iset, log, carry)
     # the ahead-of-time compiled loop of this law and plant (no numba in the process), or numba's
     # with the law and the plant's kernels as arguments: the same code, the same numbers
