@@ -83,7 +83,10 @@ def writer(path: Path, config: dict | None = None, **kwargs) -> StoreWriter:
 
 
 def write_run(path: Path, n: int, *, finish: str | None = STATUS_COMPLETE, **kwargs) -> list[IterationRecord]:
-    """Write iterations 0..n-1, validating the file after every commit and at the end."""
+    """Write iterations 0..n-1, validating the file after every commit and at the end. A run
+    finished "complete" asks for exactly its n iterations (a complete run holds all it asked for)."""
+    if finish == STATUS_COMPLETE and "config" not in kwargs:
+        kwargs["config"] = resumed_config(n)
     records = [make_record(j) for j in range(n)]
     with writer(path, **kwargs) as w:
         for record in records:

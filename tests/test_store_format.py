@@ -71,7 +71,7 @@ def test_round_trip_is_exact(path: Path):
 
 
 def test_provenance(path: Path):
-    write_run(path, 2)
+    write_run(path, 3)
     provenance = store.read_provenance(path)
     assert list(provenance)[: len(store.ROOT_ATTRS)] == list(store.ROOT_ATTRS)
     assert provenance["schema"] == SCHEMA_NAME
@@ -280,10 +280,39 @@ def broken_metrics_lengths(path: Path) -> str:
     return "metrics columns have different lengths"
 
 
+def broken_complete_but_short(path: Path) -> str:
+    write_run(path, 2)
+    with h5py.File(path, "a") as handle:
+        handle.attrs["n_iterations_requested"] = 5
+    return "run_state is 'complete' but it holds 2 of the 5 iterations requested"
+
+
+def broken_diverged_without_divergence(path: Path) -> str:
+    write_run(path, 2)
+    with h5py.File(path, "a") as handle:
+        handle.attrs["run_state"] = "diverged"
+    return "run_state is 'diverged' but no stored iteration diverged"
+
+
+def broken_iteration_after_divergence(path: Path) -> str:
+    write_run(path, 2)
+    with h5py.File(path, "a") as handle:
+        handle["iterations/0000"].attrs["status"] = "diverged"
+    return "iteration 1 is stored after the diverged iteration 0"
+
+
+def broken_config_json(path: Path) -> str:
+    write_run(path, 1)
+    with h5py.File(path, "a") as handle:
+        handle.attrs["config_json"] = "[1, 2"
+    return "config_json is not a JSON object"
+
+
 BROKEN = [
     broken_missing, broken_empty, broken_truncated, broken_text, broken_foreign, broken_other_schema,
     broken_newer, broken_missing_attr, broken_missing_signal, broken_wrong_shape, broken_no_units,
-    broken_metrics_lengths,
+    broken_metrics_lengths, broken_complete_but_short, broken_diverged_without_divergence,
+    broken_iteration_after_divergence, broken_config_json,
 ]
 
 

@@ -54,7 +54,7 @@ def test_refuses_existing_without_overwrite(path: Path):
 
 def test_overwrite_replaces_at_first_commit(path: Path):
     write_run(path, 3)
-    with writer(path, overwrite=True) as w:
+    with writer(path, overwrite=True, config=resumed_config(1)) as w:
         assert w.last_complete_iteration == -1
         assert w.resume_memory() == {}
         assert store.iterations(path) == [0, 1, 2], "old file must stay until the first commit"
@@ -72,7 +72,7 @@ def test_overwrite_and_resume_are_exclusive(path: Path):
 
 
 def test_append_out_of_order_and_after_finish(path: Path):
-    with writer(path) as w:
+    with writer(path, config=resumed_config(1)) as w:
         with pytest.raises(StoreError, match="next must be 0") as error:
             w.append(make_record(1))
         assert_one_line_naming(error, path)
@@ -141,7 +141,7 @@ def test_resume_continues_with_exact_memory(path: Path):
 
 
 def test_resume_without_file_starts_fresh(path: Path):
-    with writer(path, resume=True) as w:
+    with writer(path, resume=True, config=resumed_config(1)) as w:
         assert w.last_complete_iteration == -1
         assert w.stored_status() is None
         assert w.resume_memory() == {}
@@ -200,7 +200,7 @@ def test_resume_refuses_different_reference(path: Path):
 
 
 def test_second_writer_in_same_process_is_refused(path: Path):
-    with writer(path) as w:
+    with writer(path, config=resumed_config(2)) as w:
         w.append(make_record(0))
         with pytest.raises(StoreLockedError) as error:
             with writer(path, resume=True):

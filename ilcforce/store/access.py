@@ -41,15 +41,17 @@ def validate(path: str | os.PathLike[str]) -> None:
             handle[schema.CONTROL_TIME][()]
         columns = cached_metrics(handle, checked)
         fresh_rows: dict[int, dict] = {}  # metrics of each complete iteration, from the log read once here
+        statuses: dict[int, str] = {}
         for j in layout.complete:
             group = handle[layout.groups[j]]
-            iteration_attrs(group, j, checked)
+            statuses[j] = iteration_attrs(group, j, checked)["status"]
             log = read_log(group, layout.n_log, checked, major)
             if columns is not None:
                 fresh_rows[j] = iteration_metrics(record_from_group(group, j, layout.n_log, checked, major, log=log))
             for name, dataset in read_memory_group(group, checked, n_control).items():
                 checked_data(group, f"memory/{name}", dataset, checked, major)
         _check_units(handle, checked)
+        _check_consistency(handle, statuses, checked)
         if columns is not None:  # a current cache must agree with the logs it was computed from
             for k, j in enumerate(columns["iteration"]):
                 j = int(j)
@@ -66,6 +68,34 @@ def validate(path: str | os.PathLike[str]) -> None:
                     if not same:
                         raise StoreError(f"{checked}: /metrics/{column} of iteration {j} is {cached!r} but the stored "
                                          f"log gives {value!r}")
+
+
+def _check_consistency(handle: h5py.File, statuses: dict[int, str], path: Path) -> None:
+    """The header agrees with the iterations: ``config_json`` is a JSON object, nothing follows a
+    diverged iteration, a "diverged" run ends with one, and a "complete" run holds every iteration
+    its latest invocation asked for and none diverged."""
+    import json
+
+    try:
+        config = json.loads(str(py(handle.attrs["config_json"])))
+    except (ValueError, RecursionError):
+        config = None
+    if not isinstance(config, dict):
+        raise StoreError(f"{path}: root attribute config_json is not a JSON object")
+    order = sorted(statuses)
+    diverged = [j for j in order if statuses[j] == "diverged"]
+    if diverged and diverged[0] != order[-1]:
+        raise StoreError(f"{path}: iteration {order[-1]} is stored after the diverged iteration {diverged[0]}")
+    state = py(handle.attrs["run_state"])
+    if state == "diverged" and not diverged:
+        raise StoreError(f"{path}: run_state is 'diverged' but no stored iteration diverged")
+    if state == "complete":
+        if diverged:
+            raise StoreError(f"{path}: run_state is 'complete' but iteration {diverged[0]} diverged")
+        requested = int(py(handle.attrs["n_iterations_requested"]))
+        if len(order) < requested:
+            raise StoreError(f"{path}: run_state is 'complete' but it holds {len(order)} of the {requested} "
+                             "iterations requested")
 
 
 def _check_units(handle: h5py.File, path: Path) -> None:
