@@ -280,39 +280,33 @@ def broken_metrics_lengths(path: Path) -> str:
     return "metrics columns have different lengths"
 
 
-def broken_complete_but_short(path: Path) -> str:
-    write_run(path, 2)
-    with h5py.File(path, "a") as handle:
-        handle.attrs["n_iterations_requested"] = 5
-    return "run_state is 'complete' but it holds 2 of the 5 iterations requested"
+def _forged(name: str, n: int, where: str, key: str, value, message: str):
+    """A breaker that writes n iterations, then sets attribute ``key`` of ``where`` to ``value``."""
+    def breaker(path: Path) -> str:
+        write_run(path, n)
+        with h5py.File(path, "a") as handle:
+            handle[where].attrs[key] = value
+        return message
+    breaker.__name__ = f"broken_{name}"
+    return breaker
 
 
-def broken_diverged_without_divergence(path: Path) -> str:
-    write_run(path, 2)
-    with h5py.File(path, "a") as handle:
-        handle.attrs["run_state"] = "diverged"
-    return "run_state is 'diverged' but no stored iteration diverged"
-
-
-def broken_iteration_after_divergence(path: Path) -> str:
-    write_run(path, 2)
-    with h5py.File(path, "a") as handle:
-        handle["iterations/0000"].attrs["status"] = "diverged"
-    return "iteration 1 is stored after the diverged iteration 0"
-
-
-def broken_config_json(path: Path) -> str:
-    write_run(path, 1)
-    with h5py.File(path, "a") as handle:
-        handle.attrs["config_json"] = "[1, 2"
-    return "config_json is not a JSON object"
+#: headers that disagree with the iterations
+FORGED = [
+    _forged("complete_but_short", 2, "/", "n_iterations_requested", 5,
+            "run_state is 'complete' but it holds 2 of the 5 iterations requested"),
+    _forged("diverged_without_divergence", 2, "/", "run_state", "diverged",
+            "run_state is 'diverged' but no stored iteration diverged"),
+    _forged("iteration_after_divergence", 2, "iterations/0000", "status", "diverged",
+            "iteration 1 is stored after the diverged iteration 0"),
+    _forged("config_json", 1, "/", "config_json", "[1, 2", "config_json is not a JSON object"),
+]
 
 
 BROKEN = [
     broken_missing, broken_empty, broken_truncated, broken_text, broken_foreign, broken_other_schema,
     broken_newer, broken_missing_attr, broken_missing_signal, broken_wrong_shape, broken_no_units,
-    broken_metrics_lengths, broken_complete_but_short, broken_diverged_without_divergence,
-    broken_iteration_after_divergence, broken_config_json,
+    broken_metrics_lengths, *FORGED,
 ]
 
 
