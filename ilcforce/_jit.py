@@ -191,13 +191,10 @@ def numba():
         # a kernel with an explicit signature compiles (or loads) when made, so every kernel it
         # calls must already be real and bound where it looks it up: make the others first
         eager = [p for p in _pending if isinstance(p, LazyKernel) and p._args]
-        for placeholder in _pending:
-            if not (isinstance(placeholder, LazyKernel) and placeholder._args):
+        for group in ([p for p in _pending if p not in eager], eager):
+            for placeholder in group:
                 placeholder._make(nb)
-        _rebind()
-        for placeholder in eager:
-            placeholder._make(nb)
-        _rebind()
+            _rebind()
         _pending.clear()
     return nb
 

@@ -105,28 +105,37 @@ def read_stamp() -> dict | None:
     return stamp
 
 
+def stamp_problem() -> str | None:
+    """Why the built module does not fit the sources here (None: it does). The one check both
+    the loader and the build's "is it current?" use."""
+    try:
+        stamp = read_stamp()
+    except ValueError as exc:
+        return f"unreadable stamp {STAMP.name} ({exc})"
+    if stamp is None:
+        return "not built (make install builds it)"
+    if stamp.get("built") is not True:
+        return f"its build failed ({stamp.get('reason', 'unknown')})"
+    fingerprint = source_fingerprint()
+    if fingerprint is None or stamp.get("fingerprint") != fingerprint:
+        return "built from other sources (make install builds it again)"
+    path = module_path()
+    try:
+        if not (stat.S_ISREG(os.stat(path).st_mode) and file_digest(path) == stamp.get("module_sha256")):
+            return f"{path.name} is not the module that was built (make install builds it again)"
+    except OSError as exc:
+        return f"{path.name}: {exc.strerror or exc} (make install builds it again)"
+    return None
+
+
 @functools.cache
 def _loaded():
     """(the extension module or None, why not)."""
     if os.environ.get("ILCFORCE_AOT", "1").strip().lower() in OFF:
         return None, f"ILCFORCE_AOT={os.environ['ILCFORCE_AOT'].strip()}"
-    try:
-        stamp = read_stamp()
-    except ValueError as exc:
-        return None, f"unreadable stamp {STAMP.name} ({exc})"
-    if stamp is None:
-        return None, "not built (make install builds it)"
-    if stamp.get("built") is not True:
-        return None, f"its build failed ({stamp.get('reason', 'unknown')})"
-    fingerprint = source_fingerprint()
-    if fingerprint is None or stamp.get("fingerprint") != fingerprint:
-        return None, "built from other sources (make install builds it again)"
-    path = module_path()
-    try:
-        if not (stat.S_ISREG(os.stat(path).st_mode) and file_digest(path) == stamp.get("module_sha256")):
-            return None, f"{path.name} is not the module that was built (make install builds it again)"
-    except OSError as exc:
-        return None, f"{path.name}: {exc.strerror or exc} (make install builds it again)"
+    problem = stamp_problem()
+    if problem is not None:
+        return None, problem
     import ilcforce._lapack  # noqa: F401 - the LAPACK module a compiled solve imports, without all of scipy.linalg
     try:
         return importlib.import_module(MODULE), ""
@@ -154,16 +163,16 @@ def plant_key(plant_cls: type) -> str | None:
     return name[len(prefix):] if name.startswith(prefix) and name.count(".") == 2 else None
 
 
-def law_key(controller_cls: type) -> str | None:
-    """``c3_c3_law`` for ilcforce's own law ``c3_law`` of ``ilcforce.controllers.c3``; None otherwise."""
+def law_key(controller) -> str | None:
+    """``c3_c3_law`` when the law a controller (object or class) runs is ilcforce's own ``c3_law``
+    of ``ilcforce.controllers.c3``; None for any other (one set on the object itself included)."""
     from ilcforce.controllers.base import compiled_law
 
-    for cls in controller_cls.__mro__:
-        law = cls.__dict__.get("law")
-        if law is not None:
-            break
-    else:
-        return None
+    cls = controller if isinstance(controller, type) else type(controller)
+    spaces = [vars(c) for c in cls.__mro__]
+    if not isinstance(controller, type):
+        spaces.insert(0, getattr(controller, "__dict__", {}))
+    law = next((space["law"] for space in spaces if "law" in space), None)
     if not isinstance(law, compiled_law):
         return None
     module_name = law.py_func.__module__
@@ -179,12 +188,11 @@ def simulator_name(law: str, plant: str) -> str:
 
 def simulator(controller, true_plant_cls: type, nominal_plant_cls: type):
     """The compiled loop for this law and plant, taking ``ilcforce.loop._simulate``'s arguments
-    after its four kernels; None if there is none (numba's loop is then used). A law set on the
-    controller object itself (``controller.law = my_law``) is always numba's."""
+    after its four kernels; None if there is none (numba's loop is then used)."""
     mod = module()
-    if mod is None or true_plant_cls is not nominal_plant_cls or "law" in getattr(controller, "__dict__", {}):
+    if mod is None or true_plant_cls is not nominal_plant_cls:
         return None
-    law, plant = law_key(type(controller)), plant_key(true_plant_cls)
+    law, plant = law_key(controller), plant_key(true_plant_cls)
     if law is None or plant is None:
         return None
     return getattr(mod, simulator_name(law, plant), None)

@@ -116,17 +116,6 @@ def _write_stamp(stamp: dict) -> None:
     os.replace(partial, aot.STAMP)
 
 
-def _current(fingerprint: str | None) -> bool:
-    """The stamp records a built module of these sources, and that very module is there."""
-    try:
-        stamp = aot.read_stamp()
-        return (fingerprint is not None and stamp is not None and stamp.get("built") is True
-                and stamp.get("fingerprint") == fingerprint
-                and aot.file_digest(aot.module_path()) == stamp.get("module_sha256"))
-    except (OSError, ValueError):
-        return False
-
-
 def _failed_before(fingerprint: str | None) -> str | None:
     """Why the last build of these very sources failed, or None."""
     try:
@@ -142,7 +131,7 @@ def build(verbose: bool = True, force: bool = False) -> bool:
     """Build the module and its stamp (unless they are current); True if built. A failure is
     recorded in the stamp."""
     fingerprint = aot.source_fingerprint()
-    if not force and _current(fingerprint):
+    if not force and aot.stamp_problem() is None:  # the module of these sources is there
         return True
     failed = _failed_before(fingerprint)
     if not force and failed is not None:  # do not try again at every make (about 30 s each)

@@ -23,7 +23,7 @@ from ilcforce._jit import Sig, njit  # numba's, imported only when the loop runs
 from ilcforce.controllers.base import (
     DIAG_SIGMA, DIAG_WIDTH, MEAS_ACCEL, MEAS_DTHETA, MEAS_FORCE, MEAS_FORCE_ACCEL,
     MEAS_FORCE_RATE, MEAS_JACOBIAN, MEAS_POSITION, MEAS_TASK_CORIOLIS, MEAS_TASK_GRAVITY,
-    MEAS_TASK_INERTIA, MEAS_THETA, MEAS_VELOCITY, MEAS_WIDTH,
+    MEAS_TASK_INERTIA, MEAS_THETA, MEAS_VELOCITY, MEAS_WIDTH, law_signature,
 )
 from ilcforce.plants.base import kernel_type
 from ilcforce.task import wall_force, wall_stiffness
@@ -130,8 +130,6 @@ def _fallback(least_residual, a_prev, bb, c2):
 
 def _sim_signature():
     """The loop's numba signature (made when numba is imported)."""
-    from ilcforce.controllers.base import law_signature
-
     types = _jit.numba().types
     return types.UniTuple(types.int64, 2)(
         types.FunctionType(law_signature()),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import stat
 from pathlib import Path
@@ -74,8 +75,6 @@ def _check_consistency(handle: h5py.File, statuses: dict[int, str], path: Path) 
     """The header agrees with the iterations: ``config_json`` is a JSON object, nothing follows a
     diverged iteration, a "diverged" run ends with one, and a "complete" run holds every iteration
     its latest invocation asked for and none diverged."""
-    import json
-
     try:
         config = json.loads(str(py(handle.attrs["config_json"])))
     except (ValueError, RecursionError):
