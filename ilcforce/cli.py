@@ -108,10 +108,11 @@ def _guard(func):
 
 
 def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], sets: Optional[list[str]]):
-    if err.is_terminal:  # a first run compiles before iteration 0: say so (ilcforce/compile_note.py)
-        from ilcforce.compile_note import announce_compiles
+    from ilcforce.compile_note import announce_compiles
 
-        announce_compiles(lambda text: _say(text, stderr=True))
+    # a first run compiles before iteration 0: say so on a terminal (ilcforce/compile_note.py). Whether
+    # stderr is one is asked only then: the check builds a rich Console (issue 12: not before the run)
+    announce_compiles(lambda text: _say(text, stderr=True) if err.is_terminal else None)
     from ilcforce.config_load import load_config, parse_override
 
     overrides = dict(parse_override(s) for s in (sets or []))

@@ -14,13 +14,43 @@ from ilcforce.cli import CliError, _g, _say, err  # imported by cli's commands, 
 from ilcforce.cli_signals import STOPS, note, on_stop_signals
 
 
-def _progress_bar(disable: bool):
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+class _Display:
+    """The run's live display (rich), made at its first update, i.e. after iteration 0 is stored.
 
-    # no refresh thread: the display is redrawn at each update (and so nothing runs while compare forks)
-    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TextColumn("{task.fields[last]}"), TimeElapsedColumn(), console=err.console(),
-                    transient=False, auto_refresh=False, disable=disable)
+    Neither rich nor the terminal check (which builds a rich Console) comes before the simulation
+    has started: both are imported while the compiled loop runs (issue 12). Off a terminal nothing
+    is drawn. The summary table's modules are imported at that first update too, for the same reason.
+    """
+
+    def __init__(self, names: list[str], total: int) -> None:
+        self._names, self._total = names, total  # one line per name, in this order
+        self._progress = None
+        self._tasks: dict[str, object] = {}
+        self._off = False
+
+    def update(self, name: str, completed: int, last: str) -> None:
+        if self._off:
+            return
+        if self._progress is None:
+            import rich.table  # noqa: F401 - the summary table, later
+
+            if not err.is_terminal:
+                self._off = True
+                return
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            # no refresh thread: the display is redrawn at each update (and so nothing runs while compare forks)
+            self._progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                      TextColumn("{task.fields[last]}"), TimeElapsedColumn(), console=err.console(),
+                                      transient=False, auto_refresh=False)
+            self._progress.start()
+            self._tasks = {n: self._progress.add_task(n, total=self._total, last="") for n in self._names}
+        self._progress.update(self._tasks[name], completed=completed, last=last)
+        self._progress.refresh()
+
+    def stop(self) -> None:
+        if self._progress is not None:
+            self._progress.stop()
 
 
 def _last(iteration: int, status: str, row: dict) -> str:
@@ -31,35 +61,28 @@ def _last(iteration: int, status: str, row: dict) -> str:
 def run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool, command: str):
     from ilcforce.experiment import run_method
 
-    total = config.experiment.iterations
-    with _progress_bar(disable=not err.is_terminal) as progress:
-        task = progress.add_task(f"{config.experiment.name}/{method}", total=total, last="")
+    name = f"{config.experiment.name}/{method}"
+    display = _Display([name], config.experiment.iterations)
 
-        def tick(record, row):
-            progress.update(task, completed=record.iteration + 1, last=_last(record.iteration, record.status, row))
-            progress.refresh()
+    def tick(record, row):
+        display.update(name, record.iteration + 1, _last(record.iteration, record.status, row))
 
+    try:
         with deferred_interrupt() as interrupted:
-            summary = run_method(config, method, path, overwrite=overwrite, resume=resume, command=command,
-                                 progress=tick, stop_requested=interrupted)
-    return summary
+            return run_method(config, method, path, overwrite=overwrite, resume=resume, command=command,
+                              progress=tick, stop_requested=interrupted)
+    finally:
+        display.stop()
 
 
 def run_several(config, jobs) -> None:
     """Run several methods at once, one worker process each (``ilcforce.parallel``), one display."""
     from ilcforce.parallel import run_parallel
 
-    progress = _progress_bar(disable=not err.is_terminal)
-    tasks = {}
+    display = _Display([f"{config.experiment.name}/{job.method}" for job in jobs], config.experiment.iterations)
 
-    def tick(method: str, iteration: int, status: str, row: dict) -> None:
-        if not tasks:  # the display starts after the workers were forked
-            progress.start()
-            tasks.update({job.method: progress.add_task(f"{config.experiment.name}/{job.method}",
-                                                        total=config.experiment.iterations, last="")
-                          for job in jobs})
-        progress.update(tasks[method], completed=iteration + 1, last=_last(iteration, status, row))
-        progress.refresh()
+    def tick(method: str, iteration: int, status: str, row: dict) -> None:  # after the workers were forked
+        display.update(f"{config.experiment.name}/{method}", iteration + 1, _last(iteration, status, row))
 
     def stopping() -> None:
         err.print("stopping after the current iteration is stored (again to stop now)", highlight=False)
@@ -67,7 +90,7 @@ def run_several(config, jobs) -> None:
     try:
         outcomes = run_parallel(config, jobs, progress=tick, on_interrupt=stopping, meanwhile=import_for_table)
     finally:
-        progress.stop()
+        display.stop()
     failed = [o for o in outcomes.values() if o.status == "error"]
     for outcome in failed:
         if not outcome.known:

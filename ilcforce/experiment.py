@@ -30,7 +30,7 @@ from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
-from ilcforce.simulate import IterationInputs, complete_record, desired_inputs, run_iteration
+from ilcforce.simulate import IterationInputs, complete_record, desired_inputs, prepare_first_chunk, run_iteration
 from ilcforce.task import (REF_ACCELERATION, REF_FORCE, REF_POSITION, REF_VELOCITY)
 
 
@@ -85,9 +85,25 @@ def memory_labels(controller) -> dict[str, tuple[str, ...]]:
     return dict(labels()) if callable(labels) else {}
 
 
+def iteration_inputs(config: Config, j: int, reference: np.ndarray, chunk_steps: int | None = None, *,
+                     ahead: bool = False) -> IterationInputs:
+    """What iteration ``j`` simulates apart from the controller: the true plant (perturbed from
+    ``plant.perturbation.from_iteration`` on), the disturbance and noise drawn from (seed, j), the
+    settings and ``reference`` (``config.reference_samples()``, made once per run). ``ahead=True``
+    also makes its first chunk's disturbance now (:func:`~ilcforce.simulate.prepare_first_chunk`;
+    same numbers)."""
+    inputs = IterationInputs(
+        iteration=j, true_plant=config.plant.true_plant(j), nominal_plant=config.plant.links(), wall=config.wall,
+        reference=reference, settings=config.simulation, noise=config.noise,
+        draws=draw_iteration(config.experiment.seed, j, config.n_control, config.noise),
+        selection=config.surface.selection,
+    )
+    return prepare_first_chunk(inputs, chunk_steps) if ahead else inputs
+
+
 def simulate_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None,
                         stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
-                        desired_cache: dict | None = None):
+                        desired_cache: dict | None = None, *, prefetch: bool = False):
     """Yield the :class:`IterationRecord` of iterations ``first .. iterations - 1`` in order.
 
     Stops after a diverged iteration. ``memory`` (a stored learned state) seeds iteration ``first``.
@@ -97,37 +113,40 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     ``desired_cache`` (true plant -> tau_d arrays) may be shared by callers that run many cells of
     the same wall, reference and grids (a study's worker); it must only ever hold entries computed
     for that same (wall, reference, sample_time, log_every).
+    ``prefetch=True`` draws the noise and the disturbance of the next iterations in a background
+    thread while this one simulates (for a machine with a core to spare; the numbers are the same).
     """
     controller = make_controller(config, method)
     if memory:
         controller.restore(memory)
     reference = config.reference_samples()
     ref_log = reference[:: config.simulation.log_every]
-    nominal = config.plant.links()
     if desired_cache is None:
         desired_cache = {}
-    for j in range(first, config.experiment.iterations):
-        if stop_requested is not None and stop_requested():  # also between iterations: an iteration
-            raise KeyboardInterrupt  # may be one chunk, so run_iteration might never look
-        true_plant = config.plant.true_plant(j)
-        inputs = IterationInputs(
-            iteration=j, true_plant=true_plant, nominal_plant=nominal, wall=config.wall,
-            reference=reference, settings=config.simulation, noise=config.noise,
-            draws=draw_iteration(config.experiment.seed, j, config.n_control, config.noise),
-            selection=config.surface.selection,
-        )
-        mem_prev, mem_new = controller.begin_iteration(j)
-        record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps)
-        controller.end_iteration(record)  # between-iteration learning sees the finished iteration
-        if true_plant not in desired_cache:
-            desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
-        # a diverged iteration stores the memory it was writing (NaN where it never got)
-        memory_now = (controller.learned_state() if record.status == STATUS_COMPLETE
-                      else controller.unfinished_state())
-        completed = complete_record(record, desired_cache[true_plant], memory_now, controller.learned_units())
-        yield dataclasses.replace(completed, memory_labels=memory_labels(controller))
-        if record.status == STATUS_DIVERGED:
-            return
+    with contextlib.ExitStack() as stack:
+        iterations = range(first, config.experiment.iterations)
+        if prefetch:
+            inputs_of = iter(stack.enter_context(pipeline.Ahead(
+                lambda stopping: (iteration_inputs(config, j, reference, chunk_steps, ahead=True)
+                                  for j in iterations), depth=2, name="ilcforce-inputs")))
+        else:
+            inputs_of = (iteration_inputs(config, j, reference) for j in iterations)
+        for inputs in inputs_of:
+            if stop_requested is not None and stop_requested():  # also between iterations: an iteration
+                raise KeyboardInterrupt  # may be one chunk, so run_iteration might never look
+            mem_prev, mem_new = controller.begin_iteration(inputs.iteration)
+            record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps)
+            controller.end_iteration(record)  # between-iteration learning sees the finished iteration
+            true_plant = inputs.true_plant
+            if true_plant not in desired_cache:
+                desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
+            # a diverged iteration stores the memory it was writing (NaN where it never got)
+            memory_now = (controller.learned_state() if record.status == STATUS_COMPLETE
+                          else controller.unfinished_state())
+            completed = complete_record(record, desired_cache[true_plant], memory_now, controller.learned_units())
+            yield dataclasses.replace(completed, memory_labels=memory_labels(controller))
+            if record.status == STATUS_DIVERGED:
+                return
 
 
 def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
@@ -142,8 +161,6 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     every finished iteration is stored and the store is left "partial", ready for ``resume``.
     Raises ``ilcforce.store.StoreError`` for store problems (existing result, concurrent writer, ...).
     """
-    from ilcforce.store import StoreWriter  # h5py and the store: imported while iteration 0 simulates
-
     make_controller(config, method)  # fail on a bad method before touching any file
     rows = []
 
@@ -152,8 +169,8 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
             def stopping() -> bool:
                 return consumer_gone() or (stop_requested is not None and stop_requested())
             return simulate_iterations(config, method, first, memory, stopping, chunk_steps,
-                                       desired_cache=desired_cache)
-        return pipeline.Ahead(make)
+                                       desired_cache=desired_cache, prefetch=True)
+        return pipeline.Ahead(make, depth=records_ahead(config))
 
     # Iteration j + 1 simulates (compiled loop, GIL released) while j is stored. A run into a new
     # file starts simulating at once, while this thread sets up the store (an existing file is
@@ -163,6 +180,8 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     with contextlib.ExitStack() as stack:
         fresh = not resume and not os.path.lexists(out)
         ahead = stack.enter_context(iterations(0, None)) if fresh else None
+        from ilcforce.store import StoreWriter  # h5py and the writer: imported while iteration 0 simulates
+
         writer = stack.enter_context(StoreWriter(
             out, experiment=config.experiment.name, method=method, config_toml=config.to_toml(),
             config_json=config.to_json(), seed=config.experiment.seed, command=command,
@@ -179,15 +198,32 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
         elif first != 0:  # a new store always starts at iteration 0
             raise RuntimeError(f"{out}: a new store starts at iteration {first}, not 0")
         status = STATUS_COMPLETE
+        last = config.experiment.iterations - 1
         for record in ahead:
-            row = writer.append(record)  # the store computes the metrics row once
+            if record.status == STATUS_DIVERGED:
+                status = STATUS_DIVERGED
+            # the last iteration's commit also marks the run finished: one commit less at the end
+            ends = status == STATUS_DIVERGED or record.iteration == last
+            row = writer.append(record, finish=status if ends else None)  # the store computes the metrics row
             rows.append(row)
             if progress is not None:
                 progress(record, row)
-            if record.status == STATUS_DIVERGED:
-                status = STATUS_DIVERGED
-        writer.finish(status)
+        if not writer.finished:  # nothing was left to run
+            writer.finish(status)
     return RunSummary(Path(out), method, first, tuple(rows), status)
+
+
+#: Bytes of finished records the simulation may run ahead of the store by (see :func:`records_ahead`).
+RECORDS_AHEAD_BYTES = 64 * 1024**2
+
+
+def records_ahead(config: Config) -> int:
+    """How many finished iterations may wait for the store (1 to 4): enough that the simulation
+    does not wait while the store opens (h5py's import and the file's first commit take a few
+    iterations' time), within :data:`RECORDS_AHEAD_BYTES` of records (a record holds about 56
+    float64 per control sample: :func:`ilcforce.config_load.run_footprint`)."""
+    record_bytes = 56 * 8 * config.n_control
+    return max(1, min(4, RECORDS_AHEAD_BYTES // max(1, record_bytes)))
 
 
 def default_store_path(results_dir: Path, config: Config, method: str,

@@ -37,11 +37,12 @@ class Ahead(Generic[T]):
     it to whatever checks for a stop between chunks of work.
     """
 
-    def __init__(self, make: Callable[[Callable[[], bool]], Iterator[T]], *, depth: int = 1) -> None:
+    def __init__(self, make: Callable[[Callable[[], bool]], Iterator[T]], *, depth: int = 1,
+                 name: str = "ilcforce-ahead") -> None:
         self._handoff: queue.Queue = queue.Queue(maxsize=depth)
         self._stop = threading.Event()
         self._make = make
-        self._thread = threading.Thread(target=self._produce, name="ilcforce-ahead", daemon=True)
+        self._thread = threading.Thread(target=self._produce, name=name, daemon=True)
         self._thread.start()
 
     def _put(self, item) -> bool:

@@ -31,6 +31,7 @@ Per control sample k (t_k = k Ts), inside one compiled loop:
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -124,6 +125,8 @@ class IterationInputs:
 
     ``reference`` is the (n_control, 12) array of :meth:`ilcforce.task.Reference.sample`;
     ``draws`` the iteration's disturbance and sensor noise; ``selection`` the diagonal of S.
+    ``first_chunk``, if given, is ``(k1, chunk_disturbance(self, 0, k1))``, made ahead of time
+    (:func:`prepare_first_chunk`); :func:`run_iteration` uses it when its first chunk ends at k1.
     """
 
     iteration: int
@@ -135,6 +138,31 @@ class IterationInputs:
     noise: NoiseModel
     draws: IterationDraws
     selection: tuple[float, float]
+    first_chunk: tuple[int, np.ndarray] | None = None
+
+
+def chunk_steps_default(settings: SimulationSettings) -> int:
+    """Control samples per chunk of the compiled loop when the caller does not say (about
+    :data:`CHUNK_RK4_STEPS` RK4 steps)."""
+    return max(1, CHUNK_RK4_STEPS // settings.substeps)
+
+
+def chunk_disturbance(inputs: IterationInputs, k0: int, k1: int) -> np.ndarray:
+    """F_v (N) at the half-step times of control samples k0 .. k1 - 1 and their RK4 stages, shape
+    (2 substeps (min(k1, n_control - 1) - k0) + 1, 2). Made per chunk: at substeps = 1000 the whole
+    iteration's would be 40 million rows."""
+    s = inputs.settings
+    n_control = inputs.reference.shape[0]
+    h = s.sample_time / s.substeps
+    stages = np.arange(2 * s.substeps * k0, 2 * s.substeps * min(k1, n_control - 1) + 1)
+    return np.ascontiguousarray(disturbance(stages * (0.5 * h), inputs.draws, inputs.noise))
+
+
+def prepare_first_chunk(inputs: IterationInputs, chunk_steps: int | None = None) -> IterationInputs:
+    """``inputs`` with the disturbance of its first chunk made now (e.g. in another thread, while
+    the previous iteration simulates); the numbers are those :func:`run_iteration` would make."""
+    chunk = chunk_steps if chunk_steps is not None else chunk_steps_default(inputs.settings)
+    return dataclasses.replace(inputs, first_chunk=(chunk, chunk_disturbance(inputs, 0, chunk)))
 
 
 def force_axis(selection) -> int:
@@ -165,13 +193,6 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     n_control = ref.shape[0]
     n_log = (n_control - 1) // s.log_every + 1
     t_control = np.arange(n_control) * s.sample_time
-    h = s.sample_time / s.substeps
-
-    def chunk_disturbance(k0, k1):
-        """F_v at the half-step times of samples k0 .. k1 - 1 and their RK4 stages (made per chunk:
-        at substeps = 1000 the whole iteration's would be 40 million rows)."""
-        stages = np.arange(2 * s.substeps * k0, 2 * s.substeps * min(k1, n_control - 1) + 1)
-        return np.ascontiguousarray(disturbance(stages * (0.5 * h), inputs.draws, inputs.noise))
     true_robot = make_plant(inputs.true_plant)
     nominal_robot = make_plant(inputs.nominal_plant)
     theta0 = true_robot.inverse_kinematics(s.initial_position)
@@ -195,10 +216,14 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
         true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
         head = (controller.law, true_k.accel, nominal_k.kin, nominal_k.task, *head)
         simulate_chunk = loop._simulate
-    chunk = chunk_steps if chunk_steps is not None else max(1, CHUNK_RK4_STEPS // s.substeps)
+    chunk = chunk_steps if chunk_steps is not None else chunk_steps_default(s)
     k = 0
     while True:
-        status, k_fail = simulate_chunk(*head, chunk_disturbance(k, k + chunk), *tail, k, k + chunk)
+        if k == 0 and inputs.first_chunk is not None and inputs.first_chunk[0] == chunk:
+            forces = inputs.first_chunk[1]
+        else:
+            forces = chunk_disturbance(inputs, k, k + chunk)
+        status, k_fail = simulate_chunk(*head, forces, *tail, k, k + chunk)
         k += chunk
         if status != loop.RUN_CONTINUE:
             break

@@ -11,22 +11,20 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
-from typing import Any
 
 import h5py
 import numpy as np
 
 import ilcforce
-from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
+from ilcforce.metrics import iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
-from ilcforce.store import commit, schema
+from ilcforce.store import commit, metrics_cache, schema
 from ilcforce.store.provenance import SameRunCheck, default_same_run as _default_same_run, git_state, text, utc_now
 from ilcforce.store.prepare import (check_replaceable, check_resumable, clean_leftovers, existing_refusal, make_parent,
                                     refuse_foreign_target)
 from ilcforce.store.template import IterationTemplate
 from ilcforce.store.safeio import StoreError, StoreExistsError, acquire_writer_lock, one_line
 
-_METRICS_CHUNK = 64  # rows per chunk of a /metrics column
 
 def _signal_array(arrays: Mapping[str, np.ndarray], argument: str, name: str,
                   axes: tuple[str, ...] | None, n: int) -> np.ndarray:
@@ -155,11 +153,12 @@ class StoreWriter:
                 now = utc_now()
 
                 def change(handle: h5py.File) -> None:
-                    self._flush_metrics(handle)
+                    metrics_cache.append_rows(handle, self._rows)
                     self._set_run_state(handle, "partial", now)
 
                 try:
                     commit.update(self._path, change)
+                    self._rows = []
                 except Exception:
                     if exc_type is None:
                         raise
@@ -172,9 +171,20 @@ class StoreWriter:
 
     # -- writing --------------------------------------------------------------------------
 
-    def append(self, record: IterationRecord) -> dict[str, object]:
-        """Commit one iteration atomically; returns its metrics row. ``record.iteration`` must be the next one."""
+    @property
+    def finished(self) -> bool:
+        """True once the run is marked finished (:meth:`finish`, or ``append(..., finish=...)``)."""
+        return self._finished
+
+    def append(self, record: IterationRecord, finish: str | None = None) -> dict[str, object]:
+        """Commit one iteration atomically; returns its metrics row. ``record.iteration`` must be the next one.
+
+        ``finish`` ("complete" or "diverged"): this is the run's last iteration, and the same commit
+        marks the run finished, as :meth:`finish` would after it (one commit instead of two).
+        """
         self._require_open()
+        if finish is not None and finish not in (STATUS_COMPLETE, STATUS_DIVERGED):
+            raise ValueError(f"finish must be {STATUS_COMPLETE!r} or {STATUS_DIVERGED!r}, got {finish!r}")
         if self._finished:
             raise StoreError(f"{self._path}: run already finished; cannot append iteration {record.iteration}")
         if record.iteration != self._last + 1:
@@ -200,8 +210,12 @@ class StoreWriter:
             attrs["fallback_count"] = int(record.fallback_count)
             if first_of_session:
                 self._write_invocation_attrs(handle)
-            self._set_run_state(handle, "running", now)
             attrs["complete"] = True
+            if finish is None:
+                self._set_run_state(handle, "running", now)
+            else:
+                metrics_cache.append_rows(handle, [*self._rows, row])
+                self._set_run_state(handle, finish, now)
 
         if self._file_is_ours:
             commit.update(self._path, write)
@@ -214,30 +228,12 @@ class StoreWriter:
         self._appended = True
         self._last = int(record.iteration)
         self._last_status = str(record.status)
-        self._rows.append(row)
+        if finish is None:
+            self._rows.append(row)
+        else:
+            self._rows = []
+            self._finished = True
         return row
-
-    def _flush_metrics(self, handle: h5py.File) -> None:
-        """Append this session's rows to the /metrics cache (written at finish or stop, not per
-        commit: a run killed before leaves rows missing, which readers compute from the logs)."""
-        metrics = handle.get(schema.METRICS_GROUP)
-        current = (isinstance(metrics, h5py.Group) and metrics.attrs.get("metrics_version") == METRICS_VERSION
-                   and all(isinstance(metrics.get(c), h5py.Dataset) for c in METRIC_COLUMNS))
-        if not current:
-            if schema.METRICS_GROUP in handle:
-                del handle[schema.METRICS_GROUP]
-            self._create_metrics(handle)
-            metrics = handle[schema.METRICS_GROUP]
-        stored = set(int(j) for j in metrics["iteration"][()])
-        rows = [row for row in self._rows if int(row["iteration"]) not in stored]
-        if not rows:
-            return
-        for column in METRIC_COLUMNS:
-            dataset = metrics[column]
-            n = dataset.shape[0]
-            dataset.resize((n + len(rows),))
-            dataset[n:] = [row[column] for row in rows]
-        self._rows = []
 
     def _template_for(self, record: IterationRecord, memory: dict[str, np.ndarray]) -> IterationTemplate:
         labels = getattr(record, "memory_labels", None) or {}
@@ -260,10 +256,11 @@ class StoreWriter:
         now = utc_now()
 
         def change(handle: h5py.File) -> None:
-            self._flush_metrics(handle)
+            metrics_cache.append_rows(handle, self._rows)
             self._set_run_state(handle, status, now)
 
         commit.update(self._path, change)
+        self._rows = []
         self._finished = True
 
     # -- internals ------------------------------------------------------------------------
@@ -331,20 +328,7 @@ class StoreWriter:
             _dataset(handle, schema.CONTROL_TIME, self._control_time, "s",
                      "control grid t_k = k Ts: the time axis of every learned memory")
         handle.create_group("iterations")
-        self._create_metrics(handle)
-
-    def _create_metrics(self, handle: h5py.File) -> None:
-        metrics = handle.create_group(schema.METRICS_GROUP)
-        metrics.attrs["metrics_version"] = METRICS_VERSION
-        metrics.attrs["description"] = ("cache of ilcforce.metrics.iteration_metrics over the stored logs, one row "
-                                        "per committed iteration; recomputed by readers when its version differs")
-        for column, (unit, description) in METRIC_COLUMNS.items():
-            kind = column_kind(column)
-            dtype: Any = {"str": h5py.string_dtype("utf-8", 16), "int": np.int64, "float": np.float64}[kind]
-            dataset = metrics.create_dataset(column, shape=(0,), maxshape=(None,), chunks=(_METRICS_CHUNK,),
-                                             dtype=dtype, **schema.DATASET_OPTIONS)
-            dataset.attrs["units"] = unit
-            dataset.attrs["description"] = description
+        metrics_cache.create(handle)
 
     def _write_invocation_attrs(self, handle: h5py.File) -> None:
         handle.attrs["command"] = self._command
