@@ -13,8 +13,14 @@ from __future__ import annotations
 
 import os
 import signal
+import sys
 
 from ilcforce.cli_signals import STOPS, announce, stop_code
+
+#: How often (s) the interpreter hands the GIL to a waiting thread (Python's default: 5 ms). A run's
+#: threads (the compiled loop, the next iterations' noise draws, the store's writes) each hold it
+#: briefly; at 5 ms the simulation thread waited up to 5 ms at every hand-over (issue 12).
+SWITCH_INTERVAL = 1e-4
 
 
 def _stopped_while_starting(signum, frame) -> None:
@@ -25,6 +31,16 @@ def _stopped_while_starting(signum, frame) -> None:
         os._exit(stop_code())
 
 
+def one_blas_thread() -> None:
+    """OpenBLAS (numpy's, and scipy's for the compiled solves) without worker threads, unless the
+    user chose a number (``OPENBLAS_NUM_THREADS``): every matrix ilcforce multiplies is 2 x 2, so
+    the workers never share the work, but each library starts one per extra core at import and it
+    spins for about 0.1 s before sleeping. Measured on 2 cores: 0.2-0.3 s of CPU of a 0.8 s cold
+    `simulate`, competing with the simulation for the second core (issue 12). Set before numpy is
+    imported; inherited by the processes a command starts (compare's workers, a study's cluster)."""
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+
 def main() -> None:
     """Run the command (:func:`ilcforce.cli_main.main`), stop signals answered from here on.
 
@@ -32,6 +48,8 @@ def main() -> None:
     imports the console script again, but does not call ``main``."""
     for stop in (signal.SIGINT, signal.SIGTERM):
         signal.signal(stop, _stopped_while_starting)
+    one_blas_thread()
+    sys.setswitchinterval(SWITCH_INTERVAL)
     from ilcforce.cli import main as run
 
     run()

@@ -48,6 +48,14 @@ class _Display:
         self._progress.update(self._tasks[name], completed=completed, last=last)
         self._progress.refresh()
 
+    def say(self, text: str) -> None:
+        """One line on stderr, above the display if it is drawn. Safe in a signal handler that
+        interrupted the display's own first update (rich half imported): a plain line then."""
+        if self._progress is not None:
+            self._progress.console.print(text, highlight=False, markup=False)
+        else:
+            _say(text, stderr=True)
+
     def stop(self) -> None:
         if self._progress is not None:
             self._progress.stop()
@@ -85,7 +93,7 @@ def run_several(config, jobs) -> None:
         display.update(f"{config.experiment.name}/{method}", iteration + 1, _last(iteration, status, row))
 
     def stopping() -> None:
-        err.print("stopping after the current iteration is stored (again to stop now)", highlight=False)
+        display.say("stopping after the current iteration is stored (again to stop now)")
 
     try:
         outcomes = run_parallel(config, jobs, progress=tick, on_interrupt=stopping, meanwhile=import_for_table)

@@ -103,6 +103,9 @@ def test_a_compile_is_announced_once(monkeypatch):
 
     monkeypatch.setattr(compile_note, "_asked", [])
     monkeypatch.setattr(compile_note, "_installed", [])
+    # a fresh process: no listener waiting for numba yet (the CLI tests' commands asked for one each
+    # time this process's state was reset, since every command asks; only compile_note waits there)
+    monkeypatch.setattr(_jit, "_on_load", [])
     lines: list[str] = []
     compile_note.announce_compiles(lines.append)
     compile_note.announce_compiles(lines.append)  # a second call adds no second listener
