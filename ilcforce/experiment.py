@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -103,7 +104,8 @@ def iteration_inputs(config: Config, j: int, reference: np.ndarray, chunk_steps:
 
 def simulate_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None,
                         stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
-                        desired_cache: dict | None = None, *, prefetch: bool = False):
+                        desired_cache: dict | None = None, *, prefetch: bool = False,
+                        started: Callable[[], None] | None = None):
     """Yield the :class:`IterationRecord` of iterations ``first .. iterations - 1`` in order.
 
     Stops after a diverged iteration. ``memory`` (a stored learned state) seeds iteration ``first``.
@@ -113,8 +115,9 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     ``desired_cache`` (true plant -> tau_d arrays) may be shared by callers that run many cells of
     the same wall, reference and grids (a study's worker); it must only ever hold entries computed
     for that same (wall, reference, sample_time, log_every).
-    ``prefetch=True`` draws the noise and the disturbance of the next iterations in a background
-    thread while this one simulates (for a machine with a core to spare; the numbers are the same).
+    ``prefetch=True`` makes each iteration's inputs (noise, disturbance, tau_d of a new true plant)
+    in a background thread while the one before simulates (for a machine with a core to spare; the
+    numbers are the same). ``started()`` is called once, when iteration ``first`` begins to simulate.
     """
     controller = make_controller(config, method)
     if memory:
@@ -123,27 +126,40 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     ref_log = reference[:: config.simulation.log_every]
     if desired_cache is None:
         desired_cache = {}
+
+    def desired(true_plant):
+        """tau_d along the reference on ``true_plant``: the cache's, or made now and kept."""
+        if true_plant not in desired_cache:
+            desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
+        return desired_cache[true_plant]
+
+    def prepared():
+        """Each iteration's inputs; with ``prefetch``, in the background thread, which then also
+        makes the tau_d of a new true plant while that iteration simulates."""
+        for j in range(first, config.experiment.iterations):
+            inputs = iteration_inputs(config, j, reference, chunk_steps, ahead=prefetch)
+            yield inputs
+            if prefetch:
+                desired(inputs.true_plant)
+
     with contextlib.ExitStack() as stack:
-        iterations = range(first, config.experiment.iterations)
         if prefetch:
-            inputs_of = iter(stack.enter_context(pipeline.Ahead(
-                lambda stopping: (iteration_inputs(config, j, reference, chunk_steps, ahead=True)
-                                  for j in iterations), depth=2, name="ilcforce-inputs")))
+            inputs_of = iter(stack.enter_context(pipeline.Ahead(lambda stopping: prepared(), depth=2,
+                                                                name="ilcforce-inputs")))
         else:
-            inputs_of = (iteration_inputs(config, j, reference) for j in iterations)
+            inputs_of = prepared()
         for inputs in inputs_of:
             if stop_requested is not None and stop_requested():  # also between iterations: an iteration
                 raise KeyboardInterrupt  # may be one chunk, so run_iteration might never look
             mem_prev, mem_new = controller.begin_iteration(inputs.iteration)
+            if started is not None and inputs.iteration == first:
+                started()
             record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps)
             controller.end_iteration(record)  # between-iteration learning sees the finished iteration
-            true_plant = inputs.true_plant
-            if true_plant not in desired_cache:
-                desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
             # a diverged iteration stores the memory it was writing (NaN where it never got)
             memory_now = (controller.learned_state() if record.status == STATUS_COMPLETE
                           else controller.unfinished_state())
-            completed = complete_record(record, desired_cache[true_plant], memory_now, controller.learned_units())
+            completed = complete_record(record, desired(inputs.true_plant), memory_now, controller.learned_units())
             yield dataclasses.replace(completed, memory_labels=memory_labels(controller))
             if record.status == STATUS_DIVERGED:
                 return
@@ -164,12 +180,17 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     make_controller(config, method)  # fail on a bad method before touching any file
     rows = []
 
+    running = threading.Event()  # iteration `first` simulates, or the simulation ended
+
     def iterations(first: int, memory: dict | None):
         def make(consumer_gone):
             def stopping() -> bool:
                 return consumer_gone() or (stop_requested is not None and stop_requested())
-            return simulate_iterations(config, method, first, memory, stopping, chunk_steps,
-                                       desired_cache=desired_cache, prefetch=True)
+            try:
+                yield from simulate_iterations(config, method, first, memory, stopping, chunk_steps,
+                                               desired_cache=desired_cache, prefetch=True, started=running.set)
+            finally:
+                running.set()
         return pipeline.Ahead(make, depth=records_ahead(config))
 
     # Iteration j + 1 simulates (compiled loop, GIL released) while j is stored. A run into a new
@@ -180,6 +201,8 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     with contextlib.ExitStack() as stack:
         fresh = not resume and not os.path.lexists(out)
         ahead = stack.enter_context(iterations(0, None)) if fresh else None
+        if ahead is not None:  # h5py's import holds the GIL in long calls: let iteration 0 start first
+            running.wait(_START_WAIT)
         from ilcforce.store import StoreWriter  # h5py and the writer: imported while iteration 0 simulates
 
         writer = stack.enter_context(StoreWriter(
@@ -212,6 +235,9 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
             writer.finish(status)
     return RunSummary(Path(out), method, first, tuple(rows), status)
 
+
+#: At most this long (s) a new run's store waits to open until iteration 0 has started to simulate.
+_START_WAIT = 0.5
 
 #: Bytes of finished records the simulation may run ahead of the store by (see :func:`records_ahead`).
 RECORDS_AHEAD_BYTES = 64 * 1024**2
