@@ -244,21 +244,15 @@ def compare(
     elif jobs:
         cli_run.run_several(cfg, jobs)
 
-    from ilcforce.report.tables import comparison_frame
+    from ilcforce.comparison import MethodMetrics, comparison_rows
 
     # a store may hold more iterations than asked for (the first ones are the same run): the table,
     # like its title, is over the experiment's iterations
     n = cfg.experiment.iterations
-    frame = comparison_frame({name: _first(store.read_metrics(path), n) for name, path in paths.items()})
-    units = dict(frame.attrs.get("units", {}))
-    if "method" in frame.columns:
-        frame = frame.set_index("method")
-    _print_frame(frame.T, f"{_comparison_title(cfg)}  ->  {paths[names[0]].parent}", units)
-
-
-def _first(metrics, n: int):
-    """The metrics rows of iterations 0 .. n - 1 (attributes kept)."""
-    return metrics[metrics.index < n]
+    rows = comparison_rows({name: MethodMetrics.from_rows({j: row for j, row in store.read_metrics_rows(path).items()
+                                                           if j < n})
+                            for name, path in paths.items()})
+    _print_comparison(rows, f"{_comparison_title(cfg)}  ->  {paths[names[0]].parent}")
 
 
 def _comparison_title(cfg) -> str:
@@ -299,17 +293,21 @@ def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str,
     return ("keep" if finished else "resume"), False
 
 
-def _print_frame(frame, title: str, units: dict[str, str]) -> None:
+def _print_comparison(rows: list[dict], title: str) -> None:
     """One row per quantity, one column per method (narrow enough for a terminal)."""
     from rich.markup import escape
 
+    from ilcforce.comparison import COMPARISON_COLUMNS
+
     table = _table(title)
     table.add_column("")
-    for col in frame.columns:
-        table.add_column(str(col), justify="right")
-    for idx, row in frame.iterrows():
-        label = f"{idx} ({units[idx]})" if units.get(idx) not in (None, "", "-") else str(idx)
-        table.add_row(escape(label), *(_g(v) for v in row.tolist()))
+    for row in rows:
+        table.add_column(str(row["method"]), justify="right")
+    for name, unit in COMPARISON_COLUMNS.items():
+        if name == "method":
+            continue
+        label = f"{name} ({unit})" if unit not in ("", "-") else name
+        table.add_row(escape(label), *(_g(row[name]) for row in rows))
     out.print(table)
 
 

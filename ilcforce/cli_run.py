@@ -134,5 +134,7 @@ def deferred_interrupt():
 
 
 def import_for_table() -> None:
-    """What compare needs after the runs (pandas, the report's tables), imported while workers run."""
-    import ilcforce.report.tables  # noqa: F401
+    """What compare needs after the runs (the comparison, rich's table), imported while workers run."""
+    import rich.table  # noqa: F401
+
+    import ilcforce.comparison  # noqa: F401

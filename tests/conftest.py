@@ -7,6 +7,18 @@ import pytest
 from ilcforce.config_load import load_config
 
 
+@pytest.fixture(autouse=True)
+def no_stop_signal_left():
+    """Every test starts with no stop signal noted: a test that sends one in-process (a report or
+    study stopped by SIGTERM) left it in cli_signals.STOPS, and a CLI test after it (CliRunner calls
+    the app, not the entry point that clears it) stopped at once with exit 143."""
+    from ilcforce import cli_signals
+
+    cli_signals.STOPS.clear()
+    cli_signals.ANNOUNCED.clear()
+    yield
+
+
 @pytest.fixture
 def short_config():
     """A factory: the paper's setup on a short horizon (0.2 s = 2001 control samples), with overrides."""

@@ -11,12 +11,15 @@ DataFrame (:func:`h_form_match`: Markdown bullets). Writing the frames to CSV an
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 
 import numpy as np
 import pandas as pd
 
-from ilcforce.controllers import PAPER_METHODS, REGISTRY
+from ilcforce.comparison import (COMPARISON_COLUMNS, COMPARISON_ITERATIONS, INTEGER_COLUMNS,  # noqa: F401
+                                 JBAR_FACTOR, JBAR_LAST, JBAR_WINDOW, MethodMetrics, comparison_rows,
+                                 ordered_methods)
+from ilcforce.controllers import PAPER_METHODS
 from ilcforce.metrics import convergence_iteration
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
 from ilcforce.report import paper
@@ -25,14 +28,8 @@ from ilcforce.report.table_write import is_missing
 #: The paper's methods in the paper's order (the registry's ``in_paper`` specs); the report expects them.
 METHOD_ORDER = PAPER_METHODS
 
-#: Last iteration that may be the convergence iteration j̄, and the window whose median defines
-#: "converged" (SPEC section 6: first j <= 9 within 1.5x the median of iterations 5..9).
-JBAR_LAST = 9
-JBAR_WINDOW = (5, 9)
-JBAR_FACTOR = 1.5
-
-#: Iterations at which the comparison frame samples the error 2-norms.
-COMPARISON_ITERATIONS = (0, 9, 10, 19)
+# JBAR_LAST, JBAR_WINDOW, JBAR_FACTOR (SPEC section 6's j̄), COMPARISON_ITERATIONS and
+# ordered_methods are ilcforce.comparison's, imported above (the comparison needs no pandas).
 
 #: Suffixes of the two further forms of H (without t = 0; settled from 20 ms), see ilcforce.metrics.
 H_FORMS = ("_no_t0", "_settled")
@@ -52,13 +49,6 @@ COLUMN_UNITS = {
     "diverged_time": "s",
     **{f"chattering_task_{axis}{form}": "N" for axis in ("x", "y") for form in ("_no_t0", "_settled")},
 }
-
-
-def ordered_methods(methods: Iterable[str]) -> list[str]:
-    """``methods`` in registry order (the paper's c1, c2, c3 first), then unregistered names sorted."""
-    names = set(methods)
-    known = [m for m in REGISTRY if m in names]
-    return known + sorted(names - set(REGISTRY))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -216,64 +206,16 @@ def table3(
 
 
 def comparison_frame(metrics_by_method: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
-    """One row per method: the numbers a reader compares the methods by.
-
-    Columns: ``method``, ``iterations`` (stored), ``jbar_position``, ``position_error_2norm_j0``,
-    ``_jbar``, ``_j9``, ``_j10``, ``_j19`` (m), the same for ``force`` (N), ``chattering_iteration``
-    (19 or the last complete), ``chattering_task_x``, ``chattering_task_y`` (N) there,
-    ``divergence`` ("none" or "iteration j at t = ... s"), ``diverged_iteration`` (nullable int),
-    ``diverged_time`` (s, NaN if none), ``fallback_total`` (implicit-loop fallbacks, all iterations).
-    A value is NaN where its iteration is missing or did not complete.
+    """One row per method: the numbers a reader compares the methods by
+    (:func:`ilcforce.comparison.comparison_rows`, whose docstring lists the columns), as a frame.
+    Integer columns (j̄, the chattering and diverged iterations) are nullable (<NA> where unknown);
+    ``attrs["units"]`` names the unit of each column that has one.
     """
-    rows = []
-    for method in ordered_methods(metrics_by_method):
-        metrics = metrics_by_method[method]
-        row: dict[str, object] = {"method": method, "iterations": int(len(metrics.index))}
-        for quantity in ("position", "force"):
-            column = f"{quantity}_error_2norm"
-            converged = jbar(metrics, column)
-            row[f"jbar_{quantity}"] = _int_or_na(converged)
-            row[f"{column}_j0"] = value_at(metrics, column, 0)
-            row[f"{column}_jbar"] = math.nan if converged is None else value_at(metrics, column, converged)
-            for j in COMPARISON_ITERATIONS[1:]:
-                row[f"{column}_j{j}"] = value_at(metrics, column, j)
-        j_h = chattering_iteration(metrics)
-        row["chattering_iteration"] = _int_or_na(j_h)
-        for axis in ("x", "y"):
-            column = f"chattering_task_{axis}"
-            row[column] = math.nan if j_h is None else value_at(metrics, column, j_h)
-        found = divergence(metrics)
-        row["divergence"] = describe_divergence(metrics)
-        row["diverged_iteration"] = _int_or_na(None if found is None else found[0])
-        row["diverged_time"] = math.nan if found is None else found[1]
-        fallbacks = pd.to_numeric(metrics["fallback_count"], errors="coerce") if "fallback_count" in metrics else None
-        row["fallback_total"] = 0 if fallbacks is None else int(np.nansum(fallbacks.to_numpy(dtype=float)))
-        rows.append(row)
-    columns = ["method", "iterations"]
-    for quantity in ("position", "force"):
-        columns += [f"jbar_{quantity}", f"{quantity}_error_2norm_j0", f"{quantity}_error_2norm_jbar"]
-        columns += [f"{quantity}_error_2norm_j{j}" for j in COMPARISON_ITERATIONS[1:]]
-    columns += [
-        "chattering_iteration",
-        "chattering_task_x",
-        "chattering_task_y",
-        "divergence",
-        "diverged_iteration",
-        "diverged_time",
-        "fallback_total",
-    ]
-    frame = pd.DataFrame(rows, columns=columns)
-    for name in ("jbar_position", "jbar_force", "chattering_iteration", "diverged_iteration"):
+    rows = comparison_rows({m: MethodMetrics.from_frame(f) for m, f in metrics_by_method.items()})
+    frame = pd.DataFrame(rows, columns=list(COMPARISON_COLUMNS))
+    for name in INTEGER_COLUMNS:
         frame[name] = frame[name].astype("Int64")
-    units = {}
-    for name in frame.columns:
-        if name.startswith("position_error_2norm"):
-            units[name] = "m"
-        elif name.startswith("force_error_2norm"):
-            units[name] = "N"
-        elif name in COLUMN_UNITS:
-            units[name] = COLUMN_UNITS[name]
-    frame.attrs["units"] = units
+    frame.attrs["units"] = {name: unit for name, unit in COMPARISON_COLUMNS.items() if unit}
     return frame
 
 

@@ -34,7 +34,8 @@ from ilcforce.store.schema import ITERATION_ATTRS, ROOT_ATTRS, RUN_STATES, SCHEM
 #: command's error handling imports them before anything else; issue 12)
 _LAZY = {
     **dict.fromkeys(("find_stores", "iterations", "read_control_time", "read_iteration", "read_memory",
-                     "read_memory_info", "read_memory_units", "read_metrics", "read_provenance", "read_reference",
+                     "read_memory_info", "read_memory_units", "read_metrics", "read_metrics_rows", "read_provenance",
+                     "read_reference",
                      "validate"), "ilcforce.store.access"),
     "StoreWriter": "ilcforce.store.write",
 }
@@ -51,5 +52,5 @@ __all__ = [
     "ITERATION_ATTRS", "ROOT_ATTRS", "RUN_STATES", "SCHEMA_NAME", "SCHEMA_VERSION", "StoreError",
     "StoreExistsError", "StoreLockedError", "StoreWriter", "find_stores", "iterations",
     "read_control_time", "read_iteration", "read_memory", "read_memory_info", "read_memory_units",
-    "read_metrics", "read_provenance", "read_reference", "validate", "writer_active",
+    "read_metrics", "read_metrics_rows", "read_provenance", "read_reference", "validate", "writer_active",
 ]

@@ -144,10 +144,15 @@ def read_metrics(path: str | os.PathLike[str]) -> pd.DataFrame:
         ``df.attrs["descriptions"]`` column -> description. Taken from the store's ``/metrics``
         cache when it is current, else computed from the stored logs.
     """
+    return metrics_frame(read_metrics_rows(path))
+
+
+def read_metrics_rows(path: str | os.PathLike[str]) -> dict[int, dict[str, object]]:
+    """The rows of :func:`read_metrics` without pandas: iteration -> {column: value} for the
+    complete iterations (every column of :data:`ilcforce.metrics.METRIC_COLUMNS`)."""
     with open_store(path) as (handle, checked, major):
         layout = scan(handle, checked, major)
-        rows = metrics_rows(handle, checked, layout)
-    return metrics_frame(rows)
+        return metrics_rows(handle, checked, layout)
 
 
 def metrics_frame(rows: dict[int, dict[str, object]]) -> pd.DataFrame:
