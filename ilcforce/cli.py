@@ -199,11 +199,11 @@ def simulate(
     for col in ("j", "|e_P|_2 (m)", "|e_F|_2 (N)", "H_x (N)", "H_y (N)", "loop fallbacks", "status"):
         table.add_column(col, justify="right")
     for row in summary.rows:
-        status = row["status"] if row["status"] == "complete" else f"[red]diverged at t = {row['diverged_time']:.4f} s[/]"
+        status = row["status"] if row["status"] == "complete" else (f"diverged at t = {row['diverged_time']:.4f} s", "red")
         table.add_row(str(row["iteration"]), _g(row["position_error_2norm"]), _g(row["force_error_2norm"]),
                       _g(row["chattering_task_x"]), _g(row["chattering_task_y"]), str(row["fallback_count"]), status)
     if summary.rows:
-        out.print(table)
+        table.print(out.console())
     else:
         _say(f"nothing to run: {path} already holds iterations 0..{summary.first_iteration - 1}")
     if summary.diverged:
@@ -262,15 +262,14 @@ def _comparison_title(cfg) -> str:
 
 
 def _table(title: str):
-    """A rich table whose title is shown literally (a path may contain [brackets]); ASCII
-    borders when the output encoding cannot show box-drawing characters."""
-    from rich.box import ASCII, HEAVY_HEAD
-    from rich.markup import escape
-    from rich.table import Table
+    """A table whose title is shown literally (a path may contain [brackets]), drawn as rich draws
+    its tables (:mod:`ilcforce.cli_table`); ASCII borders when the output encoding cannot show
+    box-drawing characters."""
+    from ilcforce.cli_table import Table
 
     encoding = (out.encoding or "").lower().replace("-", "")
     shown = title.encode(out.encoding or "utf-8", "replace").decode(out.encoding or "utf-8", "replace")
-    return Table(title=escape(shown), box=HEAVY_HEAD if encoding.startswith("utf") else ASCII)
+    return Table(shown, ascii_box=not encoding.startswith("utf"))
 
 
 def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str, bool]:
@@ -295,8 +294,6 @@ def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str,
 
 def _print_comparison(rows: list[dict], title: str) -> None:
     """One row per quantity, one column per method (narrow enough for a terminal)."""
-    from rich.markup import escape
-
     from ilcforce.comparison import COMPARISON_COLUMNS
 
     table = _table(title)
@@ -307,8 +304,8 @@ def _print_comparison(rows: list[dict], title: str) -> None:
         if name == "method":
             continue
         label = f"{name} ({unit})" if unit not in ("", "-") else name
-        table.add_row(escape(label), *(_g(row[name]) for row in rows))
-    out.print(table)
+        table.add_row(label, *(_g(row[name]) for row in rows))
+    table.print(out.console())
 
 
 @app.command()
