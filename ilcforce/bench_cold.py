@@ -8,7 +8,10 @@ point (console script), with numba's on-disk caches warm (one untimed run first)
 * ``ilcforce compare`` for the paper's study (c1, c2, c3 x 20, every store written, fresh results).
 
 Beside them, the compiled loop's own time for the same work (the simulator kernel timed
-in-process, warm), so that overhead = wall - loop shows; and a split of one cold ``simulate`` under
+in-process, warm), so that overhead = wall - loop shows; the timeline of cold ``simulate`` runs
+measured inside each process (:func:`cold_timelines`: when the first loop starts, the loops' own
+time, the time between them and after the last; medians), which is not affected by the machine
+being faster or slower between two measurements; and a split of one cold ``simulate`` under
 cProfile into imports, store writes, metrics, the wait for the simulation thread (which runs the
 compiled loop beside the store's writes; cProfile sees only the main thread) and the rest (cProfile
 inflates Python-heavy parts a little; the split is for finding where time goes, the medians are
@@ -105,6 +108,61 @@ def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIO
         aot.simulator, loop._simulate = find, kernel
 
 
+#: Runs the command through the entry point with each compiled-loop call timed; prints, at the
+#: process's end, "TIMELINE <first loop start> <loops> <last loop end> <end>" in seconds from the
+#: script's start (the interpreter's start is before it: the wall times include it).
+_TIMELINE = """\
+import os, sys, time
+T0 = time.perf_counter()
+from ilcforce import aot
+calls = []
+find = aot.simulator
+def timed_simulator(*args):
+    kernel = find(*args)
+    if kernel is None:
+        return None
+    def run(*a):
+        t = time.perf_counter()
+        try:
+            return kernel(*a)
+        finally:
+            calls.append((t - T0, time.perf_counter() - t))
+    return run
+aot.simulator = timed_simulator
+exit_now = os._exit
+def report(code):
+    end = time.perf_counter() - T0
+    if calls:
+        print("TIMELINE", calls[0][0], sum(d for _, d in calls), calls[-1][0] + calls[-1][1], end, file=sys.stderr)
+    exit_now(code)
+os._exit = report
+sys.argv = ["ilcforce", *sys.argv[1:]]
+from ilcforce._entry import main
+main()
+"""
+
+
+def cold_timelines(repeat: int, extra: Sequence[str] = (), iterations: int = ITERATIONS) -> dict[str, float]:
+    """Medians over ``repeat`` cold ``simulate -m c3`` processes of their own timeline (s): the first
+    loop's start and the process's end from the script's start, the compiled loops' total, the time
+    between loops and after the last one. Needs the ahead-of-time kernels (numba's loop is not timed)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        script = Path(tmp) / "timeline.py"
+        script.write_text(_TIMELINE)
+        rows = []
+        for i in range(repeat):
+            proc = subprocess.run([sys.executable, str(script), "simulate", "--method", "c3", "--iters",
+                                   str(iterations), *extra, "--out", str(Path(tmp) / f"t{i}" / "c3.h5")],
+                                  cwd=tmp, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            line = [x for x in proc.stderr.splitlines() if x.startswith("TIMELINE ")]
+            if proc.returncode != 0 or not line:
+                raise RuntimeError(f"timeline run failed ({proc.returncode}): {proc.stderr.strip()[-500:]}")
+            first, loops, last_end, end = (float(v) for v in line[-1].split()[1:])
+            rows.append({"first loop": first, "loops": loops, "between loops": last_end - first - loops,
+                         "after the last loop": end - last_end, "end": end})
+    return {key: statistics.median(row[key] for row in rows) for key in rows[0]}
+
+
 #: Categories of the cold-run split: (label, test on a profiled function (file, line, name)).
 def _category(func: tuple[str, int, str]) -> str | None:
     filename, _, name = func
@@ -177,6 +235,13 @@ def report(repeat: int = 5, loop_repeat: int = 3, extra: Sequence[str] = (), ite
     print(f"  ilcforce compare (c1, c2, c3 x {iterations}, stores written): {med['compare']:8.2f} s wall   "
           f"({rng['compare']}); compiled loop {sum(loops.values()):.2f} s over the methods "
           f"= {ideal:.2f} s on {min(cores, len(METHODS))} cores, overhead {100 * (1 - ideal / med['compare']):.0f}%")
+    if aot.module() is not None:
+        line = cold_timelines(repeat, extra, iterations)
+        print(f"  inside cold simulate runs (median of {repeat}; from the script's start, after the interpreter's): "
+              f"first loop at {line['first loop']:.3f} s, compiled loop {line['loops']:.3f} s, between loops "
+              f"{line['between loops']:.3f} s, after the last loop {line['after the last loop']:.3f} s, end "
+              f"{line['end']:.3f} s: overhead {100 * (1 - line['loops'] / line['end']):.0f}% of the process's "
+              "own time (the interpreter's start not counted)")
     total, split = profile_split(extra, iterations)
     parts = ", ".join(f"{name} {100 * t / total:.0f}%" for name, t in split.items())
     print(f"  split of one cold simulate -m c3 under cProfile ({total:.2f} s profiled): {parts}")

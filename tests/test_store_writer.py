@@ -426,3 +426,31 @@ def test_a_journal_left_beside_another_file_is_refused_not_applied(path: Path):
     with pytest.raises(StoreError, match="not an ilcforce journal"):
         store.validate(path)
     assert jpath.read_bytes() == b"junk" and path.read_bytes() == good
+
+
+def test_the_metrics_group_is_copied_from_the_one_built(tmp_path):
+    """store/metrics_cache.create copies an in-memory /metrics group (H5Ocopy) instead of building
+    24 datasets and 50 attributes in each store: the copy must be the built group, property for
+    property, and take rows the same way."""
+    import h5py
+
+    from ilcforce.store import metrics_cache, schema
+
+    with h5py.File(tmp_path / "copied.h5", "w", libver=schema.LIBVER) as copied, \
+            h5py.File(tmp_path / "built.h5", "w", libver=schema.LIBVER) as built:
+        metrics_cache.create(copied)
+        metrics_cache._build(built)
+        a, b = copied[schema.METRICS_GROUP], built[schema.METRICS_GROUP]
+        assert dict(a.attrs) == dict(b.attrs) and sorted(a) == sorted(b) and len(a) == 24
+        for name in b:
+            x, y = a[name], b[name]
+            assert (x.dtype, x.shape, x.maxshape, x.chunks, x.fletcher32, x.compression) == \
+                   (y.dtype, y.shape, y.maxshape, y.chunks, y.fletcher32, y.compression), name
+            assert dict(x.attrs) == dict(y.attrs), name
+        row = {column: (0 if metrics_cache.column_kind(column) == "int" else "complete"
+                        if metrics_cache.column_kind(column) == "str" else 0.5) for column in metrics_cache.METRIC_COLUMNS}
+        for handle in (copied, built):
+            metrics_cache.append_rows(handle, [dict(row, iteration=0), dict(row, iteration=1)])
+            metrics_cache.append_rows(handle, [dict(row, iteration=1)])  # already held: skipped
+        for name in b:
+            assert a[name][()].tolist() == b[name][()].tolist() and len(a[name]) == 2, name

@@ -13,6 +13,7 @@ columns, measured), and it is paid in the run's last commit, after the last iter
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 from typing import Any
 
@@ -30,7 +31,22 @@ _DESCRIPTION = ("cache of ilcforce.metrics.iteration_metrics over the stored log
 
 
 def create(handle: h5py.File) -> None:
-    """Create an empty ``/metrics`` group of the current version in ``handle``."""
+    """Create an empty ``/metrics`` group of the current version in ``handle``: copied (HDF5's
+    H5Ocopy, attributes included, in C) from a group built once per process in memory, 0.3 against
+    5.5 ms for its 24 datasets and 50 attributes (measured), in a new store's first commit."""
+    h5py.h5o.copy(_template().id, schema.METRICS_GROUP.encode(), handle.id, schema.METRICS_GROUP.encode())
+
+
+@functools.cache
+def _template() -> h5py.File:
+    """An in-memory HDF5 file holding an empty ``/metrics`` group (:func:`_build`)."""
+    template = h5py.File("ilcforce-metrics-template", "w", driver="core", backing_store=False, libver=schema.LIBVER)
+    _build(template)
+    return template
+
+
+def _build(handle: h5py.File) -> None:
+    """Make the empty ``/metrics`` group: one resizable column per metric, with its attributes."""
     metrics = handle.create_group(schema.METRICS_GROUP)
     metrics.attrs["metrics_version"] = METRICS_VERSION
     metrics.attrs["description"] = _DESCRIPTION
