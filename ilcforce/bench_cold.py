@@ -8,20 +8,17 @@ point (console script), with numba's on-disk caches warm (one untimed run first)
 * ``ilcforce compare`` for the paper's study (c1, c2, c3 x 20, every store written, fresh results).
 
 Beside them, the compiled loop's own time for the same work (the simulator kernel timed
-in-process, warm), so that overhead = wall - loop shows; the timeline of cold ``simulate`` runs
+in-process, warm), so that overhead = wall - loop shows; and the split of cold ``simulate`` runs
 measured inside each process (:func:`cold_timelines`: when the first loop starts, the loops' own
 time, the time between them and after the last; medians), which is not affected by the machine
-being faster or slower between two measurements; and a split of one cold ``simulate`` under
-cProfile into imports, store writes, metrics, the wait for the simulation thread (which runs the
-compiled loop beside the store's writes; cProfile sees only the main thread) and the rest (cProfile
-inflates Python-heavy parts a little; the split is for finding where time goes, the medians are
-the figures).
+being faster or slower between two measurements. (A cProfile split, printed until the ninth
+session, sees only the main thread, and counted the imports inside the store's calls twice once
+the store opened beside the running loop; the timeline replaced it.)
 """
 
 from __future__ import annotations
 
 import os
-import pstats
 import statistics
 import subprocess
 import sys
@@ -130,12 +127,12 @@ def timed_simulator(*args):
     return run
 aot.simulator = timed_simulator
 exit_now = os._exit
-def report(code):
+def _report_and_exit(code):
     end = time.perf_counter() - T0
     if calls:
         print("TIMELINE", calls[0][0], sum(d for _, d in calls), calls[-1][0] + calls[-1][1], end, file=sys.stderr)
     exit_now(code)
-os._exit = report
+os._exit = _report_and_exit
 sys.argv = ["ilcforce", *sys.argv[1:]]
 from ilcforce._entry import main
 main()
@@ -163,59 +160,8 @@ def cold_timelines(repeat: int, extra: Sequence[str] = (), iterations: int = ITE
     return {key: statistics.median(row[key] for row in rows) for key in rows[0]}
 
 
-#: Categories of the cold-run split: (label, test on a profiled function (file, line, name)).
-def _category(func: tuple[str, int, str]) -> str | None:
-    filename, _, name = func
-    path = filename.replace(os.sep, "/")
-    if name == "<module>":  # module bodies run at import: counted under imports
-        return None
-    if name == "_simulate" and path.endswith(("ilcforce/loop.py", "ilcforce/simulate.py")):
-        return "compiled loop"
-    if "desired" in name and "/ilcforce/" in path:
-        return "tau_d along the reference"
-    if "/ilcforce/store" in path:
-        return "store writes"
-    if path.endswith("ilcforce/metrics.py"):
-        return "metrics"
-    return None
-
-
-def profile_split(extra: Sequence[str] = (), iterations: int = ITERATIONS) -> tuple[float, dict[str, float]]:
-    """One cold ``simulate -m c3`` under cProfile: (profiled total, seconds per category)."""
-    with tempfile.TemporaryDirectory() as tmp:
-        prof = Path(tmp) / "run.prof"
-        # the command through typer's app, not main(): main ends with os._exit, before cProfile could save
-        script = Path(tmp) / "run.py"
-        script.write_text("import sys\nfrom ilcforce.cli import app\ntry:\n    app()\nexcept SystemExit as exc:\n"
-                          "    sys.exit(exc.code)\n")
-        args = [sys.executable, "-m", "cProfile", "-o", str(prof), str(script), "simulate", "--method", "c3",
-                "--iters", str(iterations), *extra, "--out", str(Path(tmp) / "c3.h5")]
-        _wall(args, Path(tmp))
-        stats = pstats.Stats(str(prof)).stats  # type: ignore[attr-defined]
-    total = max(ct for (_, _, _, ct, _) in stats.values())
-    split: dict[str, float] = {}
-    imports = sum(ct for func, (_, _, _, ct, _) in stats.items() if func[2] == "_find_and_load")
-    split["imports (incl. numba cache loads at import)"] = imports
-    for func, (_, _, _, ct, callers) in stats.items():
-        category = _category(func)
-        if category is None:
-            continue
-        # count only calls from outside the category (so nested calls are not counted twice)
-        outside = sum(c[3] for caller, c in callers.items() if _category(caller) != category
-                      and not caller[0].startswith("<frozen") and caller[2] != "<module>")
-        split[category] = split.get(category, 0.0) + outside
-    # the simulation runs in a second thread (ilcforce.pipeline), which cProfile does not see: the main
-    # thread's wait for its next iteration stands for it (the loop, noise draws and glue not overlapped
-    # with the store's writes)
-    split["waiting for the simulation thread"] = sum(
-        c[3] for func, (_, _, _, _, callers) in stats.items() if func[2] == "get" and func[0].endswith("queue.py")
-        for caller, c in callers.items() if caller[0].replace(os.sep, "/").endswith("ilcforce/pipeline.py"))
-    split["other (CLI, config, Python glue)"] = total - sum(split.values())
-    return total, split
-
-
 def report(repeat: int = 5, loop_repeat: int = 3, extra: Sequence[str] = (), iterations: int = ITERATIONS) -> None:
-    """Print the cold-process figures, the loop/overhead split and the profiled split."""
+    """Print the cold-process figures, the loop/overhead split and the timeline inside the runs."""
     cores = os.cpu_count() or 1
     walls = cold_walls(repeat, extra, iterations)
     overrides = dict(_parse_set(extra))
@@ -242,9 +188,6 @@ def report(repeat: int = 5, loop_repeat: int = 3, extra: Sequence[str] = (), ite
               f"{line['between loops']:.3f} s, after the last loop {line['after the last loop']:.3f} s, end "
               f"{line['end']:.3f} s: overhead {100 * (1 - line['loops'] / line['end']):.0f}% of the process's "
               "own time (the interpreter's start not counted)")
-    total, split = profile_split(extra, iterations)
-    parts = ", ".join(f"{name} {100 * t / total:.0f}%" for name, t in split.items())
-    print(f"  split of one cold simulate -m c3 under cProfile ({total:.2f} s profiled): {parts}")
 
 
 def _parse_set(extra: Sequence[str]):
