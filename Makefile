@@ -32,6 +32,9 @@ SOURCES := $(shell find ilcforce -name '*.py' -o -name '*.mplstyle')
 # numba instead. Results never depend on it (same numbers either way), so stores only wait for it.
 aot: $(STAMP)
 	@$(PY) -m ilcforce.aot_build
+	@# bytecode as a regular install has it, also where PYTHONDONTWRITEBYTECODE is set (an editable
+	@# install then never writes it, and every command compiled ilcforce's sources anew: about 40 ms)
+	@$(PY) -m compileall -q ilcforce
 
 install: $(STAMP) aot ## create .venv, install ilcforce with its test extras and compile its kernels
 
@@ -42,8 +45,6 @@ test-slow: $(STAMP) aot ## run only the slow paper-level regression studies
 	$(PY) -m pytest -q -m slow
 
 bench: $(STAMP) aot ## print speed figures (medians over repeated runs)
-	@# bytecode as a regular install has it (an editable one under PYTHONDONTWRITEBYTECODE never writes it)
-	$(PY) -m compileall -q ilcforce
 	$(PY) -m ilcforce.bench
 
 STORES = $(foreach e,$(EXPERIMENTS),$(foreach m,$(METHODS),$(RESULTS)/$(e)/$(m).h5))
