@@ -210,12 +210,12 @@ class StoreWriter:
             attrs["fallback_count"] = int(record.fallback_count)
             if first_of_session:
                 self._write_invocation_attrs(handle)
-            attrs["complete"] = True
             if finish is None:
                 self._set_run_state(handle, "running", now)
             else:
                 metrics_cache.append_rows(handle, [*self._rows, row])
                 self._set_run_state(handle, finish, now)
+            attrs["complete"] = True
 
         if self._file_is_ours:
             commit.update(self._path, write)
