@@ -38,7 +38,8 @@ def one_blas_thread() -> None:
     spins for about 0.1 s before sleeping. Measured on 2 cores: 0.2-0.3 s of CPU of a 0.8 s cold
     `simulate`, competing with the simulation for the second core (issue 12). Set before numpy is
     imported; inherited by the processes a command starts (compare's workers, a study's cluster)."""
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    if not os.environ.get("OPENBLAS_NUM_THREADS", "").strip():
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
 
 
 def main() -> None:
@@ -50,6 +51,11 @@ def main() -> None:
         signal.signal(stop, _stopped_while_starting)
     one_blas_thread()
     sys.setswitchinterval(SWITCH_INTERVAL)
+    # a closed stdout or stderr (`ilcforce ... >&-`): Python has None there; what would be printed
+    # goes nowhere, as to a closed terminal, instead of an AttributeError at the first line
+    for name in ("stdout", "stderr"):
+        if getattr(sys, name) is None:
+            setattr(sys, name, open(os.devnull, "w"))  # noqa: SIM115 - lives as long as the process
     from ilcforce.cli import main as run
 
     run()

@@ -100,6 +100,9 @@ def _guard(func):
                 _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
             except OSError as exc:
                 _fail(f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": "))
+            except MemoryError as exc:  # numpy's says what it could not allocate
+                _fail(f"out of memory: {exc}".rstrip(": ") + " (every finished iteration is stored)"
+                      if func.__name__ in ("simulate", "compare") else f"out of memory: {exc}".rstrip(": "))
         except KeyboardInterrupt:
             _say(announce(_ON_STOP.get(func.__name__, "stopped")), stderr=True)
             raise typer.Exit(stop_code())
@@ -279,6 +282,11 @@ def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str,
     if not path.exists() and not path.is_symlink():
         return "run", False
     provenance = store.read_provenance(path)
+    if str(provenance.get("method", method)) != method:  # e.g. another method's store copied here
+        if not overwrite:
+            raise CliError(f"{path} holds a {provenance.get('method')} run, not {method}; move it away or "
+                           "pass --overwrite to rerun it")
+        return "run", True
     keys = samerun.differences(samerun.stored_config(provenance), cfg.to_dict(), method)
     if keys:
         if not overwrite:

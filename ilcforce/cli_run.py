@@ -10,6 +10,7 @@ import contextlib
 import threading
 from pathlib import Path
 
+from ilcforce import interrupts
 from ilcforce.cli import CliError, _g, _say, err  # imported by cli's commands, once cli is loaded
 from ilcforce.cli_signals import STOPS, note, on_stop_signals
 
@@ -125,7 +126,8 @@ def deferred_interrupt():
     def handler(signum, frame):
         note(signum)
         if requested:
-            raise KeyboardInterrupt
+            interrupts.interrupt()  # at once, or when the store's commit in progress has ended
+            return
         requested.append(signum)
         _say("stopping: the unfinished iteration is dropped, every finished one is stored", stderr=True)
 

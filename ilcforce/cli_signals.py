@@ -12,6 +12,8 @@ import signal
 import sys
 import threading
 
+from ilcforce import interrupts
+
 #: The stop signals (SIGINT, SIGTERM) that reached the command running in this process; cleared
 #: as each command starts under :func:`stop_signals`.
 STOPS: list[int] = []
@@ -69,7 +71,7 @@ def stop_signals():
 
     def handler(signum, frame):
         STOPS.append(signum)
-        raise KeyboardInterrupt
+        interrupts.interrupt()  # at once, or when a store's commit in progress has ended
 
     def unraisable(info) -> None:
         if not STOPS:

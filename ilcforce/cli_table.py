@@ -64,8 +64,8 @@ class Table:
         from rich.text import Text
 
         table = RichTable(title=escape(self.title), box=self._box())
-        for header, justify in zip(self.headers, self.justify):
-            table.add_column(escape(header), justify=justify)
+        for header, justify in zip(self.headers, self.justify):  # fold, not "…": any encoding can show it
+            table.add_column(escape(header), justify=justify, overflow="fold")
         for row in self.rows:
             table.add_row(*(Text(c[0], style=c[1]) if isinstance(c, tuple) else Text(c) for c in row))
         return table
@@ -77,14 +77,16 @@ class Table:
 
         texts = [[c[0] if isinstance(c, tuple) else c for c in row] for row in self.rows]
         every = [*self.headers, *(t for row in texts for t in row), self.title]
-        if not all(t.isascii() and t.isprintable() for t in every):
+        if not self.headers or not all(t.isascii() and t.isprintable() and t == t.strip() for t in every):
+            return None  # rich measures and strips what this layout does not
+        if any(justify not in ("left", "right") for justify in self.justify):
             return None
         natural = [max([len(h), *(len(row[k]) for row in texts)]) + 2 for k, h in enumerate(self.headers)]
         room = console_width - (len(natural) + 1)
         widths = natural
         if sum(natural) > room:
             widths = RichTable._collapse_widths(natural, [True] * len(natural), room)
-            if sum(widths) > room:
+            if sum(widths) > room or min(widths) < 3:
                 return None
         headers = []
         for k, header in enumerate(self.headers):

@@ -145,7 +145,7 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     with contextlib.ExitStack() as stack:
         if prefetch:
             inputs_of = iter(stack.enter_context(pipeline.Ahead(lambda stopping: prepared(), depth=2,
-                                                                name="ilcforce-inputs")))
+                                                                name="ilcforce-inputs", join=False)))
         else:
             inputs_of = prepared()
         for inputs in inputs_of:

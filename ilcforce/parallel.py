@@ -25,6 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from ilcforce import interrupts
 from ilcforce.cli_signals import note, on_stop_signals
 from ilcforce.store import safeio
 
@@ -181,8 +182,10 @@ def _worker(config, job: Job, messages) -> None:  # messages: the write end of i
     requested: list[int] = []
 
     def handler(signum, frame):
+        note(signum)  # a KeyboardInterrupt Python drops (in a GC callback) then prints nothing
         if requested:
-            raise KeyboardInterrupt
+            interrupts.interrupt()  # at once, or when the store's commit in progress has ended
+            return
         requested.append(signum)
 
     signal.signal(signal.SIGINT, handler)
@@ -210,6 +213,8 @@ def _worker(config, job: Job, messages) -> None:  # messages: the write end of i
         outcome, code = ("error", _first_line(exc)), 2
     except OSError as exc:
         outcome, code = ("error", f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": ")), 2
+    except MemoryError as exc:
+        outcome, code = ("error", f"out of memory: {exc}".rstrip(": ") + " (every finished iteration is stored)"), 2
     except BaseException:  # noqa: BLE001  (reported to the parent, which shows the traceback)
         outcome, code = ("error", traceback.format_exc(), False), 1
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the report must reach the parent

@@ -31,14 +31,17 @@ class Ahead(Generic[T]):
     """The items of ``make(stopping)``, produced in a background thread (started at once) up to
     ``depth`` ahead of the consumer; iterate once, in the consumer's thread. A context manager:
     leaving it (normally, by an error, or without having iterated at all) stops the producer within
-    one chunk of its work and joins it.
+    one chunk of its work and joins it. With ``join=False`` it does not wait: a producer of pure data
+    (the next iterations' inputs) may finish the item it is making, e.g. a tau_d of seconds at a
+    million samples, after a stop request has already been answered.
 
     ``make`` receives ``stopping()``, true once the consumer has gone away; the producer should pass
     it to whatever checks for a stop between chunks of work.
     """
 
     def __init__(self, make: Callable[[Callable[[], bool]], Iterator[T]], *, depth: int = 1,
-                 name: str = "ilcforce-ahead") -> None:
+                 name: str = "ilcforce-ahead", join: bool = True) -> None:
+        self._join = join
         self._handoff: queue.Queue = queue.Queue(maxsize=depth)
         self._stop = threading.Event()
         self._make = make
@@ -78,7 +81,8 @@ class Ahead(Generic[T]):
     def close(self) -> None:
         """Stop the producer (within one chunk of its work) and wait for it."""
         self._stop.set()
-        self._thread.join()
+        if self._join:
+            self._thread.join()
 
     def __enter__(self) -> Ahead[T]:
         return self

@@ -173,3 +173,75 @@ def test_one_value_written_three_ways_is_one_variant():
     assert {samerun.variant_folder("paper", {"c3.eta": v}) for v in (2, 2.0, 2e0)} == {"paper--c3.eta=2"}
     assert samerun.variant_folder("paper", {"c3.eta": 2.5}) == "paper--c3.eta=2.5"
     assert samerun.variant_folder("paper", {"wall.stiffness": 1e20}) == "paper--wall.stiffness=1e+20"
+
+
+# -- found by an attack on the ninth session's change ---------------------------------------------
+
+
+def _entry(*args: str, **kwargs) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "ilcforce", *args], capture_output=True, text=True, timeout=120,
+                          **kwargs)
+
+
+def test_a_narrow_table_in_an_ascii_locale_folds_instead_of_an_ellipsis(tmp_path: Path):
+    """rich's Table cut narrow cells with '…', which an ASCII or Latin-1 stdout cannot encode:
+    UnicodeEncodeError and exit 1 after the run was stored. Cells now fold."""
+    for encoding in ("ascii", "latin-1"):
+        done = _entry("simulate", "--iters", "1", *SHORT, "--out", str(tmp_path / encoding / "c3.h5"),
+                      env={**os.environ, "COLUMNS": "40", "PYTHONIOENCODING": encoding})
+        assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
+        assert "fallbacks" not in done.stdout and "+--" in done.stdout  # folded, in an ASCII box
+
+
+def test_a_closed_stdout_is_not_a_traceback(tmp_path: Path):
+    out = tmp_path / "c3.h5"
+    done = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "--iters", "1", *SHORT, "--out", str(out)],
+                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, timeout=120,
+                          preexec_fn=lambda: os.close(1))
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr and store.read_provenance(out)["run_state"] == "complete"
+
+
+@pytest.mark.parametrize("out", [".", "..", ""])
+def test_an_out_path_without_a_file_name_is_one_line(out, tmp_path: Path):
+    done = _entry("simulate", "--iters", "1", *SHORT, "--out", out, cwd=tmp_path / ".." if out == ".." else tmp_path)
+    assert done.returncode == 2 and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "not a file name for a store" in done.stderr
+
+
+def test_compare_refuses_another_methods_store_under_a_methods_name(runner, tmp_path: Path):
+    """A c1 store copied to c3.h5 was shown as c3 by compare, without a word."""
+    folder = tmp_path / VARIANT
+    assert runner.invoke(app, ["simulate", "-m", "c1", "--iters", "1", *SHORT, "--results", str(tmp_path)]).exit_code == 0
+    (folder / "c3.h5").write_bytes((folder / "c1.h5").read_bytes())
+    result = runner.invoke(app, ["compare", "--methods", "c1,c3", "--iters", "1", *SHORT, "--results", str(tmp_path)])
+    assert result.exit_code == 2 and "holds a c1 run, not c3" in result.output
+    result = runner.invoke(app, ["compare", "--methods", "c1,c3", "--iters", "1", *SHORT, "--results", str(tmp_path),
+                                 "--overwrite"])
+    assert result.exit_code == 0, result.output
+    assert store.read_provenance(folder / "c3.h5")["method"] == "c3"
+
+
+def test_out_of_memory_is_one_line(runner, tmp_path: Path, monkeypatch):
+    from ilcforce import experiment
+
+    def no_memory(*args, **kwargs):
+        raise MemoryError("Unable to allocate 15.3 MiB for an array with shape (1000001, 2) and data type float64")
+
+    monkeypatch.setattr(experiment, "run_method", no_memory)
+    result = runner.invoke(app, ["simulate", "--iters", "1", *SHORT, "--out", str(tmp_path / "c3.h5")])
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines() == [
+        "error: out of memory: Unable to allocate 15.3 MiB for an array with shape (1000001, 2) and data type "
+        "float64 (every finished iteration is stored)"]
+
+
+def test_a_users_empty_openblas_setting_means_one_thread():
+    code = ("import os, sys; sys.argv = ['ilcforce', 'version']; from ilcforce import _entry; _entry.one_blas_thread(); "
+            "print(os.environ['OPENBLAS_NUM_THREADS'])")
+    for given, expected in (("", "1"), ("3", "3"), (None, "1")):
+        env = {k: v for k, v in os.environ.items() if k != "OPENBLAS_NUM_THREADS"}
+        if given is not None:
+            env["OPENBLAS_NUM_THREADS"] = given
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, env=env)
+        assert done.stdout.strip() == expected, (given, done.stdout, done.stderr)

@@ -86,3 +86,27 @@ def test_a_row_must_have_a_cell_per_column():
     table.add_column("a")
     with pytest.raises(ValueError, match="1 columns"):
         table.add_row("1", "2")
+
+
+def test_what_the_layout_does_not_measure_as_rich_does_goes_to_rich():
+    """Found by fuzzing the layout against rich: no columns, cells with leading or trailing spaces
+    (rich strips them), centred columns and columns narrowed below three characters."""
+    box = _summary(1, False)._box()
+    empty = Table("t")
+    assert empty.lines(80, box) is None
+    spaced = Table("t")
+    spaced.add_column("a", justify="right")
+    spaced.add_row(" 1")
+    assert spaced.lines(80, box) is None
+    centred = Table("t")
+    centred.add_column("a", justify="center")
+    centred.add_row("1")
+    assert centred.lines(80, box) is None
+    narrow = Table("t")
+    for _ in range(12):
+        narrow.add_column("a b c", justify="right")
+    narrow.add_row(*([""] * 12))
+    assert narrow.lines(30, box) is None
+    for width in (20, 30, 40):  # and rich draws them, without raising
+        for table in (spaced, centred, narrow):
+            assert _printed(table.print, width) == _printed(lambda c: c.print(table.rich_table()), width)

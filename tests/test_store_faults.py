@@ -350,3 +350,52 @@ def test_a_store_marked_walked_skips_the_probe_until_it_changes(path: Path, monk
     os.utime(path, ns=(info.st_atime_ns, info.st_mtime_ns + 1_000_000))
     store.read_metrics(path)
     assert walks() == ["walk"]
+
+
+# -- a second stop signal inside a commit (found by an attack on the CLI) ------------------------
+
+
+@pytest.mark.parametrize("at_write", [1, 3, 10, 25])
+@pytest.mark.parametrize("last", [False, True])
+def test_a_stop_inside_a_commit_takes_effect_after_it(path: Path, monkeypatch, at_write: int, last: bool):
+    """Two SIGINTs 10 ms apart: the second one's handler ran inside the stop commit, in HDF5's
+    write-back of an object h5py was releasing; h5py swallowed the KeyboardInterrupt, the commit
+    ended "normally" without the /metrics rows, and the store no longer validated (nor resumed).
+    The handlers now call interrupts.interrupt(), which inside a commit raises only once it has
+    ended. Here the handler's call is made from the at_write-th write of the store's file."""
+    from ilcforce import interrupts
+    from ilcforce.store import journal
+
+    real_write = journal.JournaledFile.write
+    calls = [0]
+
+    def write(self, data):
+        calls[0] += 1
+        if calls[0] == at_write:
+            interrupts.interrupt()  # what a second Ctrl-C's handler does, wherever it lands
+        return real_write(self, data)
+
+    with writer(path, config=resumed_config(3)) as w:
+        w.append(make_record(0))
+        w.append(make_record(1))
+        monkeypatch.setattr(journal.JournaledFile, "write", write)
+        with pytest.raises(KeyboardInterrupt):
+            if last:
+                w.append(make_record(2), finish="complete")
+            else:
+                w.append(make_record(2))
+        monkeypatch.setattr(journal.JournaledFile, "write", real_write)
+        assert calls[0] >= at_write, "the commit wrote less than expected: the test reached nothing"
+    store.validate(path)  # raises on a damaged store
+    assert store.iterations(path) == [0, 1, 2]  # the commit the signal landed in completed
+    assert len(store.read_metrics_rows(path)) == 3
+    assert store.read_provenance(path)["run_state"] == ("complete" if last else "partial")
+
+
+def test_a_stop_outside_a_commit_raises_at_once():
+    from ilcforce import interrupts
+
+    with pytest.raises(KeyboardInterrupt):
+        interrupts.interrupt()
+    with interrupts.critical():  # a section that failed on its own: its error, not a stop, goes on
+        pass

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import h5py
 
+from ilcforce import interrupts
 from ilcforce.store import journal
 from ilcforce.store.safeio import (StoreError, flock_with_timeout, journal_path, one_line, os_reason,
                                    READ_LOCK_TIMEOUT, tmp_path)
@@ -78,7 +79,13 @@ def _abandon(path: Path, tmp: Path, stream, error: BaseException) -> None:
 
 
 def create(path: Path, build: Change) -> None:
-    """Write a new store with ``build`` and rename it over ``path`` (atomic)."""
+    """Write a new store with ``build`` and rename it over ``path`` (atomic). A stop signal during
+    it takes effect when it has ended (:mod:`ilcforce.interrupts`), as for :func:`update`."""
+    with interrupts.critical():
+        _create(path, build)
+
+
+def _create(path: Path, build: Change) -> None:
     tmp = tmp_path(path)
     fd = -1
     stream = None
@@ -96,7 +103,16 @@ def create(path: Path, build: Change) -> None:
 
 
 def update(path: Path, change: Change) -> None:
-    """Apply ``change`` to the store at ``path`` atomically (in place when the file is private)."""
+    """Apply ``change`` to the store at ``path`` atomically (in place when the file is private).
+
+    A second Ctrl-C raised inside HDF5's write-back of an object h5py releases is swallowed by
+    h5py, and the commit would end "normally" with writes missing: stop signals that the CLI's
+    handlers would raise wait until the commit has ended (:mod:`ilcforce.interrupts`)."""
+    with interrupts.critical():
+        _update(path, change)
+
+
+def _update(path: Path, change: Change) -> None:
     try:
         info = os.lstat(path)
     except OSError as error:

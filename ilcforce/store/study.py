@@ -39,6 +39,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from ilcforce import interrupts
 from ilcforce.store.safeio import is_hdf5_file, one_line
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
@@ -319,23 +320,30 @@ class StudyStore:
     def commit(self, record: dict, now: float) -> None:
         """Commit one cell's record (``setting``, ``seed``, ``method``, ``state``, ``attempts``,
         ``message``, ``elapsed``, ``worker``, ``rows``) to the journal; consolidate if due."""
-        folder = journal_dir(self.path)
-        folder.mkdir(exist_ok=True)
-        target = folder / f"{record['setting']}-{record['seed']}-{record['method']}.json"
-        _write_json_atomic(target, record)
-        self.committed += 1
-        self._pending.append({**record, "_file": target})
-        key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
-        if record["state"] == DONE:
-            self.done.add(key)
-            self.failed.pop(key, None)
-        else:
-            self.failed[key] = str(record.get("message", ""))
-        if now - self._last >= self.consolidate_every:
-            self.consolidate(now)
+        with interrupts.critical():  # a stop signal takes effect when the commit has ended
+            folder = journal_dir(self.path)
+            folder.mkdir(exist_ok=True)
+            target = folder / f"{record['setting']}-{record['seed']}-{record['method']}.json"
+            _write_json_atomic(target, record)
+            self.committed += 1
+            self._pending.append({**record, "_file": target})
+            key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
+            if record["state"] == DONE:
+                self.done.add(key)
+                self.failed.pop(key, None)
+            else:
+                self.failed[key] = str(record.get("message", ""))
+            if now - self._last >= self.consolidate_every:
+                self.consolidate(now)
 
     def consolidate(self, now: float = 0.0) -> None:
-        """Fold the journal into the HDF5 file (copy, append, fsync, rename), then clear it."""
+        """Fold the journal into the HDF5 file (copy, append, fsync, rename), then clear it. A stop
+        signal takes effect after it (h5py can swallow a KeyboardInterrupt raised in its write-back:
+        :mod:`ilcforce.interrupts`)."""
+        with interrupts.critical():
+            self._consolidate(now)
+
+    def _consolidate(self, now: float = 0.0) -> None:
         self._last = now
         cells, rows, added = [], [], set()
         for record in self._pending:

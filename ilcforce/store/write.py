@@ -16,6 +16,7 @@ import h5py
 import numpy as np
 
 import ilcforce
+from ilcforce import interrupts
 from ilcforce.metrics import iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.store import commit, metrics_cache, schema
@@ -70,6 +71,8 @@ class StoreWriter:
                  reference: dict[str, np.ndarray], control_time: np.ndarray | None = None,
                  overwrite: bool = False, resume: bool = False, same_run: SameRunCheck | None = None) -> None:
         self._path = Path(path)
+        if self._path.name in ("", "..") or str(path) == "":
+            raise StoreError(f"{str(path) or '(empty)'}: not a file name for a store (e.g. results/mine/c3.h5)")
         if overwrite and resume:
             raise StoreError(f"{self._path}: --overwrite and --resume are mutually exclusive; choose one")
         if int(n_iterations) != n_iterations or n_iterations < 0:
@@ -157,8 +160,9 @@ class StoreWriter:
                     self._set_run_state(handle, "partial", now)
 
                 try:
-                    commit.update(self._path, change)
-                    self._rows = []
+                    with interrupts.critical():
+                        commit.update(self._path, change)
+                        self._rows = []
                 except Exception:
                     if exc_type is None:
                         raise
@@ -217,22 +221,24 @@ class StoreWriter:
                 self._set_run_state(handle, finish, now)
             attrs["complete"] = True
 
-        if self._file_is_ours:
-            commit.update(self._path, write)
-        else:
-            def build(handle: h5py.File) -> None:
-                self._initialise(handle)
-                write(handle)
-            commit.create(self._path, build)
-            self._file_is_ours = True
-        self._appended = True
-        self._last = int(record.iteration)
-        self._last_status = str(record.status)
-        if finish is None:
-            self._rows.append(row)
-        else:
-            self._rows = []
-            self._finished = True
+        def build(handle: h5py.File) -> None:
+            self._initialise(handle)
+            write(handle)
+
+        with interrupts.critical():  # a stop signal waits for the commit and this writer's account of it
+            if self._file_is_ours:
+                commit.update(self._path, write)
+            else:
+                commit.create(self._path, build)
+                self._file_is_ours = True
+            self._appended = True
+            self._last = int(record.iteration)
+            self._last_status = str(record.status)
+            if finish is None:
+                self._rows.append(row)
+            else:
+                self._rows = []
+                self._finished = True
         return row
 
     def _template_for(self, record: IterationRecord, memory: dict[str, np.ndarray]) -> IterationTemplate:
@@ -259,9 +265,10 @@ class StoreWriter:
             metrics_cache.append_rows(handle, self._rows)
             self._set_run_state(handle, status, now)
 
-        commit.update(self._path, change)
-        self._rows = []
-        self._finished = True
+        with interrupts.critical():
+            commit.update(self._path, change)
+            self._rows = []
+            self._finished = True
 
     # -- internals ------------------------------------------------------------------------
 
