@@ -12,7 +12,10 @@ import pytest
 
 from ilcforce import store
 
-ITERS = "12"
+# long enough that a signal sent once two iterations are stored lands while the run goes on: the
+# simulation runs up to four iterations ahead of the store (which opens after iteration 0 starts),
+# so at 12 iterations the run could be over by then (seen once in a fresh clone's make test)
+ITERS = "40"
 
 
 def _start(out, *extra, iters=ITERS, method="c3"):
