@@ -105,7 +105,7 @@ def iteration_inputs(config: Config, j: int, reference: np.ndarray, chunk_steps:
 def simulate_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None,
                         stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
                         desired_cache: dict | None = None, *, prefetch: bool = False,
-                        started: Callable[[], None] | None = None):
+                        turns: pipeline.Turns | None = None):
     """Yield the :class:`IterationRecord` of iterations ``first .. iterations - 1`` in order.
 
     Stops after a diverged iteration. ``memory`` (a stored learned state) seeds iteration ``first``.
@@ -117,8 +117,10 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     for that same (wall, reference, sample_time, log_every).
     ``prefetch=True`` makes each iteration's inputs (noise, disturbance, tau_d of a new true plant)
     in a background thread while the one before simulates (for a machine with a core to spare; the
-    numbers are the same). ``started()`` is called once, when iteration ``first`` begins to simulate.
+    numbers are the same). ``turns`` (:class:`ilcforce.pipeline.Turns`) is told when the compiled loop runs, and that
+    background thread makes what is not needed at once while it does; it is over when this ends.
     """
+    turns = turns if turns is not None else pipeline.Turns()
     controller = make_controller(config, method)
     if memory:
         controller.restore(memory)
@@ -126,9 +128,14 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     ref_log = reference[:: config.simulation.log_every]
     if desired_cache is None:
         desired_cache = {}
+    making: dict = {}  # true plant -> Event, while the inputs thread makes its tau_d
+    finished = [first - 1]  # the last iteration whose compiled loop has returned
 
-    def desired(true_plant):
-        """tau_d along the reference on ``true_plant``: the cache's, or made now and kept."""
+    def desired(true_plant, *, wait: bool = True):
+        """tau_d along the reference on ``true_plant``: the cache's, or made now and kept (after the
+        inputs thread, if it is making it: once is enough)."""
+        if wait and true_plant in making:
+            making[true_plant].wait()
         if true_plant not in desired_cache:
             desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
         return desired_cache[true_plant]
@@ -137,12 +144,27 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
         """Each iteration's inputs; with ``prefetch``, in the background thread, which then also
         makes the tau_d of a new true plant while that iteration simulates."""
         for j in range(first, config.experiment.iterations):
+            if prefetch and finished[0] < j - 1:  # not awaited yet: made while iteration j - 1's loop runs
+                turns.wait()
             inputs = iteration_inputs(config, j, reference, chunk_steps, ahead=prefetch)
-            yield inputs
-            if prefetch:
-                desired(inputs.true_plant)
+            if j == first + 1:  # made after the tau_d of iteration `first`: all its end needs
+                turns.ready()
+            plant = inputs.true_plant
+            new = prefetch and plant not in desired_cache and plant not in making
+            if new:
+                making[plant] = threading.Event()
+            try:
+                yield inputs
+                if new:
+                    turns.wait()
+                    desired(plant, wait=False)
+            finally:
+                if new:
+                    making.pop(plant).set()
+        turns.ready()  # (a run of one iteration: nothing more to make)
 
     with contextlib.ExitStack() as stack:
+        stack.callback(turns.over)
         if prefetch:
             inputs_of = iter(stack.enter_context(pipeline.Ahead(lambda stopping: prepared(), depth=2,
                                                                 name="ilcforce-inputs", join=False)))
@@ -152,23 +174,80 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
             if stop_requested is not None and stop_requested():  # also between iterations: an iteration
                 raise KeyboardInterrupt  # may be one chunk, so run_iteration might never look
             mem_prev, mem_new = controller.begin_iteration(inputs.iteration)
-            if started is not None and inputs.iteration == first:
-                started()
-            record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps)
+            record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps, turns)
+            finished[0] = inputs.iteration
             controller.end_iteration(record)  # between-iteration learning sees the finished iteration
             # a diverged iteration stores the memory it was writing (NaN where it never got)
             memory_now = (controller.learned_state() if record.status == STATUS_COMPLETE
                           else controller.unfinished_state())
             completed = complete_record(record, desired(inputs.true_plant), memory_now, controller.learned_units())
+            if record.status == STATUS_DIVERGED or inputs.iteration == config.experiment.iterations - 1:
+                turns.over()  # the loop will not run again: the consumer need not wait for it
             yield dataclasses.replace(completed, memory_labels=memory_labels(controller))
             if record.status == STATUS_DIVERGED:
                 return
 
 
+class StartedRun:
+    """Iterations of one method simulating in a background thread (:func:`start_iterations`), up to
+    :func:`records_ahead` finished records ahead of their consumer. A context manager: leaving it
+    stops the simulation within one chunk of the compiled loop and joins its thread."""
+
+    def __init__(self, config: Config, method: str, first: int, memory: dict | None,
+                 stop_requested: Callable[[], bool] | None, chunk_steps: int | None,
+                 desired_cache: dict | None) -> None:
+        self.config_toml, self.method, self.first = config.to_toml(), method, first
+        self.turns = pipeline.Turns()  # the compiled loop runs (iteration `first` has begun), or it is over
+        self._stop_requested = stop_requested
+
+        def make(consumer_gone):
+            def stopping() -> bool:
+                asked = self._stop_requested
+                return consumer_gone() or (asked is not None and asked())
+            try:
+                yield from simulate_iterations(config, method, first, memory, stopping, chunk_steps,
+                                               desired_cache=desired_cache, prefetch=True, turns=self.turns)
+            finally:
+                self.turns.over()
+
+        self._ahead = pipeline.Ahead(make, depth=records_ahead(config))
+
+    def watch(self, stop_requested: Callable[[], bool] | None) -> None:
+        """From now on the simulation stops when ``stop_requested()`` is true (as when started with it)."""
+        self._stop_requested = stop_requested
+
+    def records(self):
+        """The :class:`IterationRecord` of each iteration, in order (iterate once)."""
+        return iter(self._ahead)
+
+    def queued(self) -> int:
+        """How many finished records wait to be taken."""
+        return self._ahead.queued()
+
+    def close(self) -> None:
+        self._ahead.close()
+
+    def __enter__(self) -> StartedRun:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def start_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None,
+                     stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
+                     desired_cache: dict | None = None) -> StartedRun:
+    """Start :func:`simulate_iterations` (with ``prefetch``) in a background thread at once.
+
+    Iteration j + 1 simulates (compiled loop, GIL released) while the consumer stores j."""
+    make_controller(config, method)  # a bad method fails here, not in the thread
+    return StartedRun(config, method, first, memory, stop_requested, chunk_steps, desired_cache)
+
+
 def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
                command: str = "", progress: Callable[[IterationRecord, dict], None] | None = None,
                stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
-               desired_cache: dict | None = None) -> RunSummary:
+               desired_cache: dict | None = None, started: StartedRun | None = None) -> RunSummary:
     """Run ``method`` over the experiment's iterations and store every iteration in ``out``.
 
     ``progress(record, metrics_row)`` is called after each stored iteration. If
@@ -176,22 +255,14 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     loop (a fraction of a second), abandoning the iteration in flight, by raising KeyboardInterrupt;
     every finished iteration is stored and the store is left "partial", ready for ``resume``.
     Raises ``ilcforce.store.StoreError`` for store problems (existing result, concurrent writer, ...).
+    ``started`` is this run's iterations begun beforehand (:func:`start_iterations` from iteration 0,
+    with this ``config`` and ``method``); it is used unless ``resume``, and closed in any case.
     """
     make_controller(config, method)  # fail on a bad method before touching any file
     rows = []
 
-    running = threading.Event()  # iteration `first` simulates, or the simulation ended
-
-    def iterations(first: int, memory: dict | None):
-        def make(consumer_gone):
-            def stopping() -> bool:
-                return consumer_gone() or (stop_requested is not None and stop_requested())
-            try:
-                yield from simulate_iterations(config, method, first, memory, stopping, chunk_steps,
-                                               desired_cache=desired_cache, prefetch=True, started=running.set)
-            finally:
-                running.set()
-        return pipeline.Ahead(make, depth=records_ahead(config))
+    def iterations(first: int, memory: dict | None) -> StartedRun:
+        return start_iterations(config, method, first, memory, stop_requested, chunk_steps, desired_cache)
 
     # Iteration j + 1 simulates (compiled loop, GIL released) while j is stored. A run into a new
     # file starts simulating at once, while this thread sets up the store (an existing file is
@@ -200,9 +271,18 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     # raised here after every finished iteration is stored); a store error stops it the same way.
     with contextlib.ExitStack() as stack:
         fresh = not resume and not os.path.lexists(out)
-        ahead = stack.enter_context(iterations(0, None)) if fresh else None
+        ahead = None
+        if started is not None:  # begun before this call, e.g. while the CLI parsed (ilcforce.early_start)
+            stack.enter_context(started)  # closed in any case
+            if started.config_toml != config.to_toml() or started.method != method or started.first != 0:
+                raise ValueError("run_method(started=...): those iterations were started for another run")
+            if not resume:
+                started.watch(stop_requested)
+                ahead = started
+        if ahead is None and fresh:
+            ahead = stack.enter_context(iterations(0, None))
         if ahead is not None:  # h5py's import holds the GIL in long calls: let iteration 0 start first
-            running.wait(_START_WAIT)
+            ahead.turns.wait_ready(_START_WAIT)
         from ilcforce.store import StoreWriter  # h5py and the writer: imported while iteration 0 simulates
 
         writer = stack.enter_context(StoreWriter(
@@ -222,11 +302,13 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
             raise RuntimeError(f"{out}: a new store starts at iteration {first}, not 0")
         status = STATUS_COMPLETE
         last = config.experiment.iterations - 1
-        for record in ahead:
+        for record in ahead.records():
             if record.status == STATUS_DIVERGED:
                 status = STATUS_DIVERGED
             # the last iteration's commit also marks the run finished: one commit less at the end
             ends = status == STATUS_DIVERGED or record.iteration == last
+            if not ahead.queued():  # commit while the loop runs, not while the next iteration waits to start
+                ahead.turns.wait()  # (unless the store is behind: the simulation may be waiting for it)
             row = writer.append(record, finish=status if ends else None)  # the store computes the metrics row
             rows.append(row)
             if progress is not None:

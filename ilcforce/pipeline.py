@@ -78,6 +78,10 @@ class Ahead(Generic[T]):
         finally:
             self.close()
 
+    def queued(self) -> int:
+        """How many items are made and not yet taken."""
+        return self._handoff.qsize()
+
     def close(self) -> None:
         """Stop the producer (within one chunk of its work) and wait for it."""
         self._stop.set()
@@ -89,3 +93,49 @@ class Ahead(Generic[T]):
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class Turns:
+    """When the simulation thread is inside the compiled loop, which runs without the GIL.
+
+    A run's other threads (the inputs of the next iterations, the store's commits, the CLI's own
+    imports) hold the GIL for a few milliseconds at a time. When one of them held it as an
+    iteration ended, the simulation thread waited for it before it could start the next, and
+    every 0.1 ms (the switch interval) the two took turns: its 1.5 ms between two iterations took
+    3-15 ms (issue 12). Those threads therefore :meth:`wait` until the loop runs before each piece
+    of their work, which then overlaps the loop instead of the gap.
+    """
+
+    def __init__(self) -> None:
+        self._inside = threading.Event()
+        self._ready = threading.Event()
+        self._over = False
+
+    def enter(self) -> None:
+        """The simulation thread is about to call the compiled loop."""
+        self._inside.set()
+
+    def leave(self) -> None:
+        """The compiled loop returned."""
+        if not self._over:
+            self._inside.clear()
+
+    def ready(self) -> None:
+        """What the first iteration's end needs is made (the next iteration's inputs, tau_d)."""
+        self._ready.set()
+
+    def over(self) -> None:
+        """The simulation has ended: nobody waits any more."""
+        self._over = True
+        self._inside.set()
+        self._ready.set()
+
+    def wait(self, timeout: float = 0.05) -> bool:
+        """Wait until the compiled loop runs (or the simulation is over), at most ``timeout`` s."""
+        return self._inside.wait(timeout)
+
+    def wait_ready(self, timeout: float) -> bool:
+        """Wait until the loop runs and the first iteration's end is provided for (:meth:`ready`):
+        until then, work that can wait (the CLI's imports, the store's opening) would take the
+        GIL from the threads that cannot."""
+        return self._ready.wait(timeout)

@@ -175,7 +175,7 @@ def force_axis(selection) -> int:
 
 def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.ndarray,
                   mem_new: np.ndarray, stop_requested: Callable[[], bool] | None = None,
-                  chunk_steps: int | None = None) -> IterationRecord:
+                  chunk_steps: int | None = None, turns=None) -> IterationRecord:
     """Simulate one iteration; the controller's memory buffers are read and written in place.
 
     Returns the :class:`~ilcforce.records.IterationRecord` without ``memory`` (the iteration loop
@@ -184,7 +184,8 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
 
     The compiled loop runs in chunks of ``chunk_steps`` control samples (default: about
     :data:`CHUNK_RK4_STEPS` RK4 steps); between chunks Python handles signals, and if
-    ``stop_requested()`` is true the iteration is abandoned with KeyboardInterrupt.
+    ``stop_requested()`` is true the iteration is abandoned with KeyboardInterrupt. ``turns``
+    (:class:`ilcforce.pipeline.Turns`), if given, is told when the compiled loop runs.
     """
     from ilcforce import aot, loop  # loop: numba's, loaded on first use only
 
@@ -223,7 +224,13 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
             forces = inputs.first_chunk[1]
         else:
             forces = chunk_disturbance(inputs, k, k + chunk)
-        status, k_fail = simulate_chunk(*head, forces, *tail, k, k + chunk)
+        if turns is not None:
+            turns.enter()
+        try:
+            status, k_fail = simulate_chunk(*head, forces, *tail, k, k + chunk)
+        finally:
+            if turns is not None:
+                turns.leave()
         k += chunk
         if status != loop.RUN_CONTINUE:
             break

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
-from ilcforce import store
+from ilcforce import experiment, store
 from ilcforce.config_load import load_config
 from ilcforce.experiment import run_method, simulate_iterations
 from ilcforce.metrics import iteration_metrics
@@ -107,3 +109,26 @@ def test_every_store_validates(tmp_path, short_config):
         run_method(short_config(), method, path)
         store.validate(path)
         assert store.read_provenance(path)["run_state"] == "complete"
+
+
+def test_tau_d_is_made_once_per_plant_even_when_the_loop_needs_it_first(monkeypatch, short_config):
+    """The inputs thread makes tau_d while iteration 0 simulates; when it is slower, the simulation
+    thread waits for it instead of making it a second time."""
+    made = []
+    real = experiment.desired_inputs
+
+    def slow(plant, wall, reference):
+        made.append(plant)
+        time.sleep(0.3)  # longer than a short iteration
+        return real(plant, wall, reference)
+
+    monkeypatch.setattr(experiment, "desired_inputs", slow)
+    config = short_config(**{"plant.perturbation.from_iteration": 2})
+    records = list(experiment.simulate_iterations(config, "c3", prefetch=True))
+    assert len(records) == 3
+    assert len(made) == len(set(made)) == 2  # the nominal-like true plant, then the perturbed one
+    monkeypatch.setattr(experiment, "desired_inputs", real)
+    plain = list(experiment.simulate_iterations(config, "c3"))
+    for a, b in zip(records, plain, strict=True):
+        for name in a.log:
+            assert np.array_equal(a.log[name], b.log[name], equal_nan=True), name

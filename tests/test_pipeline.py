@@ -7,7 +7,7 @@ import time
 
 import pytest
 
-from ilcforce.pipeline import Ahead
+from ilcforce.pipeline import Ahead, Turns
 
 
 def test_items_arrive_in_order_and_all_of_them():
@@ -67,3 +67,19 @@ def test_a_consumer_that_stops_early_stops_and_joins_the_producer():
     with pytest.raises(OSError, match="disk full"):
         failing_consumer()
     assert threading.active_count() == before
+
+
+def test_turns_wait_for_the_loop_or_its_end():
+    turns = Turns()
+    assert turns.wait(0.01) is False and turns.wait_ready(0.01) is False
+    turns.enter()
+    assert turns.wait(0.01) is True
+    turns.leave()
+    assert turns.wait(0.01) is False
+    turns.ready()
+    assert turns.wait_ready(0.01) is True
+    later = Turns()
+    threading.Timer(0.05, later.over).start()
+    assert later.wait(5) is True and later.wait_ready(0) is True
+    later.leave()  # a last leave after the end: nobody waits again
+    assert later.wait(0) is True
