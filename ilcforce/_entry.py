@@ -56,6 +56,10 @@ def main() -> None:
     for name in ("stdout", "stderr"):
         if getattr(sys, name) is None:
             setattr(sys, name, open(os.devnull, "w"))  # noqa: SIM115 - lives as long as the process
+    from ilcforce import early_start
+
+    if early_start.begin(sys.argv[1:]):  # a plain `simulate`: iteration 0 starts before typer loads
+        early_start.wait_running()
     from ilcforce.cli import main as run
 
     run()

@@ -68,7 +68,10 @@ def _last(iteration: int, status: str, row: dict) -> str:
 
 
 def run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool, command: str):
+    from ilcforce import early_start
     from ilcforce.experiment import run_method
+
+    started = early_start.take(config, method, resume=resume)  # begun while typer loaded, if it could be
 
     name = f"{config.experiment.name}/{method}"
     display = _Display([name], config.experiment.iterations)
@@ -79,7 +82,7 @@ def run_one(config, method: str, path: Path, *, overwrite: bool, resume: bool, c
     try:
         with deferred_interrupt() as interrupted:
             return run_method(config, method, path, overwrite=overwrite, resume=resume, command=command,
-                              progress=tick, stop_requested=interrupted)
+                              progress=tick, stop_requested=interrupted, started=started)
     finally:
         display.stop()
 
