@@ -116,28 +116,16 @@ def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], set
     # a first run compiles before iteration 0: say so on a terminal (ilcforce/compile_note.py). Whether
     # stderr is one is asked only then: the check builds a rich Console (issue 12: not before the run)
     announce_compiles(lambda text: _say(text, stderr=True) if err.is_terminal else None)
-    from ilcforce.config_load import load_config, parse_override
+    from ilcforce.config_load import command_overrides, load_config
 
-    overrides = dict(parse_override(s) for s in (sets or []))
-    if seed is not None:
-        if seed < 0:
-            raise CliError(f"--seed must be >= 0, got {seed}")
-        overrides["experiment.seed"] = seed
-    if iters is not None:
-        if iters < 1:
-            raise CliError(f"--iters must be >= 1, got {iters}")
-        overrides["experiment.iterations"] = iters
-    return load_config(config, overrides)
+    return load_config(config, command_overrides(sets, seed, iters))
 
 
 def _variant(seed: Optional[int], sets: Optional[list[str]]) -> dict[str, object]:
     """The overrides that make a variant (its own results folder): every --set, and --seed."""
-    from ilcforce.config_load import parse_override
+    from ilcforce.config_load import command_overrides
 
-    overrides = dict(parse_override(s) for s in (sets or []))
-    if seed is not None:
-        overrides["experiment.seed"] = seed
-    return overrides
+    return command_overrides(sets, seed)
 
 
 def _methods(text: str) -> list[str]:

@@ -237,6 +237,21 @@ def parse_override(text: str) -> tuple[str, object]:
     return key, value
 
 
+def command_overrides(sets=(), seed: int | None = None, iters: int | None = None) -> dict[str, object]:
+    """The overrides of a command line's ``--set`` items, ``--seed`` and ``--iters`` (the CLI's, and
+    ``ilcforce.early_start``'s reading of it); ConfigError for a negative seed or fewer than one iteration."""
+    overrides = dict(parse_override(s) for s in (sets or ()))
+    if seed is not None:
+        if seed < 0:
+            raise ConfigError(f"--seed must be >= 0, got {seed}")
+        overrides["experiment.seed"] = seed
+    if iters is not None:
+        if iters < 1:
+            raise ConfigError(f"--iters must be >= 1, got {iters}")
+        overrides["experiment.iterations"] = iters
+    return overrides
+
+
 def _name_after_file(data: dict, path: Path) -> None:
     """An experiment file without ``experiment.name`` (or description) is named after the file: with
     the paper's name its runs went to the paper's own results folder (results/paper/)."""

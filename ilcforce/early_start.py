@@ -72,16 +72,9 @@ def read_arguments(args: list[str]) -> dict | None:
 
 def _config(found: dict):
     """The configuration ``ilcforce simulate`` builds from these options (as ``ilcforce.cli._load``)."""
-    from ilcforce.config_load import load_config, parse_override
+    from ilcforce.config_load import command_overrides, load_config
 
-    overrides = dict(parse_override(s) for s in found["sets"])
-    if "seed" in found:
-        overrides["experiment.seed"] = found["seed"]
-    if "iters" in found:
-        if found["iters"] < 1:
-            return None
-        overrides["experiment.iterations"] = found["iters"]
-    return load_config(found.get("config"), overrides)
+    return load_config(found.get("config"), command_overrides(found["sets"], found.get("seed"), found.get("iters")))
 
 
 def _compiled(config, method: str) -> bool:
@@ -111,7 +104,7 @@ def begin(args: list[str]) -> bool:
             return False
         method = found["method"].strip().lower()
         config = _config(found)
-        if config is None or not _compiled(config, method):
+        if not _compiled(config, method):
             return False
         from ilcforce.experiment import start_iterations
 
@@ -131,15 +124,19 @@ def wait_running(timeout: float = 0.5) -> None:
         run.turns.wait_ready(timeout)
 
 
-def take(config, method: str, *, resume: bool = False):
-    """The early run if it was started for ``method`` with this configuration (and the command does
-    not resume); else None, the early run (if any) stopped. Only the first call can get it."""
+def _pop():
+    """The early run, no longer the module's (None if there is none)."""
     global _started
     with _lock:
         run, _started = _started, None
-    if run is None:
-        return None
-    if resume or run.method != method or run.config_toml != config.to_toml():
+    return run
+
+
+def take(config, method: str, *, resume: bool = False):
+    """The early run if it was started for ``method`` with this configuration (and the command does
+    not resume); else None, the early run (if any) stopped. Only the first call can get it."""
+    run = _pop()
+    if run is not None and (resume or not run.is_for(config, method)):
         run.close()
         return None
     return run
@@ -147,8 +144,6 @@ def take(config, method: str, *, resume: bool = False):
 
 def drop() -> None:
     """Stop the early run, if one is waiting (e.g. for a command that will not take it)."""
-    global _started
-    with _lock:
-        run, _started = _started, None
+    run = _pop()
     if run is not None:
         run.close()

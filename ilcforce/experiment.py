@@ -117,10 +117,22 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     for that same (wall, reference, sample_time, log_every).
     ``prefetch=True`` makes each iteration's inputs (noise, disturbance, tau_d of a new true plant)
     in a background thread while the one before simulates (for a machine with a core to spare; the
-    numbers are the same). ``turns`` (:class:`ilcforce.pipeline.Turns`) is told when the compiled loop runs, and that
-    background thread makes what is not needed at once while it does; it is over when this ends.
+    numbers are the same). ``turns`` (:class:`ilcforce.pipeline.Turns`) is told when the compiled
+    loop runs, and that background thread makes what is not needed at once while it does; it is
+    over when this ends.
     """
     turns = turns if turns is not None else pipeline.Turns()
+    try:
+        yield from _iterations(config, method, first, memory, stop_requested, chunk_steps, desired_cache,
+                               prefetch, turns)
+    finally:
+        turns.over()  # also when the run fails before its first iteration
+
+
+def _iterations(config: Config, method: str, first: int, memory: dict | None,
+                stop_requested: Callable[[], bool] | None, chunk_steps: int | None, desired_cache: dict | None,
+                prefetch: bool, turns: pipeline.Turns):
+    """:func:`simulate_iterations`' records."""
     controller = make_controller(config, method)
     if memory:
         controller.restore(memory)
@@ -164,7 +176,6 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
         turns.ready()  # (a run of one iteration: nothing more to make)
 
     with contextlib.ExitStack() as stack:
-        stack.callback(turns.over)
         if prefetch:
             inputs_of = iter(stack.enter_context(pipeline.Ahead(lambda stopping: prepared(), depth=2,
                                                                 name="ilcforce-inputs", join=False)))
@@ -204,13 +215,14 @@ class StartedRun:
             def stopping() -> bool:
                 asked = self._stop_requested
                 return consumer_gone() or (asked is not None and asked())
-            try:
-                yield from simulate_iterations(config, method, first, memory, stopping, chunk_steps,
-                                               desired_cache=desired_cache, prefetch=True, turns=self.turns)
-            finally:
-                self.turns.over()
+            return simulate_iterations(config, method, first, memory, stopping, chunk_steps,
+                                       desired_cache=desired_cache, prefetch=True, turns=self.turns)
 
         self._ahead = pipeline.Ahead(make, depth=records_ahead(config))
+
+    def is_for(self, config: Config, method: str) -> bool:
+        """Whether these are the iterations of ``method`` with ``config`` (compared as the stored TOML)."""
+        return self.method == method and self.config_toml == config.to_toml()
 
     def watch(self, stop_requested: Callable[[], bool] | None) -> None:
         """From now on the simulation stops when ``stop_requested()`` is true (as when started with it)."""
@@ -274,7 +286,7 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
         ahead = None
         if started is not None:  # begun before this call, e.g. while the CLI parsed (ilcforce.early_start)
             stack.enter_context(started)  # closed in any case
-            if started.config_toml != config.to_toml() or started.method != method or started.first != 0:
+            if not started.is_for(config, method) or started.first != 0:
                 raise ValueError("run_method(started=...): those iterations were started for another run")
             if not resume:
                 started.watch(stop_requested)

@@ -1,4 +1,4 @@
-"""Helpers shared by the store tests: small records, a writer factory, forged files.
+"""Helpers shared by the tests: small records, a writer factory, forged files, record and store comparisons.
 
 Arrays go through HDF5 as float64 without compression, so every comparison of stored data is
 exact (``assert_array_equal``), not approximate.
@@ -115,3 +115,32 @@ def resumed_config(n_iterations: int) -> dict:
     config["experiment"]["iterations"] = n_iterations
     return config
 
+
+
+def assert_same_records(a: list[IterationRecord], b: list[IterationRecord]) -> None:
+    """Two runs' records are the same iterations with the same bits in every log and memory array."""
+    assert len(a) == len(b) > 0
+    for ra, rb in zip(a, b):
+        assert (ra.iteration, ra.status, ra.fallback_count) == (rb.iteration, rb.status, rb.fallback_count)
+        assert set(ra.log) == set(rb.log) and set(ra.memory) == set(rb.memory)
+        for name in ra.log:
+            np.testing.assert_array_equal(ra.log[name], rb.log[name], err_msg=f"iteration {ra.iteration} {name}")
+        for name in ra.memory:
+            np.testing.assert_array_equal(ra.memory[name], rb.memory[name], err_msg=f"iteration {ra.iteration} {name}")
+
+
+def assert_same_datasets(a: Path, b: Path) -> None:
+    """Two stores hold the same datasets with the same values (bits; NaN where NaN), attributes aside."""
+    import h5py
+
+    def datasets(path: Path) -> dict[str, np.ndarray]:
+        found: dict[str, np.ndarray] = {}
+        with h5py.File(path, "r") as handle:
+            handle.visititems(lambda name, item: found.__setitem__(name, item[()])
+                              if isinstance(item, h5py.Dataset) else None)
+        return found
+
+    da, db = datasets(a), datasets(b)
+    assert sorted(da) == sorted(db)
+    for name in da:
+        np.testing.assert_array_equal(da[name], db[name], err_msg=name)

@@ -9,11 +9,11 @@ import subprocess
 import sys
 import time
 
-import numpy as np
 import pytest
 
 from ilcforce import aot, early_start, experiment
 from ilcforce.config_load import load_config
+from storekit import assert_same_datasets, assert_same_records
 
 needs_aot = pytest.mark.skipif(aot.module() is None, reason="early start runs only the ahead-of-time kernels")
 SHORT = ["--set", "reference.duration=0.2"]
@@ -67,17 +67,6 @@ def test_a_fifo_config_is_not_read_early(tmp_path):
     assert time.monotonic() - t0 < 5
 
 
-def _same_records(a, b) -> None:
-    assert len(a) == len(b) > 0
-    for ra, rb in zip(a, b):
-        assert (ra.iteration, ra.status, ra.fallback_count) == (rb.iteration, rb.status, rb.fallback_count)
-        assert set(ra.log) == set(rb.log) and set(ra.memory) == set(rb.memory)
-        for name in ra.log:
-            assert np.array_equal(ra.log[name], rb.log[name], equal_nan=True), name
-        for name in ra.memory:
-            assert np.array_equal(ra.memory[name], rb.memory[name], equal_nan=True), name
-
-
 @needs_aot
 def test_the_command_takes_the_run_started_for_it_and_it_is_the_same_run():
     assert early_start.begin(["simulate", "--iters", "3", *SHORT, "--set", "plant.perturbation.from_iteration=2"])
@@ -87,7 +76,7 @@ def test_the_command_takes_the_run_started_for_it_and_it_is_the_same_run():
     assert run is not None and early_start.take(config, "c3") is None  # only once
     with run:
         early = list(run.records())
-    _same_records(early, list(experiment.simulate_iterations(config, "c3")))
+    assert_same_records(early, list(experiment.simulate_iterations(config, "c3")))
 
 
 @needs_aot
@@ -130,8 +119,6 @@ main()
 
 @needs_aot
 def test_the_entry_point_starts_a_plain_simulate_early_and_stores_what_the_library_does(tmp_path, short_config):
-    import h5py
-
     script = tmp_path / "entry.py"
     script.write_text(_TAKEN)
     out = tmp_path / "cli" / "c3.h5"
@@ -141,21 +128,7 @@ def test_the_entry_point_starts_a_plain_simulate_early_and_stores_what_the_libra
     assert "TAKEN" in proc.stderr and "NOT TAKEN" not in proc.stderr
     library = tmp_path / "library" / "c3.h5"
     experiment.run_method(short_config(), "c3", library)
-
-    def datasets(path):
-        found = {}
-        with h5py.File(path, "r") as handle:
-            handle.visititems(lambda name, item: found.__setitem__(name, item[()])
-                              if isinstance(item, h5py.Dataset) else None)
-        return found
-
-    cli, lib = datasets(out), datasets(library)
-    assert sorted(cli) == sorted(lib) and any(name.endswith("log/torque") for name in cli)
-    for name in cli:
-        if cli[name].dtype.kind == "f":
-            assert np.array_equal(cli[name], lib[name], equal_nan=True), name
-        else:
-            assert np.array_equal(cli[name], lib[name]), name
+    assert_same_datasets(out, library)
 
 
 @needs_aot

@@ -11,6 +11,7 @@ from ilcforce import experiment, store
 from ilcforce.config_load import load_config
 from ilcforce.experiment import run_method, simulate_iterations
 from ilcforce.metrics import iteration_metrics
+from storekit import assert_same_records
 
 
 def _norms(config, method):
@@ -128,7 +129,4 @@ def test_tau_d_is_made_once_per_plant_even_when_the_loop_needs_it_first(monkeypa
     assert len(records) == 3
     assert len(made) == len(set(made)) == 2  # the nominal-like true plant, then the perturbed one
     monkeypatch.setattr(experiment, "desired_inputs", real)
-    plain = list(experiment.simulate_iterations(config, "c3"))
-    for a, b in zip(records, plain, strict=True):
-        for name in a.log:
-            assert np.array_equal(a.log[name], b.log[name], equal_nan=True), name
+    assert_same_records(records, list(experiment.simulate_iterations(config, "c3")))
