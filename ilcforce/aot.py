@@ -18,7 +18,6 @@ install`` (or ``python -m ilcforce.aot_build``) builds it again. :func:`status` 
 from __future__ import annotations
 
 import functools
-import hashlib
 import importlib
 import importlib.machinery
 import json
@@ -52,6 +51,8 @@ def _source_files() -> list[Path]:
 @functools.cache
 def source_fingerprint() -> str | None:
     """sha256 over the names and bytes of :data:`SOURCES`; None if one cannot be read."""
+    import hashlib  # here, not at the top: a command whose stamp's file identities match needs none
+
     digest = hashlib.sha256()
     try:
         for path in _source_files():
@@ -70,11 +71,44 @@ def module_path() -> Path:
 def file_digest(path: Path) -> str:
     """sha256 of a file's bytes (the module's: a truncated or replaced module is not loaded, since
     loading a damaged shared object can crash the process)."""
+    import hashlib
+
     digest = hashlib.sha256()
     with open(path, "rb") as handle:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def _identity(path: Path) -> list[int]:
+    """What changes whenever a file's bytes do (or the file is replaced): size, mtime, ctime, inode, device."""
+    info = os.stat(path)
+    if not stat.S_ISREG(info.st_mode):
+        raise OSError(f"{path.name} is not a regular file")
+    return [info.st_size, info.st_mtime_ns, info.st_ctime_ns, info.st_ino, info.st_dev]
+
+
+def file_identities() -> dict[str, list[int]]:
+    """:func:`_identity` of every file of :data:`SOURCES` and of the module, by name (OSError if one
+    is missing). Taken before the files are hashed, a build records them in the stamp."""
+    files = {path.relative_to(PACKAGE).as_posix(): _identity(path) for path in _source_files()}
+    files[module_path().name] = _identity(module_path())
+    return files
+
+
+def identities_match(stamp: dict) -> bool:
+    """Whether every file is the very one the stamp's hashes were taken of, so that hashing them again
+    (about 15 ms of a cold command, hashlib's import included) would give the same: the stamp's
+    ``files`` (taken before the hashes, for those hashes: ``files_for``) equal the files' identities
+    now, the same set of files. A write to a file changes its ctime, which no user can set back; a
+    file put in its place has another inode."""
+    files = stamp.get("files")
+    if not isinstance(files, dict) or stamp.get("files_for") != [stamp.get("fingerprint"), stamp.get("module_sha256")]:
+        return False
+    try:
+        return file_identities() == files
+    except OSError:
+        return False
 
 
 def read_stamp() -> dict | None:
@@ -116,6 +150,8 @@ def stamp_problem() -> str | None:
         return "not built (make install builds it)"
     if stamp.get("built") is not True:
         return f"its build failed ({stamp.get('reason', 'unknown')})"
+    if identities_match(stamp):
+        return None
     fingerprint = source_fingerprint()
     if fingerprint is None or stamp.get("fingerprint") != fingerprint:
         return "built from other sources (make install builds it again)"

@@ -116,6 +116,23 @@ def _write_stamp(stamp: dict) -> None:
     os.replace(partial, aot.STAMP)
 
 
+def _record_identities() -> None:
+    """Add the files' identities to a current stamp (:func:`ilcforce.aot.identities_match`), so that a
+    command need not hash them again. They are taken first, then the files hashed: a file changed in
+    between has another identity than the one recorded, and is hashed again at its next use."""
+    try:
+        files = aot.file_identities()
+        stamp = aot.read_stamp()
+    except (OSError, ValueError):
+        return
+    if stamp is None or stamp.get("built") is not True or aot.identities_match(stamp):
+        return
+    fingerprint = aot.source_fingerprint.__wrapped__()  # hashed after the identities were taken
+    if fingerprint != stamp.get("fingerprint") or aot.file_digest(aot.module_path()) != stamp.get("module_sha256"):
+        return
+    _write_stamp({**stamp, "files": files, "files_for": [stamp["fingerprint"], stamp["module_sha256"]]})
+
+
 def _failed_before(fingerprint: str | None) -> str | None:
     """Why the last build of these very sources failed, or None."""
     try:
@@ -132,6 +149,7 @@ def build(verbose: bool = True, force: bool = False) -> bool:
     recorded in the stamp."""
     fingerprint = aot.source_fingerprint()
     if not force and aot.stamp_problem() is None:  # the module of these sources is there
+        _record_identities()
         return True
     failed = _failed_before(fingerprint)
     if not force and failed is not None:  # do not try again at every make (about 30 s each)
@@ -178,6 +196,7 @@ def build(verbose: bool = True, force: bool = False) -> bool:
         return False
     _write_stamp({"built": True, "fingerprint": fingerprint, "module_sha256": digest,
                   "exports": sorted(n for n, _, _ in exports)})
+    _record_identities()
     if verbose:
         print(f"ilcforce: ahead-of-time kernels built ({len(exports)} exports, "
               f"{time.perf_counter() - t0:.0f} s): {target.name}")

@@ -15,7 +15,6 @@ variant never collides with the canonical stores of its experiment.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import re
 from typing import Any
@@ -139,6 +138,8 @@ def variant_folder(experiment: str, overrides: dict[str, Any]) -> str:
     if safe.startswith("."):
         safe = "_" + safe[1:]
     if len(safe) > _MAX_NAME or safe != text:  # two texts must not share a folder: add a hash
+        import hashlib  # only for such a name: not imported by every command
+
         digest = hashlib.sha256(text.encode("utf-8", "surrogatepass")).hexdigest()[:10]
         safe = safe[:_MAX_NAME - 11] + "-" + digest
     return safe

@@ -192,6 +192,82 @@ def test_a_damaged_module_is_never_loaded(stamp, tmp_path, monkeypatch):
     assert aot.stamp_problem() is not None  # make's check (the same one) rebuilds it
 
 
+def _no_hashing(monkeypatch):
+    def refuse(*args):
+        raise AssertionError("hashed")
+    monkeypatch.setattr(aot, "source_fingerprint", refuse)
+    monkeypatch.setattr(aot, "file_digest", refuse)
+
+
+@needs_module
+def test_files_unchanged_since_the_build_are_not_hashed_again(stamp, monkeypatch):
+    """A cold command checks the files' identities (size, times, inode) recorded by the build, not
+    their sha256 (about 15 ms with hashlib's import); hashlib is not imported."""
+    assert aot.identities_match(json.loads(stamp.read_text()))
+    _no_hashing(monkeypatch)
+    assert aot.module() is not None
+    code = "import sys\nfrom ilcforce import aot\nassert aot.module() is not None\nprint('hashlib' in sys.modules)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "False", proc.stderr
+
+
+@needs_module
+@pytest.mark.parametrize("change", ["a source rewritten", "a new source", "no identities", "identities of other hashes"])
+def test_other_files_are_hashed_again(stamp, monkeypatch, change):
+    record = json.loads(stamp.read_text())
+    files = dict(record["files"])
+    if change == "a source rewritten":
+        files["controllers/c3.py"] = [*files["controllers/c3.py"][:2], files["controllers/c3.py"][2] + 1,
+                                      *files["controllers/c3.py"][3:]]  # its ctime moved
+    elif change == "a new source":
+        files["plants/mine.py"] = [1, 2, 3, 4, 5]
+    if change == "no identities":
+        record = {k: v for k, v in record.items() if k not in ("files", "files_for")}
+    elif change == "identities of other hashes":
+        record["files_for"] = ["0" * 64, record["module_sha256"]]
+    else:
+        monkeypatch.setattr(aot, "file_identities", lambda: files)
+    stamp.write_text(json.dumps(record))
+    assert not aot.identities_match(record)
+    hashed = []
+    real = aot.file_digest
+    monkeypatch.setattr(aot, "file_digest", lambda path: hashed.append(path) or real(path))
+    assert aot.module() is not None  # same bytes: hashed, found equal, used
+    assert hashed == [aot.module_path()]
+
+
+def test_a_rewrite_with_the_same_bytes_changes_the_identity(tmp_path, monkeypatch):
+    """The premise: writing a file changes its identity even with the same bytes, size and mtime."""
+    import shutil
+
+    copy = tmp_path / "ilcforce"
+    shutil.copytree(aot.PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__", "*.json"))
+    monkeypatch.setattr(aot, "PACKAGE", copy)
+    if not aot.module_path().exists():
+        aot.module_path().write_bytes(b"")
+    before = aot.file_identities()
+    source = copy / "controllers" / "c3.py"
+    info = os.stat(source)
+    source.write_bytes(source.read_bytes())
+    os.utime(source, ns=(info.st_atime_ns, info.st_mtime_ns))
+    after = aot.file_identities()
+    assert after["controllers/c3.py"][:2] == before["controllers/c3.py"][:2]  # same size, same mtime
+    assert after != before
+
+
+@needs_module
+def test_the_build_records_the_identities_in_an_older_stamp(stamp, monkeypatch):
+    """A stamp written before identities were recorded gets them at the next make, without a rebuild."""
+    from ilcforce import aot_build
+
+    record = json.loads(stamp.read_text())
+    stamp.write_text(json.dumps({k: v for k, v in record.items() if k not in ("files", "files_for")}))
+    monkeypatch.setattr(aot_build, "_exports", lambda: (_ for _ in ()).throw(AssertionError("rebuilt")))
+    assert aot_build.build(verbose=False) is True
+    assert aot.identities_match(json.loads(stamp.read_text()))
+    assert json.loads(stamp.read_text())["module_sha256"] == record["module_sha256"]
+
+
 @pytest.mark.parametrize("kind", ["fifo", "directory", "huge", "nested"])
 def test_a_stamp_that_is_not_one_is_refused_at_once(stamp, kind):
     """A FIFO (would block for ever), a folder, a huge file, JSON nested past the recursion limit."""
