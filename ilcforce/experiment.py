@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import os
 import threading
 from collections.abc import Callable
@@ -31,7 +32,8 @@ from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
-from ilcforce.simulate import IterationInputs, complete_record, desired_inputs, prepare_first_chunk, run_iteration
+from ilcforce.simulate import (IterationInputs, complete_record, desired_inputs, prepare_first_chunk, prepare_setup,
+                               run_iteration)
 from ilcforce.task import (REF_ACCELERATION, REF_FORCE, REF_POSITION, REF_VELOCITY)
 
 
@@ -121,6 +123,15 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     loop runs, and that background thread makes what is not needed at once while it does; it is
     over when this ends.
     """
+    for unfinished in _unfinished_iterations(config, method, first, memory, stop_requested, chunk_steps,
+                                             desired_cache, prefetch, turns):
+        yield unfinished.complete()
+
+
+def _unfinished_iterations(config: Config, method: str, first: int, memory: dict | None,
+                           stop_requested: Callable[[], bool] | None, chunk_steps: int | None,
+                           desired_cache: dict | None, prefetch: bool, turns: pipeline.Turns | None):
+    """:func:`simulate_iterations`' records, each still to be completed (:class:`_Unfinished`)."""
     turns = turns if turns is not None else pipeline.Turns()
     try:
         yield from _iterations(config, method, first, memory, stop_requested, chunk_steps, desired_cache,
@@ -129,10 +140,28 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
         turns.over()  # also when the run fails before its first iteration
 
 
+@dataclass(frozen=True)
+class _Unfinished:
+    """A simulated iteration whose record is completed (tau_d and the learned memory attached) by
+    whoever takes it: :class:`StartedRun` hands these over, so that the simulation thread starts
+    the next iteration at once, even while tau_d is still being made (cold, iteration 0's took
+    about 30 ms, longer than its loop)."""
+
+    record: IterationRecord
+    desired: Callable[[], tuple[np.ndarray, np.ndarray]]
+    memory: dict
+    units: dict
+    labels: dict
+
+    def complete(self) -> IterationRecord:
+        completed = complete_record(self.record, self.desired(), self.memory, self.units)
+        return dataclasses.replace(completed, memory_labels=self.labels)
+
+
 def _iterations(config: Config, method: str, first: int, memory: dict | None,
                 stop_requested: Callable[[], bool] | None, chunk_steps: int | None, desired_cache: dict | None,
                 prefetch: bool, turns: pipeline.Turns):
-    """:func:`simulate_iterations`' records."""
+    """:func:`simulate_iterations`' records, not yet completed (:class:`_Unfinished`)."""
     controller = make_controller(config, method)
     if memory:
         controller.restore(memory)
@@ -146,34 +175,42 @@ def _iterations(config: Config, method: str, first: int, memory: dict | None,
     def desired(true_plant, *, wait: bool = True):
         """tau_d along the reference on ``true_plant``: the cache's, or made now and kept (after the
         inputs thread, if it is making it: once is enough)."""
-        if wait and true_plant in making:
-            making[true_plant].wait()
+        event = making.get(true_plant)  # (the inputs thread removes it once made)
+        if wait and event is not None:
+            event.wait()
         if true_plant not in desired_cache:
             desired_cache[true_plant] = desired_inputs(true_plant, config.wall, ref_log)
         return desired_cache[true_plant]
 
     def prepared():
         """Each iteration's inputs; with ``prefetch``, in the background thread, which then also
-        makes the tau_d of a new true plant while that iteration simulates."""
-        for j in range(first, config.experiment.iterations):
-            if prefetch and finished[0] < j - 1:  # not awaited yet: made while iteration j - 1's loop runs
-                turns.wait()
-            inputs = iteration_inputs(config, j, reference, chunk_steps, ahead=prefetch)
-            if j == first + 1:  # made after the tau_d of iteration `first`: all its end needs
-                turns.ready()
-            plant = inputs.true_plant
-            new = prefetch and plant not in desired_cache and plant not in making
-            if new:
-                making[plant] = threading.Event()
-            try:
-                yield inputs
-                if new:
+        makes the tau_d of a new true plant while that iteration simulates, after the next
+        iteration's inputs (the simulation needs those first; tau_d only the record's taker)."""
+        later: list = []  # new true plants whose tau_d is still to be made
+        last = config.experiment.iterations - 1
+        try:
+            for j in range(first, last + 1):
+                if prefetch and finished[0] < j - 1:  # not awaited yet: made while iteration j - 1's loop runs
                     turns.wait()
-                    desired(plant, wait=False)
-            finally:
-                if new:
-                    making.pop(plant).set()
-        turns.ready()  # (a run of one iteration: nothing more to make)
+                inputs = iteration_inputs(config, j, reference, chunk_steps, ahead=prefetch)
+                if prefetch:  # the iteration then starts as soon as the one before ends
+                    inputs = prepare_setup(inputs, controller)
+                plant = inputs.true_plant
+                if prefetch and plant not in desired_cache and plant not in making:
+                    making[plant] = threading.Event()
+                    later.append(plant)
+                yield inputs
+                for made in [p for p in later if p is not plant or j == last]:
+                    turns.wait()
+                    desired(made, wait=False)
+                    later.remove(made)
+                    making.pop(made).set()
+                if j == first + 1:  # the tau_d of iteration `first` is made: all its end needs
+                    turns.ready()
+        finally:
+            for plant in later:  # stopped: whoever waits for one makes it
+                making.pop(plant).set()
+            turns.ready()  # (a run of one iteration: nothing more to make)
 
     with contextlib.ExitStack() as stack:
         if prefetch:
@@ -191,10 +228,10 @@ def _iterations(config: Config, method: str, first: int, memory: dict | None,
             # a diverged iteration stores the memory it was writing (NaN where it never got)
             memory_now = (controller.learned_state() if record.status == STATUS_COMPLETE
                           else controller.unfinished_state())
-            completed = complete_record(record, desired(inputs.true_plant), memory_now, controller.learned_units())
             if record.status == STATUS_DIVERGED or inputs.iteration == config.experiment.iterations - 1:
                 turns.over()  # the loop will not run again: the consumer need not wait for it
-            yield dataclasses.replace(completed, memory_labels=memory_labels(controller))
+            yield _Unfinished(record, functools.partial(desired, inputs.true_plant), memory_now,
+                              controller.learned_units(), memory_labels(controller))
             if record.status == STATUS_DIVERGED:
                 return
 
@@ -215,8 +252,8 @@ class StartedRun:
             def stopping() -> bool:
                 asked = self._stop_requested
                 return consumer_gone() or (asked is not None and asked())
-            return simulate_iterations(config, method, first, memory, stopping, chunk_steps,
-                                       desired_cache=desired_cache, prefetch=True, turns=self.turns)
+            return _unfinished_iterations(config, method, first, memory, stopping, chunk_steps, desired_cache,
+                                          True, self.turns)
 
         self._ahead = pipeline.Ahead(make, depth=records_ahead(config))
 
@@ -229,8 +266,9 @@ class StartedRun:
         self._stop_requested = stop_requested
 
     def records(self):
-        """The :class:`IterationRecord` of each iteration, in order (iterate once)."""
-        return iter(self._ahead)
+        """The :class:`IterationRecord` of each iteration, in order (iterate once); each completed
+        here, in the taker's thread."""
+        return (unfinished.complete() for unfinished in self._ahead)
 
     def queued(self) -> int:
         """How many finished records wait to be taken."""
@@ -337,13 +375,19 @@ _START_WAIT = 0.5
 RECORDS_AHEAD_BYTES = 64 * 1024**2
 
 
+#: At most this many finished iterations wait for the store.
+MAX_RECORDS_AHEAD = 8
+
+
 def records_ahead(config: Config) -> int:
-    """How many finished iterations may wait for the store (1 to 4): enough that the simulation
-    does not wait while the store opens (h5py's import and the file's first commit take a few
-    iterations' time), within :data:`RECORDS_AHEAD_BYTES` of records (a record holds about 56
-    float64 per control sample: :func:`ilcforce.config_load.run_footprint`)."""
+    """How many finished iterations may wait for the store (1 to :data:`MAX_RECORDS_AHEAD`): enough
+    that the simulation does not wait while the store opens, within :data:`RECORDS_AHEAD_BYTES` of
+    records (a record holds at most about 56 float64 per control sample:
+    :func:`ilcforce.config_load.run_footprint`). A cold ``simulate`` opens its store (typer's and
+    h5py's imports, the file's first commit) about 0.2 s after iteration 0 starts: with four
+    records, the paper's run (7 allowed) waited 20-50 ms at its fifth iteration (issue 12)."""
     record_bytes = 56 * 8 * config.n_control
-    return max(1, min(4, RECORDS_AHEAD_BYTES // max(1, record_bytes)))
+    return max(1, min(MAX_RECORDS_AHEAD, RECORDS_AHEAD_BYTES // max(1, record_bytes)))
 
 
 def default_store_path(results_dir: Path, config: Config, method: str,

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -127,6 +128,7 @@ class IterationInputs:
     ``draws`` the iteration's disturbance and sensor noise; ``selection`` the diagonal of S.
     ``first_chunk``, if given, is ``(k1, chunk_disturbance(self, 0, k1))``, made ahead of time
     (:func:`prepare_first_chunk`); :func:`run_iteration` uses it when its first chunk ends at k1.
+    ``setup``, if given, is the set-up before the loop made ahead of time (:func:`prepare_setup`).
     """
 
     iteration: int
@@ -139,6 +141,7 @@ class IterationInputs:
     draws: IterationDraws
     selection: tuple[float, float]
     first_chunk: tuple[int, np.ndarray] | None = None
+    setup: IterationSetup | None = None  # made ahead (prepare_setup); run_iteration's own otherwise
 
 
 def chunk_steps_default(settings: SimulationSettings) -> int:
@@ -173,20 +176,40 @@ def force_axis(selection) -> int:
     return s.index(1.0)
 
 
-def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.ndarray,
-                  mem_new: np.ndarray, stop_requested: Callable[[], bool] | None = None,
-                  chunk_steps: int | None = None, turns=None) -> IterationRecord:
-    """Simulate one iteration; the controller's memory buffers are read and written in place.
+@dataclass(frozen=True)
+class _Setup:
+    """What an iteration's compiled loop is called with, apart from the controller's gains and memory."""
 
-    Returns the :class:`~ilcforce.records.IterationRecord` without ``memory`` (the iteration loop
-    attaches the controller's learned state) and with ``desired_torque`` left for the caller via
-    :func:`desired_inputs` (it depends only on the true plant, so it is cached there).
+    controller: object
+    ref: np.ndarray
+    t_control: np.ndarray
+    true_robot: object
+    nominal_robot: object
+    wall: np.ndarray
+    sensor: np.ndarray
+    fset: np.ndarray
+    iset: np.ndarray
+    log: np.ndarray  # written by the loop: a setup is used once
+    carry: np.ndarray  # the loop's state: a setup is used once
+    simulate_chunk: Callable
+    kernels: tuple  # numba's loop: the law's and the plants' kernels, its first arguments
 
-    The compiled loop runs in chunks of ``chunk_steps`` control samples (default: about
-    :data:`CHUNK_RK4_STEPS` RK4 steps); between chunks Python handles signals, and if
-    ``stop_requested()`` is true the iteration is abandoned with KeyboardInterrupt. ``turns``
-    (:class:`ilcforce.pipeline.Turns`), if given, is told when the compiled loop runs.
-    """
+
+class IterationSetup:
+    """An iteration's set-up for one controller (:func:`prepare_setup`), made ahead of time, used once."""
+
+    def __init__(self, setup: _Setup) -> None:
+        self._setup = setup
+        self._lock = threading.Lock()
+
+    def take(self, controller) -> _Setup | None:
+        """The set-up, the first time it is asked for by the controller it was made for; else None."""
+        with self._lock:
+            setup, self._setup = self._setup, None
+        return setup if setup is not None and setup.controller is controller else None
+
+
+def _setup(inputs: IterationInputs, controller) -> _Setup:
     from ilcforce import aot, loop  # loop: numba's, loaded on first use only
 
     s = inputs.settings
@@ -205,18 +228,53 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
                      int(controller.uses_nominal_dynamics), force_axis(inputs.selection),
                      IMPLICIT_FALLBACKS[s.implicit_fallback]], dtype=np.int64)
     wall = np.array([inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign])
-    log = np.full((n_log, loop.LOG_WIDTH), np.nan)
-    carry = loop.new_carry(theta0, dtheta0)
-    gains = np.ascontiguousarray(controller.gains(), dtype=np.float64)
-    head = (true_robot.address, nominal_robot.address, wall, gains, mem_prev, mem_new, ref)
-    tail = (np.ascontiguousarray(inputs.draws.sensor), fset, iset, log, carry)
     # the ahead-of-time compiled loop of this law and plant (no numba in the process), or numba's
     # with the law and the plant's kernels as arguments: the same code, the same numbers
-    simulate_chunk = aot.simulator(controller, type(true_robot), type(nominal_robot))
+    simulate_chunk, kernels = aot.simulator(controller, type(true_robot), type(nominal_robot)), ()
     if simulate_chunk is None:
         true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
-        head = (controller.law, true_k.accel, nominal_k.kin, nominal_k.task, *head)
-        simulate_chunk = loop._simulate
+        simulate_chunk, kernels = loop._simulate, (controller.law, true_k.accel, nominal_k.kin, nominal_k.task)
+    return _Setup(controller, ref, t_control, true_robot, nominal_robot, wall,
+                  np.ascontiguousarray(inputs.draws.sensor), fset, iset, np.full((n_log, loop.LOG_WIDTH), np.nan),
+                  loop.new_carry(theta0, dtheta0), simulate_chunk, kernels)
+
+
+def prepare_setup(inputs: IterationInputs, controller) -> IterationInputs:
+    """``inputs`` with the set-up :func:`run_iteration` would make before its loop (the robots, the
+    initial state, the settings' arrays, fresh log buffers, the compiled loop to call) made now for
+    ``controller``, e.g. in another thread while the previous iteration simulates: the iteration
+    then starts at once when the previous one ends. Used by the first run of these inputs with
+    this controller (the loop writes the buffers); the same numbers."""
+    return dataclasses.replace(inputs, setup=IterationSetup(_setup(inputs, controller)))
+
+
+def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.ndarray,
+                  mem_new: np.ndarray, stop_requested: Callable[[], bool] | None = None,
+                  chunk_steps: int | None = None, turns=None) -> IterationRecord:
+    """Simulate one iteration; the controller's memory buffers are read and written in place.
+
+    Returns the :class:`~ilcforce.records.IterationRecord` without ``memory`` (the iteration loop
+    attaches the controller's learned state) and with ``desired_torque`` left for the caller via
+    :func:`desired_inputs` (it depends only on the true plant, so it is cached there).
+
+    The compiled loop runs in chunks of ``chunk_steps`` control samples (default: about
+    :data:`CHUNK_RK4_STEPS` RK4 steps); between chunks Python handles signals, and if
+    ``stop_requested()`` is true the iteration is abandoned with KeyboardInterrupt. ``turns``
+    (:class:`ilcforce.pipeline.Turns`), if given, is told when the compiled loop runs.
+    """
+    from ilcforce import loop  # numba's (loaded on first use only) and the loop's constants
+
+    s = inputs.settings
+    setup = inputs.setup.take(controller) if inputs.setup is not None else None
+    if setup is None:
+        setup = _setup(inputs, controller)
+    ref, t_control, log, carry = setup.ref, setup.t_control, setup.log, setup.carry
+    n_control = ref.shape[0]
+    gains = np.ascontiguousarray(controller.gains(), dtype=np.float64)
+    head = (*setup.kernels, setup.true_robot.address, setup.nominal_robot.address, setup.wall, gains, mem_prev,
+            mem_new, ref)
+    tail = (setup.sensor, setup.fset, setup.iset, log, carry)
+    simulate_chunk = setup.simulate_chunk
     chunk = chunk_steps if chunk_steps is not None else chunk_steps_default(s)
     k = 0
     while True:
@@ -249,7 +307,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     if status == loop.RUN_OK:
         return IterationRecord(inputs.iteration, STATUS_COMPLETE, math.nan, "", fallback, signals)
     t_fail = float(t_control[min(k_fail, n_control - 1)])
-    why = DIVERGENCE_REASONS.get(status) or f"a pose outside {true_robot.working_mode}"
+    why = DIVERGENCE_REASONS.get(status) or f"a pose outside {setup.true_robot.working_mode}"
     reason = f"{why} at t = {t_fail:.4f} s"
     return IterationRecord(inputs.iteration, STATUS_DIVERGED, t_fail, reason, fallback, signals)
 

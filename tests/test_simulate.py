@@ -501,3 +501,30 @@ def test_gravity_figure_plots_learned_against_true_g(tmp_path, short_config):
     assert len(fig.axes) == 2
     truth = fig.axes[1].lines[-1].get_ydata()
     assert 9.0 < truth.min() < truth.max() < 16.0  # J^-T G_q along y on the task: 9.9 .. 14.9 N
+
+
+def test_a_setup_made_ahead_gives_the_same_record_and_serves_one_run(short_config):
+    """``prepare_setup`` makes before the loop what run_iteration would (for the next iteration, in
+    the inputs thread while the one before simulates): the same numbers; its buffers serve one run,
+    and only the controller it was made for (any other run makes its own)."""
+    from ilcforce.experiment import make_controller
+    from ilcforce.simulate import prepare_setup
+    from storekit import assert_same_records
+
+    config = short_config()
+
+    def fresh(controller, inputs):
+        mem_prev, mem_new = controller.begin_iteration(0)
+        return run_iteration(inputs, controller, mem_prev, mem_new)
+
+    plain = fresh(make_controller(config, "c3"), _inputs(config))
+    controller = make_controller(config, "c3")
+    inputs = prepare_setup(_inputs(config), controller)
+    made = inputs.setup._setup
+    first = fresh(controller, inputs)
+    assert first.log["position"].base is not made.log  # the record owns its signals
+    assert inputs.setup.take(controller) is None  # used
+    assert_same_records([first], [plain])
+    assert_same_records([fresh(make_controller(config, "c3"), inputs)], [plain])  # a second run: its own buffers
+    other = prepare_setup(_inputs(config), controller)
+    assert other.setup.take(make_controller(config, "c3")) is None  # another controller does not get it
