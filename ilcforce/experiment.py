@@ -186,7 +186,7 @@ def _iterations(config: Config, method: str, first: int, memory: dict | None,
         """Each iteration's inputs; with ``prefetch``, in the background thread, which then also
         makes the tau_d of a new true plant while that iteration simulates, after the next
         iteration's inputs (the simulation needs those first; tau_d only the record's taker)."""
-        later: list = []  # new true plants whose tau_d is still to be made
+        later: list = []  # (iteration, new true plant) whose tau_d is still to be made
         last = config.experiment.iterations - 1
         try:
             for j in range(first, last + 1):
@@ -198,17 +198,17 @@ def _iterations(config: Config, method: str, first: int, memory: dict | None,
                 plant = inputs.true_plant
                 if prefetch and plant not in desired_cache and plant not in making:
                     making[plant] = threading.Event()
-                    later.append(plant)
+                    later.append((j, plant))
                 yield inputs
-                for made in [p for p in later if p is not plant or j == last]:
+                for since, made in [(i, p) for i, p in later if i < j or j == last]:
                     turns.wait()
                     desired(made, wait=False)
-                    later.remove(made)
+                    later.remove((since, made))
                     making.pop(made).set()
                 if j == first + 1:  # the tau_d of iteration `first` is made: all its end needs
                     turns.ready()
         finally:
-            for plant in later:  # stopped: whoever waits for one makes it
+            for _since, plant in later:  # stopped: whoever waits for one makes it
                 making.pop(plant).set()
             turns.ready()  # (a run of one iteration: nothing more to make)
 
