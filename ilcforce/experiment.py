@@ -222,7 +222,8 @@ def _iterations(config: Config, method: str, first: int, memory: dict | None,
             if stop_requested is not None and stop_requested():  # also between iterations: an iteration
                 raise KeyboardInterrupt  # may be one chunk, so run_iteration might never look
             mem_prev, mem_new = controller.begin_iteration(inputs.iteration)
-            record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps, turns)
+            record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps, turns,
+                                   signals_later=prefetch)  # taken out of the loop's buffer by the record's taker
             finished[0] = inputs.iteration
             controller.end_iteration(record)  # between-iteration learning sees the finished iteration
             # a diverged iteration stores the memory it was writing (NaN where it never got)

@@ -32,6 +32,7 @@ Per control sample k (t_k = k Ts), inside one compiled loop:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import threading
 from collections.abc import Callable
@@ -39,11 +40,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ilcforce import log_signals
 from ilcforce.controllers.base import Controller
 from ilcforce.noise import IterationDraws, NoiseModel, disturbance
 from ilcforce.plants import make_plant
 from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
-from ilcforce.task import REF_FORCE, REF_POSITION, REF_VELOCITY, Wall
+from ilcforce.task import REF_VELOCITY, Wall
 
 ACCELERATION_SCHEMES = {"implicit": 0, "filtered": 1}
 #: what the implicit scheme does where its quadratic has no usable root (issue 11)
@@ -189,7 +191,7 @@ class _Setup:
     sensor: np.ndarray
     fset: np.ndarray
     iset: np.ndarray
-    log: np.ndarray  # written by the loop: a setup is used once
+    n_log: int
     carry: np.ndarray  # the loop's state: a setup is used once
     simulate_chunk: Callable
     kernels: tuple  # numba's loop: the law's and the plants' kernels, its first arguments
@@ -235,8 +237,8 @@ def _setup(inputs: IterationInputs, controller) -> _Setup:
         true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
         simulate_chunk, kernels = loop._simulate, (controller.law, true_k.accel, nominal_k.kin, nominal_k.task)
     return _Setup(controller, ref, t_control, true_robot, nominal_robot, wall,
-                  np.ascontiguousarray(inputs.draws.sensor), fset, iset, np.full((n_log, loop.LOG_WIDTH), np.nan),
-                  loop.new_carry(theta0, dtheta0), simulate_chunk, kernels)
+                  np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log, loop.new_carry(theta0, dtheta0),
+                  simulate_chunk, kernels)
 
 
 def prepare_setup(inputs: IterationInputs, controller) -> IterationInputs:
@@ -250,7 +252,7 @@ def prepare_setup(inputs: IterationInputs, controller) -> IterationInputs:
 
 def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.ndarray,
                   mem_new: np.ndarray, stop_requested: Callable[[], bool] | None = None,
-                  chunk_steps: int | None = None, turns=None) -> IterationRecord:
+                  chunk_steps: int | None = None, turns=None, *, signals_later: bool = False) -> IterationRecord:
     """Simulate one iteration; the controller's memory buffers are read and written in place.
 
     Returns the :class:`~ilcforce.records.IterationRecord` without ``memory`` (the iteration loop
@@ -261,6 +263,9 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     :data:`CHUNK_RK4_STEPS` RK4 steps); between chunks Python handles signals, and if
     ``stop_requested()`` is true the iteration is abandoned with KeyboardInterrupt. ``turns``
     (:class:`ilcforce.pipeline.Turns`), if given, is told when the compiled loop runs.
+    ``signals_later=True``: the record's ``log`` is a mapping that takes its signals out of the
+    loop's buffer when first read (about 0.8 ms after each loop, which another thread then spends;
+    the same arrays).
     """
     from ilcforce import loop  # numba's (loaded on first use only) and the loop's constants
 
@@ -268,7 +273,10 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     setup = inputs.setup.take(controller) if inputs.setup is not None else None
     if setup is None:
         setup = _setup(inputs, controller)
-    ref, t_control, log, carry = setup.ref, setup.t_control, setup.log, setup.carry
+    ref, t_control, carry = setup.ref, setup.t_control, setup.carry
+    # made here, just before the loop writes it: made ahead in another thread, its 0.4 MB were out of
+    # the cache and the loop ran about 4% slower (alternated cold runs)
+    log = np.full((setup.n_log, loop.LOG_WIDTH), np.nan)
     n_control = ref.shape[0]
     gains = np.ascontiguousarray(controller.gains(), dtype=np.float64)
     head = (*setup.kernels, setup.true_robot.address, setup.nominal_robot.address, setup.wall, gains, mem_prev,
@@ -295,15 +303,8 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
         if stop_requested is not None and stop_requested():
             raise KeyboardInterrupt
     fallback = int(carry[loop.CARRY_FALLBACK])
-
-    signals = {"time": t_control[::s.log_every].copy()}
-    for name, col in loop.LOG_COLUMNS.items():
-        signals[name] = log[:, col:col + 2].copy()
-    signals["implicit_fallbacks"] = log[:, loop.LOG_FALLBACKS].copy()
-    sel = np.asarray(inputs.selection, dtype=np.float64)
-    ref_log = ref[::s.log_every]
-    signals["position_error"] = (1.0 - sel) * (ref_log[:, REF_POSITION:REF_POSITION + 2] - signals["position"])  # eq. (6)
-    signals["force_error"] = sel * (ref_log[:, REF_FORCE:REF_FORCE + 2] - signals["contact_force"])  # eq. (7)
+    taken = functools.partial(log_signals.signals, t_control, s.log_every, log, ref, inputs.selection)
+    signals = log_signals.Later(taken) if signals_later else taken()
     if status == loop.RUN_OK:
         return IterationRecord(inputs.iteration, STATUS_COMPLETE, math.nan, "", fallback, signals)
     t_fail = float(t_control[min(k_fail, n_control - 1)])

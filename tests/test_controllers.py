@@ -387,3 +387,31 @@ def test_c3_with_gravity_matches_eq14_with_the_full_theta(seed, method, plant_co
     np.testing.assert_allclose(tau, J.T @ u, rtol=1e-11, atol=1e-13, err_msg=f"{method} torque with the G block")
     np.testing.assert_allclose(mem_new[4, :12], theta, rtol=1e-12, err_msg=f"{method} Theta_hat with the G block")
     assert mem_new[4, 12] == pytest.approx(alpha, rel=1e-12)
+
+
+@pytest.mark.parametrize("method", ["c2", "c3", "pd-ilc"])
+def test_the_learned_state_handed_out_is_never_written_again(method):
+    """learned_state() gives the finished iteration's own buffer (no copy): a later iteration, a
+    diverged one and restore() must leave what was handed out as it was (a record waiting for the
+    store holds it)."""
+    from ilcforce.records import IterationRecord, STATUS_COMPLETE, STATUS_DIVERGED
+
+    def record(status):
+        return IterationRecord(0, status, float("nan"), "", 0, {})
+
+    controller = make_controller(default_config(), method)
+    rng = np.random.default_rng(3)
+    _prev, new = controller.begin_iteration(0)
+    new[...] = rng.normal(size=new.shape)
+    controller.end_iteration(record(STATUS_COMPLETE))
+    handed = controller.learned_state()
+    kept = {key: value.copy() for key, value in handed.items()}
+    for status in (STATUS_COMPLETE, STATUS_DIVERGED):
+        _prev, new = controller.begin_iteration(1)
+        assert not any(np.shares_memory(new, value) for value in handed.values())
+        new[...] = rng.normal(size=new.shape)
+        controller.end_iteration(record(status))
+    controller.restore({key: np.zeros_like(value) for key, value in handed.items()})
+    for key, value in handed.items():
+        np.testing.assert_array_equal(value, kept[key], err_msg=key)
+    assert all(not value.any() for value in controller.learned_state().values())

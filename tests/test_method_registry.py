@@ -189,7 +189,7 @@ def test_pd_ilc_filters_between_iterations_with_zero_phase_q():
     _prev, new = controller.begin_iteration(0)
     new[...] = raw
     controller.end_iteration(_record(STATUS_COMPLETE))
-    v = controller.learned_state()["v"]
+    v = controller.learned_state()["v"].copy()
     b, a = signal.butter(gains.q_order, gains.q_cutoff, fs=1.0 / config.simulation.sample_time)
     np.testing.assert_allclose(v, signal.filtfilt(b, a, raw, axis=0), atol=1e-9,
                                err_msg="Q differs from an independent zero-phase Butterworth")
