@@ -8,7 +8,8 @@ point (console script), with numba's on-disk caches warm (one untimed run first)
 * ``ilcforce compare`` for the paper's study (c1, c2, c3 x 20, every store written, fresh results).
 
 Beside them, the compiled loop's own time for the same work (the simulator kernel timed
-in-process, warm), so that overhead = wall - loop shows; and the split of cold ``simulate`` runs
+in-process, warm, once between each round of cold processes: the machine's speed drifts, and the
+overhead compares the two), so that overhead = wall - loop shows; and the split of cold ``simulate`` runs
 measured inside each process (:func:`cold_timelines`: when the first loop starts, the loops' own
 time, the time between them and after the last; medians), which is not affected by the machine
 being faster or slower between two measurements. (A cProfile split, printed until the ninth
@@ -24,7 +25,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 METHODS = ("c1", "c2", "c3")
@@ -46,8 +47,10 @@ def _wall(args: Sequence[str], cwd: Path) -> float:
     return elapsed
 
 
-def cold_walls(repeat: int, extra: Sequence[str] = (), iterations: int = ITERATIONS) -> dict[str, list[float]]:
-    """Wall times (s) of ``repeat`` cold processes per command, alternating the commands."""
+def cold_walls(repeat: int, extra: Sequence[str] = (), iterations: int = ITERATIONS,
+               between: Callable[[], None] | None = None) -> dict[str, list[float]]:
+    """Wall times (s) of ``repeat`` cold processes per command, alternating the commands;
+    ``between()`` after each round (e.g. a measurement to interleave with them)."""
     cmd = entry_point()
     n = ["--iters", str(iterations), *extra]
     walls: dict[str, list[float]] = {"help": [], "simulate": [], "compare": []}
@@ -60,6 +63,8 @@ def cold_walls(repeat: int, extra: Sequence[str] = (), iterations: int = ITERATI
                                             str(tmp_path / f"s{i}" / "c3.h5")], tmp_path))
             walls["compare"].append(_wall([*cmd, "compare", "--methods", ",".join(METHODS), *n,
                                            "--results", str(tmp_path / f"c{i}")], tmp_path))
+            if between is not None:
+                between()
     return walls
 
 
@@ -160,12 +165,17 @@ def cold_timelines(repeat: int, extra: Sequence[str] = (), iterations: int = ITE
     return {key: statistics.median(row[key] for row in rows) for key in rows[0]}
 
 
-def report(repeat: int = 5, loop_repeat: int = 3, extra: Sequence[str] = (), iterations: int = ITERATIONS) -> None:
+def report(repeat: int = 5, loop_repeat: int = 1, extra: Sequence[str] = (), iterations: int = ITERATIONS) -> None:
     """Print the cold-process figures, the loop/overhead split and the timeline inside the runs."""
     cores = os.cpu_count() or 1
-    walls = cold_walls(repeat, extra, iterations)
     overrides = dict(_parse_set(extra))
-    loops = loop_seconds(METHODS, loop_repeat, iterations, overrides)
+    loop_seconds(METHODS, 1, iterations, overrides)  # warm
+    rounds: list[dict[str, float]] = []
+    # the loop is timed between the rounds of cold processes, not after all of them: this machine's
+    # speed drifts by 20% within minutes, and the overhead compares the two
+    walls = cold_walls(repeat, extra, iterations,
+                       between=lambda: rounds.append(loop_seconds(METHODS, loop_repeat, iterations, overrides)))
+    loops = {method: statistics.median(r[method] for r in rounds) for method in METHODS}
     med = {k: statistics.median(v) for k, v in walls.items()}
     rng = {k: f"{min(v):.2f}-{max(v):.2f}" for k, v in walls.items()}
     from ilcforce import aot
