@@ -100,8 +100,11 @@ def identities_match(stamp: dict) -> bool:
     """Whether every file is the very one the stamp's hashes were taken of, so that hashing them again
     (about 15 ms of a cold command, hashlib's import included) would give the same: the stamp's
     ``files`` (taken before the hashes, for those hashes: ``files_for``) equal the files' identities
-    now, the same set of files. A write to a file changes its ctime, which no user can set back; a
-    file put in its place has another inode."""
+    now, the same set of files. A write through ``write()`` or ``truncate()`` changes the file's ctime,
+    which no user can set back, and a file put in its place has another inode. Not seen: a write
+    through a shared memory mapping of a page already dirty, two same-size writes within one tick of
+    a coarse ctime clock around ``make install``, damage below the file system; for those,
+    ``python -m ilcforce.aot_build --force`` builds the module again, or ``ILCFORCE_AOT=0`` leaves it."""
     files = stamp.get("files")
     if not isinstance(files, dict) or stamp.get("files_for") != [stamp.get("fingerprint"), stamp.get("module_sha256")]:
         return False

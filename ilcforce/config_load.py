@@ -148,7 +148,7 @@ def run_footprint(config: Config) -> tuple[int, int]:
 
     Per control sample: the reference (12 floats), the learned memory (old and new, up to 2 x 16),
     the noise draws (about 10), the raw log before decimation (about 40): about 100 float64; plus two
-    finished iterations' records (log and memory copies, about 56 each) waiting for or in the store's
+    finished iterations' records (log signals and memory, about 56 each) waiting for or in the store's
     writes while the next iteration simulates (:mod:`ilcforce.pipeline`): about 212 float64. (A small
     run keeps up to eight records waiting, within ``ilcforce.started.RECORDS_AHEAD_BYTES``; a run near the
     limit keeps one, as counted here.)

@@ -2,10 +2,10 @@
 
 The compiled loop releases the GIL (``nogil=True``), so on a machine with a free core the store's
 writes and metrics of iteration j (Python and HDF5, in the consumer's thread) overlap with the
-simulation of iteration j + 1 (in the producer's thread). Nothing is shared between the two but the
-records handed over: each record is built from arrays nobody writes again (``Controller.learned_state``
-returns copies or a finished iteration's own buffer; the logs are fresh arrays), so the stored
-numbers are those of a serial run (pinned by ``tests/test_reference_run.py`` and
+simulation of iteration j + 1 (in the producer's thread). The records handed over hold arrays
+nobody writes again (``Controller.learned_state`` returns copies, or read-only views of the buffer
+the next iteration only reads; the logs are fresh per iteration), so the stored numbers are those
+of a serial run (pinned by ``tests/test_reference_run.py`` and
 ``tests/test_experiment.py``).
 
 Order and errors are kept: items arrive in the producer's order, an exception raised by the producer

@@ -34,7 +34,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -179,8 +178,9 @@ def force_axis(selection) -> int:
 
 
 @dataclass(frozen=True)
-class _Setup:
-    """What an iteration's compiled loop is called with, apart from the controller's gains and memory."""
+class IterationSetup:
+    """What an iteration's compiled loop is called with, apart from the controller's gains and memory
+    and the buffers the loop writes (made by :func:`run_iteration`): read-only, for one controller."""
 
     controller: object
     ref: np.ndarray
@@ -192,26 +192,12 @@ class _Setup:
     fset: np.ndarray
     iset: np.ndarray
     n_log: int
-    carry: np.ndarray  # the loop's state: a setup is used once
+    initial_state: tuple  # (theta0, dtheta0), the loop's carry made from it
     simulate_chunk: Callable
     kernels: tuple  # numba's loop: the law's and the plants' kernels, its first arguments
 
 
-class IterationSetup:
-    """An iteration's set-up for one controller (:func:`prepare_setup`), made ahead of time, used once."""
-
-    def __init__(self, setup: _Setup) -> None:
-        self._setup = setup
-        self._lock = threading.Lock()
-
-    def take(self, controller) -> _Setup | None:
-        """The set-up, the first time it is asked for by the controller it was made for; else None."""
-        with self._lock:
-            setup, self._setup = self._setup, None
-        return setup if setup is not None and setup.controller is controller else None
-
-
-def _setup(inputs: IterationInputs, controller) -> _Setup:
+def _setup(inputs: IterationInputs, controller) -> IterationSetup:
     from ilcforce import aot, loop  # loop: numba's, loaded on first use only
 
     s = inputs.settings
@@ -236,18 +222,18 @@ def _setup(inputs: IterationInputs, controller) -> _Setup:
     if simulate_chunk is None:
         true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
         simulate_chunk, kernels = loop._simulate, (controller.law, true_k.accel, nominal_k.kin, nominal_k.task)
-    return _Setup(controller, ref, t_control, true_robot, nominal_robot, wall,
-                  np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log, loop.new_carry(theta0, dtheta0),
-                  simulate_chunk, kernels)
+    return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, wall,
+                          np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log, (theta0, dtheta0),
+                          simulate_chunk, kernels)
 
 
 def prepare_setup(inputs: IterationInputs, controller) -> IterationInputs:
     """``inputs`` with the set-up :func:`run_iteration` would make before its loop (the robots, the
-    initial state, the settings' arrays, fresh log buffers, the compiled loop to call) made now for
-    ``controller``, e.g. in another thread while the previous iteration simulates: the iteration
-    then starts at once when the previous one ends. Used by the first run of these inputs with
-    this controller (the loop writes the buffers); the same numbers."""
-    return dataclasses.replace(inputs, setup=IterationSetup(_setup(inputs, controller)))
+    initial state, the settings' arrays, the compiled loop to call) made now for ``controller``,
+    e.g. in another thread while the previous iteration simulates: the iteration then starts at once
+    when the previous one ends. Used by every run of these inputs with this controller (nothing in
+    it is written); the same numbers."""
+    return dataclasses.replace(inputs, setup=_setup(inputs, controller))
 
 
 def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.ndarray,
@@ -270,13 +256,13 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     from ilcforce import loop  # numba's (loaded on first use only) and the loop's constants
 
     s = inputs.settings
-    setup = inputs.setup.take(controller) if inputs.setup is not None else None
-    if setup is None:
+    setup = inputs.setup
+    if setup is None or setup.controller is not controller:
         setup = _setup(inputs, controller)
-    ref, t_control, carry = setup.ref, setup.t_control, setup.carry
-    # made here, just before the loop writes it: made ahead in another thread, its 0.4 MB were out of
-    # the cache and the loop ran about 4% slower (alternated cold runs)
+    ref, t_control = setup.ref, setup.t_control
+    # what the loop writes is made here, for this run only: a set-up may serve several
     log = np.full((setup.n_log, loop.LOG_WIDTH), np.nan)
+    carry = loop.new_carry(*setup.initial_state)
     n_control = ref.shape[0]
     gains = np.ascontiguousarray(controller.gains(), dtype=np.float64)
     head = (*setup.kernels, setup.true_robot.address, setup.nominal_robot.address, setup.wall, gains, mem_prev,

@@ -1,6 +1,6 @@
 """Iterations simulating in a background thread before and while their consumer stores them.
 
-:func:`start_iterations` starts :func:`ilcforce.experiment.simulate_iterations`' work at once (the
+:func:`start_iterations` starts the work of :func:`ilcforce.experiment.simulate_iterations` at once (the
 CLI's early start, ``run_method``); the consumer takes the records from the :class:`StartedRun`,
 each completed in its own thread (tau_d and the memory attached, the log signals taken out of the
 loop's buffer), while the simulation goes on.
@@ -67,7 +67,8 @@ class StartedRun:
 def start_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None,
                      stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
                      desired_cache: dict | None = None) -> StartedRun:
-    """Start :func:`simulate_iterations` (with ``prefetch``) in a background thread at once.
+    """Start the iterations of :func:`ilcforce.experiment.simulate_iterations` (with ``prefetch``) in a
+    background thread at once; the taker completes each record (:meth:`StartedRun.records`).
 
     Iteration j + 1 simulates (compiled loop, GIL released) while the consumer stores j."""
     from ilcforce.experiment import make_controller

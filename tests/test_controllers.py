@@ -415,3 +415,19 @@ def test_the_learned_state_handed_out_is_never_written_again(method):
     for key, value in handed.items():
         np.testing.assert_array_equal(value, kept[key], err_msg=key)
     assert all(not value.any() for value in controller.learned_state().values())
+
+
+def test_the_learned_state_handed_out_cannot_be_written():
+    """The views learned_state() hands out are the buffer the next iteration reads as mem_prev: a
+    record's taker writing one in place would change every later iteration (a review found it)."""
+    from ilcforce.records import IterationRecord, STATUS_COMPLETE
+
+    controller = make_controller(default_config(), "c3")
+    _prev, new = controller.begin_iteration(0)
+    new[...] = 1.0
+    controller.end_iteration(IterationRecord(0, STATUS_COMPLETE, float("nan"), "", 0, {}))
+    for key, value in controller.learned_state().items():
+        with pytest.raises(ValueError, match="read-only"):
+            value[0] = 0.0
+    mem_prev, _new = controller.begin_iteration(1)
+    assert np.all(mem_prev == 1.0)

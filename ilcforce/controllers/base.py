@@ -317,12 +317,18 @@ class MemoryController:
         for key, (start, stop, _unit) in self.memory_layout.items():
             block = memory[:, start:stop]
             block = block[:, 0] if stop - start == 1 else block
-            out[key] = block.copy() if copy else block
+            if copy:
+                block = block.copy()
+            else:  # the next iteration reads this buffer as mem_prev: a record must not write it
+                block = block.view()
+                block.flags.writeable = False
+            out[key] = block
         return out
 
     def learned_state(self) -> dict[str, np.ndarray]:
-        """Views of the last finished iteration's memory, which nothing writes again (a later
-        iteration writes a buffer of its own; :meth:`restore` makes a new one)."""
+        """Read-only views of the last finished iteration's memory, which nothing writes again (a
+        later iteration writes a buffer of its own; :meth:`restore` makes a new one). Subclasses must
+        not write ``_prev`` in place: it is handed out, and read by the next iteration."""
         return self._named(self._prev, copy=False)
 
     def unfinished_state(self) -> dict[str, np.ndarray]:
