@@ -7,6 +7,7 @@ import subprocess
 import sys
 import time
 
+import h5py
 import numpy as np
 import pytest
 
@@ -81,6 +82,10 @@ def test_kill_9_then_resume_is_bit_identical(tmp_path, uninterrupted):
     assert resumed.returncode == 0, resumed.stderr
     assert store.read_provenance(out)["run_state"] == "complete"
     _assert_same_run(uninterrupted, out)
+    # the /metrics cache holds a row for every iteration again, the killed session's included
+    # (they are written at a run's end; readers would otherwise recompute them from the logs)
+    with h5py.File(out, "r") as handle:
+        assert sorted(handle["metrics/iteration"][()].tolist()) == list(range(int(ITERS)))
 
 
 @pytest.mark.parametrize("sig, code, word", [(signal.SIGINT, 130, "interrupted"),

@@ -289,9 +289,13 @@ class StoreWriter:
         self._file_is_ours = True
         self._stored_run_state = str(provenance["run_state"])
         if done:
-            from ilcforce.store.access import read_iteration
+            from ilcforce.store.access import read_iteration, read_metrics_rows
             self._last = done[-1]
             self._last_status = str(read_iteration(self._path, self._last).attrs["status"])
+            # a run killed before its last commit left no /metrics rows for that session's iterations
+            # (they are written at a run's end): the rows the cache lacks, recomputed from the stored
+            # logs, go in with this session's (append_rows skips the ones it holds)
+            self._rows = [row for _, row in sorted(read_metrics_rows(self._path).items())]
 
     def _check_record(self, record: IterationRecord) -> tuple[dict, dict, dict]:
         if record.status not in (STATUS_COMPLETE, STATUS_DIVERGED):
