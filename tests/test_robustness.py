@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -127,3 +128,44 @@ def test_second_writer_is_refused(tmp_path):
         first.communicate(timeout=60)
     store.validate(out)
     assert store.read_provenance(out)["run_state"] == "partial"
+
+
+_BURST_WRITER = r"""
+import sys, time
+from pathlib import Path
+sys.path.insert(0, sys.argv[3])
+import storekit
+path, go = Path(sys.argv[1]), Path(sys.argv[2])
+with storekit.writer(path, config=storekit.resumed_config(60)) as w:
+    w.append(storekit.make_record(0))
+    while not go.exists():
+        time.sleep(0.001)
+    for j in range(1, 60):  # back to back: the exclusive lock is free only between two commits
+        w.append(storekit.make_record(j))
+    w.finish("complete")
+"""
+
+
+def test_a_reader_gets_in_between_back_to_back_commits(tmp_path):
+    """A writer whose store is behind commits back to back, leaving the lock free for well under a
+    millisecond between commits. Readers retried every 50 ms and waited for the whole run (a
+    test's reader saw a 40-iteration run finished before it could interrupt it); they now see it
+    progress."""
+    out, go = tmp_path / "c3.h5", tmp_path / "go"
+    tests = str(Path(__file__).resolve().parent)
+    proc = subprocess.Popen([sys.executable, "-c", _BURST_WRITER, str(out), str(go), tests],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.001)
+    store.iterations(out)  # the first read (and its forked walk) before the burst starts
+    go.touch()
+    seen = []
+    while proc.poll() is None:  # polled as _wait_for_iterations does
+        seen.append(len(store.iterations(out)))
+        time.sleep(0.005)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 0, stderr
+    assert store.iterations(out) == list(range(60))
+    between = sorted(set(seen) - {0, 1, 60})
+    assert len(between) >= 3, f"the reader saw only {sorted(set(seen))} of the run's 60 commits"
