@@ -31,8 +31,9 @@ _KERNELS = "_kernels_aot"
 _TOOLS = ("git", "uname")
 
 
-def split(lines: Iterable[str]) -> dict[str, float]:
-    """Share (%) of the samples per kind, from ``perf script -F pid,tid,ip,dso`` lines."""
+def split(lines: Iterable[str]) -> tuple[dict[str, float], int]:
+    """(share (%) of the samples per kind, number of samples) from ``perf script -F pid,tid,ip,dso``
+    lines."""
     threads: dict[tuple[int, int], collections.Counter] = collections.defaultdict(collections.Counter)
     for line in lines:
         fields = line.split()
@@ -43,7 +44,7 @@ def split(lines: Iterable[str]) -> dict[str, float]:
     total = sum(sum(c.values()) for c in threads.values())
     shares = dict.fromkeys(KINDS, 0.0)
     if not total:
-        return shares
+        return shares, 0
     parent = min(pid for pid, _ in threads)  # the command's own process starts first
     for (pid, tid), dsos in threads.items():
         n = sum(dsos.values())
@@ -58,7 +59,7 @@ def split(lines: Iterable[str]) -> dict[str, float]:
         else:
             kind = KINDS[3]
         shares[kind] += 100.0 * n / total
-    return shares
+    return shares, total
 
 
 def _sample(folder: Path, run: int, frequency: int, extra: list[str]) -> tuple[dict[str, float], float]:
@@ -74,9 +75,8 @@ def _sample(folder: Path, run: int, frequency: int, extra: list[str]) -> tuple[d
                             capture_output=True, text=True)
     if script.returncode != 0:
         raise SystemExit(f"bench_cpu: perf script failed: {(script.stderr.strip().splitlines() or [''])[-1]}")
-    lines = script.stdout.splitlines()
-    samples = sum(1 for line in lines if "/" in (line.split() or [""])[0])
-    return split(lines), samples / frequency
+    shares, samples = split(script.stdout.splitlines())
+    return shares, samples / frequency
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -16,7 +16,8 @@ def test_threads_are_counted_by_kind():
              + _lines(101, 104, "_pcg64.cpython-311.so", 80) + _lines(101, 104, "libm.so.6", 20)  # inputs
              + _lines(105, 105, "git", 3) + _lines(105, 105, "[kernel.kallsyms]", 7)            # git
              + ["", "garbage line", "17 no-slash (x)"])
-    shares = split(lines)
+    shares, samples = split(lines)
+    assert samples == 1000
     assert set(shares) == set(KINDS)
     assert shares[KINDS[0]] == pytest.approx(50.0)  # 500 of 1000 samples
     assert shares[KINDS[1]] == pytest.approx(15.0)
@@ -27,4 +28,4 @@ def test_threads_are_counted_by_kind():
 
 
 def test_no_samples_gives_zero_shares():
-    assert split(["", "no samples here"]) == dict.fromkeys(KINDS, 0.0)
+    assert split(["", "no samples here"]) == (dict.fromkeys(KINDS, 0.0), 0)
