@@ -165,6 +165,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="alternated 1- and 2-worker runs of the speed-up study (its 2-worker cell phase, "
                              "about 8 s, varies by about 10%% between runs on this machine)")
     parser.add_argument("--cold-repeat", type=int, default=5, help="cold processes per user command (0: skip)")
+    parser.add_argument("--floor-repeat", type=int, default=3,
+                        help="repetitions of each part of compare's least possible wall time (0: skip)")
     args = parser.parse_args(argv)
     config = default_config()
     steps = config.n_control - 1
@@ -194,6 +196,10 @@ def main(argv: list[str] | None = None) -> None:
         from ilcforce import bench_cold
 
         bench_cold.report(repeat=args.cold_repeat)
+    if args.floor_repeat > 0:  # what no implementation of compare can go below here (ilcforce.bench_floor)
+        from ilcforce import bench_floor
+
+        bench_floor.main(["--repeat", str(args.floor_repeat)])
     study_figures(args)
 
 
