@@ -19,6 +19,7 @@ import numpy as np
 import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
 from numba import njit
 
+from ilcforce.bench_cold import median_seconds as _median_time
 from ilcforce.config_load import default_config
 from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.base import LAW_SIGNATURE, MemoryController
@@ -51,15 +52,6 @@ def _plant_loop(p, n):
         out = _accel_terms(p, 1.3 + 1e-7 * i, 0.6, 0.1, -0.2)
         acc += out[9] + out[11]
     return acc
-
-
-def _median_time(fn, repeat: int) -> float:
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def _iteration_runner(config, controller):

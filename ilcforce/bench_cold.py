@@ -32,6 +32,17 @@ METHODS = ("c1", "c2", "c3")
 ITERATIONS = 20
 
 
+def median_seconds(work: Callable[[], object], repeat: int, clock: Callable[[], float] = time.perf_counter) -> float:
+    """Median over ``repeat`` runs of ``work()`` of the time ``clock`` measures (wall by default;
+    ``time.thread_time`` for this thread's CPU)."""
+    times = []
+    for _ in range(repeat):
+        t0 = clock()
+        work()
+        times.append(clock() - t0)
+    return statistics.median(times)
+
+
 def entry_point() -> list[str]:
     """The installed ``ilcforce`` console script beside this interpreter (or ``python -m ilcforce``)."""
     script = Path(sys.executable).parent / "ilcforce"

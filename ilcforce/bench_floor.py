@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -38,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcforce.bench_cold import METHODS, ITERATIONS, loop_seconds
+from ilcforce.bench_cold import METHODS, ITERATIONS, loop_seconds, median_seconds
 
 LAYOUTS = ("per signal", "one per iteration", "bare bytes")
 
@@ -58,12 +57,7 @@ def loops_ideal(loops: Mapping[str, float], cores: int) -> float:
 
 def _cpu(work: Callable[[], object], repeat: int) -> float:
     """Median CPU time (s) of this thread running ``work()``."""
-    times = []
-    for _ in range(repeat):
-        t0 = time.thread_time()
-        work()
-        times.append(time.thread_time() - t0)
-    return statistics.median(times)
+    return median_seconds(work, repeat, time.thread_time)
 
 
 def _arrays(record) -> dict[str, np.ndarray]:
@@ -119,12 +113,7 @@ def write_bare(path: Path, records: Sequence) -> None:
 def cold_numpy(repeat: int) -> float:
     """Median wall time (s) of a cold ``python -c "import numpy"`` (one OpenBLAS thread, as the CLI)."""
     env = dict(os.environ, OPENBLAS_NUM_THREADS=os.environ.get("OPENBLAS_NUM_THREADS") or "1")
-    walls = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "import numpy"], check=True, env=env)
-        walls.append(time.perf_counter() - t0)
-    return statistics.median(walls)
+    return median_seconds(lambda: subprocess.run([sys.executable, "-c", "import numpy"], check=True, env=env), repeat)
 
 
 def _inputs_cpu(config, method: str, repeat: int) -> float:
