@@ -35,9 +35,8 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
-import numpy as np
-
 from ilcforce.bench_cold import METHODS, ITERATIONS, loop_seconds, median_seconds
+from ilcforce.store.floor_writes import stack, write_bare, write_one_per_iteration, write_per_signal
 
 LAYOUTS = ("per signal", "one per iteration", "bare bytes")
 
@@ -58,56 +57,6 @@ def loops_ideal(loops: Mapping[str, float], cores: int) -> float:
 def _cpu(work: Callable[[], object], repeat: int) -> float:
     """Median CPU time (s) of this thread running ``work()``."""
     return median_seconds(work, repeat, time.thread_time)
-
-
-def _arrays(record) -> dict[str, np.ndarray]:
-    return {**{f"log/{k}": v for k, v in record.log.items()}, **{f"memory/{k}": v for k, v in record.memory.items()}}
-
-
-def write_per_signal(path: Path, records: Sequence) -> None:
-    """Today's layout, as cheaply as h5py writes it: a dataset per signal, a ``units`` attribute each."""
-    import h5py
-
-    with h5py.File(path, "w", libver="latest") as f:
-        for record in records:
-            group = f.create_group(f"iterations/{record.iteration:04d}")
-            for name, values in _arrays(record).items():
-                group.create_dataset(name, data=values).attrs["units"] = "-"
-
-
-def stack(records: Sequence) -> list[tuple[int, dict[str, np.ndarray]]]:
-    """Each record's log signals as one (n, k) array and its memory as another (made before timing)."""
-    out = []
-    for record in records:
-        parts = {"log": np.column_stack([v.reshape(len(v), -1) for v in record.log.values()])}
-        if record.memory:
-            parts["memory"] = np.column_stack([v.reshape(len(v), -1) for v in record.memory.values()])
-        out.append((record.iteration, parts))
-    return out
-
-
-def write_one_per_iteration(path: Path, stacked: Sequence[tuple[int, dict[str, np.ndarray]]]) -> None:
-    """The fewest datasets: one array per iteration and kind, one ``units`` attribute each."""
-    import h5py
-
-    with h5py.File(path, "w", libver="latest") as f:
-        for iteration, parts in stacked:
-            group = f.create_group(f"iterations/{iteration:04d}")
-            for name, values in parts.items():
-                group.create_dataset(name, data=values).attrs["units"] = "-"
-
-
-def write_bare(path: Path, records: Sequence) -> None:
-    """No format: every array's bytes, one ``os.write`` each."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
-    try:
-        for record in records:
-            for values in _arrays(record).values():
-                view = memoryview(np.ascontiguousarray(values)).cast("B")
-                while view:
-                    view = view[os.write(fd, view):]
-    finally:
-        os.close(fd)
 
 
 def cold_numpy(repeat: int) -> float:

@@ -6,8 +6,8 @@ import h5py
 import numpy as np
 import pytest
 
-from ilcforce.bench_floor import (LAYOUTS, least_wall, loops_ideal, report, stack, write_bare,
-                                  write_one_per_iteration, write_per_signal)
+from ilcforce.bench_floor import LAYOUTS, least_wall, loops_ideal, report
+from ilcforce.store.floor_writes import stack, write_bare, write_one_per_iteration, write_per_signal
 
 
 def _records(n=3):
