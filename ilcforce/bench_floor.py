@@ -131,11 +131,21 @@ def report(parts: dict, cores: int, target: float = 0.30) -> list[str]:
     return lines
 
 
+def _positive(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number of at least 1, got {text!r}")
+    return value
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--repeat", type=int, default=3, help="repetitions per part (median)")
-    parser.add_argument("--iters", type=int, default=ITERATIONS, help="iterations per method")
-    parser.add_argument("--cores", type=int, default=os.cpu_count() or 1, help="cores to spread the work on")
+    parser.add_argument("--repeat", type=_positive, default=3, help="repetitions per part (median)")
+    parser.add_argument("--iters", type=_positive, default=ITERATIONS, help="iterations per method")
+    parser.add_argument("--cores", type=_positive, default=os.cpu_count() or 1, help="cores to spread the work on")
     args = parser.parse_args(argv)
     parts = measure(METHODS, args.iters, args.repeat)
     print(f"floor of a cold `ilcforce compare` ({', '.join(METHODS)} x {args.iters}, every iteration written) "

@@ -6,7 +6,7 @@ import h5py
 import numpy as np
 import pytest
 
-from ilcforce.bench_floor import LAYOUTS, least_wall, loops_ideal, report
+from ilcforce.bench_floor import LAYOUTS, least_wall, loops_ideal, main, report
 from ilcforce.store.floor_writes import stack, write_bare, write_one_per_iteration, write_per_signal
 
 
@@ -74,3 +74,11 @@ def test_bare_bytes_are_every_array_in_order(tmp_path):
     expected = b"".join(np.ascontiguousarray(a).tobytes() for r in records
                         for a in [*r.log.values(), *r.memory.values()])
     assert (tmp_path / "b.bin").read_bytes() == expected
+
+
+@pytest.mark.parametrize("flag, value", [("--repeat", "0"), ("--iters", "-2"), ("--cores", "two")])
+def test_a_count_below_one_is_one_line_not_a_traceback(flag, value, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main([flag, value])
+    assert stop.value.code == 2
+    assert f"argument {flag}: expected a whole number of at least 1, got {value!r}" in capsys.readouterr().err
