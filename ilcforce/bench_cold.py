@@ -43,6 +43,12 @@ def median_seconds(work: Callable[[], object], repeat: int, clock: Callable[[], 
     return statistics.median(times)
 
 
+def loops_ideal(loops: dict[str, float], cores: int) -> float:
+    """The compiled loops' own time (s) for methods run at once on ``cores``: all of them over the
+    cores, but never less than the longest (a method's iterations run one after another)."""
+    return max(sum(loops.values()) / cores, max(loops.values()))
+
+
 def entry_point() -> list[str]:
     """The installed ``ilcforce`` console script beside this interpreter (or ``python -m ilcforce``)."""
     script = Path(sys.executable).parent / "ilcforce"
@@ -198,7 +204,7 @@ def report(repeat: int = 5, loop_repeat: int = 1, extra: Sequence[str] = (), ite
     print(f"  ilcforce simulate --method c3 --iters {iterations:<3}          : {med['simulate']:8.2f} s wall   "
           f"({rng['simulate']}); compiled loop {sim_loop:.2f} s, overhead "
           f"{100 * (1 - sim_loop / med['simulate']):.0f}%")
-    ideal = max(sum(loops.values()) / min(cores, len(METHODS)), max(loops.values()))
+    ideal = loops_ideal(loops, cores)
     print(f"  ilcforce compare (c1, c2, c3 x {iterations}, stores written): {med['compare']:8.2f} s wall   "
           f"({rng['compare']}); compiled loop {sum(loops.values()):.2f} s over the methods "
           f"= {ideal:.2f} s on {min(cores, len(METHODS))} cores, overhead {100 * (1 - ideal / med['compare']):.0f}%")

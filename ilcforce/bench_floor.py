@@ -35,7 +35,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
-from ilcforce.bench_cold import METHODS, ITERATIONS, loop_seconds, median_seconds
+from ilcforce.bench_cold import METHODS, ITERATIONS, loop_seconds, loops_ideal, median_seconds
 from ilcforce.store.floor_writes import stack, write_bare, write_one_per_iteration, write_per_signal
 
 LAYOUTS = ("per signal", "one per iteration", "bare bytes")
@@ -47,11 +47,6 @@ def least_wall(start: float, loops: Mapping[str, float], rest: Mapping[str, floa
     loops (each runs its iterations one after another; its rest may run beside them)."""
     total = sum(loops.values()) + sum(rest.values())
     return start + max(total / cores, max(loops.values()))
-
-
-def loops_ideal(loops: Mapping[str, float], cores: int) -> float:
-    """The loops' own time on ``cores`` (``make bench``'s 'compiled loop ... on N cores')."""
-    return max(sum(loops.values()) / cores, max(loops.values()))
 
 
 def _cpu(work: Callable[[], object], repeat: int) -> float:

@@ -6,7 +6,8 @@ import h5py
 import numpy as np
 import pytest
 
-from ilcforce.bench_floor import LAYOUTS, least_wall, loops_ideal, main, report
+from ilcforce.bench_cold import loops_ideal
+from ilcforce.bench_floor import LAYOUTS, least_wall, main, report
 from ilcforce.store.floor_writes import stack, write_bare, write_one_per_iteration, write_per_signal
 
 
