@@ -26,12 +26,12 @@ $(STAMP): pyproject.toml
 
 SOURCES := $(shell find ilcforce -name '*.py' -o -name '*.mplstyle')
 
-# the simulation kernels compiled ahead of time (ilcforce/aot.py): commands then run without numba
+# the simulation kernels compiled ahead of time (ilcforce/compiled/aot.py): commands then run without numba
 # in the process. Checked at every make (a fraction of a second): rebuilt when a kernel's source
 # changed or the module is missing or damaged; a failed build is recorded and commands run through
 # numba instead. Results never depend on it (same numbers either way), so stores only wait for it.
 aot: $(STAMP)
-	@$(PY) -m ilcforce.aot_build
+	@$(PY) -m ilcforce.compiled.build
 	@# bytecode as a regular install has it, also where PYTHONDONTWRITEBYTECODE is set (an editable
 	@# install then never writes it, and every command compiled ilcforce's sources anew: about 40 ms)
 	@$(PY) -m compileall -q ilcforce
@@ -45,7 +45,7 @@ test-slow: $(STAMP) aot ## run only the slow paper-level regression studies
 	$(PY) -m pytest -q -m slow
 
 bench: $(STAMP) aot ## print speed figures (medians over repeated runs)
-	$(PY) -m ilcforce.bench
+	$(PY) -m benchmarks
 
 STORES = $(foreach e,$(EXPERIMENTS),$(foreach m,$(METHODS),$(RESULTS)/$(e)/$(m).h5))
 comma := ,

@@ -111,7 +111,7 @@ def _guard(func):
 
 
 def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], sets: Optional[list[str]]):
-    from ilcforce.compile_note import announce_compiles
+    from ilcforce.compiled.note import announce_compiles
 
     # a first run compiles before iteration 0: say so on a terminal (ilcforce/compile_note.py). Whether
     # stderr is one is asked only then: the check builds a rich Console (issue 12: not before the run)

@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from ilcforce import _jit
-from ilcforce._jit import Sig, njit  # numba's, imported only when this runs through numba (ilcforce/_jit.py)
+from ilcforce.compiled import jit as _jit
+from ilcforce.compiled.jit import Sig, njit  # numba's, imported only when this runs through numba (ilcforce/compiled/jit.py)
 from ilcforce.plants.base import kernel_type
 
 

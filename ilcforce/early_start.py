@@ -13,7 +13,7 @@ when the run was started for the same method and a configuration whose TOML (wha
 is the same; otherwise the early run is stopped and the command starts its own. Whatever the early
 reading gets wrong therefore costs time, never a number: the records are those of the same
 function with the same inputs. Only the ahead-of-time compiled kernels run early (a first run
-through numba announces its compiles first; :mod:`ilcforce.compile_note`).
+through numba announces its compiles first; :mod:`ilcforce.compiled.note`).
 """
 
 from __future__ import annotations
@@ -79,7 +79,7 @@ def _config(found: dict):
 
 def _compiled(config, method: str) -> bool:
     """Whether the run would use only ahead-of-time compiled kernels (no numba compile to announce)."""
-    from ilcforce import aot
+    from ilcforce.compiled import aot
     from ilcforce.experiment import make_controller
     from ilcforce.plants import make_plant
 

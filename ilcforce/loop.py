@@ -18,8 +18,8 @@ import math
 
 import numpy as np
 
-from ilcforce import _jit
-from ilcforce._jit import Sig, njit  # numba's, imported only when the loop runs through numba (ilcforce/_jit.py)
+from ilcforce.compiled import jit as _jit
+from ilcforce.compiled.jit import Sig, njit  # numba's, imported only when the loop runs through numba (ilcforce/compiled/jit.py)
 from ilcforce.controllers.base import (
     DIAG_SIGMA, DIAG_WIDTH, MEAS_ACCEL, MEAS_DTHETA, MEAS_FORCE, MEAS_FORCE_ACCEL,
     MEAS_FORCE_RATE, MEAS_JACOBIAN, MEAS_POSITION, MEAS_TASK_CORIOLIS, MEAS_TASK_GRAVITY,

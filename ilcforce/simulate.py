@@ -198,7 +198,8 @@ class IterationSetup:
 
 
 def _setup(inputs: IterationInputs, controller) -> IterationSetup:
-    from ilcforce import aot, loop  # loop: numba's, loaded on first use only
+    from ilcforce import loop
+    from ilcforce.compiled import aot  # loop: numba's, loaded on first use only
 
     s = inputs.settings
     ref = np.ascontiguousarray(inputs.reference, dtype=np.float64)
@@ -307,7 +308,7 @@ def desired_inputs(plant, wall: Wall, reference_log: np.ndarray) -> tuple[np.nda
     desired contact force, so the wall's reaction -w F_d is balanced. ``reference_log`` is (n, 12);
     returns two (n, 2) arrays (N m, N).
     """
-    from ilcforce import aot
+    from ilcforce.compiled import aot
     from ilcforce.plants import UnreachableError
 
     robot = make_plant(plant)

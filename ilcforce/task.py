@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcforce._jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/_jit.py)
+from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
 
 FORCE_SIGNS = {"applied": 1.0, "paper": -1.0}
 

@@ -1,4 +1,4 @@
-"""The ahead-of-time compiled kernels (ilcforce/aot.py, built by ``make install``): numba's numbers
+"""The ahead-of-time compiled kernels (ilcforce/compiled/aot.py, built by ``make install``): numba's numbers
 bit for bit, no numba in a command's process, and numba again whenever the module does not fit."""
 
 from __future__ import annotations
@@ -11,14 +11,15 @@ import sys
 import numpy as np
 import pytest
 
-from ilcforce import aot
+from ilcforce.compiled import aot, sources
 from ilcforce.controllers.base import MemoryController, compiled_law
 from ilcforce.plants import MODELS, plant_class
+from ilcforce.plants.base import PlantKernels
 
 _DIGEST = """
 import hashlib, sys
 import numpy as np
-from ilcforce import aot
+from ilcforce.compiled import aot, sources
 from ilcforce.config_load import load_config
 from ilcforce.controllers import REGISTRY
 from ilcforce.experiment import simulate_iterations
@@ -61,7 +62,7 @@ needs_module = pytest.mark.skipif(_failed_build() is not None,
 def test_the_ahead_of_time_module_is_built_for_these_sources():
     """``make install`` / ``make test`` build it; without it every other test here would compare
     numba with itself."""
-    assert aot.module() is not None, f"{aot.status()}: run `make install` (python -m ilcforce.aot_build)"
+    assert aot.module() is not None, f"{aot.status()}: run `make install` (python -m ilcforce.compiled.build)"
 
 
 @needs_module
@@ -82,7 +83,7 @@ def test_the_plant_api_gives_numbas_numbers():
     for model in MODELS:
         cls = plant_class(model)
         plant = cls()
-        compiled, jitted = aot.plant_kernels(cls), cls.kernels()
+        compiled, jitted = aot.plant_kernels(cls, PlantKernels), cls.kernels()
         assert compiled is not None
         for th1 in np.linspace(0.3, 2.0, 5):
             for th2 in np.linspace(0.8, 2.6, 5):
@@ -129,7 +130,7 @@ def test_a_module_built_from_other_sources_is_not_used(stamp):
     stamp.write_text(json.dumps({**record, "fingerprint": "0" * 64}))
     assert aot.module() is None
     assert "built from other sources" in aot.status()
-    assert aot.simulator(object(), object, object) is None and aot.plant_kernels(plant_class("fivebar")) is None
+    assert aot.simulator(object(), object, object) is None and aot.plant_kernels(plant_class("fivebar"), PlantKernels) is None
 
 
 @pytest.mark.parametrize("content, why", [
@@ -150,7 +151,7 @@ def test_without_a_usable_module_the_kernels_run_through_numba(stamp, content, w
 def test_a_failed_build_is_not_tried_again_at_every_make(stamp, monkeypatch, capsys):
     """Without a C compiler each try costs about 30 s: make's check skips a build that failed for
     the same sources, and says how to try again; other sources are built."""
-    from ilcforce import aot_build
+    from ilcforce.compiled import build as aot_build
 
     tries: list[int] = []
 
@@ -206,7 +207,7 @@ def test_files_unchanged_since_the_build_are_not_hashed_again(stamp, monkeypatch
     assert aot.identities_match(json.loads(stamp.read_text()))
     _no_hashing(monkeypatch)
     assert aot.module() is not None
-    code = "import sys\nfrom ilcforce import aot\nassert aot.module() is not None\nprint('hashlib' in sys.modules)"
+    code = "import sys\nfrom ilcforce.compiled import aot\nassert aot.module() is not None\nprint('hashlib' in sys.modules)"
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and proc.stdout.strip() == "False", proc.stderr
 
@@ -243,6 +244,7 @@ def test_a_rewrite_with_the_same_bytes_changes_the_identity(tmp_path, monkeypatc
     copy = tmp_path / "ilcforce"
     shutil.copytree(aot.PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__", "*.json"))
     monkeypatch.setattr(aot, "PACKAGE", copy)
+    monkeypatch.setattr(sources, "PACKAGE", copy)
     if not aot.module_path().exists():
         aot.module_path().write_bytes(b"")
     before = aot.file_identities()
@@ -258,7 +260,7 @@ def test_a_rewrite_with_the_same_bytes_changes_the_identity(tmp_path, monkeypatc
 @needs_module
 def test_the_build_records_the_identities_in_an_older_stamp(stamp, monkeypatch):
     """A stamp written before identities were recorded gets them at the next make, without a rebuild."""
-    from ilcforce import aot_build
+    from ilcforce.compiled import build as aot_build
 
     record = json.loads(stamp.read_text())
     stamp.write_text(json.dumps({k: v for k, v in record.items() if k not in ("files", "files_for")}))
@@ -291,6 +293,7 @@ def test_the_fingerprint_skips_editor_files(tmp_path, monkeypatch):
     copy = tmp_path / "ilcforce"
     shutil.copytree(aot.PACKAGE, copy, ignore=shutil.ignore_patterns("__pycache__", "*.so", "*.json"))
     monkeypatch.setattr(aot, "PACKAGE", copy)
+    monkeypatch.setattr(sources, "PACKAGE", copy)
     clean = aot.source_fingerprint.__wrapped__()
     (copy / "controllers" / ".#c3.py").symlink_to("root@host.1234:1700000000")
     (copy / "plants" / "odd.py").mkdir()
@@ -302,7 +305,7 @@ def test_the_fingerprint_skips_editor_files(tmp_path, monkeypatch):
 def test_numbas_cache_is_kept_per_version_of_the_kernel_sources(tmp_path, monkeypatch):
     """numba finds a cached kernel stale only when its own file changed, not when a kernel it
     calls did; a cache folder per fingerprint of every kernel source makes any edit start afresh."""
-    from ilcforce import _jit
+    from ilcforce.compiled import jit as _jit
 
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     _jit._key_the_cache()
@@ -351,9 +354,10 @@ def test_a_law_of_ones_own_runs_through_numba():
 
 
 def test_numba_objects_replace_the_placeholders_once_numba_is_imported():
-    """ilcforce/_jit.py: after numba's import every kernel module global is numba's own object (a
+    """ilcforce/compiled/jit.py: after numba's import every kernel module global is numba's own object (a
     kernel compiled later finds real dispatchers among its globals)."""
-    from ilcforce import _jit, task
+    from ilcforce import task
+    from ilcforce.compiled import jit as _jit
     from ilcforce.plants import base
 
     nb = _jit.numba()

@@ -1,8 +1,8 @@
-"""The CPU split of ``python -m ilcforce.bench_cpu``: each sampled thread counted as the right kind."""
+"""The CPU split of ``python -m benchmarks.cpu``: each sampled thread counted as the right kind."""
 
 import pytest
 
-from ilcforce.bench_cpu import KINDS, split
+from benchmarks.cpu import KINDS, split
 
 
 def _lines(pid, tid, dso, n):

@@ -1,4 +1,4 @@
-"""``python -m ilcforce.bench_floor``: the bound's arithmetic, and writers that write what they claim."""
+"""``python -m benchmarks.floor``: the bound's arithmetic, and writers that write what they claim."""
 
 from types import SimpleNamespace
 
@@ -6,9 +6,9 @@ import h5py
 import numpy as np
 import pytest
 
-from ilcforce.bench_cold import loops_ideal
-from ilcforce.bench_floor import LAYOUTS, least_wall, main, report
-from ilcforce.store.floor_writes import stack, write_bare, write_one_per_iteration, write_per_signal
+from benchmarks.cold import loops_ideal
+from benchmarks.floor import LAYOUTS, least_wall, main, report
+from benchmarks.floor_writes import stack, write_bare, write_one_per_iteration, write_per_signal
 
 
 def _records(n=3):

@@ -1,6 +1,6 @@
 """Lazy imports (issue 12): each path imports only what it uses, so cold commands start fast.
 
-Timings belong to `make bench` (ilcforce/bench_cold.py); this pins the structure that makes them:
+Timings belong to `make bench` (benchmarks/cold.py); this pins the structure that makes them:
 which heavy modules each path leaves unimported. A failure names the module that crept in.
 """
 
@@ -51,9 +51,9 @@ def test_compare_tables_do_not_import_matplotlib():
 
 @pytest.mark.parametrize("ahead_of_time", ["1", "0"])
 def test_a_simulation_loads_numbas_lapack_without_all_of_scipy_linalg(ahead_of_time):
-    """ilcforce._lapack: numba's BLAS/LAPACK modules come without scipy.linalg's 170 ms package
+    """ilcforce.compiled.lapack: numba's BLAS/LAPACK modules come without scipy.linalg's 170 ms package
     import, and the compiled solves still work (the tau_d kernel uses np.linalg.solve), with the
-    ahead-of-time kernels (ilcforce/aot.py) and with numba's."""
+    ahead-of-time kernels (ilcforce/compiled/aot.py) and with numba's."""
     code = ("import sys\nfrom ilcforce.config_load import load_config\n"
             "from ilcforce.experiment import simulate_iterations\n"
             "cfg = load_config(None, {'experiment.iterations': 1, 'reference.duration': 0.05})\n"
@@ -66,51 +66,11 @@ def test_a_simulation_loads_numbas_lapack_without_all_of_scipy_linalg(ahead_of_t
     assert "LINALG False True" in proc.stdout
 
 
-_LIGHT_OR_FULL = """
-import hashlib, sys
-import numpy as np
-if sys.argv[1] == "full":  # numba's own start: every lowering registry installed before any load
-    import numba.core.registry
-    numba.core.registry.cpu_target.target_context.refresh()
-from ilcforce import _numba_start
-from ilcforce.config_load import load_config
-from ilcforce.controllers import REGISTRY
-from ilcforce.experiment import simulate_iterations
-digest = hashlib.sha256()
-short = {"experiment.iterations": 2, "reference.duration": 0.05, "plant.perturbation.from_iteration": 1}
-runs = [("fivebar", method) for method in REGISTRY] + [("serial2r", "c1"), ("serial2r", "sl-adapt")]
-for model, method in runs:
-    for record in simulate_iterations(load_config(None, {**short, "plant.model": model}), method):
-        for name in sorted(record.log):
-            digest.update(np.ascontiguousarray(record.log[name]).tobytes())
-        for name in sorted(record.memory):
-            digest.update(np.ascontiguousarray(record.memory[name]).tobytes())
-print("LIGHT", _numba_start.LIGHT_CACHE_LOADS, "numba.np.arraymath" in sys.modules, digest.hexdigest())
-"""
-
-
-def test_cached_kernels_load_without_numbas_compiler_and_give_the_same_numbers():
-    """ilcforce._numba_start: a process that only loads cached kernels skips the CPU target's refresh
-    (every lowering registry imported and installed, about 0.2 s of a cold command), and every method
-    on both robots computes exactly what it computes after numba's own full start."""
-    def run(mode: str) -> list[str]:
-        proc = subprocess.run([sys.executable, "-c", _LIGHT_OR_FULL, mode], capture_output=True, text=True,
-                              timeout=600, env={**os.environ, "ILCFORCE_AOT": "0"})  # numba's kernels
-        assert proc.returncode == 0, proc.stderr
-        return next(line for line in proc.stdout.splitlines() if line.startswith("LIGHT")).split()
-
-    run("light")  # fills numba's cache for whatever is not in it yet (that run compiles, and refreshes)
-    light, full = run("light"), run("full")
-    assert light[1:3] == ["True", "False"], f"the cached kernels did not load the light way: {light}"
-    assert full[2] == "True"  # the full start did install the registries: the comparison means something
-    assert light[3] == full[3], "the numbers differ between the light and numba's full start"
-
-
 def test_a_compile_is_announced_once(monkeypatch):
     """A first run after an install compiles for about a minute with the progress display at 0; the
-    terminal now says so, once (ilcforce/compile_note.py). The listener waits for numba's import
+    terminal now says so, once (ilcforce/compiled/note.py). The listener waits for numba's import
     (a run of ahead-of-time kernels imports none)."""
-    from ilcforce import _jit, compile_note
+    from ilcforce.compiled import jit as _jit, note as compile_note
 
     monkeypatch.setattr(compile_note, "_asked", [])
     monkeypatch.setattr(compile_note, "_installed", [])

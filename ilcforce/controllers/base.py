@@ -43,8 +43,8 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
 
-from ilcforce import _jit
-from ilcforce._jit import njit
+from ilcforce.compiled import jit as _jit
+from ilcforce.compiled.jit import njit
 
 if TYPE_CHECKING:
     from ilcforce.records import IterationRecord

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcforce._jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/_jit.py)
+from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
 from ilcforce.controllers.base import (
     DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law,
     gain_indices, joint_torque, pack_gains, surface_terms,

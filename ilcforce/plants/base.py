@@ -41,8 +41,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ilcforce import _jit
-from ilcforce._jit import intrinsic, njit, numba_global
+from ilcforce.compiled import jit as _jit
+from ilcforce.compiled.jit import intrinsic, njit, numba_global
 
 __all__ = ["UnreachableError", "PlantKernels", "Plant", "params_view", "kernel_signature", "kernel_type", "check_pair"]
 
@@ -165,10 +165,8 @@ class Plant:
 
     def calls(self) -> PlantKernels:
         """The five kernels as Python calls them: the ahead-of-time compiled ones when built
-        (:mod:`ilcforce.aot`, numba is then not imported), else :meth:`kernels`."""
-        from ilcforce import aot
-
-        return aot.plant_kernels(type(self)) or self.kernels()
+        (numba is then not imported), else :meth:`kernels`."""
+        return _jit.python_calls(type(self), self.kernels, PlantKernels)
 
     @property
     def packed(self) -> np.ndarray:

@@ -37,7 +37,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from ilcforce._jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/_jit.py)
+from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
 from ilcforce.plants.base import (
     PackedParams,
     compile_kernels,

@@ -1,6 +1,6 @@
 """numba, imported only when a kernel runs through it: the decorators of every kernel module.
 
-A process that runs the ahead-of-time compiled kernels (:mod:`ilcforce.aot`) never imports numba,
+A process that runs the ahead-of-time compiled kernels (:mod:`ilcforce.compiled.aot`) never imports numba,
 which is about a third of a cold ``ilcforce simulate`` (numba's import and its cache loads). So
 the kernel modules do not import numba themselves: they decorate with :func:`njit` and
 :func:`intrinsic` from here and name numba's own globals (``carray``) with :func:`numba_global`,
@@ -172,14 +172,14 @@ def on_load(callback: Callable[[object], None]) -> None:
 
 
 def numba():
-    """Import numba (its lighter start first), make every placeholder real and rebind the module
+    """Import numba, make every placeholder real and rebind the module
     globals that hold them; return the numba module."""
     global _numba
     with _lock:
         if _numba is not None:
             return _numba
         _key_the_cache()
-        import ilcforce._numba_start  # noqa: F401 - before numba: cached kernels load without the compiler
+        import ilcforce.compiled.lapack  # noqa: F401 - before numba: its LAPACK modules without all of scipy.linalg
         import numba as nb
 
         if os.environ.get("NUMBA_CACHE_DIR") and nb.config.CACHE_DIR != os.environ["NUMBA_CACHE_DIR"]:
@@ -205,16 +205,16 @@ def _key_the_cache() -> None:
     numba finds a cached kernel stale only when the kernel's own file changed, not when a kernel
     it calls did (an edit of ``joint_torque`` in ``controllers/base.py`` left every law's cached
     code as it was, and the ahead-of-time build, which compiles through the same cache, compiled
-    the old code). A folder per fingerprint of every kernel source (:data:`ilcforce.aot.SOURCES`)
+    the old code). A folder per fingerprint of every kernel source (:data:`ilcforce.compiled.sources.SOURCES`)
     makes any such edit start from an empty cache. Without ``NUMBA_CACHE_DIR`` numba keeps its
     cache beside the sources, as it does by default.
     """
     from pathlib import Path
 
-    from ilcforce import aot
+    from ilcforce.compiled.sources import source_fingerprint
 
     base = os.environ.get("NUMBA_CACHE_DIR")
-    fingerprint = aot.source_fingerprint()
+    fingerprint = source_fingerprint()
     if not base or fingerprint is None or Path(base).name.startswith(_CACHE_PREFIX):  # keyed already (a child)
         return
     os.environ["NUMBA_CACHE_DIR"] = str(Path(base) / f"{_CACHE_PREFIX}{fingerprint[:16]}")
@@ -237,3 +237,12 @@ def _rebind() -> None:
         for name, value in list(namespace.items()):
             if type(value) in kinds and id(value) in made:  # type(), not isinstance: a proxy's __class__ may raise
                 namespace[name] = made[id(value)]
+
+
+def python_calls(plant_cls: type, numba_kernels: Callable[[], tuple], kind: type):
+    """A plant's kernels as Python calls them: the ahead-of-time compiled ones when they are built
+    (:mod:`ilcforce.compiled.aot`; numba is then never imported), else ``numba_kernels()``. The same
+    machine code either way. Plants ask here, so that none of them imports the loader."""
+    from ilcforce.compiled import aot
+
+    return aot.plant_kernels(plant_cls, kind) or numba_kernels()

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from ilcforce import _jit
+from ilcforce.compiled import jit as _jit
 
 NOTE = ("compiling the simulation kernels (only the first run after an install or a code change; "
         "later runs load them from numba's cache)")
@@ -24,7 +24,7 @@ _installed: list = []  # the listener registered with numba, once numba is impor
 def announce_compiles(say: Callable[[str], None]) -> None:
     """From now on, ``say(NOTE)`` at the first compile numba starts in this process (once). numba
     is not imported for it: the listener is installed when numba is (ahead-of-time kernels,
-    :mod:`ilcforce.aot`, need no numba and compile nothing)."""
+    :mod:`ilcforce.compiled.aot`, need no numba and compile nothing)."""
     if _asked:
         return
     _asked.append(say)

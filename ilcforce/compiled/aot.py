@@ -3,7 +3,7 @@
 numba's import and its cache loads are about a third of a cold ``ilcforce simulate`` (issue 12).
 ``make install`` therefore also compiles, once, every built-in law on every built-in plant, the
 plants' kernels and the reference's inverse dynamics into one extension module beside this file
-(``ilcforce/_kernels_aot*.so``, by :mod:`ilcforce.aot_build` with numba's own compiler, numba.pycc),
+(``ilcforce/_kernels_aot*.so``, by :mod:`ilcforce.compiled.build` with numba's own compiler, numba.pycc),
 which needs only numpy at run time. The kernels are the same functions compiled by the same
 compiler, called with the same arguments; the stored numbers are those of the numba run, bit for
 bit (``tests/test_aot.py`` compares every law on every plant).
@@ -12,7 +12,7 @@ The module is used only when the sources it was built from are the ones here: it
 (``_kernels_aot.json``) records a hash of every file whose code it holds (:data:`SOURCES`). After
 an edit, a law or plant of one's own, a missing C compiler or ``ILCFORCE_AOT=0`` in the
 environment, everything runs through numba as before (same numbers, a slower start); ``make
-install`` (or ``python -m ilcforce.aot_build``) builds it again. :func:`status` says which.
+install`` (or ``python -m ilcforce.compiled.build``) builds it again. :func:`status` says which.
 """
 
 from __future__ import annotations
@@ -25,42 +25,16 @@ import os
 import stat
 from pathlib import Path
 
-PACKAGE = Path(__file__).resolve().parent
+from ilcforce.compiled.sources import PACKAGE, SOURCES, source_files, source_fingerprint  # noqa: F401 - the stamp records it
+
 MODULE = "ilcforce._kernels_aot"
 STAMP = PACKAGE / "_kernels_aot.json"
-#: every file whose code the extension module holds (a change to any of them retires it)
-SOURCES = ("_jit.py", "aot_build.py", "loop.py", "desired.py", "task.py", "controllers/*.py", "plants/*.py")
 
 
 #: ``ILCFORCE_AOT`` values that turn the ahead-of-time kernels off (case and spaces ignored)
 OFF = ("0", "false", "no", "off")
 #: a stamp is a few hundred bytes; anything much larger is not one
 _STAMP_LIMIT = 1 << 16
-
-
-def _source_files() -> list[Path]:
-    """The regular, visible files of :data:`SOURCES` (an editor's ``.#c3.py`` lock link is not one)."""
-    found = []
-    for pattern in SOURCES:
-        for path in sorted(PACKAGE.glob(pattern)):
-            if not path.name.startswith(".") and not path.is_symlink() and path.is_file():
-                found.append(path)
-    return found
-
-
-@functools.cache
-def source_fingerprint() -> str | None:
-    """sha256 over the names and bytes of :data:`SOURCES`; None if one cannot be read."""
-    import hashlib  # here, not at the top: a command whose stamp's file identities match needs none
-
-    digest = hashlib.sha256()
-    try:
-        for path in _source_files():
-            digest.update(path.relative_to(PACKAGE).as_posix().encode() + b"\0")
-            digest.update(path.read_bytes())
-    except OSError:
-        return None
-    return digest.hexdigest()
 
 
 def module_path() -> Path:
@@ -91,7 +65,7 @@ def _identity(path: Path) -> list[int]:
 def file_identities() -> dict[str, list[int]]:
     """:func:`_identity` of every file of :data:`SOURCES` and of the module, by name (OSError if one
     is missing). Taken before the files are hashed, a build records them in the stamp."""
-    files = {path.relative_to(PACKAGE).as_posix(): _identity(path) for path in _source_files()}
+    files = {path.relative_to(PACKAGE).as_posix(): _identity(path) for path in source_files()}
     files[module_path().name] = _identity(module_path())
     return files
 
@@ -104,7 +78,7 @@ def identities_match(stamp: dict) -> bool:
     which no user can set back, and a file put in its place has another inode. Not seen: a write
     through a shared memory mapping of a page already dirty, two same-size writes within one tick of
     a coarse ctime clock around ``make install``, damage below the file system; for those,
-    ``python -m ilcforce.aot_build --force`` builds the module again, or ``ILCFORCE_AOT=0`` leaves it."""
+    ``python -m ilcforce.compiled.build --force`` builds the module again, or ``ILCFORCE_AOT=0`` leaves it."""
     files = stamp.get("files")
     if not isinstance(files, dict) or stamp.get("files_for") != [stamp.get("fingerprint"), stamp.get("module_sha256")]:
         return False
@@ -203,21 +177,21 @@ def plant_key(plant_cls: type) -> str | None:
 
 def law_key(controller) -> str | None:
     """``c3_c3_law`` when the law a controller (object or class) runs is ilcforce's own ``c3_law``
-    of ``ilcforce.controllers.c3``; None for any other (one set on the object itself included)."""
-    from ilcforce.controllers.base import compiled_law
-
+    of ``ilcforce.controllers.c3`` (a compiled law: it has ``py_func``); None for any other (one set
+    on the object itself included)."""
     cls = controller if isinstance(controller, type) else type(controller)
     spaces = [vars(c) for c in cls.__mro__]
     if not isinstance(controller, type):
         spaces.insert(0, getattr(controller, "__dict__", {}))
     law = next((space["law"] for space in spaces if "law" in space), None)
-    if not isinstance(law, compiled_law):
+    py_func = getattr(law, "py_func", None) if not isinstance(law, (staticmethod, classmethod)) else None
+    if py_func is None or not callable(py_func):
         return None
-    module_name = law.py_func.__module__
+    module_name = py_func.__module__
     prefix = "ilcforce.controllers."
     if not module_name.startswith(prefix) or module_name.count(".") != 2:
         return None
-    return f"{module_name[len(prefix):]}_{law.py_func.__name__}"
+    return f"{module_name[len(prefix):]}_{py_func.__name__}"
 
 
 def simulator_name(law: str, plant: str) -> str:
@@ -237,17 +211,15 @@ def simulator(controller, true_plant_cls: type, nominal_plant_cls: type):
 
 
 @functools.cache
-def plant_kernels(plant_cls: type):
-    """The plant's five kernels as :class:`~ilcforce.plants.base.PlantKernels` of compiled
-    functions callable from Python, or None."""
-    from ilcforce.plants.base import PlantKernels
-
+def plant_kernels(plant_cls: type, kind: type):
+    """The plant's five kernels as ``kind`` (the plants' kernel tuple, whose fields name them) of
+    compiled functions callable from Python, or None."""
     mod = module()
     plant = plant_key(plant_cls)
     if mod is None or plant is None:
         return None
-    found = [getattr(mod, f"{plant}__{kind}", None) for kind in PlantKernels._fields]
-    return None if None in found else PlantKernels(*found)
+    found = [getattr(mod, f"{plant}__{name}", None) for name in kind._fields]
+    return None if None in found else kind(*found)
 
 
 def desired(plant_cls: type):
@@ -255,13 +227,13 @@ def desired(plant_cls: type):
     arguments, or None.
 
     Its solves call LAPACK through ``scipy.linalg.cython_lapack``, which the module imports at the
-    first solve: :mod:`ilcforce._lapack` loads it first, without all of scipy.linalg. Only this
+    first solve: :mod:`ilcforce.compiled.lapack` loads it first, without all of scipy.linalg. Only this
     kernel solves, so the module itself loads without it (9-12 ms less before a run's first loop;
     a run makes tau_d in its inputs thread, while iteration 0 simulates)."""
     mod = module()
     plant = plant_key(plant_cls)
     if mod is None or plant is None:
         return None
-    import ilcforce._lapack  # noqa: F401 - the LAPACK module a compiled solve imports, without all of scipy.linalg
+    import ilcforce.compiled.lapack  # noqa: F401 - the LAPACK module a compiled solve imports, without all of scipy.linalg
 
     return getattr(mod, f"desired__{plant}", None)

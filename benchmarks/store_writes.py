@@ -1,6 +1,6 @@
 """Store write benchmark: the store's share of ``simulate --method c3 --iters 20``.
 
-    python -m ilcforce.store.bench [--old-tree DIR] [--repeat 5]
+    python -m benchmarks.store_writes [--old-tree DIR] [--repeat 5]
 
 Simulates the paper's c3 x 20 run once, then times only the store (StoreWriter: every append
 and the finish) writing those records, repeated, for this tree and optionally for another

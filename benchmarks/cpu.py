@@ -1,6 +1,6 @@
 """Where a cold ``ilcforce compare`` spends its CPU, by kind of thread (Linux ``perf`` sampling).
 
-    python -m ilcforce.bench_cpu [--repeat 3] [--frequency 2000] [-- extra compare options]
+    python -m benchmarks.cpu [--repeat 3] [--frequency 2000] [-- extra compare options]
 
 ``compare`` is CPU-bound on a 2-core machine (its wall time is at least its CPU time over the
 cores), so its overhead is the CPU that is not the compiled loop. Each run is sampled by

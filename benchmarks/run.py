@@ -16,10 +16,9 @@ import time
 from pathlib import Path
 
 import numpy as np
-import ilcforce._numba_start  # noqa: F401, I001 - before numba: its start made lighter (cached kernels load without the compiler)
 from numba import njit
 
-from ilcforce.bench_cold import median_seconds as _median_time
+from benchmarks.cold import median_seconds as _median_time
 from ilcforce.config_load import default_config
 from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.base import LAW_SIGNATURE, MemoryController
@@ -184,20 +183,20 @@ def main(argv: list[str] | None = None) -> None:
         size = sum(f.stat().st_size for f in Path(tmp).glob("*.h5"))
     print(f"  paper study, c1+c2+c3 x {config.experiment.iterations} iterations with HDF5 : {t:8.2f} s wall "
           f"(median of {args.study_repeat}; stores {size / 1e6:.0f} MB)")
-    if args.cold_repeat > 0:  # the user's commands from a cold process (ilcforce.bench_cold)
-        from ilcforce import bench_cold
+    if args.cold_repeat > 0:  # the user's commands from a cold process (benchmarks.cold)
+        from benchmarks import cold as bench_cold
 
         bench_cold.report(repeat=args.cold_repeat)
-    if args.floor_repeat > 0:  # what no implementation of compare can go below here (ilcforce.bench_floor)
-        from ilcforce import bench_floor
+    if args.floor_repeat > 0:  # what no implementation of compare can go below here (benchmarks.floor)
+        from benchmarks import floor as bench_floor
 
         bench_floor.main(["--repeat", str(args.floor_repeat)])
     study_figures(args)
 
 
 def study_figures(args) -> None:
-    """The studies' speed and scale figures (``ilcforce.study.bench``)."""
-    from ilcforce.study import bench as study_bench
+    """The studies' speed and scale figures (``benchmarks.study``)."""
+    from benchmarks import study as study_bench
 
     study_bench.main(mc_seeds=args.mc_seeds, speedup_seeds=args.speedup_seeds, repeat=args.speedup_repeat)
 

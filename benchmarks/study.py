@@ -97,7 +97,7 @@ def cold_study_walls(seeds: int, repeat: int) -> tuple[float, float]:
     import subprocess
     import sys
 
-    from ilcforce.bench_cold import entry_point
+    from benchmarks.cold import entry_point
 
     walls: dict[int, list[float]] = {1: [], 2: []}
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,6 +1,6 @@
-"""Build the ahead-of-time kernels of :mod:`ilcforce.aot` (``make install`` runs it).
+"""Build the ahead-of-time kernels of :mod:`ilcforce.compiled.aot` (``make install`` runs it).
 
-    python -m ilcforce.aot_build [--force]
+    python -m ilcforce.compiled.build [--force]
 
 A build that is current (same sources, same module) is not repeated, nor is one that failed for
 the same sources; ``--force`` builds anyway.
@@ -33,7 +33,7 @@ import time
 import warnings
 from pathlib import Path
 
-from ilcforce import _jit, aot
+from ilcforce.compiled import aot, jit as _jit
 
 
 def _exports():
@@ -117,7 +117,7 @@ def _write_stamp(stamp: dict) -> None:
 
 
 def _record_identities() -> None:
-    """Add the files' identities to a current stamp (:func:`ilcforce.aot.identities_match`), so that a
+    """Add the files' identities to a current stamp (:func:`ilcforce.compiled.aot.identities_match`), so that a
     command need not hash them again. They are taken first, then the files hashed: a file changed in
     between has another identity than the one recorded, and is hashed again at its next use."""
     try:
@@ -154,7 +154,7 @@ def build(verbose: bool = True, force: bool = False) -> bool:
     failed = _failed_before(fingerprint)
     if not force and failed is not None:  # do not try again at every make (about 30 s each)
         print(f"ilcforce: ahead-of-time kernels not built ({failed}); commands run through numba. "
-              "`python -m ilcforce.aot_build --force` tries again", file=sys.stderr)
+              "`python -m ilcforce.compiled.build --force` tries again", file=sys.stderr)
         return False
     t0 = time.perf_counter()
     try:

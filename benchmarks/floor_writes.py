@@ -1,4 +1,4 @@
-"""The cheapest ways to write a run's numbers, for :mod:`ilcforce.bench_floor` (not a store).
+"""The cheapest ways to write a run's numbers, for :mod:`benchmarks.floor` (not a store).
 
 Each writes every record's log and memory arrays with nothing of the store around them (no
 journal, no commit per iteration, no metrics, no provenance): today's layout, one dataset per

@@ -1,13 +1,13 @@
 """The least wall time any implementation of a cold ``ilcforce compare`` could take on this machine.
 
-    python -m ilcforce.bench_floor [--repeat 3] [--iters 20]
+    python -m benchmarks.floor [--repeat 3] [--iters 20]
 
 Issue 12 asks that everything that is not the compiled loop stay under 30% of a command's wall time.
 For ``compare`` (c1, c2, c3 x 20, every iteration stored) this module measures the parts that no
 design can leave out, each as cheaply as it can be done, and adds them up on the machine's cores:
 
 * **S**, the start: a cold ``python -c "import numpy"`` (wall; nothing of the run can begin before it);
-* **L**, each method's compiled loops (:func:`ilcforce.bench_cold.loop_seconds`, as ``make bench``);
+* **L**, each method's compiled loops (:func:`benchmarks.cold.loop_seconds`, as ``make bench``);
 * **I**, each method's inputs: every iteration's noise draws, disturbance and set-up, and tau_d of
   each true plant, by ilcforce's own functions (the same numbers the run needs);
 * **W**, writing each method's iterations, three ways: today's layout through plain h5py (one
@@ -20,7 +20,7 @@ work costs in a cold command. On C cores the command then takes at least
 ``S + max((sum L + sum I + sum W) / C, max L)`` (inputs and writes may overlap a method's loops on
 other cores, but a core does one thing at a time), and its overhead is ``1 - ideal / that``, where
 ``ideal = max(sum L / C, max L)`` is the loops' own time, as in ``make bench``
-(:func:`ilcforce.bench_cold.report`). If even the bare bytes give an overhead over the target, no
+(:func:`benchmarks.cold.report`). If even the bare bytes give an overhead over the target, no
 store format can meet it on this machine. For contrast, the same bound for ``simulate --method c3``.
 """
 
@@ -35,8 +35,8 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
-from ilcforce.bench_cold import METHODS, ITERATIONS, loop_seconds, loops_ideal, median_seconds
-from ilcforce.store.floor_writes import stack, write_bare, write_one_per_iteration, write_per_signal
+from benchmarks.cold import METHODS, ITERATIONS, loop_seconds, loops_ideal, median_seconds
+from benchmarks.floor_writes import stack, write_bare, write_one_per_iteration, write_per_signal
 
 LAYOUTS = ("per signal", "one per iteration", "bare bytes")
 

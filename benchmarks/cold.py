@@ -88,7 +88,8 @@ def cold_walls(repeat: int, extra: Sequence[str] = (), iterations: int = ITERATI
 def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIONS,
                  overrides: dict | None = None) -> dict[str, float]:
     """Median in-process time of the compiled simulation loop alone, per method, for ``iterations``."""
-    from ilcforce import aot, loop
+    from ilcforce import loop
+    from ilcforce.compiled import aot
     from ilcforce.config_load import load_config
     from ilcforce.experiment import simulate_iterations
 
@@ -104,7 +105,7 @@ def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIO
                 spent[0] += time.perf_counter() - t0
         return run
 
-    # the loop a command runs: the ahead-of-time compiled one (ilcforce.aot), or else numba's
+    # the loop a command runs: the ahead-of-time compiled one (ilcforce.compiled.aot), or else numba's
     find, kernel = aot.simulator, loop._simulate
 
     def timed_simulator(*args):
@@ -133,7 +134,7 @@ def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIO
 _TIMELINE = """\
 import os, sys, time
 T0 = time.perf_counter()
-from ilcforce import aot
+from ilcforce.compiled import aot
 calls = []
 find = aot.simulator
 def timed_simulator(*args):
@@ -195,7 +196,7 @@ def report(repeat: int = 5, loop_repeat: int = 1, extra: Sequence[str] = (), ite
     loops = {method: statistics.median(r[method] for r in rounds) for method in METHODS}
     med = {k: statistics.median(v) for k, v in walls.items()}
     rng = {k: f"{min(v):.2f}-{max(v):.2f}" for k, v in walls.items()}
-    from ilcforce import aot
+    from ilcforce.compiled import aot
 
     print(f"cold processes of {' '.join(entry_point())} (median of {repeat}, range; numba caches warm; "
           f"{cores} cores); kernels: {aot.status()}:")
