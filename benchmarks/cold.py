@@ -157,7 +157,7 @@ def _report_and_exit(code):
     exit_now(code)
 os._exit = _report_and_exit
 sys.argv = ["ilcforce", *sys.argv[1:]]
-from ilcforce._entry import main
+from ilcforce.cli.entry import main
 main()
 """
 

@@ -1,3 +1,3 @@
-from ilcforce._entry import main
+from ilcforce.cli.entry import main
 
 main()

@@ -150,7 +150,7 @@ def run_footprint(config: Config) -> tuple[int, int]:
     the noise draws (about 10), the raw log before decimation (about 40): about 100 float64; plus two
     finished iterations' records (log signals and memory, about 56 each) waiting for or in the store's
     writes while the next iteration simulates (:mod:`ilcforce.pipeline`): about 212 float64. (A small
-    run keeps up to eight records waiting, within ``ilcforce.started.RECORDS_AHEAD_BYTES``; a run near the
+    run keeps up to eight records waiting, within ``ilcforce.experiment.RECORDS_AHEAD_BYTES``; a run near the
     limit keeps one, as counted here.)
     """
     sim = config.simulation

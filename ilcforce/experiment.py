@@ -21,7 +21,7 @@ import dataclasses
 import functools
 import os
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,9 +36,6 @@ from ilcforce.simulate import (IterationInputs, complete_record, desired_inputs,
                                run_iteration)
 from ilcforce.task import (REF_ACCELERATION, REF_FORCE, REF_POSITION, REF_VELOCITY)
 
-# the iterations started ahead of their consumer, kept importable from here (the library's entry point)
-from ilcforce.started import (MAX_RECORDS_AHEAD, RECORDS_AHEAD_BYTES, StartedRun, records_ahead,  # noqa: F401
-                              start_iterations)
 
 
 class UnknownMethodError(ValueError):
@@ -127,18 +124,19 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     loop runs, and that background thread makes what is not needed at once while it does; it is
     over when this ends.
     """
-    for unfinished in _unfinished_iterations(config, method, first, memory, stop_requested, chunk_steps,
+    controller = make_controller(config, method)
+    for unfinished in _unfinished_iterations(config, controller, first, memory, stop_requested, chunk_steps,
                                              desired_cache, prefetch, turns):
         yield unfinished.complete()
 
 
-def _unfinished_iterations(config: Config, method: str, first: int, memory: dict | None,
+def _unfinished_iterations(config: Config, controller, first: int, memory: dict | None,
                            stop_requested: Callable[[], bool] | None, chunk_steps: int | None,
                            desired_cache: dict | None, prefetch: bool, turns: pipeline.Turns | None):
     """:func:`simulate_iterations`' records, each still to be completed (:class:`_Unfinished`)."""
     turns = turns if turns is not None else pipeline.Turns()
     try:
-        yield from _iterations(config, method, first, memory, stop_requested, chunk_steps, desired_cache,
+        yield from _iterations(config, controller, first, memory, stop_requested, chunk_steps, desired_cache,
                                prefetch, turns)
     finally:
         turns.over()  # also when the run fails before its first iteration
@@ -162,11 +160,11 @@ class _Unfinished:
         return dataclasses.replace(completed, memory_labels=self.labels)
 
 
-def _iterations(config: Config, method: str, first: int, memory: dict | None,
+def _iterations(config: Config, controller, first: int, memory: dict | None,
                 stop_requested: Callable[[], bool] | None, chunk_steps: int | None, desired_cache: dict | None,
                 prefetch: bool, turns: pipeline.Turns):
-    """:func:`simulate_iterations`' records, not yet completed (:class:`_Unfinished`)."""
-    controller = make_controller(config, method)
+    """:func:`simulate_iterations`' records, not yet completed (:class:`_Unfinished`), run by
+    ``controller`` (a fresh one, made for this run: it learns from these iterations)."""
     if memory:
         controller.restore(memory)
     reference = config.reference_samples()
@@ -226,8 +224,7 @@ def _iterations(config: Config, method: str, first: int, memory: dict | None,
             if stop_requested is not None and stop_requested():  # also between iterations: an iteration
                 raise KeyboardInterrupt  # may be one chunk, so run_iteration might never look
             mem_prev, mem_new = controller.begin_iteration(inputs.iteration)
-            record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps, turns,
-                                   signals_later=prefetch)  # taken out of the loop's buffer by the record's taker
+            record = run_iteration(inputs, controller, mem_prev, mem_new, stop_requested, chunk_steps, turns)
             finished[0] = inputs.iteration
             controller.end_iteration(record)  # between-iteration learning sees the finished iteration
             # a diverged iteration stores the memory it was writing (NaN where it never got)
@@ -244,7 +241,7 @@ def _iterations(config: Config, method: str, first: int, memory: dict | None,
 def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
                command: str = "", progress: Callable[[IterationRecord, dict], None] | None = None,
                stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
-               desired_cache: dict | None = None, started: StartedRun | None = None) -> RunSummary:
+               desired_cache: dict | None = None) -> RunSummary:
     """Run ``method`` over the experiment's iterations and store every iteration in ``out``.
 
     ``progress(record, metrics_row)`` is called after each stored iteration. If
@@ -252,14 +249,12 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     loop (a fraction of a second), abandoning the iteration in flight, by raising KeyboardInterrupt;
     every finished iteration is stored and the store is left "partial", ready for ``resume``.
     Raises ``ilcforce.store.StoreError`` for store problems (existing result, concurrent writer, ...).
-    ``started`` is this run's iterations begun beforehand (:func:`start_iterations` from iteration 0,
-    with this ``config`` and ``method``); it is used unless ``resume``, and closed in any case.
     """
-    make_controller(config, method)  # fail on a bad method before touching any file
+    controller = make_controller(config, method)  # fails on a bad method before any file is touched
     rows = []
 
     def iterations(first: int, memory: dict | None) -> StartedRun:
-        return start_iterations(config, method, first, memory, stop_requested, chunk_steps, desired_cache)
+        return StartedRun(config, controller, first, memory, stop_requested, chunk_steps, desired_cache)
 
     # Iteration j + 1 simulates (compiled loop, GIL released) while j is stored. A run into a new
     # file starts simulating at once, while this thread sets up the store (an existing file is
@@ -267,18 +262,10 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     # store's memory). A stop request ends the simulation within one chunk (KeyboardInterrupt,
     # raised here after every finished iteration is stored); a store error stops it the same way.
     with contextlib.ExitStack() as stack:
-        fresh = not resume and not os.path.lexists(out)
         ahead = None
-        if started is not None:  # begun before this call, e.g. while the CLI parsed (ilcforce.early_start)
-            stack.enter_context(started)  # closed in any case
-            if not started.is_for(config, method) or started.first != 0:
-                raise ValueError("run_method(started=...): those iterations were started for another run")
-            if not resume:
-                started.watch(stop_requested)
-                ahead = started
-        if ahead is None and fresh:
+        if not resume and not os.path.lexists(out):
             ahead = stack.enter_context(iterations(0, None))
-        if ahead is not None:  # h5py's import holds the GIL in long calls: let iteration 0 start first
+            # h5py's import holds the GIL in long calls: let iteration 0 start first
             ahead.turns.wait_ready(_START_WAIT)
         from ilcforce.store import StoreWriter  # h5py and the writer: imported while iteration 0 simulates
 
@@ -313,6 +300,97 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
         if not writer.finished:  # nothing was left to run
             writer.finish(status)
     return RunSummary(Path(out), method, first, tuple(rows), status)
+
+
+class StartedRun:
+    """Iterations of one run simulating in a background thread, up to :func:`records_ahead`
+    finished records ahead of their consumer (:func:`run_method`, which stores them): the next
+    iteration simulates while the last one is stored, and a new store opens while iteration 0
+    runs. A context manager: leaving it stops the simulation within one chunk of the compiled loop
+    and joins its thread."""
+
+    def __init__(self, config: Config, controller, first: int = 0, memory: dict | None = None,
+                 stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
+                 desired_cache: dict | None = None) -> None:
+        self.first = first
+        self.turns = pipeline.Turns()  # the compiled loop runs (iteration `first` has begun), or it is over
+
+        def make(consumer_gone):
+            def stopping() -> bool:
+                return consumer_gone() or (stop_requested is not None and stop_requested())
+
+            return _unfinished_iterations(config, controller, first, memory, stopping, chunk_steps, desired_cache,
+                                          True, self.turns)
+
+        self._ahead = pipeline.Ahead(make, depth=records_ahead(config))
+
+    def records(self):
+        """The :class:`IterationRecord` of each iteration, in order (iterate once); each completed
+        here, in the taker's thread."""
+        return (unfinished.complete() for unfinished in self._ahead)
+
+    def queued(self) -> int:
+        """How many finished records wait to be taken."""
+        return self._ahead.queued()
+
+    def close(self) -> None:
+        self._ahead.close()
+
+    def __enter__(self) -> StartedRun:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def start_iterations(config: Config, method: str, first: int = 0, memory: dict | None = None,
+                     stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,
+                     desired_cache: dict | None = None) -> StartedRun:
+    """The iterations of :func:`simulate_iterations` (with ``prefetch``), started in a background
+    thread at once; the taker completes each record (:meth:`StartedRun.records`)."""
+    return StartedRun(config, make_controller(config, method), first, memory, stop_requested, chunk_steps,
+                      desired_cache)
+
+
+#: Bytes of finished records the simulation may run ahead of the store by (see :func:`records_ahead`).
+RECORDS_AHEAD_BYTES = 64 * 1024**2
+#: At most this many finished iterations wait for the store.
+MAX_RECORDS_AHEAD = 8
+
+
+def records_ahead(config: Config) -> int:
+    """How many finished iterations may wait for the store (1 to :data:`MAX_RECORDS_AHEAD`): enough
+    that the simulation does not wait while the store opens, within :data:`RECORDS_AHEAD_BYTES` of
+    records (a record holds at most about 56 float64 per control sample:
+    :func:`ilcforce.config_load.run_footprint`). A cold ``simulate`` opens its store (typer's and
+    h5py's imports, the file's first commit) about 0.2 s after iteration 0 starts: with four
+    records, the paper's run (7 allowed) waited 20-50 ms at its fifth iteration."""
+    record_bytes = 56 * 8 * config.n_control
+    return max(1, min(MAX_RECORDS_AHEAD, RECORDS_AHEAD_BYTES // max(1, record_bytes)))
+
+
+def preload_kernels(config, methods: Sequence[str]) -> None:
+    """Import and load in the parent what every worker would otherwise load for itself.
+
+    Forked workers inherit the imported modules (the store's h5py among them) and the loaded
+    kernels (ahead-of-time compiled, or numba's: the simulation loop, the plant's kernels, each
+    method's law), so each pays for none of them again.
+    """
+    from ilcforce.compiled import aot
+    from ilcforce.plants import make_plant
+    from ilcforce.simulate import desired_inputs
+    from ilcforce.store import StoreWriter  # noqa: F401  (h5py and the writer, imported once for all workers)
+
+    robot = make_plant(config.plant.links())
+    robot.calls()
+    for method in methods:
+        controller = make_controller(config, method)
+        if aot.simulator(controller, type(robot), type(robot)) is None:  # numba's loop, law and kernels
+            from ilcforce import loop  # noqa: F401
+
+            robot.kernels()
+            controller.law  # noqa: B018
+    desired_inputs(config.plant.links(), config.wall, config.reference_samples()[:1])  # its kernels
 
 
 #: At most this long (s) a new run's store waits to open until iteration 0 has started to simulate.

@@ -32,19 +32,17 @@ Per control sample k (t_k = k Ts), inside one compiled loop:
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from ilcforce import log_signals
 from ilcforce.controllers.base import Controller
 from ilcforce.noise import IterationDraws, NoiseModel, disturbance
 from ilcforce.plants import make_plant
 from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
-from ilcforce.task import REF_VELOCITY, Wall
+from ilcforce.task import REF_FORCE, REF_POSITION, REF_VELOCITY, Wall
 
 ACCELERATION_SCHEMES = {"implicit": 0, "filtered": 1}
 #: what the implicit scheme does where its quadratic has no usable root (issue 11)
@@ -239,7 +237,7 @@ def prepare_setup(inputs: IterationInputs, controller) -> IterationInputs:
 
 def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.ndarray,
                   mem_new: np.ndarray, stop_requested: Callable[[], bool] | None = None,
-                  chunk_steps: int | None = None, turns=None, *, signals_later: bool = False) -> IterationRecord:
+                  chunk_steps: int | None = None, turns=None) -> IterationRecord:
     """Simulate one iteration; the controller's memory buffers are read and written in place.
 
     Returns the :class:`~ilcforce.records.IterationRecord` without ``memory`` (the iteration loop
@@ -250,9 +248,6 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     :data:`CHUNK_RK4_STEPS` RK4 steps); between chunks Python handles signals, and if
     ``stop_requested()`` is true the iteration is abandoned with KeyboardInterrupt. ``turns``
     (:class:`ilcforce.pipeline.Turns`), if given, is told when the compiled loop runs.
-    ``signals_later=True``: the record's ``log`` is a mapping that takes its signals out of the
-    loop's buffer when first read (about 0.8 ms after each loop, which another thread then spends;
-    the same arrays).
     """
     from ilcforce import loop  # numba's (loaded on first use only) and the loop's constants
 
@@ -290,8 +285,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
         if stop_requested is not None and stop_requested():
             raise KeyboardInterrupt
     fallback = int(carry[loop.CARRY_FALLBACK])
-    taken = functools.partial(log_signals.signals, t_control, s.log_every, log, ref, inputs.selection)
-    signals = log_signals.Later(taken) if signals_later else taken()
+    signals = log_signals(t_control, s.log_every, log, ref, inputs.selection)
     if status == loop.RUN_OK:
         return IterationRecord(inputs.iteration, STATUS_COMPLETE, math.nan, "", fallback, signals)
     t_fail = float(t_control[min(k_fail, n_control - 1)])
@@ -341,3 +335,17 @@ def complete_record(record: IterationRecord, desired: tuple[np.ndarray, np.ndarr
         raise RuntimeError(f"record lacks log signals {sorted(missing)}")
     return IterationRecord(record.iteration, record.status, record.diverged_time, record.diverged_reason,
                            record.fallback_count, log, memory, memory_units)
+
+
+def log_signals(t_control: np.ndarray, log_every: int, log: np.ndarray, ref: np.ndarray, selection) -> dict:
+    """The log signals of an iteration from the loop's log buffer (fresh per iteration)."""
+    from ilcforce import loop  # the buffer's layout
+    out = {"time": t_control[::log_every].copy()}
+    for name, col in loop.LOG_COLUMNS.items():
+        out[name] = log[:, col:col + 2].copy()
+    out["implicit_fallbacks"] = log[:, loop.LOG_FALLBACKS].copy()
+    sel = np.asarray(selection, dtype=np.float64)
+    ref_log = ref[::log_every]
+    out["position_error"] = (1.0 - sel) * (ref_log[:, REF_POSITION:REF_POSITION + 2] - out["position"])  # eq. (6)
+    out["force_error"] = sel * (ref_log[:, REF_FORCE:REF_FORCE + 2] - out["contact_force"])  # eq. (7)
+    return out

@@ -10,12 +10,12 @@ from ilcforce.config_load import load_config
 @pytest.fixture(autouse=True)
 def no_stop_signal_left():
     """Every test starts with no stop signal noted: a test that sends one in-process (a report or
-    study stopped by SIGTERM) left it in cli_signals.STOPS, and a CLI test after it (CliRunner calls
+    study stopped by SIGTERM) left it in stops.STOPS, and a CLI test after it (CliRunner calls
     the app, not the entry point that clears it) stopped at once with exit 143."""
-    from ilcforce import cli_signals
+    from ilcforce import stops
 
-    cli_signals.STOPS.clear()
-    cli_signals.ANNOUNCED.clear()
+    stops.STOPS.clear()
+    stops.ANNOUNCED.clear()
     yield
 
 

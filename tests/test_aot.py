@@ -101,7 +101,7 @@ def test_the_plant_api_gives_numbas_numbers():
 
 @needs_module
 def test_a_command_runs_without_importing_numba(tmp_path):
-    code = ("import sys\nfrom ilcforce.cli import app\n"
+    code = ("import sys\nfrom ilcforce.cli.main import app\n"
             f"sys.argv = ['ilcforce', 'simulate', '--method', 'c3', '--iters', '2', '--out', {str(tmp_path / 'c3.h5')!r}]\n"
             "try:\n    app()\nexcept SystemExit as exc:\n    assert not exc.code, exc.code\n"
             "print('NUMBA', 'numba' in sys.modules, 'llvmlite' in sys.modules)")

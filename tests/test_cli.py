@@ -8,7 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ilcforce import store
-from ilcforce.cli import app
+from ilcforce.cli.main import app
 
 SHORT = ["--set", "reference.duration=0.2"]
 VARIANT = "paper--reference.duration=0.2"  # --set runs write to a results folder of their own

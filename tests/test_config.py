@@ -157,7 +157,7 @@ def test_config_command_prints_every_key_as_an_experiment_file_that_loads_back_t
     experiment file it gives exactly the same configuration (every key, each method's gains)."""
     from typer.testing import CliRunner
 
-    from ilcforce.cli import app
+    from ilcforce.cli.main import app
     from ilcforce.controllers import REGISTRY
 
     args = ["config", "--set", "c3.eta=2.5", "--seed", "7"] + (["--config", str(path)] if path else [])
@@ -186,7 +186,7 @@ def test_config_command_output_loads_back_whatever_the_user_typed(tmp_path):
     did not load back as typed (an attack, a review)."""
     from typer.testing import CliRunner
 
-    from ilcforce.cli import app
+    from ilcforce.cli.main import app
 
     sets = ['experiment.description="smile \U0001f600 :smile: caf\u00e9"', "c3.k=[1.0,\n2.0]"]
     result = CliRunner().invoke(app, ["config", *[a for s in sets for a in ("--set", s)]])

@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from ilcforce.cli import app
+from ilcforce.cli.main import app
 from ilcforce.config import ConfigError
 from ilcforce.config_load import config_from_dict, default_config, load_config
 from ilcforce.config_ranges import RANGES, range_of

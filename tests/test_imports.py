@@ -25,7 +25,7 @@ def _imported_after(code: str) -> set[str]:
 
 @pytest.mark.parametrize("argv", [["--help"], ["simulate", "--help"], ["compare", "--help"], ["version"]])
 def test_help_and_version_import_no_heavy_module(argv):
-    code = (f"import sys\nsys.argv = ['ilcforce', *{argv!r}]\nfrom ilcforce.cli import app\n"  # main() would os._exit
+    code = (f"import sys\nsys.argv = ['ilcforce', *{argv!r}]\nfrom ilcforce.cli.main import app\n"  # main() would os._exit
             "try:\n    app()\nexcept SystemExit:\n    pass")
     assert _imported_after(code) - {"rich.table"} == set()  # typer's help may draw a rich table
 
@@ -39,7 +39,7 @@ def test_compare_prints_its_table_without_pandas(tmp_path):
     import (about 0.2 s of CPU beside the workers) is not part of the command."""
     argv = ["compare", "--methods", "c1,c3", "--iters", "2", "--set", "reference.duration=0.05",
             "--results", str(tmp_path)]
-    code = (f"import sys\nsys.argv = ['ilcforce', *{argv!r}]\nfrom ilcforce.cli import app\n"
+    code = (f"import sys\nsys.argv = ['ilcforce', *{argv!r}]\nfrom ilcforce.cli.main import app\n"
             "try:\n    app()\nexcept SystemExit as exc:\n    assert not exc.code, exc.code")
     assert _imported_after(code) & {"pandas", "matplotlib"} == set()
     assert sorted(p.name for p in (tmp_path / "paper--reference.duration=0.05").glob("*.h5")) == ["c1.h5", "c3.h5"]

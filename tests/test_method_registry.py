@@ -142,7 +142,7 @@ def test_gains_invalid_for_the_setting_are_one_line_exit_2(tmp_path):
     of Ts = 0.1 ms) is bad input: one line naming it, exit code 2, no file written."""
     from typer.testing import CliRunner
 
-    from ilcforce.cli import app
+    from ilcforce.cli.main import app
 
     out = tmp_path / "pd.h5"
     result = CliRunner().invoke(app, ["simulate", "-m", "pd-ilc", "-n", "1", "--out", str(out), "--set",

@@ -1,4 +1,4 @@
-"""Physics tests of the five-bar plant (SPEC section 1, ``ilcforce.plant``).
+"""Physics tests of the five-bar plant (SPEC section 1, ``ilcforce.plants.fivebar``).
 
 What is checked, and against what:
 
@@ -26,7 +26,7 @@ import math
 import numpy as np
 import pytest
 
-from ilcforce.plant import (
+from ilcforce.plants.fivebar import (
     PARAM_NAMES,
     FiveBar,
     FiveBarParams,

@@ -863,7 +863,7 @@ def test_a_report_with_nothing_usable_leaves_an_earlier_report_whole(results_dir
     empty pages before it said there was nothing to report (found by an attack on the CLI)."""
     from typer.testing import CliRunner
 
-    from ilcforce.cli import app
+    from ilcforce.cli.main import app
 
     out = tmp_path / "report"
     write_report(results_dir, out, formats=())

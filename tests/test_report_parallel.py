@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ilcforce.cli_signals import STOPS, stop_signals
+from ilcforce.stops import STOPS, stop_signals
 from ilcforce.report import pool, tables
 from ilcforce.report.seedframes import SeedMetrics, split_seeds
 
@@ -138,7 +138,7 @@ def test_a_second_stop_while_workers_are_ended_ends_every_worker_first(signum):
 _STOPPED_POOL = """
 import os, sys, time
 from pathlib import Path
-from ilcforce.cli_signals import stop_signals
+from ilcforce.stops import stop_signals
 from ilcforce.report import pool
 
 def piece(i, progress=None):

@@ -14,13 +14,14 @@ import time
 
 import pytest
 
-from ilcforce import cli_signals
+from ilcforce import stops
 
 
 def _main_with(app_body: str) -> subprocess.CompletedProcess:
     """Run ilcforce.cli.main() in a fresh process with its typer app replaced by ``app_body``."""
     code = ("import os, signal, time\n"
-            "from ilcforce import cli, cli_signals\n"
+            "from ilcforce import stops
+from ilcforce.cli import main as cli\n"
             f"def app(**kwargs):\n    {app_body}\n"
             "cli.app = app\n"
             "cli.main()\n")
@@ -38,7 +39,7 @@ def test_a_signal_outside_any_command_is_one_line(sig, code, word):
 def test_a_dropped_sigterm_still_ends_in_143_with_one_line():
     """Python drops a KeyboardInterrupt raised inside a GC or weakref callback; the command then
     finishes, and the entry point still reports the SIGTERM (a batch system's stop)."""
-    done = _main_with("cli_signals.note(signal.SIGTERM)")
+    done = _main_with("stops.note(signal.SIGTERM)")
     assert done.returncode == 143, done.stderr
     assert done.stderr.strip().splitlines() == ["terminated (SIGTERM): the command had finished"]
 
@@ -46,7 +47,7 @@ def test_a_dropped_sigterm_still_ends_in_143_with_one_line():
 def test_an_error_in_a_destructor_after_a_stop_signal_prints_nothing():
     """An interrupt can leave an object half-built (seen: llvmlite's ObjectRef), whose destructor
     then fails; once a stop signal came, that is not shown (the process is ending)."""
-    body = ("cli_signals.note(signal.SIGTERM)\n"
+    body = ("stops.note(signal.SIGTERM)\n"
             "    class Half:\n"
             "        def __del__(self):\n"
             "            raise AttributeError('half built')\n"
@@ -58,17 +59,17 @@ def test_an_error_in_a_destructor_after_a_stop_signal_prints_nothing():
 
 
 def test_simulate_stops_at_once_on_a_signal_whose_interrupt_was_dropped():
-    from ilcforce.cli_run import deferred_interrupt
+    from ilcforce.cli.run import deferred_interrupt
 
-    cli_signals.STOPS.clear()
+    stops.STOPS.clear()
     with deferred_interrupt() as stop_requested:
         assert not stop_requested()
-    cli_signals.note(signal.SIGTERM)
+    stops.note(signal.SIGTERM)
     try:
         with deferred_interrupt() as stop_requested:
             assert stop_requested()
     finally:
-        cli_signals.STOPS.clear()
+        stops.STOPS.clear()
 
 
 @pytest.mark.parametrize("delay", [0.15, 0.3, 0.45, 0.6])
@@ -96,9 +97,9 @@ def test_a_signal_while_the_command_is_still_importing_is_one_line(sig, code, wo
     """In the first tenth of a second the entry point is still importing typer and the CLI; a Ctrl-C
     there raised KeyboardInterrupt inside an import, a traceback (found by an attack on the CLI).
     The entry point's first module (ilcforce/_entry.py) answers stop signals from its first line."""
-    child = ("import os, signal, time\nimport ilcforce._entry, ilcforce.cli\n"
+    child = ("import os, signal, time\nimport ilcforce.cli.entry, ilcforce.cli.main\n"
              "ilcforce.cli.main = lambda: (os.kill(os.getpid(), %d), time.sleep(10))\n"  # mid-import stand-in
-             "ilcforce._entry.main()\n" % int(sig))
+             "ilcforce.cli.entry.main()\n" % int(sig))
     done = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
     assert done.returncode == code, done.stderr
     assert done.stderr.strip().splitlines() == [f"{word}: stopped before the command started"]
@@ -108,5 +109,5 @@ def test_both_entry_points_start_with_the_early_signal_handling():
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    assert 'ilcforce = "ilcforce._entry:main"' in (root / "pyproject.toml").read_text(encoding="utf-8")
-    assert (root / "ilcforce" / "__main__.py").read_text(encoding="utf-8").startswith("from ilcforce._entry import")
+    assert 'ilcforce = "ilcforce.cli.entry:main"' in (root / "pyproject.toml").read_text(encoding="utf-8")
+    assert (root / "ilcforce" / "__main__.py").read_text(encoding="utf-8").startswith("from ilcforce.cli.entry import")

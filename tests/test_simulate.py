@@ -523,24 +523,3 @@ def test_a_setup_made_ahead_gives_the_same_record_for_its_controller_only(short_
     assert_same_records([fresh(controller, inputs)], [plain])
     assert_same_records([fresh(make_controller(config, "c3"), inputs)], [plain])  # not its controller
     assert_same_records([fresh(controller, inputs)], [plain])  # again: a set-up is not used up
-
-
-def test_signals_taken_later_are_the_same_arrays(short_config):
-    """``signals_later=True`` (the started run's records) takes the log out of the loop's buffer when
-    first read, in the reader's thread: the same signals, and a plain dict when pickled."""
-    import pickle
-
-    from ilcforce.experiment import make_controller
-
-    config = short_config()
-    records = []
-    for later in (False, True):
-        controller = make_controller(config, "c3")
-        mem_prev, mem_new = controller.begin_iteration(0)
-        records.append(run_iteration(_inputs(config), controller, mem_prev, mem_new, signals_later=later))
-    now, later = records
-    assert not isinstance(later.log, dict)
-    assert list(later.log) == list(now.log)
-    for name in now.log:
-        np.testing.assert_array_equal(later.log[name], now.log[name], err_msg=name)
-    assert type(pickle.loads(pickle.dumps(later.log))) is dict

@@ -311,7 +311,7 @@ def test_commits_stay_in_place_without_hdf5_locking(path: Path, monkeypatch: pyt
 def test_report_skips_a_store_with_forged_types(tmp_path: Path):
     from typer.testing import CliRunner
 
-    from ilcforce.cli import app
+    from ilcforce.cli.main import app
     from ilcforce.report.build import write_report
 
     results = tmp_path / "results"
@@ -361,9 +361,9 @@ def test_a_stop_inside_a_commit_takes_effect_after_it(path: Path, monkeypatch, a
     """Two SIGINTs 10 ms apart: the second one's handler ran inside the stop commit, in HDF5's
     write-back of an object h5py was releasing; h5py swallowed the KeyboardInterrupt, the commit
     ended "normally" without the /metrics rows, and the store no longer validated (nor resumed).
-    The handlers now call interrupts.interrupt(), which inside a commit raises only once it has
+    The handlers now call stops.interrupt(), which inside a commit raises only once it has
     ended. Here the handler's call is made from the at_write-th write of the store's file."""
-    from ilcforce import interrupts
+    from ilcforce import stops
     from ilcforce.store import journal
 
     real_write = journal.JournaledFile.write
@@ -372,7 +372,7 @@ def test_a_stop_inside_a_commit_takes_effect_after_it(path: Path, monkeypatch, a
     def write(self, data):
         calls[0] += 1
         if calls[0] == at_write:
-            interrupts.interrupt()  # what a second Ctrl-C's handler does, wherever it lands
+            stops.interrupt()  # what a second Ctrl-C's handler does, wherever it lands
         return real_write(self, data)
 
     with writer(path, config=resumed_config(3)) as w:
@@ -393,9 +393,9 @@ def test_a_stop_inside_a_commit_takes_effect_after_it(path: Path, monkeypatch, a
 
 
 def test_a_stop_outside_a_commit_raises_at_once():
-    from ilcforce import interrupts
+    from ilcforce import stops
 
     with pytest.raises(KeyboardInterrupt):
-        interrupts.interrupt()
-    with interrupts.critical():  # a section that failed on its own: its error, not a stop, goes on
+        stops.interrupt()
+    with stops.critical():  # a section that failed on its own: its error, not a stop, goes on
         pass

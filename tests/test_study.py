@@ -14,7 +14,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ilcforce import store
-from ilcforce.cli import app
+from ilcforce.cli.main import app
 from ilcforce.experiment import run_method
 from ilcforce.metrics import METRIC_COLUMNS
 from ilcforce.study import (StudyError, StudyStoreError, build_study, export, load_study, read_study,

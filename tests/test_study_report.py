@@ -135,7 +135,7 @@ def test_report_command_shows_progress_and_quiet_silences_it(results, tmp_path, 
     from typer.testing import CliRunner
 
     import ilcforce.report.build as build
-    from ilcforce.cli import app
+    from ilcforce.cli.main import app
 
     real = build.write_report
     monkeypatch.setattr(build, "write_report", lambda *a, **k: real(*a, **{**k, "formats": ()}))

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from ilcforce.cli import app
+from ilcforce.cli.main import app
 from ilcforce.study import StudyError, StudyStoreError, build_study, export, read_study, run_study
 from ilcforce.study.tidy import LABEL_COLUMN
 

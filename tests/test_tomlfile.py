@@ -12,7 +12,7 @@ import os
 import pytest
 from typer.testing import CliRunner
 
-from ilcforce.cli import app
+from ilcforce.cli.main import app
 from ilcforce.config import ConfigError
 from ilcforce.config_load import load_config, parse_override
 from ilcforce.tomlfile import MAX_TOML_BYTES

@@ -20,7 +20,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any
 
-from ilcforce.cli_signals import on_stop_signals
+from ilcforce.stops import on_stop_signals
 
 #: In a worker: the queue its progress lines go to (set by the pool's initializer).
 _QUEUE: Any = None

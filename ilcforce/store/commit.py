@@ -23,7 +23,7 @@ from pathlib import Path
 
 import h5py
 
-from ilcforce import interrupts
+from ilcforce import stops
 from ilcforce.store import journal
 from ilcforce.store.safeio import (StoreError, flock_with_timeout, journal_path, one_line, os_reason,
                                    READ_LOCK_TIMEOUT, tmp_path)
@@ -80,8 +80,8 @@ def _abandon(path: Path, tmp: Path, stream, error: BaseException) -> None:
 
 def create(path: Path, build: Change) -> None:
     """Write a new store with ``build`` and rename it over ``path`` (atomic). A stop signal during
-    it takes effect when it has ended (:mod:`ilcforce.interrupts`), as for :func:`update`."""
-    with interrupts.critical():
+    it takes effect when it has ended (:mod:`ilcforce.stops`), as for :func:`update`."""
+    with stops.critical():
         _create(path, build)
 
 
@@ -107,8 +107,8 @@ def update(path: Path, change: Change) -> None:
 
     A second Ctrl-C raised inside HDF5's write-back of an object h5py releases is swallowed by
     h5py, and the commit would end "normally" with writes missing: stop signals that the CLI's
-    handlers would raise wait until the commit has ended (:mod:`ilcforce.interrupts`)."""
-    with interrupts.critical():
+    handlers would raise wait until the commit has ended (:mod:`ilcforce.stops`)."""
+    with stops.critical():
         _update(path, change)
 
 

@@ -39,7 +39,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from ilcforce import interrupts
+from ilcforce import stops
 from ilcforce.store.safeio import is_hdf5_file, one_line
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
@@ -320,7 +320,7 @@ class StudyStore:
     def commit(self, record: dict, now: float) -> None:
         """Commit one cell's record (``setting``, ``seed``, ``method``, ``state``, ``attempts``,
         ``message``, ``elapsed``, ``worker``, ``rows``) to the journal; consolidate if due."""
-        with interrupts.critical():  # a stop signal takes effect when the commit has ended
+        with stops.critical():  # a stop signal takes effect when the commit has ended
             folder = journal_dir(self.path)
             folder.mkdir(exist_ok=True)
             target = folder / f"{record['setting']}-{record['seed']}-{record['method']}.json"
@@ -339,8 +339,8 @@ class StudyStore:
     def consolidate(self, now: float = 0.0) -> None:
         """Fold the journal into the HDF5 file (copy, append, fsync, rename), then clear it. A stop
         signal takes effect after it (h5py can swallow a KeyboardInterrupt raised in its write-back:
-        :mod:`ilcforce.interrupts`)."""
-        with interrupts.critical():
+        :mod:`ilcforce.stops`)."""
+        with stops.critical():
             self._consolidate(now)
 
     def _consolidate(self, now: float = 0.0) -> None:

@@ -16,7 +16,7 @@ import h5py
 import numpy as np
 
 import ilcforce
-from ilcforce import interrupts
+from ilcforce import stops
 from ilcforce.metrics import iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.store import commit, metrics_cache, schema
@@ -160,7 +160,7 @@ class StoreWriter:
                     self._set_run_state(handle, "partial", now)
 
                 try:
-                    with interrupts.critical():
+                    with stops.critical():
                         commit.update(self._path, change)
                         self._rows = []
                 except Exception:
@@ -225,7 +225,7 @@ class StoreWriter:
             self._initialise(handle)
             write(handle)
 
-        with interrupts.critical():  # a stop signal waits for the commit and this writer's account of it
+        with stops.critical():  # a stop signal waits for the commit and this writer's account of it
             if self._file_is_ours:
                 commit.update(self._path, write)
             else:
@@ -265,7 +265,7 @@ class StoreWriter:
             metrics_cache.append_rows(handle, self._rows)
             self._set_run_state(handle, status, now)
 
-        with interrupts.critical():
+        with stops.critical():
             commit.update(self._path, change)
             self._rows = []
             self._finished = True

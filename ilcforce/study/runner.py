@@ -144,7 +144,7 @@ def _warm_up(run, todo: list[Cell], study: Study) -> None:
     """Load the compiled kernels of the study's first setting in every worker (``run(f, *args)``
     runs f on each) before the first cell, so the cells' clock and the ETA start on warm workers
     whichever way they run. A failure here is left for the cells to report."""
-    from ilcforce.parallel import preload_kernels
+    from ilcforce.experiment import preload_kernels
 
     config = study.cell_config(todo[0])
     with contextlib.suppress(Exception):

@@ -25,8 +25,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from ilcforce import interrupts
-from ilcforce.cli_signals import note, on_stop_signals
+from ilcforce import stops
+from ilcforce.stops import note, on_stop_signals
+from ilcforce.experiment import preload_kernels
 from ilcforce.store import safeio
 
 #: Exit status of a worker stopped by an interrupt (as the CLI's 130).
@@ -122,31 +123,6 @@ def run_parallel(config, jobs: Sequence[Job], progress: Progress | None = None,
     return outcomes
 
 
-def preload_kernels(config, methods: Sequence[str]) -> None:
-    """Import and load in the parent what every worker would otherwise load for itself.
-
-    Forked workers inherit the imported modules (the store's h5py among them) and the loaded
-    kernels (ahead-of-time compiled, or numba's: the simulation loop, the plant's kernels, each
-    method's law), so each pays for none of them again.
-    """
-    from ilcforce import experiment
-    from ilcforce.compiled import aot
-    from ilcforce.plants import make_plant
-    from ilcforce.simulate import desired_inputs
-    from ilcforce.store import StoreWriter  # noqa: F401  (h5py and the writer, imported once for all workers)
-
-    robot = make_plant(config.plant.links())
-    robot.calls()
-    for method in methods:
-        controller = experiment.make_controller(config, method)
-        if aot.simulator(controller, type(robot), type(robot)) is None:  # numba's loop, law and kernels
-            from ilcforce import loop  # noqa: F401
-
-            robot.kernels()
-            controller.law  # noqa: B018
-    desired_inputs(config.plant.links(), config.wall, config.reference_samples()[:1])  # its kernels
-
-
 def _collect_dead(workers: dict, outcomes: dict[str, Outcome]) -> None:
     """A worker that ended without reporting (killed, out of memory) is an error, not a hang."""
     for method, worker in workers.items():
@@ -185,7 +161,7 @@ def _worker(config, job: Job, messages) -> None:  # messages: the write end of i
     def handler(signum, frame):
         note(signum)  # a KeyboardInterrupt Python drops (in a GC callback) then prints nothing
         if requested:
-            interrupts.interrupt()  # at once, or when the store's commit in progress has ended
+            stops.interrupt()  # at once, or when the store's commit in progress has ended
             return
         requested.append(signum)
 

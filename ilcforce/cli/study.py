@@ -1,6 +1,6 @@
 """The `study` and `export` commands: parse, call ilcforce.study, render. No science here.
 
-Registered on the CLI's ``app`` when :mod:`ilcforce.cli` imports this module; the heavy modules
+Registered on the CLI's ``app`` when :mod:`ilcforce.cli.main` imports this module; the heavy modules
 (Dask, pandas, h5py) are imported inside the commands, so `ilcforce --help` does not load them.
 """
 
@@ -11,8 +11,8 @@ from typing import Annotated, Optional
 
 import typer
 
-from ilcforce.cli import _command_line, _fail, _say, app, err, out
-from ilcforce.cli_signals import STOPS, announce, stop_code
+from ilcforce.cli.base import _command_line, _fail, _say, app, err, out
+from ilcforce.stops import STOPS, announce, stop_code
 
 
 def _fail_plain(message: str) -> None:

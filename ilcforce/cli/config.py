@@ -15,7 +15,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from ilcforce.cli import _guard, _load, app
+from ilcforce.cli.base import _guard, _load, app
 
 #: The comment above each section (methods' gain sections are named by the registry's titles).
 SECTIONS = {

@@ -1,5 +1,5 @@
-"""The console entry point (``ilcforce``, ``python -m ilcforce``): run the command under the stop-signal
-handling of :mod:`ilcforce.cli_signals`, say in one line what typer would have drawn as a box or not
+"""The command line assembled (every command module registers on the app) and run: the command under the stop-signal
+handling of :mod:`ilcforce.stops`, say in one line what typer would have drawn as a box or not
 said at all, then end the process at once with the command's exit code."""
 
 from __future__ import annotations
@@ -9,7 +9,9 @@ import sys
 
 import typer
 
-from ilcforce.cli_signals import ANNOUNCED, STOPS, announce, stop_code, stop_signals
+from ilcforce.cli import config, report, run, study  # noqa: F401 - each registers its commands on the app
+from ilcforce.cli.base import _say, app
+from ilcforce.stops import ANNOUNCED, STOPS, announce, stop_code, stop_signals
 
 
 def main() -> None:
@@ -21,13 +23,11 @@ def main() -> None:
     cluster closed, inside the command), so after flushing stdout and stderr the process exits with
     ``os._exit``. An unexpected exception still goes the normal way, with its traceback.
     """
-    from ilcforce import cli  # at call time: ilcforce.cli imports this module at its end
-
     try:
         with stop_signals():
             # not standalone: a usage error (an unknown option, a bad value for an option) comes here
             # to be said in one line, instead of typer's framed box of four or more
-            result = cli.app(standalone_mode=False)
+            result = app(standalone_mode=False)
         code = result if isinstance(result, int) else 0
     except typer.Abort:  # end of input at a prompt (ilcforce has none)
         code = 1
@@ -38,7 +38,7 @@ def main() -> None:
         message = " ".join(exc.format_message().split())
         if message:  # none when typer has just printed the help (no command given)
             where = f" (see `{exc.ctx.command_path} --help`)" if getattr(exc, "ctx", None) is not None else ""
-            cli._say(f"error: {message}{where}", stderr=True)
+            _say(f"error: {message}{where}", stderr=True)
         code = exc.exit_code
     except SystemExit as exc:  # a command ended with one outside typer's handling
         if exc.code is None or isinstance(exc.code, int):
@@ -53,7 +53,7 @@ def main() -> None:
         # a command imported what it needs: typer turns that into a silent exit 130), or Python
         # dropped its KeyboardInterrupt and the command finished. A command that failed with its
         # own line (exit 2) has said what matters.
-        cli._say(announce("stopped before the command finished" if code else "the command had finished"), stderr=True)
+        _say(announce("stopped before the command finished" if code else "the command had finished"), stderr=True)
         code = stop_code()
     for stream in (sys.stdout, sys.stderr):
         try:
