@@ -190,5 +190,10 @@ def show(grid, console=None) -> None:
     from rich.measure import Measurement
 
     console = console or out.console()
-    width = None if console.is_terminal else Measurement.get(console, console.options.update_width(10_000), grid).maximum
-    console.print(grid, crop=False, width=width)
+    if not console.is_terminal:  # rich keeps to the console's width (80 off a terminal): one as wide as the table
+        from rich.console import Console
+
+        width = Measurement.get(console, console.options.update_width(10_000), grid).maximum
+        console = Console(file=console.file, width=max(width, console.width), color_system=None,
+                          force_terminal=False, legacy_windows=False)
+    console.print(grid, crop=False)
