@@ -89,14 +89,17 @@ reproduce: $(STAMP) aot ## run every experiment (every registered method, in par
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
 	@echo "report: $(RESULTS)/report/index.md"
 
-readme-findings: $(STAMP) ## copy the report's generated findings (results/report/findings.md) into README.md
-	$(PY) -m ilcforce.report.readme update README.md $(RESULTS)/report/findings.md
+findings: $(STAMP) ## copy the report's generated findings (results/report/findings.md) into docs/findings.md
+	$(PY) -m ilcforce.report.readme update docs/findings.md $(RESULTS)/report/findings.md
 
-check-readme: $(STAMP) ## fail when README.md's findings differ from the report's (run after make reproduce)
-	$(PY) -m ilcforce.report.readme check README.md $(RESULTS)/report/findings.md
+check-findings: $(STAMP) ## fail when docs/findings.md differs from the report's findings (run after make reproduce)
+	$(PY) -m ilcforce.report.readme check docs/findings.md $(RESULTS)/report/findings.md
+
+readme-findings: findings
+check-readme: check-findings
 
 clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info ilcforce/_kernels_aot*
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
-.PHONY: help aot install test test-slow bench stores studies reproduce readme-findings check-readme clean
+.PHONY: help aot install test test-slow bench stores studies reproduce findings check-findings readme-findings check-readme clean

@@ -1,11 +1,64 @@
-"""ilcforce: iterative learning control experiments for hybrid force/position control."""
+"""ilcforce: iterative learning control experiments for hybrid force/position control.
+
+What a notebook imports (each loaded on first use, so ``import ilcforce`` costs nothing)::
+
+    import ilcforce
+    run = ilcforce.open("results/paper/c3.h5")          # a stored run: .metrics, .iteration(j), .config
+    frame = ilcforce.tidy_metrics("results/studies/paper-mc.h5")   # one row per (setting, seed, method, j)
+    study = ilcforce.read_study("results/studies/paper-mc.h5")
+    config = ilcforce.load_config("experiments/paper.toml", {"c3.eta": 2.0})
+    summary = ilcforce.run_method(config, "c3", "results/mine/c3.h5")
+    ilcforce.METHODS["c3"].title, ilcforce.PLANTS["serial2r"]
+
+docs/api.md describes each name.
+"""
+
+from __future__ import annotations
+
+import importlib
 
 __version__ = "0.1.0"
 
+#: public name -> (module, attribute), imported when first asked for
+_PUBLIC = {
+    "load_config": ("ilcforce.config_load", "load_config"),
+    "default_config": ("ilcforce.config_load", "default_config"),
+    "Config": ("ilcforce.config", "Config"),
+    "ConfigError": ("ilcforce.config", "ConfigError"),
+    "METHODS": ("ilcforce.controllers", "REGISTRY"),
+    "PLANTS": ("ilcforce.plants", "MODELS"),
+    "run_method": ("ilcforce.experiment", "run_method"),
+    "simulate_iterations": ("ilcforce.experiment", "simulate_iterations"),
+    "iteration_metrics": ("ilcforce.metrics", "iteration_metrics"),
+    "Run": ("ilcforce.store.run", "Run"),
+    "StoreError": ("ilcforce.store", "StoreError"),
+    "validate": ("ilcforce.store", "validate"),
+    "load_study": ("ilcforce.study", "load_study"),
+    "run_study": ("ilcforce.study", "run_study"),
+    "read_study": ("ilcforce.study", "read_study"),
+    "tidy_metrics": ("ilcforce.study", "tidy_metrics"),
+    "export": ("ilcforce.study", "export"),
+}
 
-def open(path):  # noqa: A001 - ilcforce.open reads a store, as the README shows
+__all__ = ["__version__", "open", *_PUBLIC]
+
+
+def open(path):  # noqa: A001 - ilcforce.open reads a store, as open() reads a file
     """Open a stored run: ``ilcforce.open("results/paper/c3.h5")`` -> :class:`ilcforce.store.run.Run`
     with ``.metrics``, ``.iteration(j)``, ``.memory(j)``, ``.config``."""
     from ilcforce.store.run import open_run
 
     return open_run(path)
+
+
+def __getattr__(name: str):
+    if name in _PUBLIC:
+        module, attribute = _PUBLIC[name]
+        value = getattr(importlib.import_module(module), attribute)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'ilcforce' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)

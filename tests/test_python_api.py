@@ -77,3 +77,22 @@ def test_a_run_object_shows_the_file_as_it_is_now(tmp_path: Path):
     assert run.iterations == [0, 1, 2]
     assert run.metrics.equals(store.read_metrics(out)) and len(run.metrics) == 3
     assert run.provenance["run_state"] == "complete" and run.config.experiment.iterations == 3
+
+
+def test_every_public_name_resolves_and_import_ilcforce_loads_nothing_heavy():
+    """``ilcforce.__all__`` is what a notebook imports (docs/api.md): each name resolves to the
+    object it names, and ``import ilcforce`` alone loads none of numpy, pandas, h5py or numba."""
+    import subprocess
+    import sys
+
+    import ilcforce
+    from ilcforce.controllers import REGISTRY
+    from ilcforce.study import tidy_metrics
+
+    for name in ilcforce.__all__:
+        assert getattr(ilcforce, name) is not None, name
+    assert ilcforce.METHODS is REGISTRY and ilcforce.tidy_metrics is tidy_metrics
+    assert "c3" in ilcforce.METHODS and "serial2r" in ilcforce.PLANTS
+    code = "import sys, ilcforce\nprint(*(m for m in ('numpy', 'pandas', 'h5py', 'numba') if m in sys.modules))"
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.strip() == "", done.stdout + done.stderr

@@ -18,10 +18,9 @@ from ilcforce import stops
 
 
 def _main_with(app_body: str) -> subprocess.CompletedProcess:
-    """Run ilcforce.cli.main() in a fresh process with its typer app replaced by ``app_body``."""
+    """Run ilcforce.cli.main.main() in a fresh process with its typer app replaced by ``app_body``."""
     code = ("import os, signal, time\n"
-            "from ilcforce import stops
-from ilcforce.cli import main as cli\n"
+            "from ilcforce import stops\nfrom ilcforce.cli import main as cli\n"
             f"def app(**kwargs):\n    {app_body}\n"
             "cli.app = app\n"
             "cli.main()\n")
@@ -96,9 +95,9 @@ def test_sigterm_early_in_simulate_is_one_line_and_143(tmp_path, delay):
 def test_a_signal_while_the_command_is_still_importing_is_one_line(sig, code, word):
     """In the first tenth of a second the entry point is still importing typer and the CLI; a Ctrl-C
     there raised KeyboardInterrupt inside an import, a traceback (found by an attack on the CLI).
-    The entry point's first module (ilcforce/_entry.py) answers stop signals from its first line."""
+    The entry point's first module (ilcforce/cli/entry.py) answers stop signals from its first line."""
     child = ("import os, signal, time\nimport ilcforce.cli.entry, ilcforce.cli.main\n"
-             "ilcforce.cli.main = lambda: (os.kill(os.getpid(), %d), time.sleep(10))\n"  # mid-import stand-in
+             "ilcforce.cli.main.main = lambda: (os.kill(os.getpid(), %d), time.sleep(10))\n"  # mid-import stand-in
              "ilcforce.cli.entry.main()\n" % int(sig))
     done = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, timeout=60)
     assert done.returncode == code, done.stderr

@@ -186,7 +186,8 @@ def fits(console) -> int:
 
 def show(grid, console=None) -> None:
     """Print a table from :func:`table`: at its natural width off a terminal (a pipe or a log file
-    has no width to keep to), within the terminal's otherwise."""
+    has no width to keep to), within the terminal's otherwise; characters the output's encoding
+    cannot show are replaced, never a UnicodeEncodeError."""
     from rich.measure import Measurement
 
     console = console or out.console()
@@ -194,6 +195,14 @@ def show(grid, console=None) -> None:
         from rich.console import Console
 
         width = Measurement.get(console, console.options.update_width(10_000), grid).maximum
-        console = Console(file=console.file, width=max(width, console.width), color_system=None,
-                          force_terminal=False, legacy_windows=False)
-    console.print(grid, crop=False)
+        console = Console(width=max(width, console.width), color_system=None, force_terminal=False,
+                          legacy_windows=False)
+    with console.capture() as captured:
+        console.print(grid, crop=False)
+    stream = sys.stdout
+    encoding = getattr(stream, "encoding", None) or "utf-8"
+    try:
+        stream.write(captured.get().encode(encoding, "replace").decode(encoding, "replace"))
+        stream.flush()
+    except (OSError, ValueError):  # a closed or broken pipe: nothing more can be said
+        pass
