@@ -21,6 +21,7 @@ __version__ = "0.1.0"
 
 #: public name -> (module, attribute), imported when first asked for
 _PUBLIC = {
+    "open": ("ilcforce.store.run", "open_run"),  # ilcforce.open(path) -> Run, as open() reads a file
     "load_config": ("ilcforce.config_load", "load_config"),
     "default_config": ("ilcforce.config_load", "default_config"),
     "Config": ("ilcforce.config", "Config"),
@@ -40,15 +41,7 @@ _PUBLIC = {
     "export": ("ilcforce.study", "export"),
 }
 
-__all__ = ["__version__", "open", *_PUBLIC]
-
-
-def open(path):  # noqa: A001 - ilcforce.open reads a store, as open() reads a file
-    """Open a stored run: ``ilcforce.open("results/paper/c3.h5")`` -> :class:`ilcforce.store.run.Run`
-    with ``.metrics``, ``.iteration(j)``, ``.memory(j)``, ``.config``."""
-    from ilcforce.store.run import open_run
-
-    return open_run(path)
+__all__ = ["__version__", *_PUBLIC]
 
 
 def __getattr__(name: str):

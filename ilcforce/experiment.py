@@ -396,6 +396,37 @@ def preload_kernels(config, methods: Sequence[str]) -> None:
 #: At most this long (s) a new run's store waits to open until iteration 0 has started to simulate.
 _START_WAIT = 0.5
 
+@dataclass(frozen=True)
+class StoredRun:
+    """What is stored at a run's path, for the run a configuration and a method ask for.
+
+    ``state`` is "absent", "other method" (``detail`` names it), "different run" (``detail`` names
+    the keys that differ, both values), "partial" (the same run, to be continued) or "finished"
+    (the same run, complete over the experiment's iterations, or diverged)."""
+
+    state: str
+    detail: str = ""
+
+
+def stored_run(config: Config, method: str, path: Path) -> StoredRun:
+    """Is the store at ``path`` the run of ``method`` with ``config``? The one decision, by the
+    same-run policy (:mod:`ilcforce.samerun`), that ``compare`` and the report's matching use."""
+    from ilcforce import store
+
+    if not os.path.lexists(path):
+        return StoredRun("absent")
+    provenance = store.read_provenance(path)
+    if str(provenance.get("method", method)) != method:  # e.g. another method's store copied here
+        return StoredRun("other method", f"a {provenance.get('method')} run, not {method}")
+    stored = samerun.stored_config(provenance)
+    keys = samerun.differences(stored, config.to_dict(), method)
+    if keys:
+        return StoredRun("different run", samerun.describe(stored, config.to_dict(), keys))
+    finished = provenance.get("run_state") == "diverged" or (
+        provenance.get("run_state") == "complete" and len(store.iterations(path)) >= config.experiment.iterations)
+    return StoredRun("finished" if finished else "partial")
+
+
 def default_store_path(results_dir: Path, config: Config, method: str,
                        overrides: dict[str, object] | None = None) -> Path:
     """``results/<experiment>/<method>.h5``; with ``--set`` overrides, the variant's own folder

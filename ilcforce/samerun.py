@@ -88,14 +88,16 @@ def stored_config(provenance: dict[str, Any]) -> dict[str, Any]:
     return value if isinstance(value, dict) else {}
 
 
-def check(provenance: dict[str, Any], config: dict[str, Any], method: str) -> None:
-    """StoreError naming the keys that differ if the stored run is not this method's run."""
-    from ilcforce.store import StoreError
+class DifferentRun(ValueError):
+    """A stored run is not the run asked for; the message names the keys that differ."""
 
+
+def check(provenance: dict[str, Any], config: dict[str, Any], method: str) -> None:
+    """:class:`DifferentRun` naming the keys that differ if the stored run is not this method's run."""
     stored = stored_config(provenance)
     keys = differences(stored, config, method)
     if keys:
-        raise StoreError(f"configuration differs from the stored run at {describe(stored, config, keys)}")
+        raise DifferentRun(f"configuration differs from the stored run at {describe(stored, config, keys)}")
 
 
 def same_run_check(config: dict[str, Any], method: str):

@@ -1,6 +1,6 @@
 """The pandas-free comparison (ilcforce/comparison.py) against the DataFrame readers of the report.
 
-:class:`~ilcforce.comparison.MethodMetrics` answers the lookups the tables and the claims make
+:class:`~ilcforce.report.comparison.MethodMetrics` answers the lookups the tables and the claims make
 (value at an iteration, first divergence, j̄, the iteration Table 3 reads) from arrays; the
 DataFrame readers of :mod:`ilcforce.report.tables` are the slow, readable reference. Both are run
 over metrics with complete, diverged and missing iterations, and NaN values, and must agree
@@ -16,8 +16,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ilcforce import comparison
-from ilcforce.comparison import COMPARISON_ITERATIONS, MethodMetrics, comparison_rows
+from ilcforce.report import comparison
+from ilcforce.report.comparison import COMPARISON_ITERATIONS, MethodMetrics, comparison_rows
 from ilcforce.metrics import METRIC_COLUMNS, column_kind
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
 from ilcforce.report import tables

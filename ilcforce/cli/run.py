@@ -89,7 +89,7 @@ def compare(
     elif jobs:
         run_several(cfg, jobs)
 
-    from ilcforce.comparison import MethodMetrics, comparison_rows
+    from ilcforce.report.comparison import MethodMetrics, comparison_rows
 
     # a store may hold more iterations than asked for (the first ones are the same run): the table,
     # like its title, is over the experiment's iterations
@@ -108,34 +108,24 @@ def _comparison_title(cfg) -> str:
 
 def _compare_action(cfg, method: str, path: Path, overwrite: bool) -> tuple[str, bool]:
     """("keep" | "resume" | "run", replace?) for one method's store, by the same-run policy."""
-    from ilcforce import samerun, store
+    from ilcforce.experiment import stored_run
 
-    if not path.exists() and not path.is_symlink():
-        return "run", False
-    provenance = store.read_provenance(path)
-    if str(provenance.get("method", method)) != method:  # e.g. another method's store copied here
+    found = stored_run(cfg, method, path)
+    if found.state in ("other method", "different run"):
         if not overwrite:
-            raise CliError(f"{path} holds a {provenance.get('method')} run, not {method}; move it away or "
+            raise CliError(f"{path} holds {found.detail}; move it away or pass --overwrite to rerun it"
+                           if found.state == "other method" else
+                           f"{path} holds a {method} run with a different configuration: {found.detail}; "
                            "pass --overwrite to rerun it")
         return "run", True
-    keys = samerun.differences(samerun.stored_config(provenance), cfg.to_dict(), method)
-    if keys:
-        if not overwrite:
-            raise CliError(f"{path} holds a {method} run with a different configuration: "
-                           f"{samerun.describe(samerun.stored_config(provenance), cfg.to_dict(), keys)}; "
-                           "pass --overwrite to rerun it")
-        return "run", True
-    done = store.iterations(path)
-    finished = provenance.get("run_state") == "diverged" or (
-        provenance.get("run_state") == "complete" and len(done) >= cfg.experiment.iterations)
-    return ("keep" if finished else "resume"), False
+    return {"absent": "run", "partial": "resume", "finished": "keep"}[found.state], False
 
 
 def _print_comparison(rows: list[dict], title: str) -> None:
     """One row per quantity, one column per method. Where the methods do not fit the output's width
     (:func:`~ilcforce.cli.base.fits`), they are shown in as many tables as it takes, each with the
     row labels: a number is never split across lines."""
-    from ilcforce.comparison import COMPARISON_COLUMNS
+    from ilcforce.report.comparison import COMPARISON_COLUMNS
 
     quantities = [(name, f"{name} ({unit})" if unit not in ("", "-", "1") else name)
                   for name, unit in COMPARISON_COLUMNS.items() if name != "method"]
@@ -268,4 +258,4 @@ def import_for_table() -> None:
     """What compare needs after the runs (the comparison, rich's table), imported while workers run."""
     import rich.table  # noqa: F401
 
-    import ilcforce.comparison  # noqa: F401
+    import ilcforce.report.comparison  # noqa: F401

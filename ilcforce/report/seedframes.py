@@ -14,12 +14,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ilcforce.comparison import MethodMetrics
+from ilcforce.report.comparison import MethodMetrics
 
 _KEYS = ("seed", "method", "iteration")
 
 
-#: One (seed, method)'s metrics as arrays: :class:`ilcforce.comparison.MethodMetrics`.
+#: One (seed, method)'s metrics as arrays: :class:`ilcforce.report.comparison.MethodMetrics`.
 SeedMetrics = MethodMetrics
 
 

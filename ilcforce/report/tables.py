@@ -16,7 +16,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
-from ilcforce.comparison import (COMPARISON_COLUMNS, COMPARISON_ITERATIONS, INTEGER_COLUMNS,  # noqa: F401
+from ilcforce.report.comparison import (COMPARISON_COLUMNS, COMPARISON_ITERATIONS, INTEGER_COLUMNS,  # noqa: F401
                                  JBAR_FACTOR, JBAR_LAST, JBAR_WINDOW, MethodMetrics, comparison_rows,
                                  ordered_methods)
 from ilcforce.controllers import PAPER_METHODS
@@ -29,7 +29,7 @@ from ilcforce.report.table_write import is_missing
 METHOD_ORDER = PAPER_METHODS
 
 # JBAR_LAST, JBAR_WINDOW, JBAR_FACTOR (SPEC section 6's j̄), COMPARISON_ITERATIONS and
-# ordered_methods are ilcforce.comparison's, imported above (the comparison needs no pandas).
+# ordered_methods are ilcforce.report.comparison's, imported above (the comparison needs no pandas).
 
 #: Suffixes of the two further forms of H (without t = 0; settled from 20 ms), see ilcforce.metrics.
 H_FORMS = ("_no_t0", "_settled")
@@ -207,7 +207,7 @@ def table3(
 
 def comparison_frame(metrics_by_method: Mapping[str, pd.DataFrame]) -> pd.DataFrame:
     """One row per method: the numbers a reader compares the methods by
-    (:func:`ilcforce.comparison.comparison_rows`, whose docstring lists the columns), as a frame.
+    (:func:`ilcforce.report.comparison.comparison_rows`, whose docstring lists the columns), as a frame.
     Integer columns (j̄, the chattering and diverged iterations) are nullable (<NA> where unknown);
     ``attrs["units"]`` names the unit of each column that has one.
     """

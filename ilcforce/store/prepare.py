@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ilcforce.samerun import DifferentRun
 from ilcforce.records import REFERENCE_SIGNALS
 from ilcforce.store.provenance import SameRunCheck
 from ilcforce.store.read import open_store
@@ -134,7 +135,7 @@ def check_resumable(path: Path, *, experiment: str, method: str, seed: int, same
                              f"{new!r}; use --overwrite to start again")
     try:
         same_run(provenance)
-    except StoreError as error:
+    except (StoreError, DifferentRun) as error:
         raise StoreError(f"{path}: cannot resume: {error}; use --overwrite to start again") from None
     stored_reference = read_reference(path)
     for name, (axes, _unit, _description) in REFERENCE_SIGNALS.items():

@@ -3,7 +3,6 @@ default same-run check (the experiment layer's policy, :mod:`ilcforce.samerun`, 
 
 from __future__ import annotations
 
-import json
 import subprocess
 from collections.abc import Callable
 from datetime import datetime, timezone
@@ -41,33 +40,3 @@ def git_state() -> tuple[str, bool]:
         return commit_id, bool(status.stdout.strip()) if status.returncode == 0 else False
     except (OSError, subprocess.SubprocessError, ValueError):
         return "", False
-
-
-def _leaves(value: Any, prefix: str, out: dict[str, Any]) -> dict[str, Any]:
-    if isinstance(value, dict):
-        for key, item in value.items():
-            _leaves(item, f"{prefix}.{key}" if prefix else str(key), out)
-    else:
-        out[prefix] = value
-    return out
-
-
-def default_same_run(config_json: str) -> SameRunCheck:
-    """Without a policy: the stored configuration must equal this one, key by key, except
-    ``experiment.iterations`` (the experiment layer's policy, :mod:`ilcforce.samerun`, is finer)."""
-    def check(provenance: dict[str, Any]) -> None:
-        try:
-            stored = _leaves(json.loads(str(provenance["config_json"])), "", {})
-            new = _leaves(json.loads(config_json), "", {})
-        except json.JSONDecodeError:
-            raise StoreError("the stored configuration is not valid JSON") from None
-        for leaves in (stored, new):
-            leaves.pop("experiment.iterations", None)
-        keys = sorted(k for k in set(stored) | set(new)
-                      if k not in stored or k not in new or stored[k] != new[k] or type(stored[k]) is not type(new[k]))
-        if keys:
-            raise StoreError(f"configuration differs from the stored run at {', '.join(keys[:6])}"
-                             + (f" and {len(keys) - 6} more" if len(keys) > 6 else ""))
-    return check
-
-

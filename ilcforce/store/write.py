@@ -20,7 +20,7 @@ from ilcforce import stops
 from ilcforce.metrics import iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.store import commit, metrics_cache, schema
-from ilcforce.store.provenance import SameRunCheck, default_same_run as _default_same_run, git_state, text, utc_now
+from ilcforce.store.provenance import SameRunCheck, git_state, text, utc_now
 from ilcforce.store.prepare import (check_replaceable, check_resumable, clean_leftovers, existing_refusal, make_parent,
                                     refuse_foreign_target)
 from ilcforce.store.template import IterationTemplate
@@ -81,7 +81,7 @@ class StoreWriter:
         self._config_toml, self._config_json = text(config_toml), text(config_json)
         self._seed, self._command, self._n_iterations = int(seed), text(command), int(n_iterations)
         self._overwrite, self._resume = bool(overwrite), bool(resume)
-        self._same_run = same_run or _default_same_run(self._config_json)
+        self._same_run = same_run or _same_run_policy(self._config_json, method)
         if "time" not in reference or np.ndim(reference["time"]) != 1 or np.shape(reference["time"])[0] < 2:
             raise ValueError("reference['time'] must have shape (n_log,) with n_log >= 2")
         self._n_log = int(np.shape(reference["time"])[0])
@@ -351,3 +351,16 @@ class StoreWriter:
     def _set_run_state(handle: h5py.File, state: str, now: str) -> None:
         handle.attrs["run_state"] = state
         handle.attrs["updated_utc"] = now
+
+
+def _same_run_policy(config_json: str, method: str) -> SameRunCheck:
+    """The same-run policy (:mod:`ilcforce.samerun`) for a writer not given one."""
+    import json
+
+    from ilcforce import samerun
+
+    try:
+        config = json.loads(config_json)
+    except json.JSONDecodeError:
+        raise StoreError("the configuration to store is not valid JSON") from None
+    return samerun.same_run_check(config if isinstance(config, dict) else {}, method)
