@@ -44,8 +44,9 @@ test: $(STAMP) aot ## run the fast test suite (slow paper-level studies excluded
 test-slow: $(STAMP) aot ## run only the slow paper-level regression studies
 	$(PY) -m pytest -q -m slow
 
+# BENCH_ARGS, e.g. --against ../old/.venv/bin/ilcforce (another tree's cold commands beside these)
 bench: $(STAMP) aot ## print speed figures (medians over repeated runs)
-	$(PY) -m benchmarks
+	$(PY) -m benchmarks $(BENCH_ARGS)
 
 STORES = $(foreach e,$(EXPERIMENTS),$(foreach m,$(METHODS),$(RESULTS)/$(e)/$(m).h5))
 comma := ,

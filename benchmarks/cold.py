@@ -65,21 +65,27 @@ def _wall(args: Sequence[str], cwd: Path) -> float:
 
 
 def cold_walls(repeat: int, extra: Sequence[str] = (), iterations: int = ITERATIONS,
-               between: Callable[[], None] | None = None) -> dict[str, list[float]]:
-    """Wall times (s) of ``repeat`` cold processes per command, alternating the commands;
+               between: Callable[[], None] | None = None,
+               commands: dict[str, list[str]] | None = None) -> dict[str, dict[str, list[float]]]:
+    """Wall times (s) of ``repeat`` cold processes per command and per entry point (``commands``:
+    label -> entry point; this tree's by default), the commands and the entry points alternated
+    within each round, so that a drift of the machine's speed reaches every figure alike;
     ``between()`` after each round (e.g. a measurement to interleave with them)."""
-    cmd = entry_point()
+    commands = commands or {"this tree": entry_point()}
     n = ["--iters", str(iterations), *extra]
-    walls: dict[str, list[float]] = {"help": [], "simulate": [], "compare": []}
+    walls = {label: {"help": [], "simulate": [], "compare": []} for label in commands}
     with tempfile.TemporaryDirectory() as tmp:
         tmp_path = Path(tmp)
-        _wall([*cmd, "compare", *n, "--results", str(tmp_path / "warm")], tmp_path)  # numba caches warm
+        for label, cmd in commands.items():  # numba caches warm
+            _wall([*cmd, "compare", *n, "--results", str(tmp_path / f"warm-{len(label)}-{hash(label)}")], tmp_path)
         for i in range(repeat):
-            walls["help"].append(_wall([*cmd, "--help"], tmp_path))
-            walls["simulate"].append(_wall([*cmd, "simulate", "--method", "c3", *n, "--out",
-                                            str(tmp_path / f"s{i}" / "c3.h5")], tmp_path))
-            walls["compare"].append(_wall([*cmd, "compare", "--methods", ",".join(METHODS), *n,
-                                           "--results", str(tmp_path / f"c{i}")], tmp_path))
+            for k, (label, cmd) in enumerate(commands.items()):
+                mine = walls[label]
+                mine["help"].append(_wall([*cmd, "--help"], tmp_path))
+                mine["simulate"].append(_wall([*cmd, "simulate", "--method", "c3", *n, "--out",
+                                               str(tmp_path / f"s{i}-{k}" / "c3.h5")], tmp_path))
+                mine["compare"].append(_wall([*cmd, "compare", "--methods", ",".join(METHODS), *n,
+                                              "--results", str(tmp_path / f"c{i}-{k}")], tmp_path))
             if between is not None:
                 between()
     return walls
@@ -183,16 +189,21 @@ def cold_timelines(repeat: int, extra: Sequence[str] = (), iterations: int = ITE
     return {key: statistics.median(row[key] for row in rows) for key in rows[0]}
 
 
-def report(repeat: int = 5, loop_repeat: int = 1, extra: Sequence[str] = (), iterations: int = ITERATIONS) -> None:
-    """Print the cold-process figures, the loop/overhead split and the timeline inside the runs."""
+def report(repeat: int = 5, loop_repeat: int = 1, extra: Sequence[str] = (), iterations: int = ITERATIONS,
+           against: str | None = None) -> None:
+    """Print the cold-process figures, the loop/overhead split and the timeline inside the runs;
+    with ``against`` (another tree's ``ilcforce`` console script), that tree's cold figures beside
+    these, measured in the same rounds."""
     cores = os.cpu_count() or 1
     overrides = dict(_parse_set(extra))
     loop_seconds(METHODS, 1, iterations, overrides)  # warm
     rounds: list[dict[str, float]] = []
     # the loop is timed between the rounds of cold processes, not after all of them: this machine's
     # speed drifts by 20% within minutes, and the overhead compares the two
-    walls = cold_walls(repeat, extra, iterations,
-                       between=lambda: rounds.append(loop_seconds(METHODS, loop_repeat, iterations, overrides)))
+    commands = {"this tree": entry_point(), **({"against": [against]} if against else {})}
+    both = cold_walls(repeat, extra, iterations, commands=commands,
+                      between=lambda: rounds.append(loop_seconds(METHODS, loop_repeat, iterations, overrides)))
+    walls = both["this tree"]
     loops = {method: statistics.median(r[method] for r in rounds) for method in METHODS}
     med = {k: statistics.median(v) for k, v in walls.items()}
     rng = {k: f"{min(v):.2f}-{max(v):.2f}" for k, v in walls.items()}
@@ -209,6 +220,14 @@ def report(repeat: int = 5, loop_repeat: int = 1, extra: Sequence[str] = (), ite
     print(f"  ilcforce compare (c1, c2, c3 x {iterations}, stores written): {med['compare']:8.2f} s wall   "
           f"({rng['compare']}); compiled loop {sum(loops.values()):.2f} s over the methods "
           f"= {ideal:.2f} s on {min(cores, len(METHODS))} cores, overhead {100 * (1 - ideal / med['compare']):.0f}%")
+    if against:
+        other = {k: statistics.median(v) for k, v in both["against"].items()}
+        spans = {k: f"{min(v):.2f}-{max(v):.2f}" for k, v in both["against"].items()}
+        print(f"  the same rounds, alternated, through {against}:")
+        for key, label in (("help", "ilcforce --help"), ("simulate", f"simulate --method c3 --iters {iterations}"),
+                           ("compare", "compare (c1, c2, c3)")):
+            print(f"    {label:<40}: {other[key]:6.2f} s there ({spans[key]}), {med[key]:6.2f} s here: "
+                  f"{med[key] - other[key]:+.2f} s")
     if aot.module() is not None:
         line = cold_timelines(repeat, extra, iterations)
         print(f"  inside cold simulate runs (median of {repeat}; from the script's start, after the interpreter's): "

@@ -156,6 +156,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="alternated 1- and 2-worker runs of the speed-up study (its 2-worker cell phase, "
                              "about 8 s, varies by about 10%% between runs on this machine)")
     parser.add_argument("--cold-repeat", type=int, default=5, help="cold processes per user command (0: skip)")
+    parser.add_argument("--against", default=None,
+                        help="another tree's ilcforce console script: its cold figures beside these, same rounds")
     parser.add_argument("--floor-repeat", type=int, default=3,
                         help="repetitions of each part of compare's least possible wall time (0: skip)")
     args = parser.parse_args(argv)
@@ -186,7 +188,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.cold_repeat > 0:  # the user's commands from a cold process (benchmarks.cold)
         from benchmarks import cold as bench_cold
 
-        bench_cold.report(repeat=args.cold_repeat)
+        bench_cold.report(repeat=args.cold_repeat, against=args.against)
     if args.floor_repeat > 0:  # what no implementation of compare can go below here (benchmarks.floor)
         from benchmarks import floor as bench_floor
 
