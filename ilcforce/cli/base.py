@@ -114,9 +114,9 @@ def _guard(func):
 def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], sets: Optional[list[str]]):
     from ilcforce.compiled.note import announce_compiles
 
-    # a first run compiles before iteration 0: say so on a terminal (ilcforce/compile_note.py). Whether
-    # stderr is one is asked only then: the check builds a rich Console (issue 12: not before the run)
-    announce_compiles(lambda text: _say(text, stderr=True) if err.is_terminal else None)
+    # a first run compiles before iteration 0 (about 10 s without the ahead-of-time kernels): say so on
+    # stderr, terminal or not, so that a piped or logged first run does not look hung
+    announce_compiles(lambda text: _say(text, stderr=True))
     from ilcforce.config_load import command_overrides, load_config
 
     return load_config(config, command_overrides(sets, seed, iters))
