@@ -379,6 +379,25 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
 
 
 @app.command()
+def tune(
+    ctx: typer.Context,
+    file: Annotated[Path, typer.Argument(help="tuning file: TOML with a [tune] table (experiment, methods, gain ranges, seeds, objective, trials)")],
+    scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://HOST:8786")] = None,
+    workers: Annotated[Optional[int], typer.Option("--workers", help="local worker processes (default: one per core; 1 runs in this process)")] = None,
+    results: Annotated[Path, typer.Option("--results", help="results folder; the tuning store is <results>/tuning/<name>/")] = Path("results"),
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="discard the stored trials and start over")] = False,
+    output: Annotated[Optional[Path], typer.Option("--output", "-o", help="also write the tuned experiment file here")] = None,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress lines")] = False,
+    timeout: Annotated[float, typer.Option("--timeout", help="seconds allowed to reach --scheduler")] = 10.0,
+) -> None:
+    """Tune methods' gains with Optuna on Dask (equal budget per method); finished trials are stored and never rerun."""
+    from ilcforce.tune.command import tune_command
+
+    raise typer.Exit(tune_command(file, scheduler=scheduler, workers=workers, results=results, overwrite=overwrite,
+                                  output=output, quiet=quiet, timeout=timeout, command=_command_line(ctx)))
+
+
+@app.command()
 def version() -> None:
     """Print the ilcforce version."""
     _say(f"ilcforce {__version__}")
