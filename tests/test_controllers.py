@@ -372,7 +372,7 @@ def test_c3_with_gravity_matches_eq14_with_the_full_theta(seed, method, plant_co
     g = config.gains[method]
     keep = 1.0 - getattr(g, "leakage", 0.0)
     controller = make_controller(config, method)
-    sigma, psi = _reference_surface(meas, ref[4], config)
+    sigma, psi = _reference_surface(meas, ref[4], config, psi_desired=g.psi_acceleration == "desired")
     psi = np.concatenate([psi, [1.0, 1.0]])  # eq. (12) with the G block
     Phi = np.zeros((12, 2))
     Phi[0:6, 0] = psi
@@ -431,3 +431,33 @@ def test_the_learned_state_handed_out_cannot_be_written():
             value[0] = 0.0
     mem_prev, _new = controller.begin_iteration(1)
     assert np.all(mem_prev == 1.0)
+
+
+@pytest.mark.parametrize("method", ["c2", "c3", "c3-leak", "pd-ilc"])
+def test_gravity_feedforward_adds_the_nominal_task_gravity(method, plant_config):
+    """g_ff adds g_ff J^T G_nom (the nominal task gravity at the measured angles) to the torque and
+    nothing else: same memory written; off by default, so the paper's laws are unchanged."""
+    from dataclasses import replace
+
+    config = plant_config("serial2r")
+    rng = np.random.default_rng(7)
+    meas = _random_measurement(rng, config)
+    ref = _reference(rng)
+    taus, memories = [], []
+    for g_ff in (0.0, 0.75):
+        gains = replace(config.gains[method], gravity_feedforward=g_ff)
+        controller = make_controller(replace(config, gains={**config.gains, method: gains}), method)
+        assert controller.uses_nominal_dynamics == (g_ff != 0.0)  # the simulator fills G_nom only then
+        mem_prev, _ = controller.begin_iteration(0)
+        mem_prev = rng.normal(0, 1, mem_prev.shape) if g_ff == 0.0 else memories[0][0]
+        mem_new = np.zeros_like(mem_prev)
+        taus.append(np.array(controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True,
+                                            np.zeros(DIAG_WIDTH))))
+        memories.append((mem_prev, mem_new))
+    J = meas[10:14].reshape(2, 2)
+    assert np.linalg.norm(meas[27:29]) > 1.0  # the 2R arm's task gravity is N-sized
+    # round-off of a sum of N m-sized terms: 1e-12 relative to the torque
+    np.testing.assert_allclose(taus[1] - taus[0], J.T @ (0.75 * meas[27:29]), rtol=1e-9, atol=1e-12 * np.abs(taus[0]).max(),
+                               err_msg=f"{method}: g_ff J^T G_nom")
+    np.testing.assert_array_equal(memories[0][1], memories[1][1], err_msg=f"{method}: g_ff changes no memory")
+    assert default_config().gains[method].gravity_feedforward == 0.0
