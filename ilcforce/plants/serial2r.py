@@ -53,7 +53,7 @@ from ilcforce.plants.base import (
     params_view,
 )
 
-__all__ = ["Serial2RParams", "Serial2R", "PARAM_NAMES"]
+__all__ = ["Serial2RParams", "Serial2R", "PARAM_NAMES", "BASE_PARAMETER_NAMES", "base_parameters", "regressor"]
 
 #: Order of the packed parameter vector used by the compiled kernels.
 PARAM_NAMES = ("L1", "L2", "Lc1", "Lc2", "m1", "m2", "I1", "I2", "g")
@@ -224,3 +224,34 @@ class Serial2R(Plant):
         th1, th2 = (float(v) for v in np.asarray(theta, dtype=np.float64))
         pr = self.params
         return pr.g * (pr.m1 * pr.Lc1 * math.sin(th1) + pr.m2 * (pr.L1 * math.sin(th1) + pr.Lc2 * math.sin(th1 + th2)))
+
+
+# --------------------------------------------------------------------------------------------
+# Linear parametrisation (Slotine & Li 1987): Dq(q) ddq_r + Cq(q, dq) dq_r + G_q(q) = Y(q, dq, dq_r, ddq_r) a
+# --------------------------------------------------------------------------------------------
+
+#: The base parameters a, constant for a given arm (the model's a, b, d and the two gravity moments).
+BASE_PARAMETER_NAMES = ("a", "b", "d", "g1", "g2")
+
+
+def base_parameters(params: Serial2RParams) -> np.ndarray:
+    """a = (I1 + I2 + m1 Lc1^2 + m2 (L1^2 + Lc2^2), m2 L1 Lc2, I2 + m2 Lc2^2, g (m1 Lc1 + m2 L1), g m2 Lc2),
+    shape (5,): kg m^2, kg m^2, kg m^2, N m, N m."""
+    p = params
+    return np.array([p.I1 + p.I2 + p.m1 * p.Lc1 ** 2 + p.m2 * (p.L1 ** 2 + p.Lc2 ** 2), p.m2 * p.L1 * p.Lc2,
+                     p.I2 + p.m2 * p.Lc2 ** 2, p.g * (p.m1 * p.Lc1 + p.m2 * p.L1), p.g * p.m2 * p.Lc2])
+
+
+@njit(cache=True, error_model="numpy")
+def regressor(p, th1, th2, d1, d2, r1, r2, rr1, rr2):
+    """Y(q, dq, dq_r, ddq_r), shape (2, 6) as a tuple (row 0, then row 1), so that Y a (a:
+    :func:`base_parameters`, padded with a 0) = Dq ddq_r + Cq(q, dq) dq_r + G_q. The sixth column is 0
+    (this arm has five base parameters; the five-bar six). ``p`` (the packed parameters) is not read:
+    this arm's regressor depends on the joint state alone; it is there for one signature per plant."""
+    c1 = math.cos(th1)
+    c2, s2 = math.cos(th2), math.sin(th2)
+    c12 = math.cos(th1 + th2)
+    y01 = 2.0 * c2 * rr1 + c2 * rr2 - s2 * d2 * r1 - s2 * (d1 + d2) * r2  # the b column, joint 1
+    y11 = c2 * rr1 + s2 * d1 * r1  # the b column, joint 2
+    return (rr1, y01, rr2, c1, c12, 0.0,
+            0.0, y11, rr1 + rr2, 0.0, c12, 0.0)
