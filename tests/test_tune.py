@@ -280,3 +280,14 @@ def test_tuning_on_a_real_dask_scheduler(tmp_path):
                 except subprocess.TimeoutExpired:
                     process.kill()
                     process.wait()
+
+
+@pytest.mark.parametrize("name", ["fivebar-tune", "serial2r-tune"])
+def test_shipped_tuning_files_load_and_start_from_the_shipped_gains(name):
+    tuning = load_tuning(EXPERIMENTS / "tuning" / f"{name}.toml")
+    assert tuning.name == name
+    from ilcforce.controllers import REGISTRY
+
+    assert set(tuning.methods) == set(REGISTRY)  # every method, one budget
+    for method in tuning.methods:  # the sampler learns from trial 0 (the experiment's gains)
+        assert tuning.defaults_in_space(method), method
