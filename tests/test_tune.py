@@ -147,7 +147,11 @@ def test_tiny_tuning_on_a_local_cluster_and_its_tuned_file(tmp_path):
             field = key.split(".", 1)[1]
             got = getattr(config.gains[method], field)
             assert (list(got) if isinstance(got, tuple) else got) == value, key
-    assert config.reference.duration == 0.2 and config.experiment.iterations == 3
+    # the tuning's [tune.set] is kept (the gains were judged under it), the experiment's iterations too
+    assert config.reference.duration == 0.2 and config.experiment.iterations == 20
+    assert config.experiment.name == "tiny-tuned"
+    named = run_tuning(tuning, tmp_path / "results", workers=1, output=tmp_path / "exp" / "mine.toml")
+    assert named.ran == 0 and load_config(named.tuned).experiment.name == "mine"  # experiments/<stem>.toml
     # the same trial in-process gives the same value (the cell is a pure function)
     again = run_tuning(tuning, tmp_path / "inproc", workers=1)
     assert {m: read_trials(again.path)[m][1]["value"] for m in tuning.methods} == \

@@ -258,8 +258,11 @@ def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: 
         best = {m: s.best() for m, s in searches.items()}
         tuned = None
         if any(b is not None for b in best.values()):
+            # named after the output file when there is one: an experiments/<stem>.toml must be named <stem>
+            name = Path(output).stem if output is not None else f"{tuning.name}-tuned"
             text = tuned_experiment(tuning, {m: store.trials[m][b[0]] for m, b in best.items() if b is not None},
-                                    {m: store.trials[m][0] for m in tuning.methods if 0 in store.trials.get(m, {})})
+                                    {m: store.trials[m][0] for m in tuning.methods if 0 in store.trials.get(m, {})},
+                                    name=name)
             tuned = store.write_tuned(text)
             if output is not None:
                 Path(output).parent.mkdir(parents=True, exist_ok=True)
@@ -343,14 +346,15 @@ def _run_round(tuning, searches, batch, execute, store, progress) -> int:
     return finished
 
 
-def tuned_experiment(tuning: Tuning, best: dict[str, dict], baseline: dict[str, dict] | None = None) -> str:
-    """The experiment file of the tuning (its experiment with ``[tune.set]`` and the horizon) with
-    each method's best trial's gains, headed by comments stating the tuning file and budget."""
+def tuned_experiment(tuning: Tuning, best: dict[str, dict], baseline: dict[str, dict] | None = None, *,
+                     name: str | None = None) -> str:
+    """The experiment file of the tuning (its experiment with ``[tune.set]``, named ``name``) with
+    each method's best trial's gains, headed by comments stating the tuning file and budget. The
+    experiment keeps its own iteration count (the tuning's horizon only judged the gains)."""
     from ilcforce.config_load import load_config
     from ilcforce.tomlfile import dump_toml, toml_comment
 
-    overrides = {**tuning.fixed, "experiment.iterations": tuning.iterations,
-                 "experiment.name": f"{tuning.name}-tuned",
+    overrides = {**tuning.fixed, "experiment.name": name or f"{tuning.name}-tuned",
                  "experiment.description": f"{tuning.base.experiment.description}; gains tuned by ilcforce tune "
                                            f"({tuning.name})"}
     for method, record in best.items():
