@@ -17,6 +17,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -295,3 +296,22 @@ def test_shipped_tuning_files_load_and_start_from_the_shipped_gains(name):
     assert set(tuning.methods) == set(REGISTRY)  # every method, one budget
     for method in tuning.methods:  # the sampler learns from trial 0 (the experiment's gains)
         assert tuning.defaults_in_space(method), method
+
+
+def test_trials_frame_and_its_figure(tmp_path):
+    from matplotlib.figure import Figure
+
+    from ilcforce.report.tuning import plot_tuning_history
+    from ilcforce.tune.store import trials_frame
+
+    path = tiny_file(tmp_path, TINY.replace("trials = 2", "trials = 4"))
+    summary = run_tuning(load_tuning(path), tmp_path / "r", workers=1, cell_function=fake_cell)
+    frame = trials_frame(summary.path)
+    assert len(frame) == 8 and list(frame.columns[:7]) == ["method", "trial", "state", "objective", "best_so_far",
+                                                             "message", "elapsed"]
+    c2 = frame[frame["method"] == "c2"].sort_values("trial")
+    assert list(c2["best_so_far"]) == list(np.minimum.accumulate(c2["objective"]))
+    assert c2["best_so_far"].iloc[-1] == summary.best["c2"][1]
+    ax = Figure().add_subplot()
+    artists = plot_tuning_history(ax, frame, "c2")
+    assert len(artists) == 3  # trials, best so far, trial 0 ringed (no failed trial here)

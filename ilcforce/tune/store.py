@@ -239,3 +239,26 @@ def validate_tuning(path: Path | str) -> dict:
 
 def is_tuning_store(path: Path | str) -> bool:
     return Path(path).is_dir() and (Path(path) / HEADER).is_file()
+
+
+def trials_frame(path: Path | str):
+    """Every stored trial as a tidy table (pandas DataFrame), one row per (method, trial), in trial
+    order: method, trial, state, objective (NaN when failed), best_so_far (the method's best up to
+    and including this trial, NaN before the first complete one), message, elapsed (s), then one
+    column per gain (dotted key; a vector gain holds a list). What a report draws the objective
+    against the trial number from, and what a reader filters."""
+    import pandas as pd
+
+    rows = []
+    for method, records in read_trials(path).items():
+        best = math.inf
+        for number in sorted(records):
+            record = records[number]
+            value = record["value"] if record["state"] == COMPLETE else math.nan
+            if value == value:
+                best = min(best, value)
+            rows.append({"method": method, "trial": number, "state": record["state"], "objective": value,
+                         "best_so_far": best if best < math.inf else math.nan, "message": record["message"],
+                         "elapsed": record["elapsed"], **record["gains"]})
+    return pd.DataFrame(rows, columns=None if rows else ["method", "trial", "state", "objective", "best_so_far",
+                                                          "message", "elapsed"])
