@@ -315,3 +315,14 @@ def test_trials_frame_and_its_figure(tmp_path):
     ax = Figure().add_subplot()
     artists = plot_tuning_history(ax, frame, "c2")
     assert len(artists) == 3  # trials, best so far, trial 0 ringed (no failed trial here)
+
+
+def test_an_unreachable_scheduler_is_one_line_and_leaves_no_store(tmp_path):
+    path = tiny_file(tmp_path)
+    results = tmp_path / "r"
+    result = CliRunner().invoke(app, ["tune", str(path), "--results", str(results), "--scheduler",
+                                      f"tcp://127.0.0.1:{_free_port()}", "--timeout", "2"])
+    assert result.exit_code == 2, result.output
+    assert result.output.strip().startswith("error: cannot reach the Dask scheduler") and \
+        len(result.output.strip().splitlines()) == 1, result.output
+    assert not (results / "tuning" / "tiny").exists()

@@ -269,6 +269,9 @@ def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: 
                 Path(output).write_text(text, encoding="utf-8")
                 tuned = Path(output)
         return TuneSummary(store.path, ran, skipped, best, tuned, time.perf_counter() - start, workers or 0, where)
+    except BaseException:
+        store.discard_if_unused()  # e.g. an unreachable scheduler: no empty store left behind
+        raise
     finally:
         store.close()
 

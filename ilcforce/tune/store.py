@@ -112,6 +112,7 @@ class TuningStore:
                 raise TuningStoreError(f"{self.path}: {reason}; pass --overwrite to start the tuning over")
             if overwrite:
                 stored = None
+        self.created = stored is None and not (self.path / HEADER).exists()
         if stored is None:
             shutil.rmtree(self.path / TRIALS, ignore_errors=True)
             (self.path / TUNED).unlink(missing_ok=True)
@@ -141,6 +142,19 @@ class TuningStore:
         tmp.write_text(text, encoding="utf-8")
         os.replace(tmp, path)
         return path
+
+    def discard_if_unused(self) -> None:
+        """Remove a store this run made and stored no trial in (e.g. the scheduler was unreachable)."""
+        if self.created and not any(self.trials.values()):
+            for name in (HEADER, TUNED):
+                (self.path / name).unlink(missing_ok=True)
+            shutil.rmtree(self.path / TRIALS, ignore_errors=True)
+            (self.path / ".lock").unlink(missing_ok=True)
+            self.close()
+            try:
+                self.path.rmdir()
+            except OSError:  # something else is in there: leave the folder
+                pass
 
     def close(self) -> None:
         if self._lock is not None:
