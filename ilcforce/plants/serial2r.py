@@ -31,8 +31,10 @@ puts it (so the two robots run one task); instead
 * C1 and SMC-BL carry the nominal G in their model and only need the stiffer axes (k = [100, 3000]).
 
 Every learning method also has ``gravity_feedforward`` (add g_ff times the nominal G_nom; default 0,
-the paper's laws). The shipped experiment does not use it: with it the learning methods start within
-a few percent of their final errors, which leaves nothing to learn and tests nothing.
+the paper's laws). The shipped experiment does not use it: with it C2 starts at e_P 8e-5 m, e_F 0.24 N
+(RMS, seed 0; 3.5e-3 m and 1.25 N without) and e_F improves less than 2x in 20 iterations, so the
+experiment would no longer test the learning of G. SL-adapt starts from the nominal base parameters
+(the gravity moments among them) and adapts them.
 """
 
 from __future__ import annotations
