@@ -347,3 +347,18 @@ def test_the_report_has_a_tuning_page_per_store_and_warns_on_a_damaged_one(tmp_p
     (summary.path / "trials" / "c3-00001.json").write_text("{")  # a damaged record: a warning, not a crash
     lines = _tuning_pages(results, tmp_path / "report2", ("png",), [], warnings)
     assert lines == [] and len(warnings) == 1 and "c3-00001.json" in warnings[0]
+
+
+def test_gains_the_setting_refuses_fail_their_trial_with_the_reason(tmp_path):
+    # PD-ILC's Q cutoff must stay below the Nyquist frequency of the 0.1 ms control period (5 kHz)
+    text = TINY.replace('methods = ["c2", "c3"]', 'methods = ["pd-ilc"]').replace("trials = 2", "trials = 4")
+    text = text[:text.index("[tune.gains.c2]")] + "[tune.gains.pd-ilc]\nq_cutoff = { low = 4000.0, high = 9000.0 }\n"
+    tuning = load_tuning(tiny_file(tmp_path, text))
+    assert not tuning.defaults_in_space("pd-ilc")  # the default 5 Hz lies outside: trial 0 scored, not told
+    summary = run_tuning(tuning, tmp_path / "r", workers=1, cell_function=fake_cell)
+    trials = read_trials(summary.path)["pd-ilc"]
+    assert trials[0]["state"] == "complete" and not trials[0]["in_sampler"]
+    refused = [r for r in trials.values() if r["state"] == "failed"]
+    assert refused and all("Nyquist" in r["message"] and r["seeds"] == [] for r in refused)
+    assert all(r["gains"]["pd-ilc.q_cutoff"] >= 5000.0 for r in refused)
+    assert summary.best["pd-ilc"][1] == min(r["value"] for r in trials.values() if r["value"] is not None)
