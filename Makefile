@@ -99,8 +99,14 @@ check-findings: $(STAMP) ## fail when docs/findings.md differs from the report's
 readme-findings: findings
 check-readme: check-findings
 
+# Tuning is not part of `make reproduce`: its results are committed as the experiment files
+# experiments/*-tuned.toml, each stating the tuning file and the budget that produced it.
+tune: $(STAMP) aot ## tune every method's gains with one budget on both robots; writes experiments/*-tuned.toml
+	$(VENV)/bin/ilcforce tune experiments/tuning/fivebar-tune.toml --results $(RESULTS) -o experiments/fivebar-tuned.toml
+	$(VENV)/bin/ilcforce tune experiments/tuning/serial2r-tune.toml --results $(RESULTS) -o experiments/serial2r-tuned.toml
+
 clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info ilcforce/_kernels_aot*
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
-.PHONY: help aot install test test-slow bench stores studies reproduce findings check-findings readme-findings check-readme clean
+.PHONY: help aot install test test-slow bench stores studies reproduce findings check-findings readme-findings check-readme tune clean

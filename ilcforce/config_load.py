@@ -238,8 +238,8 @@ def parse_override(text: str) -> tuple[str, object]:
 
 
 def command_overrides(sets=(), seed: int | None = None, iters: int | None = None) -> dict[str, object]:
-    """The overrides of a command line's ``--set`` items, ``--seed`` and ``--iters`` (the CLI's, and
-    ``ilcforce.early_start``'s reading of it); ConfigError for a negative seed or fewer than one iteration."""
+    """The overrides of a command line's ``--set`` items, ``--seed`` and ``--iters``; ConfigError for
+    a negative seed or fewer than one iteration."""
     overrides = dict(parse_override(s) for s in (sets or ()))
     if seed is not None:
         if seed < 0:

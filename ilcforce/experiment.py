@@ -63,8 +63,10 @@ def make_controller(config: Config, method: str):
         raise UnknownMethodError(f"unknown method {method!r}; choose one of {', '.join(REGISTRY)}")
     cls = REGISTRY[method].controller_class
     try:
+        # a law with the plant's own regressor (sl-adapt) also takes the nominal plant's parameters
+        extra = {"nominal": config.plant.nominal()} if getattr(cls, "needs_nominal_plant", False) else {}
         return cls(config.n_control, config.surface, config.wall.sign, config.gains[method],
-                   gravity=config.plant.has_gravity, sample_time=config.simulation.sample_time)
+                   gravity=config.plant.has_gravity, sample_time=config.simulation.sample_time, **extra)
     except ValueError as exc:  # gains valid alone but not with this setting (e.g. a Q cutoff above Nyquist)
         raise ConfigError(str(exc)) from None
 

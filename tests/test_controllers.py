@@ -306,38 +306,61 @@ def test_c3_leak_matches_eq14_with_leakage_and_bound(seed):
     np.testing.assert_array_equal(mem_a, mem_b)
 
 
-@pytest.mark.parametrize("seed", range(5))
-def test_sl_adapt_matches_the_slotine_li_adaptation(seed):
-    """Theta_hat(t_k) = Theta_hat(t_{k-1}) + Ts Gamma_a Phi sigma (this iteration's row k - 1), and the
-    previous iteration's memory is never read (no iteration memory)."""
-    config, meas, ref, mem_prev = _law_inputs(seed, 8)
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("model", sorted(MODELS))
+def test_sl_adapt_is_slotine_li_with_the_plants_regressor(seed, model, plant_config):
+    """tau = Y(q, dq, dq_r, ddq_r) a_hat + J^T (k sigma + F), a_hat(t_k) = a_hat(t_{k-1}) + Ts Gamma Y^T
+    J^-1 sigma (Slotine & Li eqs. 9.25-9.27), written with explicit matrices: dq_r = J^-1 (dP + sigma),
+    ddq_r = J^-1 (psi1 - dJ dq_r), Y from the plant's module; at k = 0 the estimate starts from the
+    previous iteration's last row."""
+    import importlib
+
+    config = plant_config(model)
+    rng = np.random.default_rng(seed)
+    meas = _random_measurement(rng, config)
+    ref = _reference(rng)
     g = config.gains["sl-adapt"]
     ts = config.simulation.sample_time
     controller = make_controller(config, "sl-adapt")
-    sigma, psi = _reference_surface(meas, ref[4], config)
-    Phi = np.zeros((8, 2))
-    Phi[0:4, 0] = psi
-    Phi[4:8, 1] = psi
-    rng = np.random.default_rng(seed + 100)
-    mem_new = rng.normal(0.0, 1.0, (N, 8))  # row 3: Theta_hat(t_3) written at the previous sample
-    theta = mem_new[3] + ts * np.diag(g.gamma) @ Phi @ sigma
-    J = meas[10:14].reshape(2, 2)
-    u = np.diag(g.k) @ sigma + Phi.T @ theta + meas[4:6]
+    module = importlib.import_module(f"ilcforce.plants.{model}")
+    nominal = config.plant.nominal()
+    width = len(module.base_parameters(nominal))
+    sigma, psi = _reference_surface(meas, ref[4], config, psi_desired=g.psi_acceleration == "desired")
+    theta, dtheta = meas[0:2], meas[2:4]
+    robot = make_plant(nominal)
+    J, dJ = robot.jacobian(theta), robot.jacobian_derivative(theta, dtheta)
+    dq_r = np.linalg.solve(J, psi[2:4])
+    ddq_r = np.linalg.solve(J, psi[0:2] - dJ @ dq_r)
+    Y = np.array(module.regressor(nominal.as_array(), *theta, *dtheta, *dq_r, *ddq_r)).reshape(2, 6)[:, :width]
+    mem_prev = rng.normal(0.0, 1.0, (N, width))
+    mem_new = rng.normal(0.0, 1.0, (N, width))  # row 3: a_hat(t_3), written at the previous sample
+    a_0 = g.initial_estimate * module.base_parameters(nominal)  # the memory holds a_hat - a_0
+    change = mem_new[3] + ts * np.diag(g.gamma[:width]) @ Y.T @ np.linalg.solve(J, sigma)  # eq. 9.27
+    tau_ref = Y @ (a_0 + change) + J.T @ (np.diag(g.k) @ sigma + meas[4:6])  # eq. 9.25
     tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
-    np.testing.assert_allclose(tau, J.T @ u, rtol=1e-11, atol=1e-13, err_msg="SL-adapt torque")
-    np.testing.assert_allclose(mem_new[4], theta, rtol=1e-12, err_msg="SL-adapt Theta_hat update")
-    tau_other = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev * 7.0 + 1.0, mem_new, False,
-                               np.zeros(DIAG_WIDTH))
-    assert tau_other == tau, "SL-adapt must not read the previous iteration's memory"
-    # k = 0 starts from Theta_hat = 0 whatever the buffer holds
-    sigma0, psi0 = _reference_surface(meas, ref[0], config)
-    Phi0 = np.zeros((8, 2))
-    Phi0[0:4, 0] = psi0
-    Phi0[4:8, 1] = psi0
-    theta0 = ts * np.diag(g.gamma) @ Phi0 @ sigma0
-    mem0 = np.full((N, 8), 5.0)
+    # round-off of J^-1 and of sums of N m-sized terms
+    np.testing.assert_allclose(tau, tau_ref, rtol=1e-9, atol=1e-12, err_msg=f"SL-adapt torque on {model}")
+    np.testing.assert_allclose(mem_new[4], change, rtol=1e-10, err_msg=f"SL-adapt a_hat update on {model}")
+    # k = 0 starts from the previous iteration's last row
+    mem0 = np.full((N, width), 5.0)
     controller.law(0, 0.0, meas, ref, controller.gains(), mem_prev, mem0, True, np.zeros(DIAG_WIDTH))
-    np.testing.assert_allclose(mem0[0], theta0, rtol=1e-12, atol=1e-300)
+    sigma0, psi0 = _reference_surface(meas, ref[0], config, psi_desired=g.psi_acceleration == "desired")
+    dq0 = np.linalg.solve(J, psi0[2:4])
+    Y0 = np.array(module.regressor(nominal.as_array(), *theta, *dtheta, *dq0,
+                                   *np.linalg.solve(J, psi0[0:2] - dJ @ dq0))).reshape(2, 6)[:, :width]
+    np.testing.assert_allclose(mem0[0], mem_prev[-1] + ts * np.diag(g.gamma[:width]) @ Y0.T @ np.linalg.solve(J, sigma0),
+                               rtol=1e-10)
+
+
+def test_sl_adapt_starts_from_the_nominal_parameters_and_carries_its_estimate(plant_config):
+    from ilcforce.plants import serial2r
+
+    config = plant_config("serial2r")
+    controller = make_controller(config, "sl-adapt")
+    np.testing.assert_array_equal(controller.initial_estimate(),
+                                  config.gains["sl-adapt"].initial_estimate * serial2r.base_parameters(config.plant.nominal()))
+    assert config.gains["sl-adapt"].initial_estimate == 1.0
+    assert REGISTRY["sl-adapt"].carries_memory
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -372,7 +395,7 @@ def test_c3_with_gravity_matches_eq14_with_the_full_theta(seed, method, plant_co
     g = config.gains[method]
     keep = 1.0 - getattr(g, "leakage", 0.0)
     controller = make_controller(config, method)
-    sigma, psi = _reference_surface(meas, ref[4], config)
+    sigma, psi = _reference_surface(meas, ref[4], config, psi_desired=g.psi_acceleration == "desired")
     psi = np.concatenate([psi, [1.0, 1.0]])  # eq. (12) with the G block
     Phi = np.zeros((12, 2))
     Phi[0:6, 0] = psi
@@ -431,3 +454,33 @@ def test_the_learned_state_handed_out_cannot_be_written():
             value[0] = 0.0
     mem_prev, _new = controller.begin_iteration(1)
     assert np.all(mem_prev == 1.0)
+
+
+@pytest.mark.parametrize("method", ["c2", "c3", "c3-leak", "pd-ilc"])
+def test_gravity_feedforward_adds_the_nominal_task_gravity(method, plant_config):
+    """g_ff adds g_ff J^T G_nom (the nominal task gravity at the measured angles) to the torque and
+    nothing else: same memory written; off by default, so the paper's laws are unchanged."""
+    from dataclasses import replace
+
+    config = plant_config("serial2r")
+    rng = np.random.default_rng(7)
+    meas = _random_measurement(rng, config)
+    ref = _reference(rng)
+    taus, memories = [], []
+    for g_ff in (0.0, 0.75):
+        gains = replace(config.gains[method], gravity_feedforward=g_ff)
+        controller = make_controller(replace(config, gains={**config.gains, method: gains}), method)
+        assert controller.uses_nominal_dynamics == (g_ff != 0.0)  # the simulator fills G_nom only then
+        mem_prev, _ = controller.begin_iteration(0)
+        mem_prev = rng.normal(0, 1, mem_prev.shape) if g_ff == 0.0 else memories[0][0]
+        mem_new = np.zeros_like(mem_prev)
+        taus.append(np.array(controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True,
+                                            np.zeros(DIAG_WIDTH))))
+        memories.append((mem_prev, mem_new))
+    J = meas[10:14].reshape(2, 2)
+    assert np.linalg.norm(meas[27:29]) > 1.0  # the 2R arm's task gravity is N-sized
+    # round-off of a sum of N m-sized terms: 1e-12 relative to the torque
+    np.testing.assert_allclose(taus[1] - taus[0], J.T @ (0.75 * meas[27:29]), rtol=1e-9, atol=1e-12 * np.abs(taus[0]).max(),
+                               err_msg=f"{method}: g_ff J^T G_nom")
+    np.testing.assert_array_equal(memories[0][1], memories[1][1], err_msg=f"{method}: g_ff changes no memory")
+    assert default_config().gains[method].gravity_feedforward == 0.0

@@ -743,3 +743,33 @@ def test_heavy_plant_keeps_properties(heavy_plant, point):
     check_spd("D (m3 x 1.4)", heavy_plant.task_inertia(theta), f"P={point}")
     for dtheta in RATES[2:]:
         check_skew(heavy_plant, theta, dtheta, f"m3 x 1.4, P={point}, dtheta={dtheta}")
+
+
+@pytest.mark.parametrize("model", ["fivebar", "serial2r"])
+def test_regressor_times_base_parameters_is_the_inverse_dynamics(model):
+    """Y(q, dq, dq_r, ddq_r) a = Dq ddq_r + Cq(q, dq) dq_r + G_q on random states of the working mode
+    (the Slotine-Li parametrisation each plant provides); with dq_r = dq, ddq_r = ddq it is the
+    plant's inverse dynamics. Tolerance: round-off of sums of terms of the size of the torque."""
+    import importlib
+
+    from ilcforce.plants import make_plant, params_class
+
+    module = importlib.import_module(f"ilcforce.plants.{model}")
+    rng = np.random.default_rng(3)
+    for scale in (1.0, 1.4):  # the nominal and a perturbed plant: a follows the parameters
+        params = params_class(model)().scaled("m2", scale)
+        robot = make_plant(params)
+        a = module.base_parameters(params)
+        assert len(a) == len(module.BASE_PARAMETER_NAMES)
+        for _ in range(20):
+            q = robot.inverse_kinematics(np.array([0.2, 0.41]) + rng.uniform(-0.12, 0.12, 2) * [1.0, 0.2])
+            dq, dq_r, ddq_r = rng.normal(0, 2, 2), rng.normal(0, 2, 2), rng.normal(0, 10, 2)
+            Y = np.array(module.regressor(params.as_array(), *q, *dq, *dq_r, *ddq_r)).reshape(2, 6)
+            assert np.all(Y[:, len(a):] == 0.0)
+            want = robot.joint_inertia(q) @ ddq_r + robot.joint_coriolis(q, dq) @ dq_r + robot.gravity(q)
+            np.testing.assert_allclose(Y[:, :len(a)] @ a, want, rtol=1e-12, atol=1e-13 * (1 + np.abs(want).max()),
+                                       err_msg=f"{model}: Y a")
+            np.testing.assert_allclose(
+                np.array(module.regressor(params.as_array(), *q, *dq, *dq, *ddq_r)).reshape(2, 6)[:, :len(a)] @ a,
+                robot.inverse_dynamics(q, dq, ddq_r), rtol=1e-12, atol=1e-13 * (1 + np.abs(want).max()),
+                err_msg=f"{model}: Y a with dq_r = dq is the inverse dynamics")

@@ -47,8 +47,9 @@ def report(
 
 @app.command()
 @_guard
-def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stores to check")]) -> None:
-    """Check HDF5 stores against the ilcforce schema: run stores and study stores (results/studies).
+def validate(paths: Annotated[list[Path], typer.Argument(help="run, study or tuning stores to check")]) -> None:
+    """Check stores: run and study stores (HDF5) against the ilcforce schema, and tuning stores
+    (results/tuning/<name>/) record by record.
 
     Every file is checked, one line each; the exit code is 2 if any is not a valid store. The files
     ilcforce keeps beside a store (<store>.lock, a study's <store>.journal) are named and skipped, so
@@ -58,6 +59,8 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
     from ilcforce.store.safeio import companion_of
     from ilcforce.store.study_read import DAMAGED_RECORD, StudyStoreError, check_study_store, is_study_store
 
+    from ilcforce.tune.store import TuningStoreError, is_tuning_store, validate_tuning
+
     invalid = 0
     for path in paths:
         companion = companion_of(path)
@@ -65,6 +68,11 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
             _say(f"{path}: skipped ({companion})")
             continue
         try:
+            if is_tuning_store(path):
+                t = validate_tuning(path)
+                counts = ", ".join(f"{m} {n} trials ({failed} failed)" for m, (n, failed, _best) in t["methods"].items())
+                _say(f"{path}: ok (tuning {t['name']}: {counts})")
+                continue
             if is_study_store(path):
                 s = check_study_store(path)
                 ignored = (f"; {len(s['ignored'])} journal entries ignored ({', '.join(s['ignored'][:3])}"
@@ -78,7 +86,7 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run or study stor
             prov = store.read_provenance(path)
             _say(f"{path}: ok ({prov.get('experiment')}/{prov.get('method')}, "
                  f"{len(store.iterations(path))} iterations, {prov.get('run_state')})")
-        except (store.StoreError, StudyStoreError, OSError) as exc:
+        except (store.StoreError, StudyStoreError, TuningStoreError, OSError) as exc:
             message = f"{exc.filename or path}: {exc.strerror or exc}" if isinstance(exc, OSError) else str(exc)
             _say(f"error: {message.splitlines()[0] if message else type(exc).__name__}", stderr=True)
             invalid += 1

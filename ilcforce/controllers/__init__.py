@@ -88,9 +88,9 @@ _SPECS = (
     MethodSpec("c3-leak", "C3-leak: C3 with leakage on Theta_hat, alpha_hat and a bound on alpha_hat",
                "C3-leak", "C5", "ilcforce.controllers.c3_leak", "C3LeakController", "C3LeakGains",
                "within", True, False, "the paper's eq. (14) with sigma-modification (Ioannou & Sun 1996)"),
-    MethodSpec("sl-adapt", "SL-adapt: Slotine-Li adaptive sliding control of the same D, C (no iteration memory)",
+    MethodSpec("sl-adapt", "SL-adapt: Slotine-Li adaptive control of the robot's constant physical parameters",
                "SL-adapt", "C7", "ilcforce.controllers.sl_adapt", "SlotineLiController", "SlotineLiGains",
-               "within", False, False, "Slotine & Li (1987, 1991 sec. 9.2)"),
+               "within", True, False, "Slotine & Li (1987; 1991 sec. 9.2, eqs. 9.25-9.27)"),
 )
 
 #: method name -> spec, in report order (the paper's three first).

@@ -158,6 +158,21 @@ def joint_torque(meas, ux, uy):
     return J00 * ux + J10 * uy, J01 * ux + J11 * uy
 
 
+@njit(cache=True, error_model="numpy")
+def nominal_gravity(meas, scale):
+    """``scale`` G_nom (N), the nominal task-space gravity at the measured angles, per axis; (0, 0)
+    when ``scale`` is 0 (MEAS_TASK_GRAVITY is then not filled, so it is not read)."""
+    if scale == 0.0:
+        return 0.0, 0.0
+    return scale * meas[MEAS_TASK_GRAVITY], scale * meas[MEAS_TASK_GRAVITY + 1]
+
+
+def check_gravity_feedforward(section: str, value) -> None:
+    """g_ff: a finite number >= 0 (1 = the nominal model's gravity; 0 = none, the paper's laws)."""
+    if not (np.isfinite(value) and value >= 0):
+        raise ValueError(f"{section}.gravity_feedforward must be finite and >= 0, got {value!r}")
+
+
 def pack_common_gains(surface, wall_sign: float) -> list[float]:
     """The shared prefix of every law's gain vector (indices GAIN_SELECTION .. GAIN_SPECIFIC - 1)."""
     values = [*surface.selection, *surface.lambda_p, *surface.lambda_f1, *surface.lambda_f2, wall_sign]

@@ -2,6 +2,11 @@
 
 tau_j = v_j + w J^T F_j,  v_j(t) = v_{j-1}(t) + J_j^T k sigma_j(t),  v_{-1} = 0.
 The update is current-iteration: this iteration's sigma enters this iteration's v at the same sample.
+
+``gravity_feedforward`` (g_ff, default 0: the paper's law) adds g_ff J^T G_nom, the nominal model's
+task-space gravity at the measured angles, to tau_j: on a robot with gravity (SPEC 8) the learning
+then starts from the nominal gravity load instead of from nothing (see ``ilcforce.plants.serial2r``
+for why the serial 2R arm's experiment needs it); on the five-bar G_nom = 0 and it changes nothing.
 """
 
 from __future__ import annotations
@@ -11,8 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law,
-    gain_indices, joint_torque, pack_gains, surface_terms,
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
+    compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, surface_terms,
 )
 
 
@@ -21,12 +26,14 @@ class C2Gains:
     """Gains of eq. (27)."""
 
     k: tuple[float, float] = (400.0, 400.0)  # learning gain diagonal, N s/m
+    gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added (0: the paper's law)
 
     def __post_init__(self) -> None:
         check_vector("c2.k", self.k, 2)
+        check_gravity_feedforward("c2", self.gravity_feedforward)
 
 
-(K,) = gain_indices(C2Gains, "k")
+K, GRAVITY_FEEDFORWARD = gain_indices(C2Gains, "k", "gravity_feedforward")
 
 
 def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
@@ -38,10 +45,11 @@ def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     if write:
         mem_new[k, 0] = v1
         mem_new[k, 1] = v2
-    fx, fy = joint_torque(meas, w * meas[MEAS_FORCE], w * meas[MEAS_FORCE + 1])
+    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])
+    fx, fy = joint_torque(meas, w * meas[MEAS_FORCE] + gx, w * meas[MEAS_FORCE + 1] + gy)
     diag[DIAG_SIGMA] = sx
     diag[DIAG_SIGMA + 1] = sy
-    return v1 + fx, v2 + fy  # eq. (27), tau_j = v_j + w J^T F_j (erratum 1)
+    return v1 + fx, v2 + fy  # eq. (27), tau_j = v_j + w J^T F_j (erratum 1) (+ g_ff J^T G_nom)
 
 
 class C2Controller(MemoryController):
@@ -53,6 +61,7 @@ class C2Controller(MemoryController):
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
         super().__init__(n_control, sample_time)
+        self.uses_nominal_dynamics = gains.gravity_feedforward != 0.0  # the simulator then fills G_nom
         self._gains = pack_gains(surface, wall_sign, gains)
 
     def gains(self) -> np.ndarray:

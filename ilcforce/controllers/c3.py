@@ -10,6 +10,10 @@ With a plant that has gravity (SPEC 8, decided from the plant): the paper's full
 Psi = [psi1; dP + sigma; 1 1] in R^6 (Xi = [D C G]^T in R^(3n x n), G's block applied to the ones
 vector), Theta = [D11 D12 C11 C12 G11 G12 D21 D22 C21 C22 G21 G22] in R^12 = R^(3n^2), so
 Phi^T Theta = D psi1 + C (dP + sigma) + G 1, and the learned G_i1 + G_i2 estimates the task gravity G_i.
+
+``gravity_feedforward`` (g_ff, default 0: the paper's law) adds g_ff G_nom, the nominal model's task
+gravity at the measured angles, inside J^T(...): Theta's G block then learns only what the nominal
+model gets wrong (e.g. the 2R arm's m2 x 1.4), not the whole load (``ilcforce.plants.serial2r``).
 """
 
 from __future__ import annotations
@@ -21,8 +25,8 @@ import numpy as np
 
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
 from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law,
-    gain_indices, joint_torque, pack_gains, sgn, surface_terms,
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
+    compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, sgn, surface_terms,
 )
 
 PSI_ACCELERATION = {"measured": 0.0, "desired": 1.0}
@@ -41,6 +45,7 @@ class C3Gains:
     # (lambda_min(D) = 0.30 kg, Ts = 0.1 ms), below the sampled loop's limit 2; 3e3 diverges at once
     gamma_gravity: tuple[float, float, float, float] = (1e3, 1e3, 1e3, 1e3)
     psi_acceleration: str = "measured"  # "measured": S ddP in Psi (the paper); "desired": S ddP_d
+    gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added (0: the paper's law)
 
     #: the config section these gains come from, named in error messages (C3-leak inherits them)
     section: ClassVar[str] = "c3"
@@ -56,13 +61,14 @@ class C3Gains:
             raise ValueError(f"{name}.eta must be finite and >= 0, got {self.eta!r}")
         if min(self.gamma) < 0:
             raise ValueError(f"{name}.gamma must be non-negative (Gamma is positive semi-definite)")
+        check_gravity_feedforward(name, self.gravity_feedforward)
         if self.psi_acceleration not in PSI_ACCELERATION:
             raise ValueError(f"{name}.psi_acceleration must be one of {', '.join(PSI_ACCELERATION)}, "
                              f"got {self.psi_acceleration!r}")
 
 
-K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG = gain_indices(
-    C3Gains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration")
+K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEEDFORWARD = gain_indices(
+    C3Gains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration", "gravity_feedforward")
 
 
 @njit(cache=True, error_model="numpy")
@@ -126,9 +132,10 @@ def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_m
         alpha = alpha_max
     if write:
         mem_new[k, 2 * na] = alpha
+    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])  # g_ff G_nom (0 in the paper's law)
     # eq. (14), control law with +w F (erratum 1)
-    ux = gains[K] * sx + mx + w * meas[MEAS_FORCE] + alpha * sgx
-    uy = gains[K + 1] * sy + my + w * meas[MEAS_FORCE + 1] + alpha * sgy
+    ux = gains[K] * sx + mx + w * meas[MEAS_FORCE] + alpha * sgx + gx
+    uy = gains[K + 1] * sy + my + w * meas[MEAS_FORCE + 1] + alpha * sgy + gy
     diag[DIAG_SIGMA] = sx
     diag[DIAG_SIGMA + 1] = sy
     return joint_torque(meas, ux, uy)
@@ -158,6 +165,7 @@ class C3Controller(MemoryController):
                                   "alpha_hat": (12, 13, "N")}
             self.theta_names = ("D11", "D12", "C11", "C12", "G11", "G12", "D21", "D22", "C21", "C22", "G21", "G22")
         super().__init__(n_control, sample_time)
+        self.uses_nominal_dynamics = gains.gravity_feedforward != 0.0  # the simulator then fills G_nom
         # gains by name: gamma_gravity is packed whether or not the plant has gravity (fixed layout)
         self._gains = pack_gains(surface, wall_sign, gains, encode={"psi_acceleration": PSI_ACCELERATION})
 

@@ -33,7 +33,7 @@ from typing import ClassVar
 
 from ilcforce.controllers.base import compiled_law, gain_indices
 from ilcforce.controllers.c3 import (
-    ETA, GAMMA, GAMMA_GRAVITY, K, PSI_ACCELERATION_FLAG, C3Controller, C3Gains, c3_torque,
+    ETA, GAMMA, GAMMA_GRAVITY, GRAVITY_FEEDFORWARD, K, PSI_ACCELERATION_FLAG, C3Controller, C3Gains, c3_torque,
 )
 
 
@@ -53,9 +53,9 @@ class C3LeakGains(C3Gains):
             raise ValueError(f"c3-leak.alpha_max must be >= 0, got {self.alpha_max!r}")
 
 
-_C3_INDICES = (K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG)
+_C3_INDICES = (K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEEDFORWARD)
 *_SHARED, LEAKAGE, ALPHA_MAX = gain_indices(C3LeakGains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration",
-                                            "leakage", "alpha_max")
+                                            "gravity_feedforward", "leakage", "alpha_max")
 assert tuple(_SHARED) == _C3_INDICES, "C3-leak packs C3's gains at C3's indices (the shared kernel reads them)"
 
 

@@ -30,8 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law,
-    gain_indices, joint_torque, pack_gains, surface_terms,
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
+    compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, surface_terms,
 )
 
 
@@ -43,6 +43,7 @@ class PDILCGains:
     learning: tuple[float, float] = (10.0, 100.0)  # learning gain L diagonal, N s/m
     q_cutoff: float = 5.0  # Q filter cutoff, Hz
     q_order: int = 2  # Butterworth order of Q (applied forwards and backwards)
+    gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added to the feedback (0: none)
 
     def __post_init__(self) -> None:
         check_vector("pd-ilc.k", self.k, 2)
@@ -51,9 +52,11 @@ class PDILCGains:
             raise ValueError(f"pd-ilc.q_cutoff must be a positive frequency in Hz, got {self.q_cutoff!r}")
         if not (1 <= self.q_order <= 8):
             raise ValueError(f"pd-ilc.q_order must be 1..8, got {self.q_order!r}")
+        check_gravity_feedforward("pd-ilc", self.gravity_feedforward)
 
 
-K, LEARNING, Q_CUTOFF, Q_ORDER = gain_indices(PDILCGains, "k", "learning", "q_cutoff", "q_order")
+K, LEARNING, Q_CUTOFF, Q_ORDER, GRAVITY_FEEDFORWARD = gain_indices(
+    PDILCGains, "k", "learning", "q_cutoff", "q_order", "gravity_feedforward")
 
 
 def pd_ilc_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
@@ -65,7 +68,8 @@ def pd_ilc_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
         l1, l2 = joint_torque(meas, gains[LEARNING] * sx, gains[LEARNING + 1] * sy)
         mem_new[k, 0] = mem_prev[k, 0] + l1
         mem_new[k, 1] = mem_prev[k, 1] + l2
-    ff1, ff2 = joint_torque(meas, w * meas[MEAS_FORCE], w * meas[MEAS_FORCE + 1])
+    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])  # g_ff G_nom (0 by default)
+    ff1, ff2 = joint_torque(meas, w * meas[MEAS_FORCE] + gx, w * meas[MEAS_FORCE + 1] + gy)
     diag[DIAG_SIGMA] = sx
     diag[DIAG_SIGMA + 1] = sy
     return mem_prev[k, 0] + fb1 + ff1, mem_prev[k, 1] + fb2 + ff2
@@ -89,6 +93,7 @@ class PDILCController(MemoryController):
                              f"frequency {nyquist:g} Hz of the control sample time")
         from scipy.signal import butter  # here, not at import: the registry imports every method module
 
+        self.uses_nominal_dynamics = gains.gravity_feedforward != 0.0  # the simulator then fills G_nom
         self._q_sos = butter(gains.q_order, gains.q_cutoff, fs=1.0 / self.sample_time, output="sos")
         self._gains = pack_gains(surface, wall_sign, gains)
 

@@ -46,7 +46,8 @@ from ilcforce.plants.base import (
     UnreachableError, check_pair as _pair,
 )
 
-__all__ = ["FiveBarParams", "FiveBar", "UnreachableError", "PARAM_NAMES"]
+__all__ = ["FiveBarParams", "FiveBar", "UnreachableError", "PARAM_NAMES", "BASE_PARAMETER_NAMES", "base_parameters",
+           "regressor"]
 
 #: Order of the packed parameter vector used by the compiled kernels.
 PARAM_NAMES = (
@@ -398,3 +399,69 @@ class FiveBar(Plant):
         if not out[0]:
             raise self._outside(th1, th2)
         return np.array([[out[7], out[8]], [out[9], out[10]]])
+
+
+# --------------------------------------------------------------------------------------------
+# Linear parametrisation (Slotine & Li 1987): Dq(q) ddq_r + Cq(q, dq) dq_r = Y(q, dq, dq_r, ddq_r) a
+# --------------------------------------------------------------------------------------------
+
+#: The base parameters a: the open tree's inertia entries M11, M22, M33, M44 and the couplings
+#: k3 = m3 L1 Lc3, k4 = m4 L2 Lc4 (Dq and Cq are linear in them for given lengths; see _dynamics).
+BASE_PARAMETER_NAMES = ("M11", "M22", "M33", "M44", "k3", "k4")
+
+
+def base_parameters(params: FiveBarParams) -> np.ndarray:
+    """a = (I1 + m1 Lc1^2 + m3 L1^2, I2 + m2 Lc2^2 + m4 L2^2, I3 + m3 Lc3^2, I4 + m4 Lc4^2,
+    m3 L1 Lc3, m4 L2 Lc4), shape (6,), kg m^2."""
+    p = params
+    return np.array([p.I1 + p.m1 * p.Lc1 ** 2 + p.m3 * p.L1 ** 2, p.I2 + p.m2 * p.Lc2 ** 2 + p.m4 * p.L2 ** 2,
+                     p.I3 + p.m3 * p.Lc3 ** 2, p.I4 + p.m4 * p.Lc4 ** 2, p.m3 * p.L1 * p.Lc3, p.m4 * p.L2 * p.Lc4])
+
+
+@njit(cache=True, error_model="numpy")
+def regressor(p, th1, th2, dth1, dth2, r1, r2, rr1, rr2):
+    """Y(q, dq, dq_r, ddq_r), shape (2, 6) as a tuple (row 0, then row 1), with Y a (a:
+    :func:`base_parameters`) = Dq ddq_r + Cq(q, dq) dq_r, Dq and Cq as in :func:`_dynamics`
+    (rho = [I; R]): each column is the part of Dq ddq_r + Cq dq_r one base parameter multiplies."""
+    (ok, px, py, u3x, u3y, u4x, u4y, R00, R01, R10, R11,
+     J00, J01, J10, J11) = _kinematics(p, th1, th2)
+    L1, L2, L3, L4 = p[0], p[1], p[2], p[3]
+    c1, s1 = math.cos(th1), math.sin(th1)
+    c2, s2 = math.cos(th2), math.sin(th2)
+    dph3 = R00 * dth1 + R01 * dth2
+    dph4 = R10 * dth1 + R11 * dth2
+    cos13 = c1 * u3x + s1 * u3y  # cos(theta1 - phi3): M13 = k3 cos13
+    cos24 = c2 * u4x + s2 * u4y
+    sn13 = s1 * u3x - c1 * u3y  # sin(theta1 - phi3)
+    sn24 = s2 * u4x - c2 * u4y
+    # dR = A^-1 (dB - dA R), as in _dynamics
+    a11, a21 = -L3 * u3y, L3 * u3x
+    a12, a22 = L4 * u4y, -L4 * u4x
+    det = a11 * a22 - a12 * a21
+    db11, db21 = L1 * dth1 * c1, L1 * dth1 * s1
+    db12, db22 = -L2 * dth2 * c2, -L2 * dth2 * s2
+    da11, da21 = -L3 * dph3 * u3x, -L3 * dph3 * u3y
+    da12, da22 = L4 * dph4 * u4x, L4 * dph4 * u4y
+    w11 = db11 - (da11 * R00 + da12 * R10)
+    w12 = db12 - (da11 * R01 + da12 * R11)
+    w21 = db21 - (da21 * R00 + da22 * R10)
+    w22 = db22 - (da21 * R01 + da22 * R11)
+    dR00 = (a22 * w11 - a12 * w21) / det
+    dR01 = (a22 * w12 - a12 * w22) / det
+    dR10 = (a11 * w21 - a21 * w11) / det
+    dR11 = (a11 * w22 - a21 * w12) / det
+    r3_acc = R00 * rr1 + R01 * rr2  # r3 . ddq_r, r3 = R's phi3 row
+    r4_acc = R10 * rr1 + R11 * rr2
+    r3_vel = R00 * r1 + R01 * r2
+    r4_vel = R10 * r1 + R11 * r2
+    dr3_vel = dR00 * r1 + dR01 * r2
+    dr4_vel = dR10 * r1 + dR11 * r2
+    m33 = r3_acc + dr3_vel  # M33: Dq gains r3 r3^T, Cq gains r3 dR3^T
+    m44 = r4_acc + dr4_vel
+    # k3: Dq gains cos13 (e0 r3^T + r3 e0^T); Cq gains e0 (cos13 dR3 + sn13 dph3 r3)^T - sn13 dth1 r3 e0^T
+    k3_row0 = cos13 * (r3_acc + R00 * rr1) + cos13 * dr3_vel + sn13 * dph3 * r3_vel - R00 * sn13 * dth1 * r1
+    k3_row1 = cos13 * R01 * rr1 - R01 * sn13 * dth1 * r1
+    k4_row0 = cos24 * R10 * rr2 - R10 * sn24 * dth2 * r2
+    k4_row1 = cos24 * (r4_acc + R11 * rr2) + cos24 * dr4_vel + sn24 * dph4 * r4_vel - R11 * sn24 * dth2 * r2
+    return (rr1, 0.0, R00 * m33, R10 * m44, k3_row0, k4_row0,
+            0.0, rr2, R01 * m33, R11 * m44, k3_row1, k4_row1)

@@ -335,6 +335,9 @@ def write_report(
         study_section = [*study_section, "Findings per study (verdicts, unstable learning, first diverged "
                          "iteration per setting; the stability-boundary figure for one-key sweeps): "
                          + ", ".join(f"[{n}](studies/{n}/findings.md)" for n in sorted(studies)), ""]
+    tuning_lines = _tuning_pages(results_dir, out_dir, tuple(formats), written, warnings)
+    if tuning_lines:  # `ilcforce tune`'s stores: per method the objective against the trial and the chosen gains
+        study_section = [*study_section, "## Tuning", "", *tuning_lines, ""]
     reported = tuple(r.name for r in study_reports if r.index_lines)
     if not verdicts and not reported and not studies:  # every store was unusable: an existing report stays
         return ReportSummary(out_dir=out_dir, experiments=(), files=tuple(written), warnings=tuple(warnings))
@@ -355,6 +358,30 @@ def write_report(
         warnings=tuple(warnings),
         studies=reported,
     )
+
+
+def _tuning_pages(results_dir: Path, out_dir: Path, formats: tuple[str, ...], written: list,
+                  warnings: list) -> list[str]:
+    """The page of every tuning store under ``results/tuning/`` (:mod:`ilcforce.report.tuning`);
+    index lines. A store that is not valid is a warning line, never the end of the report."""
+    from ilcforce.report.figures import report_style
+    from ilcforce.report.tuning import write_tuning_report
+    from ilcforce.tune.store import TuningStoreError, is_tuning_store
+
+    folder = results_dir / "tuning"
+    lines: list[str] = []
+    for path in sorted(folder.iterdir()) if folder.is_dir() else []:
+        if not is_tuning_store(path):
+            continue
+        try:
+            with report_style():
+                files, index_lines = write_tuning_report(path, out_dir / "tuning", formats)
+        except (TuningStoreError, ValueError, KeyError) as error:
+            warnings.append(f"{path}: tuning page not written: {' '.join(str(error).split())}")
+            continue
+        written += files
+        lines += index_lines
+    return lines
 
 
 def _index_text(

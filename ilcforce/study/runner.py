@@ -38,7 +38,7 @@ from ilcforce.study.spec import Cell, Study, StudyError
 from ilcforce.store.study import DONE, FAILED, StudyStore, check_usable
 
 #: Source files whose change makes stored cells stale (the simulation, not reporters or CLI).
-_NOT_FINGERPRINTED = ("report/", "cli.py", "bench.py", "store", "study/", "__main__.py")
+_NOT_FINGERPRINTED = ("report/", "cli.py", "bench.py", "store", "study/", "tune/", "__main__.py")
 
 
 #: A Dask scheduler address: [tcp:// or tls://]HOST:PORT (HOST a name, IPv4 or [IPv6]).

@@ -1,0 +1,115 @@
+"""Tuning figures: a method's objective against the trial number (``ilcforce tune``).
+
+Draws on the Axes it is given and returns the artists, as every report figure does; the input is
+:func:`ilcforce.tune.store.trials_frame`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from matplotlib.axes import Axes
+
+from ilcforce.controllers import REGISTRY
+
+
+def plot_tuning_history(ax: Axes, frame: pd.DataFrame, method: str) -> list:
+    """The objective of each complete trial (dots), the best so far (a step line), failed trials
+    as crosses at the bottom, and trial 0 (the experiment's own gains) ringed."""
+    rows = frame[frame["method"] == method].sort_values("trial")
+    spec = REGISTRY.get(method)
+    color = spec.color if spec is not None else None
+    label = spec.label if spec is not None else method
+    done = rows[rows["state"] == "complete"]
+    artists = [ax.plot(done["trial"], done["objective"], "o", ms=3, color=color, alpha=0.6, label=f"{label}: trial")[0],
+               ax.step(rows["trial"], rows["best_so_far"], where="post", color=color, label=f"{label}: best so far")[0]]
+    failed = rows[rows["state"] != "complete"]
+    if len(failed):
+        bottom = np.nanmin(rows["objective"]) if done.size else 0.0
+        artists.append(ax.plot(failed["trial"], np.full(len(failed), bottom), "x", color="0.4",
+                               label="failed (diverged or invalid)")[0])
+    first = rows[(rows["trial"] == 0) & (rows["state"] == "complete")]
+    if len(first):
+        artists.append(ax.plot(first["trial"], first["objective"], "o", ms=8, mfc="none", color=color,
+                               label="trial 0: the experiment's gains")[0])
+    ax.set_xlabel("trial")
+    ax.set_ylabel("objective (lower is better)")
+    return artists
+
+
+def tuning_table(frame: pd.DataFrame, budget: int) -> pd.DataFrame:
+    """Per method: trials run of the budget, failed trials, trial 0's objective (the experiment's
+    gains), the best objective and its trial, and the chosen gains (dotted key = value)."""
+    rows = []
+    gain_columns = [c for c in frame.columns if "." in c]
+    for method, group in frame.groupby("method", sort=False):
+        group = group.sort_values("trial")
+        done = group[group["state"] == "complete"]
+        first = group[group["trial"] == 0]
+        best = done.loc[done["objective"].idxmin()] if len(done) else None
+        chosen = "" if best is None else "; ".join(f"{c} = {best[c]}" for c in gain_columns
+                                                   if c.startswith(f"{method}.") and best[c] is not None
+                                                   and best[c] == best[c])
+        rows.append({"method": method, "trials": f"{len(group)} of {budget}",
+                     "failed": int((group["state"] != "complete").sum()),
+                     "trial 0 objective": float(first["objective"].iloc[0]) if len(first) else float("nan"),
+                     "best objective": float(best["objective"]) if best is not None else float("nan"),
+                     "best trial": int(best["trial"]) if best is not None else -1, "chosen gains": chosen})
+    return pd.DataFrame(rows)
+
+
+def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, list[str]]:
+    """``<out_dir>/<name>/index.md`` and ``history.<fmt>`` for the tuning store ``path``: the table of
+    :func:`tuning_table` and the objective against the trial number per method. Returns (files,
+    index lines). Raises TuningStoreError for a store that is not valid."""
+    import json
+    from pathlib import Path
+
+    from matplotlib.figure import Figure
+
+    from ilcforce.report.figure_files import save_figure, write_text_whole
+    from ilcforce.report.table_write import markdown_table, write_table
+    from ilcforce.tune.store import read_header, trials_frame, validate_tuning
+
+    path, out_dir = Path(path), Path(out_dir)
+    summary = validate_tuning(path)
+    header = read_header(path)
+    definition = json.loads(header["definition_json"])
+    frame = trials_frame(path)
+    name = summary["name"]
+    target = out_dir / name
+    target.mkdir(parents=True, exist_ok=True)
+    files = []
+    budget = _budget(header["tuning_toml"])
+    methods = [m for m in definition["methods"] if m in set(frame["method"])] if len(frame) else []
+    if methods:
+        fig = Figure(figsize=(6.4, 2.2 * len(methods)), layout="constrained")
+        axes = fig.subplots(len(methods), 1, squeeze=False)[:, 0]
+        for ax, method in zip(axes, methods):
+            plot_tuning_history(ax, frame, method)
+            ax.set_title(method, fontsize="medium")
+        files += save_figure(fig, target, "history", formats)
+    table = tuning_table(frame, budget) if len(frame) else pd.DataFrame()
+    description = header.get("description", "")
+    text = [f"# Tuning {name}", "", *([description, ""] if description else []),
+            f"Budget per method: {budget} trials (trial 0 = the experiment's gains) x {len(definition['seeds'])} "
+            f"seeds x {definition['iterations']} iterations; objective {definition['objective']!r} over iterations "
+            f"{definition['score_iterations'] - definition['score_last']}..{definition['score_iterations'] - 1} "
+            "(lower is better; a divergence anywhere fails the trial).", ""]
+    if len(table):
+        files += write_table(table, target, "tuning")  # tuning.csv beside the page: the verdict as data
+        text += [markdown_table(table), ""]
+        text += [f"![objective against trial](history.{formats[0]})", ""] if methods and formats else []
+    files.append(write_text_whole(target / "index.md", "\n".join(text)))
+    line = f"- [tuning {name}](tuning/{name}/index.md): " + ", ".join(
+        f"{row['method']} {row['trial 0 objective']:.3g} -> {row['best objective']:.3g}" for _, row in table.iterrows())
+    return files, [line]
+
+
+def _budget(tuning_toml: str) -> int:
+    import tomllib
+
+    try:
+        return int(tomllib.loads(tuning_toml)["tune"]["trials"])
+    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError):
+        return -1

@@ -1,0 +1,379 @@
+"""The tuning driver: Optuna's ask-and-tell over each method's gains, every trial's cells on the
+same Dask engine as studies (:mod:`ilcforce.study.dask_run`), every finished trial stored at once.
+
+Why Optuna: its ask-and-tell interface leaves the loop, the cluster and the store to us (a trial is
+asked, its cells run wherever studies run, its value told back), its TPE sampler handles log and
+linear ranges and tens of parameters, and a finished trial is replayed into a new study with
+``add_trial`` — which is how a rerun resumes after ``kill -9`` without repeating a trial.
+
+One Optuna study per method, each with the same budget (``tune.trials``). Trials go in rounds: a
+round asks the next trial of every method not yet done, runs all their cells (seeds) together on
+the cluster, scores and tells each trial as its last cell comes back, and stores it. The trial
+asked as number n of a method depends only on that method's trials 0 .. n - 1 and on
+``(sampler_seed, method, n)`` (a fresh seeded sampler per ask), so a resumed tuning asks exactly
+what an uninterrupted one would have.
+
+Trial 0 of every method is the experiment's own gains (the paper's, or a method's published
+defaults), so the chosen gains can only be as good or better on the objective. It is told to the
+sampler only when it lies in the search space (:meth:`Tuning.defaults_in_space`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import json
+import os
+import platform
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+
+from ilcforce.config import ConfigError
+from ilcforce.study.cell import run_cell
+from ilcforce.study.dask_run import CONNECT_TIMEOUT, IN_FLIGHT_PER_THREAD, dask_client, run_on_dask
+from ilcforce.study.runner import _ADDRESS, _run_in_process, fingerprint, max_local_workers
+from ilcforce.tune.spec import GainRange, Tuning, TuneError, seed_score
+from ilcforce.tune.store import COMPLETE, FAILED, SCHEMA_NAME, SCHEMA_VERSION, TuningStore, tuning_dir
+
+
+@dataclass(frozen=True)
+class TrialCell:
+    """One cell of a trial: every iteration of ``method`` on ``seed`` with trial ``number``'s gains."""
+
+    method: str
+    number: int
+    seed: int
+
+    @property
+    def key(self) -> str:
+        return f"{self.method}-{self.number}-{self.seed}"
+
+
+@dataclass(frozen=True)
+class TuneProgress:
+    """What the driver reports after each stored trial."""
+
+    method: str
+    number: int
+    trials: int  # the budget per method
+    state: str  # "complete" or "failed"
+    value: float | None
+    best_value: float | None  # the method's best so far
+    best_number: int | None
+    message: str
+
+
+@dataclass(frozen=True)
+class TuneSummary:
+    path: Path
+    ran: int  # trials run now
+    skipped: int  # trials already stored
+    best: dict  # method -> (number, value) or None
+    tuned: Path | None  # the experiment file with the best gains
+    wall_time: float
+    workers: int
+    scheduler: str
+
+
+def _header(tuning: Tuning) -> dict:
+    return {"schema": SCHEMA_NAME, "schema_version": SCHEMA_VERSION, "name": tuning.name,
+            "description": tuning.description, "tuning_toml": tuning.source,
+            "definition_json": json.dumps(tuning.definition(), sort_keys=True), "fingerprint": fingerprint(),
+            "created": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+
+
+def _distributions(tuning: Tuning, method: str) -> dict:
+    from optuna.distributions import FloatDistribution, IntDistribution
+
+    out = {}
+    integer = {name: g.integer for g in tuning.gains[method] for name, _ in g.parameter_names()}
+    for name, r in tuning.parameters(method):
+        if integer[name]:
+            out[name] = IntDistribution(int(r.low), int(r.high), log=r.log)
+        else:
+            out[name] = FloatDistribution(r.low, r.high, log=r.log)
+    return out
+
+
+def _sampler_seed(tuning: Tuning, method: str, number: int) -> int:
+    digest = hashlib.sha256(f"{tuning.sampler_seed}/{method}/{number}".encode()).digest()
+    return int.from_bytes(digest[:4], "little")
+
+
+class _MethodSearch:
+    """One method's Optuna study, with the stored trials replayed into it."""
+
+    def __init__(self, tuning: Tuning, method: str, stored: dict[int, dict]) -> None:
+        import optuna
+
+        self.tuning, self.method = tuning, method
+        self.distributions = _distributions(tuning, method)
+        self.study = optuna.create_study(direction="minimize")
+        self.records = dict(stored)
+        for number in sorted(stored):
+            record = stored[number]
+            if record["in_sampler"]:
+                self._replay(record)
+        self.next_number = len(stored)
+
+    def _replay(self, record: dict) -> None:
+        import optuna
+
+        state = optuna.trial.TrialState.COMPLETE if record["state"] == COMPLETE else optuna.trial.TrialState.FAIL
+        self.study.add_trial(optuna.trial.create_trial(
+            state=state, value=record["value"] if state == optuna.trial.TrialState.COMPLETE else None,
+            params=record["params"] or self.tuning.default_params(self.method), distributions=self.distributions))
+
+    def ask(self) -> tuple[int, dict, object]:
+        """(number, params, Optuna trial or None): trial 0 is the experiment's gains."""
+        import optuna
+
+        number = self.next_number
+        self.next_number += 1
+        if number == 0:
+            return 0, {}, None
+        self.study.sampler = optuna.samplers.TPESampler(seed=_sampler_seed(self.tuning, self.method, number))
+        trial = self.study.ask(self.distributions)
+        return number, dict(trial.params), trial
+
+    def tell(self, trial, number: int, params: dict, value: float | None) -> bool:
+        """Tell the sampler; returns whether it learned from this trial."""
+        import optuna
+
+        if trial is not None:
+            if value is None:
+                self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
+            else:
+                self.study.tell(trial, value)
+            return True
+        if not self.tuning.defaults_in_space(self.method):
+            return False
+        self._replay({"state": COMPLETE if value is not None else FAILED, "value": value, "params": {}})
+        return True
+
+    def best(self) -> tuple[int, float] | None:
+        done = [(r["value"], n) for n, r in self.records.items() if r["state"] == COMPLETE]
+        if not done:
+            return None
+        value, number = min(done)
+        return number, value
+
+
+def _gains_of(tuning: Tuning, method: str, params: dict) -> dict:
+    """The trial's gains as dotted keys (trial 0: the experiment's own)."""
+    gains = tuning.base.gains[method]
+    return {f"{method}.{g.field}": (list(getattr(gains, g.field)) if g.vector else getattr(gains, g.field))
+            if not params else g.value(params) for g in tuning.gains[method]}
+
+
+def _seed_entry(tuning: Tuning, seed: int, result: dict | None, message: str | None) -> dict:
+    rows = result["rows"] if result is not None else []
+    diverged = next((r["iteration"] for r in rows if r["status"] != "complete"), None)
+    return {"seed": seed, "value": seed_score(rows, tuning) if result is not None else None,
+            "iterations_run": len(rows), "diverged_iteration": diverged,
+            "position_error_rms": [_json_float(r["position_error_rms"]) for r in rows],
+            "force_error_rms": [_json_float(r["force_error_rms"]) for r in rows],
+            **({"message": message} if message else {})}
+
+
+def _json_float(value) -> float | None:
+    value = float(value)
+    return value if value == value and abs(value) != float("inf") else None
+
+
+def _trial_value(entries: list[dict]) -> tuple[float | None, str]:
+    """The median over seeds of the seed scores, or None with the reason."""
+    import statistics
+
+    for entry in entries:
+        if entry.get("message"):
+            return None, f"seed {entry['seed']}: {entry['message']}"
+        if entry["diverged_iteration"] is not None:
+            return None, f"seed {entry['seed']} diverged at iteration {entry['diverged_iteration']}"
+        if entry["value"] is None:
+            return None, f"seed {entry['seed']} has no finite score"
+    return statistics.median(e["value"] for e in entries), ""
+
+
+def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: int | None = None,
+               scheduler: str | None = None, overwrite: bool = False, timeout: float = CONNECT_TIMEOUT,
+               command: str = "", output: Path | None = None,
+               progress: Callable[[TuneProgress], None] | None = None,
+               cell_function: Callable = run_cell) -> TuneSummary:
+    """Run every trial of ``tuning`` not yet in ``results/tuning/<name>/`` and store it; write the
+    best gains as an experiment file (``tuned.toml`` in the store, and ``output`` if given).
+
+    ``workers``: local Dask workers (default: one per usable core; 1 runs in this process);
+    ``scheduler``: an existing Dask scheduler's address instead. Raises TuneError (bad request),
+    TuningStoreError (store cannot be used), StudyRunError (no scheduler / workers);
+    KeyboardInterrupt after storing every finished trial.
+    """
+    import optuna
+
+    if scheduler and workers is not None:
+        raise TuneError("--workers does not apply with --scheduler (the cluster has its own workers)")
+    if scheduler is not None and not _ADDRESS.fullmatch(scheduler):
+        raise TuneError(f"--scheduler expects an address like tcp://HOST:PORT, got {scheduler!r}")
+    if workers is not None and not 1 <= workers <= max_local_workers():
+        raise TuneError(f"--workers must be 1 .. {max_local_workers()}, got {workers}")
+    if not 0 < timeout < 3600:
+        raise TuneError(f"--timeout must be more than 0 s and less than 3600 s, got {timeout:g}")
+    if workers is None and not scheduler:
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    start = time.perf_counter()
+    store = TuningStore(tuning_dir(results_dir, tuning.name), _header(tuning), overwrite=overwrite)
+    ran = 0
+    try:
+        skipped = sum(len(v) for v in store.trials.values())
+        searches = {m: _MethodSearch(tuning, m, store.trials.get(m, {})) for m in tuning.methods}
+        where = scheduler or ("in-process" if workers == 1 else "LocalCluster")
+        store.start_session({"started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                             "command": command, "host": platform.node(), "scheduler": where,
+                             "workers": workers})
+        if any(s.next_number < tuning.trials for s in searches.values()):
+            with contextlib.ExitStack() as stack:
+                if scheduler or workers > 1:
+                    client = stack.enter_context(dask_client(workers or 0, scheduler, timeout))
+                    threads = max(1, sum(client.nthreads().values()))
+                    if cell_function is run_cell:
+                        _warm_up(lambda *a: client.run(*a), tuning)
+
+                    def execute(jobs):
+                        return run_on_dask(client, jobs, cell_function, IN_FLIGHT_PER_THREAD * threads)
+                else:
+                    if cell_function is run_cell:
+                        _warm_up(lambda f, *a: f(*a), tuning)
+
+                    def execute(jobs):
+                        return _run_in_process(jobs, cell_function)
+                while True:
+                    batch = _ask_round(tuning, searches)
+                    if not batch:
+                        break
+                    ran += _run_round(tuning, searches, batch, execute, store, progress)
+        best = {m: s.best() for m, s in searches.items()}
+        tuned = None
+        if any(b is not None for b in best.values()):
+            # named after the output file when there is one: an experiments/<stem>.toml must be named <stem>
+            name = Path(output).stem if output is not None else f"{tuning.name}-tuned"
+            text = tuned_experiment(tuning, {m: store.trials[m][b[0]] for m, b in best.items() if b is not None},
+                                    {m: store.trials[m][0] for m in tuning.methods if 0 in store.trials.get(m, {})},
+                                    name=name)
+            tuned = store.write_tuned(text)
+            if output is not None:
+                Path(output).parent.mkdir(parents=True, exist_ok=True)
+                Path(output).write_text(text, encoding="utf-8")
+                tuned = Path(output)
+        return TuneSummary(store.path, ran, skipped, best, tuned, time.perf_counter() - start, workers or 0, where)
+    except BaseException:
+        store.discard_if_unused()  # e.g. an unreachable scheduler: no empty store left behind
+        raise
+    finally:
+        store.close()
+
+
+def _warm_up(run, tuning: Tuning) -> None:
+    from ilcforce.experiment import preload_kernels
+
+    with contextlib.suppress(Exception):
+        run(preload_kernels, tuning.trial_config(tuning.methods[0], {}, tuning.seeds[0]), list(tuning.methods))
+
+
+def _ask_round(tuning: Tuning, searches: dict) -> list[tuple[str, int, dict, object, dict, str]]:
+    """The next trial of every method not done: (method, number, params, optuna trial, seed -> config,
+    error message if the gains are not a valid configuration)."""
+    batch = []
+    for method, search in searches.items():
+        if search.next_number >= tuning.trials:
+            continue
+        number, params, trial = search.ask()
+        configs, message = {}, ""
+        try:
+            configs = {seed: tuning.trial_config(method, params, seed) for seed in tuning.seeds}
+            from ilcforce.experiment import make_controller
+
+            make_controller(configs[tuning.seeds[0]], method)  # gains valid alone but not with this setting
+        except ConfigError as exc:
+            configs, message = {}, f"invalid gains: {exc}"
+        batch.append((method, number, params, trial, configs, message))
+    return batch
+
+
+def _run_round(tuning, searches, batch, execute, store, progress) -> int:
+    pending = {}  # (method, number) -> {seed: entry}
+    meta = {}
+    jobs = []
+    for method, number, params, trial, configs, message in batch:
+        meta[(method, number)] = (params, trial, message)
+        pending[(method, number)] = {}
+        for seed, config in configs.items():
+            jobs.append((TrialCell(method, number, seed), (config, method, None)))
+    finished = 0
+
+    def finish(method, number) -> None:
+        nonlocal finished
+        params, trial, message = meta[(method, number)]
+        entries = [pending[(method, number)][s] for s in sorted(pending[(method, number)])]
+        if message:
+            value = None
+        else:
+            value, message = _trial_value(entries)
+        elapsed = sum(e.pop("_elapsed", 0.0) for e in entries)
+        search = searches[method]
+        learned = search.tell(trial, number, params, value)
+        record = {"method": method, "number": number, "params": params, "gains": _gains_of(tuning, method, params),
+                  "state": COMPLETE if value is not None else FAILED, "value": value, "seeds": entries,
+                  "message": message, "elapsed": elapsed,
+                  "in_sampler": learned}
+        store.commit(record)
+        search.records[number] = store.trials[method][number]
+        finished += 1
+        if progress is not None:
+            best = search.best()
+            progress(TuneProgress(method, number, tuning.trials, record["state"], value,
+                                  best[1] if best else None, best[0] if best else None, message))
+
+    for key, (_params, _trial, message) in meta.items():
+        if message:  # no cells: the gains were refused before running
+            finish(*key)
+    for cell, _attempt, result, failure in execute(iter(jobs)):
+        entry = _seed_entry(tuning, cell.seed, result, failure)
+        entry["_elapsed"] = float(result["elapsed"]) if result is not None else 0.0
+        pending[(cell.method, cell.number)][cell.seed] = entry
+        if len(pending[(cell.method, cell.number)]) == len(tuning.seeds):
+            finish(cell.method, cell.number)
+    return finished
+
+
+def tuned_experiment(tuning: Tuning, best: dict[str, dict], baseline: dict[str, dict] | None = None, *,
+                     name: str | None = None) -> str:
+    """The experiment file of the tuning (its experiment with ``[tune.set]``, named ``name``) with
+    each method's best trial's gains, headed by comments stating the tuning file and budget. The
+    experiment keeps its own iteration count (the tuning's horizon only judged the gains)."""
+    from ilcforce.config_load import load_config
+    from ilcforce.tomlfile import dump_toml, toml_comment
+
+    overrides = {**tuning.fixed, "experiment.name": name or f"{tuning.name}-tuned",
+                 "experiment.description": f"{tuning.base.experiment.description}; gains tuned by ilcforce tune "
+                                           f"({tuning.name})"}
+    for method, record in best.items():
+        overrides.update(record["gains"])
+    config = load_config(tuning.experiment, overrides)
+    source = tuning.path.name if tuning.path is not None else tuning.name
+    lines = [f"Written by `ilcforce tune {source}`: the experiment {tuning.experiment.name} with [tune.set] "
+             f"and each tuned method's best gains.",
+             f"Budget per method: {tuning.trials} trials (trial 0 = the experiment's gains) x {len(tuning.seeds)} "
+             f"seeds x {tuning.iterations} iterations; sampler TPE, seed {tuning.sampler_seed}.",
+             f"Objective ({tuning.objective}): median over seeds of the mean over iterations "
+             f"{tuning.score_iterations - tuning.score_last}..{tuning.score_iterations - 1} of log10(e_P/1 mm) "
+             f"and/or log10(e_F/1 N) (RMS norms); a divergence anywhere in the horizon fails the trial."]
+    for method, record in best.items():
+        first = (baseline or {}).get(method)
+        was = ("failed" if first["value"] is None else f"{first['value']:.4g}") if first else "not run"
+        lines.append(f"{method}: best trial {record['number']}, objective {record['value']:.4g} "
+                     f"(trial 0, the experiment's gains: {was})")
+    return "\n".join(toml_comment(line) for line in lines) + "\n" + dump_toml(config.to_dict())

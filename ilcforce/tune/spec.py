@@ -1,0 +1,375 @@
+"""The tuning file: which gains of which methods to tune, on what, scored how; validated in full
+before any trial runs.
+
+File format (TOML)::
+
+    [tune]
+    name = "serial2r-tune"               # results/tuning/<name>/; a plain file name
+    description = "..."                  # optional
+    experiment = "serial2r.toml"         # relative to the tuning file (then to the working directory)
+    methods = ["c2", "c3"]               # each gets its own sampler and the same budget
+    seeds = [0, 1, 2]                    # every trial is scored on every seed ("a-b" or a list)
+    iterations = 30                      # horizon: every trial runs this many iterations per seed; a
+                                         #   divergence anywhere in it fails the trial
+    score_iterations = 20                # optional (default: iterations): iterations j < this are scored
+    score_last = 5                       # optional (default 5): the last score_last of those are averaged
+    objective = "both"                   # optional: "both" (default), "position" or "force"
+    trials = 40                          # trials per method, trial 0 (the experiment's gains) included
+    sampler_seed = 0                     # the TPE sampler's seed
+    [tune.set]                           # fixed overrides, exactly as --set (e.g. a shorter reference)
+    "reference.duration" = 1.0
+    [tune.gains.c3]                      # the searched gains of one method
+    k = { low = 1.0, high = 1e4, log = true }     # a vector gain: every element searched on this range
+    eta = { low = 0.0, high = 20.0 }              # linear unless log = true
+    gamma_gravity = [{ low = 10.0, high = 1e4, log = true }, 100.0, { low = 10.0, high = 1e4, log = true }, 100.0]
+                                                  # per element: a range, or a number held fixed
+
+The objective (minimised) of a trial, per seed: the mean over the scored iterations
+``score_iterations - score_last .. score_iterations - 1`` (the settled end of learning) of the RMS
+error norms, combined as ``log10(e_P / 1 mm) + log10(e_F / 1 N)`` ("both": a tenfold improvement of
+either error counts the same; the scales only shift the value), ``log10(e_P / 1 mm)`` ("position")
+or ``log10(e_F / 1 N)`` ("force"); then the median over seeds. A trial in which any seed diverges
+anywhere in the horizon (``iterations``, which may be longer than the scored part) has no value: it
+is recorded as failed and can never be chosen, so a fragile gain set cannot win.
+Every problem raises :class:`TuneError` with one line naming the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+
+from ilcforce.config import Config, ConfigError
+from ilcforce.config_load import load_config, shown
+from ilcforce.store.schema import STUDY_NAME
+from ilcforce.study.spec import StudyError, parse_seeds
+from ilcforce.tomlfile import read_toml
+
+
+class TuneError(ValueError):
+    """An invalid tuning file or tuning request; the message is one line."""
+
+
+TUNE_KEYS = ("name", "description", "experiment", "methods", "seeds", "iterations", "score_iterations",
+             "score_last", "objective", "trials", "sampler_seed", "set", "gains")
+#: objective name -> (position weight, force weight) of log10(e_P / 1 mm) and log10(e_F / 1 N)
+OBJECTIVES = {"both": (1.0, 1.0), "position": (1.0, 0.0), "force": (0.0, 1.0)}
+#: Scales of the objective's logarithms (they shift it by a constant; they make it readable).
+POSITION_SCALE = 1e-3  # m
+FORCE_SCALE = 1.0  # N
+#: Trials per method allowed in one tuning file (a guard against typos).
+MAX_TRIALS = 10_000
+RANGE_KEYS = ("low", "high", "log")
+
+
+@dataclass(frozen=True)
+class GainRange:
+    """The searched range of one scalar (one element of a vector gain)."""
+
+    low: float
+    high: float
+    log: bool = False
+
+    def contains(self, value: float) -> bool:
+        return self.low <= value <= self.high
+
+
+@dataclass(frozen=True)
+class SearchedGain:
+    """One field of a method's gains: per element a :class:`GainRange` or a fixed number.
+
+    ``vector`` is False for a scalar field (one element)."""
+
+    field: str
+    elements: tuple[GainRange | float, ...]
+    vector: bool
+    integer: bool = False
+
+    def parameter_names(self) -> list[tuple[str, GainRange]]:
+        """(Optuna parameter name, range) of every searched element: ``k[0]``, ``eta``."""
+        return [(f"{self.field}[{i}]" if self.vector else self.field, r)
+                for i, r in enumerate(self.elements) if isinstance(r, GainRange)]
+
+    def value(self, params: dict):
+        """The field's value from the sampled ``params`` (fixed elements as given)."""
+        values = []
+        for i, r in enumerate(self.elements):
+            if isinstance(r, GainRange):
+                v = params[f"{self.field}[{i}]" if self.vector else self.field]
+            else:
+                v = r
+            values.append(int(round(v)) if self.integer else float(v))
+        return values if self.vector else values[0]
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """A parsed and validated tuning file."""
+
+    name: str
+    description: str
+    source: str  # the tuning file's text (provenance)
+    path: Path | None
+    experiment: Path
+    methods: tuple[str, ...]
+    seeds: tuple[int, ...]
+    iterations: int
+    score_iterations: int
+    score_last: int
+    objective: str
+    trials: int
+    sampler_seed: int
+    fixed: dict  # [tune.set]
+    gains: dict  # method -> tuple of SearchedGain
+    base: Config  # the experiment with [tune.set] and the horizon applied (seed 0)
+
+    def parameters(self, method: str) -> list[tuple[str, GainRange]]:
+        """Every searched parameter of ``method``, in file order."""
+        return [p for g in self.gains[method] for p in g.parameter_names()]
+
+    def overrides(self, method: str, params: dict) -> dict:
+        """Dotted --set overrides of the sampled ``params`` (an empty ``params``: none, the defaults)."""
+        if not params:
+            return {}
+        return {f"{method}.{g.field}": g.value(params) for g in self.gains[method]}
+
+    def default_params(self, method: str) -> dict:
+        """The experiment's own gains as sampled parameters (trial 0)."""
+        gains = self.base.gains[method]
+        out = {}
+        for g in self.gains[method]:
+            value = getattr(gains, g.field)
+            for i, r in enumerate(g.elements):
+                if isinstance(r, GainRange):
+                    out[f"{g.field}[{i}]" if g.vector else g.field] = float(value[i] if g.vector else value)
+        return out
+
+    def defaults_in_space(self, method: str) -> bool:
+        """Whether the experiment's own gains are a point of the search space (every searched element
+        in its range, every fixed element equal to the experiment's): only then does the sampler
+        learn from trial 0; it is scored and can be chosen either way."""
+        params = self.default_params(method)
+        if not all(r.contains(params[n]) for n, r in self.parameters(method)):
+            return False
+        gains = self.base.gains[method]
+        return all(g.value(params) == (list(getattr(gains, g.field)) if g.vector else getattr(gains, g.field))
+                   for g in self.gains[method])
+
+    def trial_config(self, method: str, params: dict, seed: int) -> Config:
+        """The configuration one cell of a trial runs; ConfigError if the gains are not valid."""
+        overrides = {**self.fixed, **self.overrides(method, params), "experiment.seed": seed,
+                     "experiment.iterations": self.iterations}
+        return load_config(self.experiment, overrides)
+
+    def definition(self) -> dict:
+        """What identifies the tuning (stored; a rerun must match it)."""
+        return {"name": self.name, "experiment": self.base.to_json(), "methods": list(self.methods),
+                "seeds": list(self.seeds), "iterations": self.iterations,
+                "score_iterations": self.score_iterations, "score_last": self.score_last,
+                "objective": self.objective, "sampler_seed": self.sampler_seed,
+                "gains": {m: [dataclasses.asdict(g) for g in gs] for m, gs in self.gains.items()}}
+
+
+def _positive_int(table: dict, key: str, default=None, *, at_most: int | None = None) -> int:
+    value = table.get(key, default)
+    if value is None:
+        raise TuneError(f"tune.{key} is missing")
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise TuneError(f"tune.{key} must be an integer >= 1, got {shown(value)}")
+    if at_most is not None and value > at_most:
+        raise TuneError(f"tune.{key} must be at most {at_most}, got {value}")
+    return value
+
+
+def _number(where: str, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise TuneError(f"{where} must be a finite number, got {shown(value)}")
+    return float(value)
+
+
+def _range(where: str, spec) -> GainRange | float:
+    """A range table ``{low, high, log}``, or a number (held fixed)."""
+    if not isinstance(spec, dict):
+        return _number(where, spec)
+    for key in spec:
+        if key not in RANGE_KEYS:
+            raise TuneError(f"unknown key {where}.{key}{_hint(key, RANGE_KEYS)}; a range is {{ low, high, log }}")
+    if "low" not in spec or "high" not in spec:
+        raise TuneError(f"{where} needs low and high")
+    low, high = _number(f"{where}.low", spec["low"]), _number(f"{where}.high", spec["high"])
+    log = spec.get("log", False)
+    if not isinstance(log, bool):
+        raise TuneError(f"{where}.log must be true or false, got {shown(log)}")
+    if not low < high:
+        raise TuneError(f"{where}: low must be below high, got {low:g} and {high:g}")
+    if log and low <= 0:
+        raise TuneError(f"{where}: a log range needs low > 0, got {low:g}")
+    return GainRange(low, high, log)
+
+
+def _hint(key: str, options) -> str:
+    close = difflib.get_close_matches(str(key), list(options), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def _searched_gains(method: str, table, base: Config) -> tuple[SearchedGain, ...]:
+    where = f"tune.gains.{method}"
+    if not isinstance(table, dict) or not table:
+        raise TuneError(f"[{where}] must be a table naming at least one gain, got {shown(table)}")
+    gains = base.gains[method]
+    fields = {f.name: f for f in dataclasses.fields(gains)}
+    hints = typing.get_type_hints(type(gains))
+    out = []
+    for name, spec in table.items():
+        if name not in fields:
+            raise TuneError(f"unknown gain {where}.{name}{_hint(name, fields)}; {method}'s gains are "
+                            f"{', '.join(fields)}")
+        current = getattr(gains, name)
+        if isinstance(current, str) or hints[name] is str:
+            raise TuneError(f"{where}.{name} is a choice, not a number: set it in [tune.set]")
+        integer = hints[name] is int
+        if isinstance(current, tuple):
+            if isinstance(spec, list):
+                if len(spec) != len(current):
+                    raise TuneError(f"{where}.{name} must list {len(current)} entries (one per element), "
+                                    f"got {len(spec)}")
+                elements = tuple(_range(f"{where}.{name}[{i}]", s) for i, s in enumerate(spec))
+            elif isinstance(spec, dict):
+                elements = (_range(f"{where}.{name}", spec),) * len(current)
+            else:
+                raise TuneError(f"{where}.{name} must be a range {{ low, high, log }} or a list of one per "
+                                f"element, got {shown(spec)}")
+            vector = True
+        else:
+            if not isinstance(spec, dict):
+                raise TuneError(f"{where}.{name} must be a range {{ low, high, log }}, got {shown(spec)}")
+            elements, vector = (_range(f"{where}.{name}", spec),), False
+        if not any(isinstance(e, GainRange) for e in elements):
+            raise TuneError(f"{where}.{name} holds every element fixed: set it in [tune.set] instead")
+        out.append(SearchedGain(name, elements, vector, integer))
+    return tuple(out)
+
+
+def _resolve_experiment(value, path: Path | None) -> Path:
+    if not isinstance(value, str) or not value:
+        raise TuneError(f"tune.experiment must be a path to an experiment TOML file, got {shown(value)}")
+    candidates = ([path.parent / value] if path is not None and not Path(value).is_absolute() else []) + [Path(value)]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    raise TuneError(f"tune.experiment: no experiment file {' or '.join(str(c) for c in dict.fromkeys(candidates))}")
+
+
+def build_tuning(data: dict, *, source: str = "", path: Path | None = None) -> Tuning:
+    """Validate a parsed tuning file (the whole TOML document)."""
+    from ilcforce.controllers import REGISTRY
+
+    if not isinstance(data, dict) or "tune" not in data:
+        raise TuneError("a tuning file needs a [tune] table")
+    extra = [k for k in data if k != "tune"]
+    if extra:
+        raise TuneError(f"unknown top-level table [{extra[0]}] in a tuning file; only [tune] is read")
+    table = data["tune"]
+    if not isinstance(table, dict):
+        raise TuneError("[tune] must be a table")
+    for key in table:
+        if key not in TUNE_KEYS:
+            raise TuneError(f"unknown key tune.{key}{_hint(key, TUNE_KEYS)}")
+    for key in ("name", "experiment", "methods", "seeds", "iterations", "trials", "gains"):
+        if key not in table:
+            raise TuneError(f"tune.{key} is missing")
+    name = table["name"]
+    if not isinstance(name, str) or not STUDY_NAME.fullmatch(name) or name in (".", ".."):
+        raise TuneError(f"tune.name must be a plain file name (letters, digits, '.', '_', '-'), got {shown(name)}")
+    description = table.get("description", "")
+    if not isinstance(description, str):
+        raise TuneError(f"tune.description must be a string, got {shown(description)}")
+    methods = table["methods"]
+    if not isinstance(methods, list) or not methods:
+        raise TuneError(f"tune.methods must be a non-empty list of method names, got {shown(methods)}")
+    for method in methods:
+        if method not in REGISTRY:
+            raise TuneError(f"tune.methods: unknown method {method!r}{_hint(method, REGISTRY)}; choose from "
+                            f"{', '.join(REGISTRY)}")
+    if len(set(methods)) != len(methods):
+        raise TuneError("tune.methods lists a method twice")
+    try:
+        seeds = parse_seeds(table["seeds"])
+    except StudyError as exc:
+        raise TuneError(str(exc).replace("study.seeds", "tune.seeds")) from None
+    iterations = _positive_int(table, "iterations", at_most=10_000)
+    score_iterations = _positive_int(table, "score_iterations", iterations)
+    if score_iterations > iterations:
+        raise TuneError(f"tune.score_iterations ({score_iterations}) must not exceed tune.iterations ({iterations})")
+    score_last = _positive_int(table, "score_last", min(5, score_iterations))
+    if score_last > score_iterations:
+        raise TuneError(f"tune.score_last ({score_last}) must not exceed tune.score_iterations ({score_iterations})")
+    objective = table.get("objective", "both")
+    if objective not in OBJECTIVES:
+        raise TuneError(f"tune.objective must be one of {', '.join(OBJECTIVES)}, got {shown(objective)}")
+    trials = _positive_int(table, "trials", at_most=MAX_TRIALS)
+    sampler_seed = table.get("sampler_seed", 0)
+    if isinstance(sampler_seed, bool) or not isinstance(sampler_seed, int) or not 0 <= sampler_seed < 2**31:
+        raise TuneError(f"tune.sampler_seed must be an integer in [0, 2^31), got {shown(sampler_seed)}")
+    fixed = table.get("set", {})
+    if not isinstance(fixed, dict):
+        raise TuneError(f"tune.set must be a table of \"section.key\" = value, got {shown(fixed)}")
+    for key, value in fixed.items():
+        if isinstance(value, dict):
+            raise TuneError(f"tune.set: write keys as quoted dotted names, e.g. \"{key}.x\" = ..., not a table")
+        if key in ("experiment.seed", "experiment.iterations"):
+            raise TuneError(f"tune.set: {key} is set by tune.{'seeds' if key.endswith('seed') else 'iterations'}")
+    experiment = _resolve_experiment(table["experiment"], path)
+    try:
+        base = load_config(experiment, {**fixed, "experiment.seed": 0, "experiment.iterations": iterations})
+    except ConfigError as exc:
+        raise TuneError(f"tune.set or tune.experiment: {exc}") from None
+    gains_table = table["gains"]
+    if not isinstance(gains_table, dict) or not gains_table:
+        raise TuneError("[tune.gains] must hold one table per method, e.g. [tune.gains.c3]")
+    for method in gains_table:
+        if method not in methods:
+            raise TuneError(f"[tune.gains.{method}]: {method!r} is not in tune.methods")
+    gains = {}
+    for method in methods:
+        if method not in gains_table:
+            raise TuneError(f"tune.methods lists {method!r} but [tune.gains.{method}] is missing")
+        gains[method] = _searched_gains(method, gains_table[method], base)
+        for g in gains[method]:
+            if f"{method}.{g.field}" in fixed:
+                raise TuneError(f"{method}.{g.field} is both searched and fixed in [tune.set]")
+    return Tuning(name=name, description=description, source=source, path=path, experiment=experiment,
+                  methods=tuple(methods), seeds=seeds, iterations=iterations, score_iterations=score_iterations,
+                  score_last=score_last, objective=objective, trials=trials, sampler_seed=sampler_seed,
+                  fixed=dict(fixed), gains=gains, base=base)
+
+
+def load_tuning(path: Path | str) -> Tuning:
+    """Read and validate a tuning file; raises :class:`TuneError` with one line."""
+    path = Path(path)
+    data, text = read_toml(path, "tuning file", TuneError)
+    try:
+        return build_tuning(data, source=text, path=path)
+    except TuneError as exc:
+        raise TuneError(f"{path}: {exc}") from None
+
+
+def seed_score(rows: list[dict], tuning: Tuning) -> float | None:
+    """One seed's objective from its cell's metrics rows (one per iteration run); None if the cell
+    diverged anywhere or did not run the whole horizon."""
+    if len(rows) < tuning.iterations or any(r["status"] != "complete" for r in rows):
+        return None
+    scored = rows[tuning.score_iterations - tuning.score_last:tuning.score_iterations]
+    e_p = sum(r["position_error_rms"] for r in scored) / len(scored)
+    e_f = sum(r["force_error_rms"] for r in scored) / len(scored)
+    wp, wf = OBJECTIVES[tuning.objective]
+    value = 0.0
+    if wp:
+        value += wp * math.log10(max(e_p, 1e-300) / POSITION_SCALE)
+    if wf:
+        value += wf * math.log10(max(e_f, 1e-300) / FORCE_SCALE)
+    return value if math.isfinite(value) else None
