@@ -292,7 +292,8 @@ def write_report(
     experiment_warnings: dict[str, list[str]] = {}
     # every experiment, every study's report and every study's findings page is one task; they run on
     # `jobs` cores together, heaviest first, and are put together below in this fixed order
-    from ilcforce.report.study import find_study_stores, study_index_section
+    from ilcforce.report.study import study_index_section
+    from ilcforce.report.study_match import find_study_stores
 
     study_dir = results_dir / "studies"
     report_paths = find_study_stores(results_dir)

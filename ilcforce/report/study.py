@@ -28,6 +28,7 @@ from ilcforce.metrics import convergence_iteration
 from ilcforce.report import paper, table_write, tables
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.seedframes import SeedMetrics, split_seeds
+from ilcforce.report.study_match import study_methods_and_seeds
 from ilcforce.stats import Interval, format_interval, median_interval
 
 #: Iterations whose error norms are tabulated (clipped to the study's iterations).
@@ -261,8 +262,6 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
 def incomplete_text(results) -> str:
     """A sentence for a study whose latest run stopped before storing every cell it planned
     (settings x seeds x methods of its study file); '' for a complete study or an older store."""
-    from ilcforce.report.study_match import study_methods_and_seeds
-
     planned, cells = results.planned_cells, results.cells
     if planned is None:
         return ""
@@ -312,16 +311,6 @@ def _index_lines(name: str, results, headline: pd.DataFrame, n_seeds: int, done:
         lines += [f"The paper's claims ({what}):", "",
                   table_write.markdown_table(headline[["claim", "verdict", "frequency", "statement"]]), ""]
     return lines
-
-
-def find_study_stores(results_dir: Path) -> list[Path]:
-    """``results_dir/studies/*.h5`` (leftover temporary copies skipped), sorted; the paper's Monte
-    Carlo (``paper-mc``) first, as the report leads with it."""
-    folder = Path(results_dir) / "studies"
-    if not folder.is_dir():
-        return []
-    found = [p for p in folder.glob("*.h5") if p.is_file() and not p.name.startswith(".")]
-    return sorted(found, key=lambda p: (p.stem != "paper-mc", p.stem))
 
 
 def study_index_section(reports: list[StudyReport]) -> list[str]:
