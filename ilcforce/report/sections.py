@@ -71,10 +71,14 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
     """The claims section: one summary table, then each claim's parts with frequencies and intervals."""
     summary = claims_module.claim_summary(parts)
     n = int(parts["n_seeds"].iloc[0]) if len(parts) else 0
-    lines = [f"Judged over {n} seed{'s' if n != 1 else ''}. Each number is the median over seeds with its "
-             "95% percentile-bootstrap interval; each frequency counts the seeds where the part passes "
-             "(95% Wilson interval in brackets). With one seed there is no interval.", ""]
-    lines.append(markdown_table(summary[["claim", "verdict", "frequency", "statement"]]))
+    deterministic = bool(len(parts) and "deterministic" in parts.columns and parts["deterministic"].iloc[0])
+    if deterministic:
+        lines = [f"Judged once: {claims_module.ONE_EVALUATION}.", ""]
+    else:
+        lines = [f"Judged over {n} seed{'s' if n != 1 else ''}. Each number is the median over seeds with its "
+                 "95% percentile-bootstrap interval; each frequency counts the seeds where the part passes "
+                 "(95% Wilson interval in brackets). With one seed there is no interval.", ""]
+    lines.append(markdown_table(summary[["claim", "verdict", "frequency", "parts", "statement"]]))
     if flags:
         lines += ["Methods flagged for unstable learning (see Learning stability): "
                   + "; ".join(f"{m}: {text}" for m, text in flags.items()) + ".", ""]
@@ -88,7 +92,7 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
             judged = row.role != claims_module.SHOWN
             rows.append({
                 "part": row.part_text, "role": row.role, "statistic": row.statistic,
-                "median [95%]": _interval(row), "over seeds": row.distribution,
+                "passes when": getattr(row, "threshold", "") or "–", "median [95%]": _interval(row), "over seeds": row.distribution,
                 "passes": (f"{row.passed} of {row.evaluable} [{row.share_low:.2f}, {row.share_high:.2f}]"
                            if judged and row.evaluable else "–"),
                 "verdict": row.part_verdict, "note": row.notes,
