@@ -118,14 +118,17 @@ def stability_markdown(growth: pd.DataFrame, flags: Mapping[str, str]) -> list[s
     text = stability.__doc__.split("The test\n--------\n", 1)[-1].strip()
     lines = [re.sub(r":\w+:`([^`]+)`", r"`\1`", text).replace("``", "`"), ""]
     if growth.empty:
-        return lines + ["No growth rate could be fitted (too few complete iterations).", ""]
+        return lines + [f"Not evaluable: {stability.NOT_FITTED.removeprefix('not evaluable (').rstrip(')')}.", ""]
     table = pd.DataFrame({
         "method": growth["method"], "quantity": [stability.short_name(q) for q in growth["quantity"]],
+        "judged": ["yes" if j else "shown" for j in growth["judged"]],
         "window": growth["window"],
         "rate per iteration [95%]": [f"{r.rate:.4g} [{r.rate_low:.4g}, {r.rate_high:.4g}]" if r.fitted > 1
                                      else f"{r.rate:.4g}" for r in growth.itertuples(index=False)],
-        "seeds growing": [f"{r.growing} of {r.fitted}" for r in growth.itertuples(index=False)],
-        "grows": ["yes" if g else "no" for g in growth["grows"]],
+        "value at the window's end": [f"{v:.3g}" for v in growth["value_end"]],
+        "floor": [f"{f:g}" if f else "-" for f in growth["floor"]],
+        "seeds growing": [f"{r.growing} of {r.fitted}" if r.judged else "-" for r in growth.itertuples(index=False)],
+        "grows": ["yes" if g else "no" if j else "-" for g, j in zip(growth["grows"], growth["judged"], strict=True)],
     })
     lines.append(markdown_table(table))
     if flags:
