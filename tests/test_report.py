@@ -761,7 +761,15 @@ def test_write_report_end_to_end(report: ReportSummary) -> None:
     table2 = pd.read_csv(directory / "table2.csv").set_index("method")
     assert table2.at["c3", "position_error_2norm"] == pytest.approx(POSITION["c3"][4], rel=RTOL)
     claims_csv = pd.read_csv(directory / "claims.csv")
-    assert list(claims_csv["verdict"]) == ["holds", "fails", "holds", "holds", "holds"], "the paper's force 0.604"
+    head = claims_csv[claims_csv["role"] == "claim"]
+    assert list(head["verdict"]) == ["holds", "fails", "holds", "holds", "holds"], "the paper's force 0.604"
+    for column in ("source", "setting", "claim", "part", "role", "verdict", "seeds_evaluated", "seeds_passed",
+                   "statistic", "statistic_low", "statistic_high", "threshold"):
+        assert column in claims_csv.columns, column
+    stability_csv = pd.read_csv(directory / "stability.csv")
+    for column in ("source", "setting", "method", "quantity", "rate_per_iteration", "rate_low", "rate_high",
+                   "flagged"):
+        assert column in stability_csv.columns, column
 
 
 def test_write_report_twice_is_identical(results_dir: Path, report: ReportSummary, tmp_path: Path) -> None:
@@ -820,7 +828,8 @@ def test_degraded_experiment_reports_what_it_can(tmp_path: Path) -> None:
     assert "c3: diverged at iteration 12, t = 0.55 s: |tau| above 1e3 N m" in report
     for warning in summary.warnings:
         assert warning in report, "every warning is also in the report"
-    result = pd.read_csv(tmp_path / "out" / "degraded" / "claims.csv").set_index("claim")
+    result = pd.read_csv(tmp_path / "out" / "degraded" / "claims.csv")
+    result = result[result["role"] == "claim"].set_index("claim")
     assert result.at[1, "verdict"] == "not evaluable", "C1 missing"
     assert result.at[2, "verdict"] == "fails", "C3 diverged at j = 12, before claim 2's window j = 15..19"
     assert result.at[3, "verdict"] == "holds"

@@ -152,6 +152,14 @@ def _cell(interval: Interval, n_seeds: int) -> str:
     return text if interval.n == n_seeds else f"{text} (n = {interval.n})"
 
 
+def _config(config_json: str) -> dict:
+    try:
+        loaded = json.loads(config_json)
+    except (ValueError, TypeError):
+        return {}
+    return loaded if isinstance(loaded, dict) else {}
+
+
 def setting_perturbation(config_json: str) -> int:
     """A setting's perturbation iteration p, from its resolved configuration (the paper's 10 if absent)."""
     try:
@@ -223,9 +231,11 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         numbers = key_numbers(mine, methods, iterations)
         report.files += table_write.write_table(numbers, directory, f"key_numbers_s{k}")
         lines += ["### Key numbers (median [95% interval] over seeds)", "", table_write.markdown_table(numbers), ""]
-        growth = stability.learning_growth(mine, perturbation_iteration=p)
+        deterministic = claims_module.is_deterministic(_config(setting.config_json))
+        judged = claims_module.first_seed_only(mine) if deterministic else mine  # one evaluation
+        growth = stability.learning_growth(judged, perturbation_iteration=p)
         flags = stability.unstable_methods(growth)
-        parts = claims_module.judge_claims_over_seeds(mine, perturbation_iteration=p)
+        parts = claims_module.judge_claims_over_seeds(judged, perturbation_iteration=p, deterministic=deterministic)
         report.files += table_write.write_table(parts, directory, f"claims_s{k}")
         lines += ["### The paper's claims over seeds", ""] + sections.claims_markdown(parts, flags)
         lines += ["### Learning stability", ""] + sections.stability_markdown(growth, flags)
