@@ -349,7 +349,7 @@ def good_case(**overrides: pd.DataFrame) -> dict[str, pd.DataFrame]:
     return case
 
 
-def verdicts(case: dict[str, pd.DataFrame], **kwargs: int) -> dict[int, str]:
+def verdicts(case: dict[str, pd.DataFrame], **kwargs: object) -> dict[int, str]:
     summary = claims.claim_summary(claims.judge_claims(case, **kwargs))
     assert set(summary["verdict"]) <= set(claims.VERDICTS)
     return dict(zip(summary["claim"], summary["verdict"], strict=True))
@@ -366,9 +366,9 @@ def test_all_claims_hold_on_the_good_case() -> None:
     summary = claims.claim_summary(parts)
     assert list(summary["verdict"]) == ["holds"] * 5, parts[["claim", "part", "median", "part_verdict"]].to_string()
     assert summary["rule"].str.len().min() > 40, "every claim states its rule"
-    assert set(parts["role"]) == {"central", "secondary", "shown"}
+    assert set(parts["role"]) == {"central", "secondary", "shown", "cause"}
     # every judged part has a statistic and a frequency over the one seed
-    judged = parts[parts["role"] != "shown"]
+    judged = parts[~parts["role"].isin(["shown", "cause"])]
     assert (judged["evaluable"] == 1).all() and (judged["passed"] == 1).all()
     assert list(summary["frequency"]) == ["holds in 1 of 1 seed"] * 5
 
@@ -480,6 +480,32 @@ def test_claim_summary_keeps_every_part_verdict() -> None:
     assert summary.at[1, "verdict"] == "fails"
     assert "C3 below C1, force: fails" in summary.at[1, "parts"]
     assert "C2 below C1, position: holds" in summary.at[1, "parts"]
+
+
+def test_a_failing_claim_1_names_its_causes_with_the_numbers() -> None:
+    """C1 ahead of C3 before the m3 change: the findings say why, from claim 1's cause rows: C1's
+    model is the true plant there, its alpha is 5x the disturbance bound, C3's alpha_hat is small.
+    With the plant changed from j = 0 (C1's model wrong in every iteration) the window is j = 5..9."""
+    from ilcforce.report import verdicts as verdict_rows
+
+    config = {"c1": {"alpha": 0.1}, "noise": {"disturbance_amplitude": 0.02},
+              "plant": {"perturbation": {"factor": 1.4}}}
+    c3 = metrics_frame(sequence(4, 5.5e-6), [20.0] * 20, (0.0359, 0.0205))
+    c3["memory_settled_alpha_hat"] = 0.005
+    for p, model_text in ((10, "C1's nominal model is the true plant"), (0, "off by x1.4")):
+        case = good_case(c3=c3)
+        parts = claims.judge_claims(case, perturbation_iteration=p, config=config)
+        rows = verdict_rows.claim_rows(parts, source="experiment", name="x", setting="x")
+        assert verdicts(case, perturbation_iteration=p)[1] == "fails"
+        [line] = verdict_rows.cause_lines(rows)
+        assert model_text in line and "alpha is 5x the non-repetitive disturbance's bound" in line, line
+        assert "alpha_hat is 0.005 N" in line and "C3 below C1, force" in line, line
+        one = parts[parts["claim"] == 1].set_index("part")
+        assert one.at["cause_c3_alpha_hat", "part_verdict"] == "-", "a cause is never judged"
+    # with the plant changed from j = 0, claim 1 is judged over j = 5..9, not 'not evaluable'
+    assert verdicts(good_case(), perturbation_iteration=0)[1] == "holds"
+    assert verdict_rows.cause_lines(verdict_rows.claim_rows(claims.judge_claims(good_case(), config=config),
+                                                            source="experiment", name="x", setting="x")) == []
 
 
 def test_a_deterministic_setting_is_one_evaluation() -> None:

@@ -198,7 +198,8 @@ def _write_experiment(
     comparison = tables.comparison_frame(metrics)
     tidy = tidy_metrics(experiment)
     deterministic = claims_module.is_deterministic(experiment.config())
-    claims = claims_module.judge_claims_over_seeds(tidy, perturbation_iteration=p, deterministic=deterministic)
+    claims = claims_module.judge_claims_over_seeds(tidy, perturbation_iteration=p, deterministic=deterministic,
+                                                   config=experiment.config("c1") or experiment.config())
     growth = stability.learning_growth(tidy, perturbation_iteration=p)
     flags = stability.unstable_methods(growth)
     summary = claims_module.claim_summary(claims)

@@ -17,6 +17,9 @@ from ilcforce.report import paper
 from ilcforce.report.seedframes import SeedMetrics
 
 CENTRAL, SECONDARY, SHOWN = "central", "secondary", "shown"
+#: A shown part that names a modelling choice behind a verdict (C1's exact model, its alpha against
+#: the disturbance): printed and used by the findings to say why, never judged.
+CAUSE = "cause"
 
 #: Claim 2: C3's norm must be below this fraction of C2's ("more than 40% below").
 REDUCTION_RATIO = 1.0 - paper.ERROR_REDUCTION_C3_VS_C2
@@ -103,7 +106,12 @@ def statement_at(claim: Claim, perturbation_iteration: int) -> str:
     """The claim as stated, plus where it is judged when a setting changes m3 at another iteration
     than the paper's j = 10 (claims 1 and 4 are about that change)."""
     if claim.number in (1, 4) and perturbation_iteration != paper.PERTURBATION_ITERATION:
-        return f"{claim.statement} Judged here at this setting's m3 change, j = {perturbation_iteration}."
+        where = f"{claim.statement} Judged here at this setting's m3 change, j = {perturbation_iteration}."
+        if claim.number == 1 and perturbation_iteration <= 1:
+            first = perturbation_iteration + RELEARN
+            where += (f" The plant is changed from the start, so C1's nominal model is wrong in every iteration: "
+                      f"judged over j = {first}..{first + CONVERGED_WINDOW - 1}.")
+        return where
     return claim.statement
 
 
@@ -139,8 +147,16 @@ def _ratio(numerator: float, denominator: float) -> float:
 class _Seed:
     """One seed's per-method metrics (:class:`~ilcforce.report.seedframes.SeedMetrics`) plus the checks parts share."""
 
-    def __init__(self, metrics_by_method: Mapping[str, SeedMetrics], p: int) -> None:
+    def __init__(self, metrics_by_method: Mapping[str, SeedMetrics], p: int, config: Mapping | None = None) -> None:
         self.metrics, self.p = metrics_by_method, int(p)
+        self.config = config if isinstance(config, Mapping) else {}
+
+    def setting(self, section: str, key: str) -> float:
+        """A number of the setting's resolved configuration; not evaluable when it is not there."""
+        value = self.config.get(section, {}).get(key) if isinstance(self.config.get(section), Mapping) else None
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise _Stop(None, f"the configuration holds no {section}.{key}")
+        return float(value)
 
     def need(self, *methods: str) -> None:
         missing = [m for m in methods if m not in self.metrics]
@@ -168,12 +184,27 @@ class _Seed:
     def mean_norm(self, method: str, column: str, first: int, last: int) -> float:
         return float(np.mean([self.norm(method, column, j) for j in range(first, last + 1)]))
 
-    def before_window(self) -> tuple[int, int]:
+    def setting_factor(self) -> float:
+        """The perturbation's factor (true / nominal), from the configuration."""
+        perturbation = self.config.get("plant", {}).get("perturbation", {}) if isinstance(
+            self.config.get("plant"), Mapping) else {}
+        value = perturbation.get("factor") if isinstance(perturbation, Mapping) else None
+        if not isinstance(value, (int, float)):
+            raise _Stop(None, "the configuration holds no plant.perturbation.factor")
+        return float(value)
+
+    def before_last(self) -> int:
+        """The last iteration :meth:`before_window` may read (an asserted method must reach it)."""
+        return self.p - 1 if self.p > 1 else self.p + RELEARN + CONVERGED_WINDOW - 1
+
+    def before_window(self, methods: tuple[str, ...]) -> tuple[int, int]:
         """The converged window before the perturbation: its last CONVERGED_WINDOW iterations
-        (j = 5..9 in the paper's setup), never j = 0."""
+        (j = 5..9 in the paper's setup), never j = 0. A plant changed from j = 0 or 1 on (a
+        nominal-model error from the start) leaves no iteration before it: the window is then
+        the converged one under the one changed plant, j = p+RELEARN.. (5..9 for p = 0)."""
+        if self.p <= 1:
+            return self.after_window(methods)
         last = self.p - 1
-        if last < 1:
-            raise _Stop(None, f"perturbation at {self.p} leaves no iteration 1..p-1")
         return max(1, last - CONVERGED_WINDOW + 1), last
 
     def after_window(self, methods: tuple[str, ...]) -> tuple[int, int]:
@@ -237,8 +268,8 @@ class _Seed:
 def _claim1_parts() -> list[_Part]:
     def part(method: str, quantity: str, column: str) -> _Part:
         def evaluate(s: _Seed) -> tuple[float, bool]:
-            first, last = s.before_window()
-            s.asserted(method, last)
+            s.asserted(method, s.before_last())
+            first, last = s.before_window((method, "c1"))
             ratio = _ratio(s.mean_norm(method, column, first, last), s.mean_norm("c1", column, first, last))
             return ratio, bool(ratio < 1.0)
         return _Part(1, f"{method}_{quantity}", f"{method.upper()} below C1, {quantity}", CENTRAL,
@@ -254,16 +285,39 @@ def _claim1_parts() -> list[_Part]:
             return _ratio(s.mean_norm(method, column, 1, last), s.mean_norm("c1", column, 1, last)), None
         return _Part(1, f"{method}_{quantity}_1_p", f"{method.upper()} / C1 over j = 1..p-1, {quantity}", SHOWN,
                      f"mean 2-norm over j = 1..p-1 (learning transient included), {method.upper()} / C1", evaluate)
+    def model_error(s: _Seed) -> tuple[float, None]:
+        # the true plant over the nominal in the window C1 is judged on: 1 before the change (exact)
+        return (s.setting_factor() if s.p <= 1 else 1.0), None
+
+    def alpha_margin(s: _Seed) -> tuple[float, None]:
+        return _ratio(s.setting("c1", "alpha"), s.setting("noise", "disturbance_amplitude")), None
+
+    def learned_alpha(s: _Seed) -> tuple[float, None]:
+        s.need("c3")
+        j = s.before_window(("c3",))[1]
+        value = s.metrics["c3"].value_at("memory_settled_alpha_hat", j)
+        if not math.isfinite(value):
+            raise _Stop(None, f"no settled alpha_hat of c3 at iteration {j}")
+        return value, None
+
+    causes = [
+        _Part(1, "cause_c1_model", "C1's model in the judged window: true / nominal perturbed parameter", CAUSE,
+              "1: C1's nominal model is the true plant (the change comes later)", model_error),
+        _Part(1, "cause_c1_alpha", "C1's fixed alpha / the disturbance bound", CAUSE,
+              "c1.alpha / noise.disturbance_amplitude (inf: no disturbance)", alpha_margin),
+        _Part(1, "cause_c3_alpha_hat", "C3's learned alpha_hat (N), settled RMS at the window's end", CAUSE,
+              "alpha_hat RMS over t >= 20 ms (the paper's proof needs it above the disturbance bound)", learned_alpha),
+    ]
     return ([part(m, q, c) for q, c, _u in METRICS for m in ("c2", "c3")]
-            + [whole(m, q, c) for q, c, _u in METRICS for m in ("c2", "c3")])
+            + [whole(m, q, c) for q, c, _u in METRICS for m in ("c2", "c3")] + causes)
 
 
 def _claim2_parts() -> list[_Part]:
     parts = []
     for quantity, column, _unit in METRICS:
         def before(s: _Seed, column=column) -> tuple[float, bool]:
-            first, last = s.before_window()
-            s.asserted("c3", last)
+            s.asserted("c3", s.before_last())
+            first, last = s.before_window(("c2", "c3"))
             ratio = _ratio(s.mean_norm("c3", column, first, last), s.mean_norm("c2", column, first, last))
             return ratio, bool(ratio < REDUCTION_RATIO)
 

@@ -39,10 +39,13 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.report import paper
-from ilcforce.report.claim_parts import (CENTRAL, CLAIMS, PARTS, SECONDARY,  # noqa: F401 (CLAIMS: re-exported)
+from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY,  # noqa: F401 (re-exported)
                                          SHOWN, _Part, _Seed, _Stop, statement_at)
 from ilcforce.report.seedframes import split_seeds
 from ilcforce.stats import frequency_interval, median_interval
+
+#: Roles printed beside a claim, never judged.
+NOT_JUDGED = (SHOWN, CAUSE)
 
 HOLDS = "holds"
 IN_PART = "in part"
@@ -106,7 +109,7 @@ def first_seed_only(metrics: pd.DataFrame) -> pd.DataFrame:
 
 def judge_claims_over_seeds(metrics: pd.DataFrame, *,
                             perturbation_iteration: int = paper.PERTURBATION_ITERATION,
-                            deterministic: bool = False) -> pd.DataFrame:
+                            deterministic: bool = False, config: Mapping | None = None) -> pd.DataFrame:
     """Every part of every claim, judged over the seeds of one setting.
 
     ``metrics``: tidy frame, columns ``seed``, ``method``, ``iteration`` + metric columns, one row
@@ -121,11 +124,13 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     judged, first reason), ``n_seeds``, ``threshold`` (the pass condition), ``deterministic``.
     :func:`claim_summary` reduces it to one row per claim. ``deterministic``: the setting draws
     nothing random (:func:`is_deterministic`); it is judged once, on its first seed (rule 5).
+    ``config``: the setting's resolved configuration (TOML layout), read by the parts that name a
+    modelling choice (role ``cause``); without it they are not evaluable.
     """
     if deterministic:
         metrics = first_seed_only(metrics)
     seeds = split_seeds(metrics)
-    contexts = {seed: _Seed(frames, perturbation_iteration) for seed, frames in seeds.items()}
+    contexts = {seed: _Seed(frames, perturbation_iteration, config) for seed, frames in seeds.items()}
     results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in PARTS}
     roles = {part.key: part.role for part in PARTS}
     rows, claim_rows = [], {}
@@ -138,14 +143,14 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
             judged = [x for x in passes if x is not None]
             k, n = sum(bool(x) for x in judged), len(judged)
             share = frequency_interval(k, n)
-            if part.role == SHOWN:
+            if part.role in NOT_JUDGED:
                 verdict = "-"
             elif n == 0:
                 verdict = NOT_EVALUABLE
             else:
                 verdict = HOLDS if 2 * k > n else FAILS
                 verdicts[part.key] = verdict
-            if part.role != SHOWN and n == 0:
+            if part.role not in NOT_JUDGED and n == 0:
                 verdicts[part.key] = NOT_EVALUABLE
             stat = median_interval(values)  # an infinite ratio (a diverged baseline) is dropped and counted in n
             notes = sorted({r[2] for r in results[part] if r[2]})
@@ -153,8 +158,8 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
                          "part": part.key,
                          "part_text": part.text, "role": part.role, "statistic": part.statistic,
                          "median": stat.estimate, "low": stat.low, "high": stat.high,
-                         "distribution": _distribution(values), "passed": k if part.role != SHOWN else pd.NA,
-                         "evaluable": n if part.role != SHOWN else int(np.isfinite(values).sum()),
+                         "distribution": _distribution(values), "passed": k if part.role not in NOT_JUDGED else pd.NA,
+                         "evaluable": n if part.role not in NOT_JUDGED else int(np.isfinite(values).sum()),
                          "share_low": share.low, "share_high": share.high, "part_verdict": verdict,
                          "notes": notes[0] if notes else "", "n_seeds": len(contexts),
                          "threshold": part.threshold, "deterministic": bool(deterministic)})
@@ -163,7 +168,7 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
         for index in range(len(contexts)):
             seed_verdicts = {}
             for part in mine:
-                if part.role == SHOWN:
+                if part.role in NOT_JUDGED:
                     continue
                 passed = results[part][index][1]
                 seed_verdicts[part.key] = NOT_EVALUABLE if passed is None else HOLDS if passed else FAILS
@@ -188,7 +193,7 @@ def _frequency_text(verdict: str, per_seed: Mapping[str, int], deterministic: bo
 
 def part_verdicts_text(mine: pd.DataFrame) -> str:
     """A claim's judged parts and their verdicts in one line: "C2 below C1, position: holds; ..."."""
-    judged = mine[mine["role"] != SHOWN] if len(mine) else mine
+    judged = mine[~mine["role"].isin(NOT_JUDGED)] if len(mine) else mine
     return "; ".join(f"{r.part_text}: {r.part_verdict}" for r in judged.itertuples(index=False)) or "-"
 
 
@@ -222,7 +227,7 @@ def tidy_from_methods(metrics_by_method: Mapping[str, pd.DataFrame], seed: int =
 
 def judge_claims(metrics_by_method: Mapping[str, pd.DataFrame], *,
                  perturbation_iteration: int = paper.PERTURBATION_ITERATION,
-                 deterministic: bool = False) -> pd.DataFrame:
+                 deterministic: bool = False, config: Mapping | None = None) -> pd.DataFrame:
     """A single run's claims: the one-seed case of :func:`judge_claims_over_seeds`, part by part."""
-    return judge_claims_over_seeds(tidy_from_methods(metrics_by_method),
-                                   perturbation_iteration=perturbation_iteration, deterministic=deterministic)
+    return judge_claims_over_seeds(tidy_from_methods(metrics_by_method), perturbation_iteration=perturbation_iteration,
+                                   deterministic=deterministic, config=config)

@@ -44,6 +44,7 @@ def experiment_findings(name: str, description: str, claims: pd.DataFrame, stabi
     frequency of a divergence over seeds is a study's finding."""
     lines = [f"**`{name}`**: {description or 'no description'} ({_evaluation(claims)})", ""]
     lines += verdict_rows.claim_lines(claims)
+    lines += verdict_rows.cause_lines(claims)
     lines += verdict_rows.flag_lines(stability_rows)
     if diverged:
         lines.append(f"* Diverged within the {iterations} iterations run (one seed; the iteration is in the "
@@ -77,6 +78,7 @@ def study_findings(name: str, found: Mapping[str, object], claims: pd.DataFrame,
             failing.append(f"* {setting}: " + "; ".join(
                 f"claim {int(r.claim)} {r.part_text}: {verdict_rows.statistic_text(r)} ({r.threshold}; {r.verdict})"
                 for r in bad.itertuples(index=False)) + ".")
+            failing += [f"  {line.removeprefix('* ')}" for line in verdict_rows.cause_lines(mine)]
     if rows:
         from ilcforce.report.table_write import markdown_table
 
@@ -89,8 +91,11 @@ def study_findings(name: str, found: Mapping[str, object], claims: pd.DataFrame,
     return lines
 
 
-#: The error columns a breakdown over listed settings shows (labels of study_findings.KEY_COLUMNS).
-ERROR_LABELS = ("|e_P| 2-norm (m)", "|e_F| 2-norm (N)")
+#: The columns a breakdown over listed settings shows (labels of study_findings.KEY_COLUMNS) and their
+#: short names: the error 2-norms, and H_y on the whole grid beside H_y settled (what the start
+#: mismatch does to H, the initial-velocity study's question).
+ERROR_LABELS = {"|e_P| 2-norm (m)": "|e_P|", "|e_F| 2-norm (N)": "|e_F|", "H_y (N)": "H_y",
+                "H_y settled (N)": "H_y settled"}
 
 
 def _error_table(settings: Mapping[str, Mapping[str, object]]) -> list[str]:
@@ -102,17 +107,18 @@ def _error_table(settings: Mapping[str, Mapping[str, object]]) -> list[str]:
     for setting, entry in settings.items():
         row: dict[str, object] = {"setting": setting}
         for method_row in entry["rows"]:  # type: ignore[union-attr]
-            for label in ERROR_LABELS:
+            for label, short in ERROR_LABELS.items():
                 key = next((k for k in method_row if k.startswith(label + " at j = ")), None)
                 if key is not None:
                     ats.add(key.removeprefix(label + " at j = "))
-                    row[f"{method_row['method']} {label.split(' ')[0]}"] = method_row[key]
+                    row[f"{method_row['method']} {short}"] = method_row[key]
         rows.append(row)
     if len(rows) < 2 or len(rows[0]) < 2:
         return []
     # key numbers are read at j = 19, or at a shorter setting's last iteration
     at = f" at j = {ats.pop()}" if len(ats) == 1 else f" at j = {', '.join(sorted(ats, key=int))} (each setting's)"
-    return ["", f"Error 2-norms{at} per setting (median [95% interval] over seeds; |e_P| in m, |e_F| in N):", "",
+    return ["", f"Error 2-norms and H_y (whole grid and settled, t >= 20 ms){at} per setting (median [95% interval] "
+            "over seeds; |e_P| in m, |e_F| and H in N):", "",
             markdown_table(pd.DataFrame(rows))]
 
 

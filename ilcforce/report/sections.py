@@ -89,7 +89,7 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
                   f"Paper: {claim.paper} Parts: {claim.rule}", ""]
         rows = []
         for row in mine.itertuples(index=False):
-            judged = row.role != claims_module.SHOWN
+            judged = row.role not in claims_module.NOT_JUDGED
             rows.append({
                 "part": row.part_text, "role": row.role, "statistic": row.statistic,
                 "passes when": getattr(row, "threshold", "") or "–", "median [95%]": _interval(row), "over seeds": row.distribution,

@@ -235,7 +235,8 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         judged = claims_module.first_seed_only(mine) if deterministic else mine  # one evaluation
         growth = stability.learning_growth(judged, perturbation_iteration=p)
         flags = stability.unstable_methods(growth)
-        parts = claims_module.judge_claims_over_seeds(judged, perturbation_iteration=p, deterministic=deterministic)
+        parts = claims_module.judge_claims_over_seeds(judged, perturbation_iteration=p, deterministic=deterministic,
+                                                      config=_config(setting.config_json))
         report.files += table_write.write_table(parts, directory, f"claims_s{k}")
         lines += ["### The paper's claims over seeds", ""] + sections.claims_markdown(parts, flags)
         lines += ["### Learning stability", ""] + sections.stability_markdown(growth, flags)

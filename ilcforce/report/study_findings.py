@@ -59,14 +59,15 @@ def _divergence_text(div: pd.DataFrame) -> str:
 
 
 def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int, iterations: int,
-                 deterministic: bool = False) -> tuple[list[dict], pd.DataFrame, dict, pd.DataFrame]:
+                 deterministic: bool = False, config: dict | None = None
+                 ) -> tuple[list[dict], pd.DataFrame, dict, pd.DataFrame]:
     """One setting's per-method rows (key numbers, divergence, flag), its claim parts, flags, and its
     growth frame (empty: the stability test could not run). A deterministic setting (no noise
     source active) is one evaluation: its first seed alone."""
     if deterministic:
         frame = claims_module.first_seed_only(frame)
     parts = claims_module.judge_claims_over_seeds(frame, perturbation_iteration=perturbation_iteration,
-                                                  deterministic=deterministic)
+                                                  deterministic=deterministic, config=config)
     growth = stability.learning_growth(frame, perturbation_iteration=perturbation_iteration)
     flags = stability.unstable_methods(growth)
     fitted = set(growth["method"].astype(str))
@@ -112,7 +113,7 @@ def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
         deterministic = claims_module.is_deterministic(_config(config_json))
         rows, parts, flags, growth = setting_rows(frame, perturbation_iteration=setting_perturbation(config_json),
                                                   iterations=setting_iterations(config_json),
-                                                  deterministic=deterministic)
+                                                  deterministic=deterministic, config=_config(config_json))
         verdicts = claims_module.claim_summary(parts)
         # a listed setting is named by its label (its key values are in the study report and the table)
         name = (str(results.settings.loc[setting, "label"]) if getattr(results, "labelled", False)

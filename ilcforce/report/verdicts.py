@@ -43,9 +43,9 @@ def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> 
                      "statistic": math.nan, "statistic_low": math.nan, "statistic_high": math.nan,
                      "threshold": "", "part_text": str(first["statement"]), "statistic_name": "", "note": ""})
         for row in mine.itertuples(index=False):
-            shown = row.role == claims_module.SHOWN
+            shown = row.role in claims_module.NOT_JUDGED
             rows.append({**base, "part": row.part, "role": row.role,
-                         "verdict": "shown" if shown else str(row.part_verdict),
+                         "verdict": str(row.role) if shown else str(row.part_verdict),
                          "seeds_evaluated": int(row.evaluable),
                          "seeds_passed": pd.NA if shown else int(row.passed),
                          "statistic": float(row.median), "statistic_low": float(row.low),
@@ -84,8 +84,8 @@ def statistic_text(row) -> str:
 
 
 def _passes(row) -> str:
-    if row.role == "shown":
-        return "shown"
+    if row.role in claims_module.NOT_JUDGED:
+        return str(row.role)
     if int(row.seeds_evaluated) == 0:
         return f"{row.verdict}"
     return f"{row.verdict}; passes in {int(row.seeds_passed)} of {int(row.seeds_evaluated)}"
@@ -97,11 +97,45 @@ def claim_lines(rows: pd.DataFrame) -> list[str]:
     lines = []
     for claim, mine in rows.groupby("claim", sort=True):
         head = mine[mine["role"] == CLAIM_ROW].iloc[0]
-        judged = mine[~mine["role"].isin([CLAIM_ROW, "shown"])]
+        judged = mine[~mine["role"].isin([CLAIM_ROW, *claims_module.NOT_JUDGED])]
         detail = "; ".join(f"{r.part_text}: {statistic_text(r)} ({r.threshold} {_passes(r)})"
                            for r in judged.itertuples(index=False))
         lines.append(f"* Claim {int(claim)} **{head['verdict']}** ({head['evaluation']}). {detail}.")
     return lines
+
+
+def cause_lines(rows: pd.DataFrame) -> list[str]:
+    """Why C1 leads where claim 1 does not hold, from claim 1's ``cause`` rows: whether C1's nominal
+    model is exact in the judged window, its fixed alpha against the disturbance bound, and the
+    alpha_hat C3 learned. Empty when claim 1 holds or C1 leads nowhere."""
+    one = rows[rows["claim"] == 1]
+    central = one[one["role"] == "central"]
+    if one.empty or central.empty or (central["verdict"] == "holds").all():
+        return []
+    leads = central[central["statistic"] >= 1.0]
+    if leads.empty:
+        return []
+    cause = {r.part: r for r in one[one["role"] == claims_module.CAUSE].itertuples(index=False)}
+    said = []
+    model = cause.get("cause_c1_model")
+    if model is not None and math.isfinite(float(model.statistic)):
+        said.append("C1's nominal model is the true plant in the window judged (the m3 change comes after it)"
+                    if float(model.statistic) == 1.0 else
+                    f"C1's nominal model is off by x{float(model.statistic):.3g} in the window judged")
+    alpha = cause.get("cause_c1_alpha")
+    if alpha is not None and math.isfinite(float(alpha.statistic)):
+        said.append(f"its fixed switching gain alpha is {float(alpha.statistic):.3g}x the non-repetitive "
+                    "disturbance's bound, so it rejects that disturbance in every iteration")
+    elif alpha is not None and float(alpha.statistic) == math.inf:
+        said.append("there is no disturbance for its alpha to reject")
+    learned = cause.get("cause_c3_alpha_hat")
+    if learned is not None and math.isfinite(float(learned.statistic)):
+        said.append(f"C3's learned alpha_hat is {statistic_text(learned)} N (settled RMS), which the paper's proof "
+                    "needs above that bound")
+    names = ", ".join(str(r.part_text) for r in leads.itertuples(index=False))
+    if not said:
+        return []
+    return [f"* Why claim 1 does not hold ({names}: C1 ahead): " + "; ".join(said) + "."]
 
 
 def flag_lines(rows: pd.DataFrame) -> list[str]:
