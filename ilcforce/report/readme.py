@@ -73,7 +73,7 @@ def study_findings(name: str, found: Mapping[str, object], claims: pd.DataFrame,
         row["unstable learning"] = ", ".join(verdict_rows.flagged_methods(growth)) or (
             "none" if len(growth) else "not evaluable (runs too short)")
         rows.append(row)
-        bad = mine[mine["role"].isin(["central", "secondary"]) & (mine["verdict"] != "holds")]
+        bad = mine[mine["role"].isin(["central", "secondary"]) & (mine["verdict"] == "fails")]
         if len(bad):
             failing.append(f"* {setting}: " + "; ".join(
                 f"claim {int(r.claim)} {r.part_text}: {verdict_rows.statistic_text(r)} ({r.threshold}; {r.verdict})"
@@ -84,7 +84,7 @@ def study_findings(name: str, found: Mapping[str, object], claims: pd.DataFrame,
 
         lines.append(markdown_table(pd.DataFrame(rows)))
     if failing:
-        lines += ["Judged parts that do not hold (median [95% interval] over seeds, threshold, verdict):", "",
+        lines += ["Judged parts that fail (median [95% interval] over seeds, the threshold a seed must meet):", "",
                   *failing, ""]
     if found.get("labelled"):
         lines += _error_table(found["settings"])  # type: ignore[arg-type]

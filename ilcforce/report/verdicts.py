@@ -100,7 +100,8 @@ def claim_lines(rows: pd.DataFrame) -> list[str]:
         judged = mine[~mine["role"].isin([CLAIM_ROW, *claims_module.NOT_JUDGED])]
         detail = "; ".join(f"{r.part_text}: {statistic_text(r)} ({r.threshold} {_passes(r)})"
                            for r in judged.itertuples(index=False))
-        lines.append(f"* Claim {int(claim)} **{head['verdict']}** ({head['evaluation']}). {detail}.")
+        how = "one evaluation" if head["evaluation"] == claims_module.ONE_EVALUATION else head["evaluation"]
+        lines.append(f"* Claim {int(claim)} **{head['verdict']}** ({how}). {detail}.")
     return lines
 
 
@@ -172,8 +173,13 @@ def read_back(path) -> pd.DataFrame:
         if column in frame.columns:
             values = frame[column].astype(object)
             frame[column] = values.where(values.notna(), "").astype(str)
-    if "flagged" in frame.columns:
-        frame["flagged"] = frame["flagged"].astype(str).map({"True": True, "False": False}).astype(bool)
+    for column in ("flagged", "judged"):
+        if column in frame.columns:
+            text = frame[column].astype(str).str.strip().str.lower()
+            unknown = ~text.isin(["true", "false", "1", "0", "1.0", "0.0"])
+            if unknown.any():
+                raise ValueError(f"{path}: column {column} holds {frame.loc[unknown, column].iloc[0]!r}, not a truth value")
+            frame[column] = text.isin(["true", "1", "1.0"])
     return frame
 
 
