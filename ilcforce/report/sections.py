@@ -108,8 +108,9 @@ _RULE_TEXT = (
     "within the iterations it reads fails; a baseline that diverged counts as an infinite norm). Over seeds "
     "a part holds when it passes in a strict majority of the seeds where it is evaluable. A claim fails when "
     "any central part fails; otherwise it is not evaluable when a central part is; otherwise it holds when "
-    "every secondary part holds, and holds in part when a secondary part fails. Shown parts are printed, "
-    "never judged. The claim's frequency applies the same rule to each seed."
+    "every secondary part holds, and holds in part when a secondary part fails. Shown parts (and cause "
+    "parts, which name a modelling choice behind a verdict) are printed, never judged. The claim's frequency "
+    "applies the same rule to each seed; a deterministic setting (no noise source active) is one evaluation."
 )
 
 
