@@ -99,3 +99,12 @@ def test_a_run_too_short_to_show_a_trend_is_not_evaluable():
     growth = learning_growth(_frame({"c3": _settled_h(lambda j: 0.03 * 1.2 ** j)}, iterations=20),
                              perturbation_iteration=P)
     assert growth.empty and unstable_methods(growth) == {}
+
+
+def test_one_seed_reports_its_own_fit_interval():
+    """A single run (or a deterministic setting's one evaluation): the rate's interval is the fit's
+    95% t interval, not a degenerate bootstrap over one value."""
+    growth = learning_growth(_frame({"c3": _settled_h(lambda j: 0.03 * 1.05 ** j)}, seeds=[0]), perturbation_iteration=P)
+    row = growth.set_index("quantity").loc["chattering_task_x_settled"]
+    assert row["rate_low"] < row["rate"] < row["rate_high"] and row["fitted"] == 1
+    assert row["rate_low"] > MIN_RATE and bool(row["grows"])

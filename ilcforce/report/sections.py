@@ -124,8 +124,8 @@ def stability_markdown(growth: pd.DataFrame, flags: Mapping[str, str]) -> list[s
         "method": growth["method"], "quantity": [stability.short_name(q) for q in growth["quantity"]],
         "judged": ["yes" if j else "shown" for j in growth["judged"]],
         "window": growth["window"],
-        "rate per iteration [95%]": [f"{r.rate:.4g} [{r.rate_low:.4g}, {r.rate_high:.4g}]" if r.fitted > 1
-                                     else f"{r.rate:.4g}" for r in growth.itertuples(index=False)],
+        "rate per iteration [95%]": [f"{r.rate:.4g} [{r.rate_low:.4g}, {r.rate_high:.4g}]"
+                                     for r in growth.itertuples(index=False)],
         "value at the window's end": [f"{v:.3g}" for v in growth["value_end"]],
         "floor": [f"{f:g}" if f else "-" for f in growth["floor"]],
         "seeds growing": [f"{r.growing} of {r.fitted}" if r.judged else "-" for r in growth.itertuples(index=False)],

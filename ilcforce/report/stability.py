@@ -107,7 +107,8 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd
 
     Returns one row per (method, quantity) with a fittable rate: ``method``, ``quantity``,
     ``judged`` (False: shown only), ``window`` (e.g. "j = 75..149"), ``rate`` (median over seeds of
-    the per-iteration rate), ``rate_low``, ``rate_high`` (95% bootstrap interval of that median),
+    the per-iteration rate), ``rate_low``, ``rate_high`` (95% bootstrap interval of that median;
+    with one seed, that seed's 95% t interval of the fitted rate),
     ``growing`` (seeds whose rate interval lies above MIN_RATE and whose end value is above the
     floor), ``fitted`` (seeds with a rate), ``grows`` (bool, majority rule; always False for a
     shown quantity), ``floor`` (the absolute floor, 0 for none), ``value_end`` (median over seeds
@@ -127,7 +128,7 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd
             windows.append((window, {c: seed.columns[c][[seed.position[j] for j in window]] for c, _ in columns}))
         for column, judged in columns:
             floor = FLOORS.get(column, 0.0)
-            rates, grown, ends, seen = [], [], [], set()
+            rates, grown, ends, seen, fits = [], [], [], set(), []
             for window, values_by_column in windows:
                 values = np.asarray(values_by_column[column], dtype=float) if window else np.array([])
                 if values.size < 3 or not np.all(np.isfinite(values)):
@@ -136,12 +137,14 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd
                 if not math.isfinite(fitted.estimate):
                     continue
                 rates.append(fitted.estimate)
+                fits.append(fitted)
                 ends.append(float(values[-1]))
                 grown.append(bool(fitted.low > MIN_RATE and values[-1] > floor))
                 seen.add(f"j = {window[0]}..{window[-1]}")
             if not rates:
                 continue
-            median = median_interval(rates)
+            # over seeds: the median rate with its bootstrap interval; one seed: that fit's own t interval
+            median = median_interval(rates) if len(rates) > 1 else fits[0]
             growing = int(sum(grown))
             rows.append({"method": str(method), "quantity": column, "judged": judged,
                          "window": ", ".join(sorted(seen)), "rate": median.estimate, "rate_low": median.low,

@@ -162,7 +162,7 @@ def figure_boundary(results) -> Figure | None:
     ax_div, ax_rate = fig.subplots(2, 1, sharex=True)
     methods = list(dict.fromkeys(results.metrics["method"]))
     offsets = {m: 1 + 0.06 * (k - (len(methods) - 1) / 2) for k, m in enumerate(methods)}
-    top = 0
+    top, rates_drawn = 0, 0
     for method in methods:
         color = figures._color(method)
         for setting, x in zip(results.settings.index, xs, strict=True):
@@ -187,6 +187,7 @@ def figure_boundary(results) -> Figure | None:
             hx = growth[growth["quantity"] == "chattering_task_x_settled"]
             if len(hx):
                 r = hx.iloc[0]
+                rates_drawn += 1
                 ax_rate.errorbar([xm], [r.rate], yerr=[[r.rate - r.rate_low], [r.rate_high - r.rate]], marker="o",
                                  color=color, capsize=3)
         ax_div.plot([], [], marker="o", color=color, label=figures.method_label(method))
@@ -197,6 +198,9 @@ def figure_boundary(results) -> Figure | None:
     ax_div.legend(fontsize="small")
     ax_rate.axhline(1.0, color="0.4", linestyle="--", linewidth=1.0)
     ax_rate.set_ylabel("growth rate of settled H_x per iteration")
+    if not rates_drawn:
+        ax_rate.text(0.5, 0.5, stability.NOT_FITTED, transform=ax_rate.transAxes, ha="center", va="center",
+                     fontsize="small", color="0.3")
     ax_rate.set_xlabel(key)
     if min(xs) > 0:
         ax_rate.set_xscale("log")
