@@ -3,7 +3,10 @@
 Input is a tidy metrics frame for ONE setting (columns ``seed``, ``method``, ``iteration`` and the
 metric columns of :data:`ilcforce.metrics.METRIC_COLUMNS`); a single run is the one-seed case,
 so the single-run report and the studies share this code. The paper's figures are shown beside
-ours; they never enter a verdict, except where a claim *is* a paper number (claims 3 and 5).
+ours; they never enter a verdict, except where a claim *is* a paper number (claim 5's magnitude) or
+a threshold is taken from one (claim 3's "a few iterations": the paper's slowest j̄ plus one).
+Claims 1 and 2 are read on converged windows and claim 5 on settled H; the reasons are stated with
+each claim's rule (:mod:`ilcforce.report.claim_parts`).
 
 How a verdict is reached (stated once, used for every claim)
 -------------------------------------------------------------
