@@ -117,6 +117,8 @@ def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -
         for axis in ("x", "y"):
             pairs.append((f"H(C1)/H(C3) {axis} at j = {j_h}", "c1", "c3",
                           lambda m, a=axis: _value(m, f"chattering_task_{a}", j_h)))
+            pairs.append((f"H(C1)/H(C3) {axis} settled (judged by claim 5) at j = {j_h}", "c1", "c3",
+                          lambda m, a=axis: _value(m, f"chattering_task_{a}_settled", j_h)))
     for quantity, top, bottom, get in pairs:
         for seed in sorted(set(seeds[top]) & set(seeds[bottom])):
             numerator, denominator = get(seeds[top][seed]), get(seeds[bottom][seed])
