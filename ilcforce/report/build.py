@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from ilcforce import store
@@ -242,7 +243,11 @@ def _write_experiment(
     summary.attrs["divergence"] = _divergence_lines(experiment, {})
     summary.attrs["diverged"] = {m: found[0] for m, frame in metrics.items()
                                  if (found := tables.divergence(frame)) is not None}
-    summary.attrs["iterations"] = max((len(frame.index) for frame in metrics.values()), default=0)
+    # the iterations the run asked for (a diverged method stops early)
+    requested = [m.provenance.get("n_iterations_requested") for m in experiment.methods.values()]
+    requested = [int(n) for n in requested if isinstance(n, (int, float, np.integer)) and n > 0]
+    summary.attrs["iterations"] = max(requested) if requested else max(
+        (len(frame.index) for frame in metrics.values()), default=0)
     return written, summary
 
 
