@@ -1058,3 +1058,14 @@ def test_a_report_that_cannot_be_written_fails_naming_the_file_and_keeps_the_old
     after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before, sorted(str(p) for p in set(after) ^ set(before) or
                                    [p for p in after if after[p] != before.get(p)])
+
+
+def test_a_method_family_setting_is_named_on_every_method_it_reaches() -> None:
+    """realistic.toml sets psi_acceleration = desired in [c3]; it reaches c3-leak (a method family
+    shares its keys), and the report's method label says so for both."""
+    from ilcforce.config_load import load_config
+    from ilcforce.report import sections
+
+    config = load_config(Path(__file__).parent.parent / "experiments" / "realistic.toml").to_dict()
+    for method in ("c3", "c3-leak"):
+        assert "psi_acceleration = 'desired'" in sections.method_label(method, config), method
