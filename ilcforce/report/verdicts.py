@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pandas as pd
 
 from ilcforce.report import claims as claims_module
@@ -181,9 +180,3 @@ def read_back(path) -> pd.DataFrame:
                 raise ValueError(f"{path}: column {column} holds {frame.loc[unknown, column].iloc[0]!r}, not a truth value")
             frame[column] = text.isin(["true", "1", "1.0"])
     return frame
-
-
-def summary_numbers(rows: pd.DataFrame, claim: int, part: str) -> float:
-    """The statistic of one part of one setting's rows (NaN when absent)."""
-    found = rows[(rows["claim"] == claim) & (rows["part"] == part)]
-    return float(found["statistic"].iloc[0]) if len(found) else np.nan
