@@ -563,6 +563,10 @@ def test_diverged_baseline_counts_as_worse() -> None:
     result = verdicts(case)
     assert result[1] == "holds", "a baseline that diverged tracks worse"
     assert result[5] == "not evaluable", "no H for C1 at j = 19"
+    # C2, claim 2's baseline, diverged at j = 12: C3 is ahead in the window after the perturbation
+    case = good_case(c2=metrics_frame(sequence(3, 1e-5), sequence(2, 0.1), diverged_at=12))
+    parts = part_verdicts(case, 2)
+    assert parts["position_after"] == parts["force_after"] == "holds", parts
 
 
 def test_missing_method_is_not_evaluable() -> None:
