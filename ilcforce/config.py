@@ -19,6 +19,10 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
     [noise]       disturbance_amplitude, ..., encoder, joint_rate, force_sensor
     [surface]     selection, lambda_p, lambda_f1, lambda_f2          (eq. 8, shared by all methods)
     [c1] [c2] [c3] [smc-bl] ... one per registered method            (each method's own gains)
+
+A method family shares its keys: a key set in ``[c3]`` (or by ``--set c3.KEY=...``) reaches every
+method whose gains extend C3's (``c3-leak``) unless that method's own table sets it
+(:func:`ilcforce.config_load.inherited_gains`).
 """
 
 from __future__ import annotations

@@ -117,6 +117,43 @@ def _build(cls, data, path: str, base=None):
         raise ConfigError(msg if "." in msg.split(" ")[0] else f"{path}: {msg}") from None
 
 
+def method_parent(method: str) -> str | None:
+    """The registered method whose gains ``method``'s gains extend (c3-leak -> c3), or None.
+
+    A method family is read from the gains classes themselves: C3-leak's gains are C3's plus two
+    fields, so C3-leak *is* C3 with leakage, and a key of C3's that C3-leak shares means the same law.
+    """
+    mine = REGISTRY[method].gains_class
+    parents = [name for name, spec in REGISTRY.items()
+               if name != method and spec.gains_class is not mine and issubclass(mine, spec.gains_class)]
+    return parents[0] if parents else None
+
+
+def inherited_gains(data: dict) -> dict[str, dict]:
+    """The tables of the methods that inherit a key set in their parent's table.
+
+    The rule (one for every method family): a key set in a method's table (``[c3]``, or ``--set
+    c3.psi_acceleration=desired``) reaches every method whose gains extend that method's and have the
+    key (``[c3-leak]``), unless that method's own table sets it. Without the rule, a setting meant
+    for the C3 law reached C3 alone and C3-leak silently kept the default (its measured-acceleration
+    Psi diverged at j = 0 in an experiment written for the desired one). Returns method -> its table
+    with the inherited keys filled in (only methods that inherit something).
+    """
+    out: dict[str, dict] = {}
+    for method in REGISTRY:
+        parent = method_parent(method)
+        if parent is None or not isinstance(data.get(parent), dict):
+            continue
+        own = data.get(method, {})
+        if not isinstance(own, dict):
+            continue  # not a table: the method's own build names the fault
+        names = {f.name for f in dataclasses.fields(REGISTRY[method].gains_class)}
+        shared = {k: v for k, v in data[parent].items() if k in names and k not in own}
+        if shared:
+            out[method] = {**shared, **own}
+    return out
+
+
 def config_from_dict(data: dict) -> Config:
     """Build and validate a :class:`Config` from the TOML layout; raises :class:`ConfigError`."""
     if not isinstance(data, dict):
@@ -135,6 +172,8 @@ def config_from_dict(data: dict) -> Config:
                 raise ConfigError("[study] is a study file's table, not an experiment's: run a study file with "
                                   "`ilcforce study`")
             raise ConfigError(f"unknown section [{key}]{_did_you_mean(key, [*sections, *REGISTRY])}")
+    for key, value in inherited_gains(data).items():
+        gains[key] = _build(REGISTRY[key].gains_class, value, key)
     try:
         config = Config(**kwargs, gains=gains)
     except ValueError as exc:

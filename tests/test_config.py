@@ -196,3 +196,22 @@ def test_config_command_output_loads_back_whatever_the_user_typed(tmp_path):
     loaded = load_config(printed)
     assert result.stdout.isascii(), "plain ASCII whatever the terminal's encoding"
     assert loaded.experiment.description == "smile \U0001f600 :smile: caf\u00e9" and loaded.gains["c3"].k == (1.0, 2.0)
+
+
+def test_a_key_set_for_c3_reaches_c3_leak_unless_c3_leak_sets_it(tmp_path):
+    """A method family shares its keys: C3-leak's gains extend C3's, so ``[c3] psi_acceleration``
+    reaches C3-leak (realistic.toml once set it for C3 alone and C3-leak diverged at j = 0 with the
+    measured acceleration SPEC section 4 warns about); C3-leak's own table wins; other methods are
+    untouched; an override reaches the family the same way."""
+    config = config_from_dict({"c3": {"psi_acceleration": "desired", "eta": 2.0}})
+    assert config.gains["c3-leak"].psi_acceleration == "desired" and config.gains["c3-leak"].eta == 2.0
+    assert config.gains["c3-leak"].leakage == 0.02, "C3-leak's own keys keep their defaults"
+    own = config_from_dict({"c3": {"eta": 2.0}, "c3-leak": {"eta": 3.0}})
+    assert (own.gains["c3"].eta, own.gains["c3-leak"].eta) == (2.0, 3.0)
+    realistic = load_config(Path(__file__).parent.parent / "experiments" / "realistic.toml")
+    assert realistic.gains["c3-leak"].psi_acceleration == "desired"
+    overridden = load_config(None, {"c3.psi_acceleration": "desired"})
+    assert overridden.gains["c3-leak"].psi_acceleration == "desired"
+    assert default_config().gains["c3-leak"].psi_acceleration == "measured"
+    with pytest.raises(ConfigError, match="c3.psi_acceleration"):
+        config_from_dict({"c3": {"psi_acceleration": "guessed"}})

@@ -283,3 +283,24 @@ def test_memory_norms_hand_computed():
     assert math.isclose(norms["memory_norm_v"], math.sqrt(25 / 2), rel_tol=RTOL)  # sqrt(mean(25, 0))
     assert math.isclose(norms["memory_norm_alpha_hat"], 2.0, rel_tol=RTOL)
     assert math.isnan(norms["memory_norm_broken"])  # a diverged iteration's unfinished memory
+
+
+def test_memory_norms_settled_and_at_the_start_keep_the_start_mismatch_apart():
+    """A memory whose first sample alone grows (the t = 0 mismatch learned again each iteration):
+    the settled norm ignores it, the start norm is that sample, the whole-grid norm mixes both."""
+    from ilcforce.metrics import SETTLED_FROM, settled_sample
+
+    assert settled_sample(1e-4) == 200 and settled_sample(1e-3) == 20 and settled_sample(5e-5) == 400
+    assert settled_sample(3e-3) == 7, "ceil: the window starts at or after SETTLED_FROM"
+    assert SETTLED_FROM == 0.02
+    block = np.full((400, 2), 0.3)
+    for spike in (1.0, 5.0):
+        block[0] = (spike, 0.0)
+        norms = memory_norms({"v": block}, settled_from_sample=200)
+        assert math.isclose(norms["memory_settled_v"], math.sqrt(0.18), rel_tol=RTOL)  # |(0.3, 0.3)|
+        assert math.isclose(norms["memory_start_v"], spike, rel_tol=RTOL)
+        assert norms["memory_norm_v"] > norms["memory_settled_v"]
+    assert "memory_settled_v" not in memory_norms({"v": block}), "only with a settled window"
+    assert math.isnan(memory_norms({"v": block}, settled_from_sample=400)["memory_settled_v"]), "nothing left"
+    broken = memory_norms({"v": np.array([[np.nan], [1.0]])}, settled_from_sample=1)
+    assert math.isnan(broken["memory_settled_v"]) and math.isnan(broken["memory_start_v"])

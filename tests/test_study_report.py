@@ -197,7 +197,7 @@ def test_findings_judge_each_setting_with_its_own_perturbation_and_last_iteratio
     """A study of 4 iterations with the m3 change at j = 2 or 3: the findings page (and the README's
     section) judged it with the paper's p = 10 and read key numbers at j = 19 only, so claim 4 was
     'not evaluable' and every key number '-', while the study's own report judged it with p = 2."""
-    from ilcforce.report import claims
+    from ilcforce.report import claims, verdicts
     from ilcforce.report.study_findings import study_markdown
 
     from ilcforce.study import build_study
@@ -207,13 +207,15 @@ def test_findings_judge_each_setting_with_its_own_perturbation_and_last_iteratio
                                    "sweep": {"plant.perturbation.from_iteration": [2, 3]}}})
     run_study(study, tmp_path, workers=1)
     results = read_study(tmp_path / "studies" / "short.h5")
-    page, summary = study_markdown(results)
+    page, summary, claim_rows, _stability = study_markdown(results)
     for setting, p in ((0, 2), (1, 3)):
         frame = results.setting_metrics(setting)
         expected = claims.claim_summary(claims.judge_claims_over_seeds(frame, perturbation_iteration=p))
-        entry = summary[f"plant.perturbation.from_iteration = {p}"]
-        assert entry["verdicts"] == dict(zip(expected["claim"], expected["verdict"])), (entry["verdicts"], p)
-        assert entry["verdicts"][4] != "not evaluable", "claim 4 is judged at the setting's own p"
+        name = f"plant.perturbation.from_iteration = {p}"
+        entry = summary[name]
+        judged = verdicts.claim_verdicts(claim_rows[claim_rows["setting"] == name])
+        assert judged == dict(zip(expected["claim"], expected["verdict"])), (judged, p)
+        assert judged[4] != "not evaluable", "claim 4 is judged at the setting's own p"
         last = frame[(frame["method"] == "c3") & (frame["iteration"] == 3)]["force_error_2norm"]
         row = next(r for r in entry["rows"] if r["method"] == "c3")
         assert row["|e_F| 2-norm (N) at j = 3"] == format_interval(median_interval(last.to_numpy())) != "-"
@@ -228,6 +230,7 @@ def test_a_stopped_study_is_reported_as_incomplete_until_it_is_finished(tmp_path
     """A study whose latest run was stopped says so, with the numbers, in its report, the index and
     the findings; the finished study does not. Only the latest plan's cells count: a rerun with other
     seeds that stops early is incomplete however many earlier cells are stored."""
+    from ilcforce.report import verdicts
     from ilcforce.report.readme import findings_markdown
     from ilcforce.report.study import incomplete_text, write_study_report
     from ilcforce.report.study_findings import write_study_findings
@@ -258,7 +261,8 @@ def test_a_stopped_study_is_reported_as_incomplete_until_it_is_finished(tmp_path
     assert any("incomplete" in w for w in report.warnings)
     _written, name, found = write_study_findings(path, tmp_path / "findings")
     assert expected in (tmp_path / "findings" / "tiny" / "findings.md").read_text(encoding="utf-8")
-    assert expected in findings_markdown({}, {name: found})
+    rows = {key: verdicts.read_back(tmp_path / "findings" / "tiny" / f"{key}.csv") for key in ("claims", "stability")}
+    assert expected in findings_markdown({}, {name: found}, **rows)
     run_study(study, tmp_path, workers=1)  # the rerun finishes it
     assert incomplete_text(read_study(path)) == ""
     other = load_study(write_study_file(tmp_path, TINY_TOML.replace('seeds = "0-1"', 'seeds = "2-3"')))
@@ -296,3 +300,37 @@ def test_a_stored_study_name_never_makes_a_path_outside_the_report(tmp_path, sto
     assert summary.studies == () and any("tiny.h5" in w for w in summary.warnings)
     assert sorted(p for p in tmp_path.rglob("*") if "report" not in p.parts) == before
     assert not target.exists() or target == (tmp_path / "results").resolve()
+
+
+def test_the_findings_agree_with_claims_csv_row_for_row(results):
+    """Verdicts are data: every claim verdict, every judged part and every stability row the
+    findings state is a row of the report's claims.csv / stability.csv (read here with plain pandas,
+    not the report's reader), and every study writes the same rows beside its own report."""
+    import re
+
+    _root, out, _summary = results
+    findings = (out / "findings.md").read_text(encoding="utf-8")
+    rows = pd.read_csv(out / "claims.csv", keep_default_na=False, na_values=[""])
+    assert set(rows["source"]) == {"study", "experiment"}
+    heads = rows[rows["role"] == "claim"]
+    # the single run: "Claim k **verdict**" once per claim, with its judged parts' verdicts in order
+    paper = heads[heads["name"] == "paper"]
+    section = findings.split("**`paper`**", 1)[1]
+    stated = dict(re.findall(r"\* Claim (\d) \*\*([a-z ]+)\*\*", section))
+    assert {int(k): v for k, v in stated.items()} == dict(zip(paper["claim"], paper["verdict"], strict=True))
+    judged = rows[(rows["name"] == "paper") & rows["role"].isin(["central", "secondary"])]
+    for row in judged.itertuples(index=False):
+        assert f"{row.part_text}: " in section and f"{row.threshold} {row.verdict}" in section, row
+    # the studies: each setting's line of the table carries that setting's claim verdicts from the rows
+    for name in ("sweep1", "sweep2"):
+        mine = heads[heads["name"] == name]
+        own = pd.read_csv(out / "studies" / name / "claims.csv", keep_default_na=False, na_values=[""])
+        assert len(own) == len(rows[rows["name"] == name]), "the study's claims.csv holds the same rows"
+        for setting, verdicts_of in mine.groupby("setting"):
+            line = next(line for line in findings.splitlines() if line.startswith(f"| {setting} |"))
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            assert cells[2:2 + len(verdicts_of)] == list(verdicts_of.sort_values("claim")["verdict"]), (line, setting)
+    stability = pd.read_csv(out / "stability.csv")
+    assert list(stability.columns[:3]) == ["source", "name", "setting"]
+    for row in stability[stability["flagged"]].itertuples(index=False):
+        assert f"Unstable learning, {row.method}" in findings or row.source == "study", row

@@ -208,4 +208,6 @@ def test_report_names_listed_settings(ran, tmp_path):
     assert "## Setting: encoder only" in page
     findings = (out / "findings.md").read_text(encoding="utf-8")
     assert "| encoder only | 2 |" in findings
-    assert "Error 2-norms at j = 1 per setting" in findings, "read at the last iteration of a 2-iteration study"
+    assert "Error 2-norms and H_y (whole grid and settled, t >= 20 ms) at j = 1 per setting" in findings, (
+        "read at the last iteration of a 2-iteration study")
+    assert "| none | 2 |" in findings, "joint-rate and force-sensor noise still on: not deterministic, 2 seeds"

@@ -3,11 +3,16 @@
 Reads only the results store (:mod:`ilcforce.store`); never simulates. Layout written::
 
     <out_dir>/index.md                      links to every experiment's report
+    <out_dir>/findings.md                   the README's findings, written from the two tables below
+    <out_dir>/claims.csv, stability.csv     every verdict of every experiment and study as rows
     <out_dir>/<experiment>/report.md        readable on its own
     <out_dir>/<experiment>/table2.csv|.md   Table 2, ours beside the paper's
     <out_dir>/<experiment>/table3.csv|.md   Table 3, ours beside the paper's
     <out_dir>/<experiment>/comparison.csv|.md
-    <out_dir>/<experiment>/claims.csv|.md   the five claims with verdicts and rules
+    <out_dir>/<experiment>/claims.md        the five claims with verdicts, per-part verdicts and rules
+    <out_dir>/<experiment>/claims.csv       the verdicts as data (ilcforce.report.verdicts), one row per
+                                            claim and per part; claim_parts.csv the full per-part frame
+    <out_dir>/<experiment>/stability.csv    the learning-stability rates and flags as data
     <out_dir>/<experiment>/<figure>.png (and .pdf with formats=FIGURE_FORMATS, ilcforce report --pdf)
 
 Problems with the inputs (an unreadable or foreign file, a missing method, a partial run, a newer
@@ -23,11 +28,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from ilcforce import store
 from ilcforce.report import claims as claims_module
 from ilcforce.report import paper, pool, readme, sections, stability, table_write, tables, tasks
+from ilcforce.report import verdicts as verdict_rows
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.study import count_text
 from ilcforce.report.run_figures import DEFAULT_FORMATS, FIGURE_FORMATS, FIGURES, READ_ERRORS as _READ_ERRORS
@@ -191,10 +198,16 @@ def _write_experiment(
     table3 = tables.table3(metrics)
     comparison = tables.comparison_frame(metrics)
     tidy = tidy_metrics(experiment)
-    claims = claims_module.judge_claims_over_seeds(tidy, perturbation_iteration=p)
+    deterministic = claims_module.is_deterministic(experiment.config())
+    claims = claims_module.judge_claims_over_seeds(tidy, perturbation_iteration=p, deterministic=deterministic,
+                                                   config=experiment.config("c1") or experiment.config())
     growth = stability.learning_growth(tidy, perturbation_iteration=p)
     flags = stability.unstable_methods(growth)
     summary = claims_module.claim_summary(claims)
+    claim_rows = verdict_rows.claim_rows(claims, source=verdict_rows.EXPERIMENT, name=experiment.name,
+                                         setting=experiment.name)
+    stability_rows = verdict_rows.stability_rows(growth, source=verdict_rows.EXPERIMENT, name=experiment.name,
+                                                 setting=experiment.name)
     written: list[Path] = []
     written += table_write.write_table(table2, directory, "table2", title=f"Table 2 ({experiment.name})")
     written += table_write.write_table(table3, directory, "table3", title=f"Table 3 ({experiment.name})")
@@ -204,9 +217,10 @@ def _write_experiment(
             tables.by_quantity(comparison), directory / "comparison.md", title=f"Comparison ({experiment.name})"
         )
     )
-    written += table_write.write_table(summary, directory, "claims", title=f"Claims ({experiment.name})")
+    written.append(table_write.write_markdown(summary, directory / "claims.md", title=f"Claims ({experiment.name})"))
+    written.append(table_write.write_csv(claim_rows, directory / "claims.csv"))  # the verdicts as data
+    written.append(table_write.write_csv(stability_rows, directory / "stability.csv"))
     written.append(table_write.write_csv(claims, directory / "claim_parts.csv"))
-    written.append(table_write.write_csv(growth, directory / "learning_growth.csv"))
     figure_files = _write_figures(experiment, directory, p, formats, flags)
     written += figure_files
     report = directory / "report.md"
@@ -224,8 +238,16 @@ def _write_experiment(
     written.append(report)
     summary.attrs["description"] = sections.description(experiment.config())
     summary.attrs["flags"] = dict(flags)
-    summary.attrs["parts"] = claims.to_dict("list")
+    summary.attrs["claim_rows"] = claim_rows.to_dict("list")
+    summary.attrs["stability_rows"] = stability_rows.to_dict("list")
     summary.attrs["divergence"] = _divergence_lines(experiment, {})
+    summary.attrs["diverged"] = {m: found[0] for m, frame in metrics.items()
+                                 if (found := tables.divergence(frame)) is not None}
+    # the iterations the run asked for (a diverged method stops early)
+    requested = [m.provenance.get("n_iterations_requested") for m in experiment.methods.values()]
+    requested = [int(n) for n in requested if isinstance(n, (int, float, np.integer)) and n > 0]
+    summary.attrs["iterations"] = max(requested) if requested else max(
+        (len(frame.index) for frame in metrics.values()), default=0)
     return written, summary
 
 
@@ -292,7 +314,8 @@ def write_report(
     experiment_warnings: dict[str, list[str]] = {}
     # every experiment, every study's report and every study's findings page is one task; they run on
     # `jobs` cores together, heaviest first, and are put together below in this fixed order
-    from ilcforce.report.study import find_study_stores, study_index_section
+    from ilcforce.report.study import study_index_section
+    from ilcforce.report.study_match import find_study_stores
 
     study_dir = results_dir / "studies"
     report_paths = find_study_stores(results_dir)
@@ -345,11 +368,26 @@ def write_report(
     title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
     write_text_whole(index, "\n".join([title, "", *study_section]) + rest)  # studies lead
     written.append(index)
+    # every verdict of every experiment and study as rows; the findings are written from these rows
+    all_claims = pd.concat([pd.DataFrame(f.attrs.get("claim_rows", {}), columns=verdict_rows.CLAIM_COLUMNS)
+                            for f in verdicts.values()]
+                           + [pd.DataFrame(s.get("claim_rows", {}), columns=verdict_rows.CLAIM_COLUMNS)
+                              for s in studies.values()], ignore_index=True)
+    all_stability = pd.concat([pd.DataFrame(f.attrs.get("stability_rows", {}), columns=verdict_rows.STABILITY_COLUMNS)
+                               for f in verdicts.values()]
+                              + [pd.DataFrame(s.get("stability_rows", {}), columns=verdict_rows.STABILITY_COLUMNS)
+                                 for s in studies.values()], ignore_index=True)
+    for column in ("judged", "flagged"):  # concatenating an empty frame leaves them float
+        all_stability[column] = all_stability[column].astype(bool)
+    written.append(table_write.write_csv(all_claims, out_dir / "claims.csv"))
+    written.append(table_write.write_csv(all_stability, out_dir / "stability.csv"))
     findings = out_dir / "findings.md"
-    write_text_whole(findings, readme.findings_markdown({
-        name: {"description": frame.attrs.get("description", ""), "parts": pd.DataFrame(frame.attrs.get("parts", {})),
-               "flags": frame.attrs.get("flags", {}), "divergence": frame.attrs.get("divergence", [])}
-        for name, frame in verdicts.items()}, studies))
+    write_text_whole(findings, readme.findings_markdown(
+        {name: {"description": frame.attrs.get("description", ""), "diverged": frame.attrs.get("diverged", {}),
+                "iterations": frame.attrs.get("iterations", 0)}
+         for name, frame in verdicts.items()}, studies,
+        claims=verdict_rows.read_back(out_dir / "claims.csv"),
+        stability=verdict_rows.read_back(out_dir / "stability.csv")))
     written.append(findings)
     return ReportSummary(
         out_dir=out_dir,

@@ -3,7 +3,10 @@
 Input is a tidy metrics frame for ONE setting (columns ``seed``, ``method``, ``iteration`` and the
 metric columns of :data:`ilcforce.metrics.METRIC_COLUMNS`); a single run is the one-seed case,
 so the single-run report and the studies share this code. The paper's figures are shown beside
-ours; they never enter a verdict, except where a claim *is* a paper number (claims 3 and 5).
+ours; they never enter a verdict, except where a claim *is* a paper number (claim 5's magnitude) or
+a threshold is taken from one (claim 3's "a few iterations": the paper's slowest j̄ plus one).
+Claims 1 and 2 are read on converged windows and claim 5 on settled H; the reasons are stated with
+each claim's rule (:mod:`ilcforce.report.claim_parts`).
 
 How a verdict is reached (stated once, used for every claim)
 -------------------------------------------------------------
@@ -22,6 +25,9 @@ How a verdict is reached (stated once, used for every claim)
    is never used for a claim whose central part fails.
 4. The same rule applied to one seed's part results gives that seed's claim verdict; the claim's
    frequency ("holds in 3 of 20 seeds") counts them.
+5. A **deterministic** setting (no noise source active: every seed runs the same simulation) is
+   one evaluation, judged on its first seed and said as such ("one evaluation, deterministic"),
+   never "10 of 10 seeds".
 
 Iterations are counted from 0; ``p`` (10 in the paper) is the perturbation iteration. The parts
 themselves, with their thresholds, are in :mod:`ilcforce.report.claim_parts`.
@@ -36,10 +42,13 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.report import paper
-from ilcforce.report.claim_parts import (CENTRAL, CLAIMS, PARTS, SECONDARY,  # noqa: F401 (CLAIMS: re-exported)
+from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY,  # noqa: F401 (re-exported)
                                          SHOWN, _Part, _Seed, _Stop, statement_at)
 from ilcforce.report.seedframes import split_seeds
 from ilcforce.stats import frequency_interval, median_interval
+
+#: Roles printed beside a claim, never judged.
+NOT_JUDGED = (SHOWN, CAUSE)
 
 HOLDS = "holds"
 IN_PART = "in part"
@@ -79,8 +88,31 @@ def _distribution(values: np.ndarray) -> str:
     return ", ".join(f"{k}: {v}" for k, v in counts.items())
 
 
+#: The frequency text of a deterministic setting (module docstring, rule 5).
+ONE_EVALUATION = "one evaluation (deterministic: no noise source active, every seed is the same run)"
+
+
+def is_deterministic(config: Mapping) -> bool:
+    """Whether a resolved configuration (the TOML layout as a dict) draws nothing random: the
+    disturbance and every sensor noise are 0 (SPEC section 5: 0 turns a source off), so every
+    seed gives the same run. A configuration without a ``noise`` table is the paper's: noisy."""
+    noise = config.get("noise") if isinstance(config, Mapping) else None
+    if not isinstance(noise, Mapping):
+        return False
+    sources = ("disturbance_amplitude", "encoder", "joint_rate", "force_sensor")
+    return all(isinstance(noise.get(k), (int, float)) and noise.get(k) == 0 for k in sources)
+
+
+def first_seed_only(metrics: pd.DataFrame) -> pd.DataFrame:
+    """The rows of the smallest seed (a deterministic setting's one evaluation)."""
+    if metrics.empty or "seed" not in metrics.columns:
+        return metrics
+    return metrics[metrics["seed"] == metrics["seed"].min()].reset_index(drop=True)
+
+
 def judge_claims_over_seeds(metrics: pd.DataFrame, *,
-                            perturbation_iteration: int = paper.PERTURBATION_ITERATION) -> pd.DataFrame:
+                            perturbation_iteration: int = paper.PERTURBATION_ITERATION,
+                            deterministic: bool = False, config: Mapping | None = None) -> pd.DataFrame:
     """Every part of every claim, judged over the seeds of one setting.
 
     ``metrics``: tidy frame, columns ``seed``, ``method``, ``iteration`` + metric columns, one row
@@ -92,10 +124,16 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     and its 95% bootstrap interval), ``distribution`` (counts per value for integer statistics),
     ``passed``, ``evaluable`` (seeds), ``share_low``, ``share_high`` (95% Wilson interval of the
     passing share), ``part_verdict`` ("-" for shown parts), ``notes`` (why a seed could not be
-    judged, first reason), ``n_seeds``. :func:`claim_summary` reduces it to one row per claim.
+    judged, first reason), ``n_seeds``, ``threshold`` (the pass condition), ``deterministic``.
+    :func:`claim_summary` reduces it to one row per claim. ``deterministic``: the setting draws
+    nothing random (:func:`is_deterministic`); it is judged once, on its first seed (rule 5).
+    ``config``: the setting's resolved configuration (TOML layout), read by the parts that name a
+    modelling choice (role ``cause``); without it they are not evaluable.
     """
+    if deterministic:
+        metrics = first_seed_only(metrics)
     seeds = split_seeds(metrics)
-    contexts = {seed: _Seed(frames, perturbation_iteration) for seed, frames in seeds.items()}
+    contexts = {seed: _Seed(frames, perturbation_iteration, config) for seed, frames in seeds.items()}
     results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in PARTS}
     roles = {part.key: part.role for part in PARTS}
     rows, claim_rows = [], {}
@@ -108,14 +146,14 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
             judged = [x for x in passes if x is not None]
             k, n = sum(bool(x) for x in judged), len(judged)
             share = frequency_interval(k, n)
-            if part.role == SHOWN:
+            if part.role in NOT_JUDGED:
                 verdict = "-"
             elif n == 0:
                 verdict = NOT_EVALUABLE
             else:
                 verdict = HOLDS if 2 * k > n else FAILS
                 verdicts[part.key] = verdict
-            if part.role != SHOWN and n == 0:
+            if part.role not in NOT_JUDGED and n == 0:
                 verdicts[part.key] = NOT_EVALUABLE
             stat = median_interval(values)  # an infinite ratio (a diverged baseline) is dropped and counted in n
             notes = sorted({r[2] for r in results[part] if r[2]})
@@ -123,16 +161,17 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
                          "part": part.key,
                          "part_text": part.text, "role": part.role, "statistic": part.statistic,
                          "median": stat.estimate, "low": stat.low, "high": stat.high,
-                         "distribution": _distribution(values), "passed": k if part.role != SHOWN else pd.NA,
-                         "evaluable": n if part.role != SHOWN else int(np.isfinite(values).sum()),
+                         "distribution": _distribution(values), "passed": k if part.role not in NOT_JUDGED else pd.NA,
+                         "evaluable": n if part.role not in NOT_JUDGED else int(np.isfinite(values).sum()),
                          "share_low": share.low, "share_high": share.high, "part_verdict": verdict,
-                         "notes": notes[0] if notes else "", "n_seeds": len(contexts)})
+                         "notes": notes[0] if notes else "", "n_seeds": len(contexts),
+                         "threshold": part.threshold, "deterministic": bool(deterministic)})
         # the same rule per seed: how often the claim as a whole holds
         per_seed = {v: 0 for v in VERDICTS}
         for index in range(len(contexts)):
             seed_verdicts = {}
             for part in mine:
-                if part.role == SHOWN:
+                if part.role in NOT_JUDGED:
                     continue
                 passed = results[part][index][1]
                 seed_verdicts[part.key] = NOT_EVALUABLE if passed is None else HOLDS if passed else FAILS
@@ -142,18 +181,28 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     if frame.empty:
         return frame
     frame.insert(2, "verdict", frame["claim"].map(lambda c: claim_rows[c][0]))
-    frame.insert(3, "claim_frequency", frame["claim"].map(lambda c: _frequency_text(*claim_rows[c])))
+    frame.insert(3, "claim_frequency", frame["claim"].map(lambda c: _frequency_text(*claim_rows[c], deterministic)))
+    frame.insert(4, "claim_seeds_holding", frame["claim"].map(lambda c: int(claim_rows[c][1][HOLDS])))
     return frame
 
 
-def _frequency_text(verdict: str, per_seed: Mapping[str, int]) -> str:
+def _frequency_text(verdict: str, per_seed: Mapping[str, int], deterministic: bool = False) -> str:
+    if deterministic:
+        return ONE_EVALUATION
     n = sum(per_seed.values())
     parts = ", ".join(f"{v} in {c}" for v, c in per_seed.items() if c)
     return f"{parts} of {n} seed{'s' if n != 1 else ''}"
 
 
+def part_verdicts_text(mine: pd.DataFrame) -> str:
+    """A claim's judged parts and their verdicts in one line: "C2 below C1, position: holds; ..."."""
+    judged = mine[~mine["role"].isin(NOT_JUDGED)] if len(mine) else mine
+    return "; ".join(f"{r.part_text}: {r.part_verdict}" for r in judged.itertuples(index=False)) or "-"
+
+
 def claim_summary(parts: pd.DataFrame) -> pd.DataFrame:
-    """One row per claim: ``claim``, ``statement``, ``verdict``, ``frequency``, ``paper``, ``rule``."""
+    """One row per claim: ``claim``, ``statement``, ``verdict``, ``frequency``, ``parts`` (every
+    judged part's verdict, so a claim that fails on one part of four says so), ``paper``, ``rule``."""
     rows = []
     for claim in CLAIMS:
         mine = parts[parts["claim"] == claim.number] if not parts.empty else parts
@@ -161,7 +210,8 @@ def claim_summary(parts: pd.DataFrame) -> pd.DataFrame:
         frequency = str(mine["claim_frequency"].iloc[0]) if len(mine) else "-"
         statement = str(mine["statement"].iloc[0]) if len(mine) else claim.statement
         rows.append({"claim": claim.number, "statement": statement, "verdict": verdict,
-                     "frequency": frequency, "paper": claim.paper, "rule": claim.rule})
+                     "frequency": frequency, "parts": part_verdicts_text(mine), "paper": claim.paper,
+                     "rule": claim.rule})
     return pd.DataFrame(rows)
 
 
@@ -179,7 +229,8 @@ def tidy_from_methods(metrics_by_method: Mapping[str, pd.DataFrame], seed: int =
 
 
 def judge_claims(metrics_by_method: Mapping[str, pd.DataFrame], *,
-                 perturbation_iteration: int = paper.PERTURBATION_ITERATION) -> pd.DataFrame:
+                 perturbation_iteration: int = paper.PERTURBATION_ITERATION,
+                 deterministic: bool = False, config: Mapping | None = None) -> pd.DataFrame:
     """A single run's claims: the one-seed case of :func:`judge_claims_over_seeds`, part by part."""
-    return judge_claims_over_seeds(tidy_from_methods(metrics_by_method),
-                                   perturbation_iteration=perturbation_iteration)
+    return judge_claims_over_seeds(tidy_from_methods(metrics_by_method), perturbation_iteration=perturbation_iteration,
+                                   deterministic=deterministic, config=config)

@@ -12,7 +12,7 @@ import pandas as pd
 
 import ilcforce
 from ilcforce import store
-from ilcforce.metrics import memory_norms
+from ilcforce.metrics import memory_norms, settled_sample
 from ilcforce.store.access import read_memories
 from ilcforce.report import claims as claims_module
 from ilcforce.report import sections, study_match, table_write, tables
@@ -117,6 +117,10 @@ def tidy_metrics(experiment) -> pd.DataFrame:
     norms: dict[tuple[str, int], dict[str, float]] = {}
     for name, method in experiment.methods.items():
         wanted = tables.complete_iterations(method.metrics)
+        try:
+            k0 = settled_sample(float(experiment.config(name)["simulation"]["sample_time"]))
+        except (KeyError, TypeError, ValueError):
+            k0 = None  # a store without its configuration: the whole-grid norm only
         try:  # one open for all iterations; on a failure, iteration by iteration to name the bad ones
             memories = read_memories(method.path, wanted)
         except _READ_ERRORS:
@@ -124,7 +128,7 @@ def tidy_metrics(experiment) -> pd.DataFrame:
         for j in wanted:
             try:
                 memory = memories[j] if j in memories else store.read_memory(method.path, j)
-                norms[(name, j)] = memory_norms(memory)
+                norms[(name, j)] = memory_norms(memory, settled_from_sample=k0)
             except _READ_ERRORS as error:
                 experiment.warn(f"{name}: memory of iteration {j} unreadable ({error}); its norm is missing")
     columns = sorted({c for row in norms.values() for c in row})

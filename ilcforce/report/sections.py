@@ -19,8 +19,9 @@ from ilcforce.report import stability
 from ilcforce.report.table_write import markdown_table
 
 #: Settings under which a method's law is not the paper's: (method, config section, key, paper value).
-PAPER_LAW = (("c3", "c3", "psi_acceleration", "measured"), ("c1", "wall", "force_sign", "applied"),
-             ("c2", "wall", "force_sign", "applied"), ("c3", "wall", "force_sign", "applied"))
+PAPER_LAW = (("c3", "c3", "psi_acceleration", "measured"), ("c3-leak", "c3-leak", "psi_acceleration", "measured"),
+             ("c1", "wall", "force_sign", "applied"), ("c2", "wall", "force_sign", "applied"),
+             ("c3", "wall", "force_sign", "applied"))
 
 
 def config_of(provenance: Mapping[str, object]) -> dict:
@@ -71,10 +72,14 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
     """The claims section: one summary table, then each claim's parts with frequencies and intervals."""
     summary = claims_module.claim_summary(parts)
     n = int(parts["n_seeds"].iloc[0]) if len(parts) else 0
-    lines = [f"Judged over {n} seed{'s' if n != 1 else ''}. Each number is the median over seeds with its "
-             "95% percentile-bootstrap interval; each frequency counts the seeds where the part passes "
-             "(95% Wilson interval in brackets). With one seed there is no interval.", ""]
-    lines.append(markdown_table(summary[["claim", "verdict", "frequency", "statement"]]))
+    deterministic = bool(len(parts) and "deterministic" in parts.columns and parts["deterministic"].iloc[0])
+    if deterministic:
+        lines = [f"Judged once: {claims_module.ONE_EVALUATION}.", ""]
+    else:
+        lines = [f"Judged over {n} seed{'s' if n != 1 else ''}. Each number is the median over seeds with its "
+                 "95% percentile-bootstrap interval; each frequency counts the seeds where the part passes "
+                 "(95% Wilson interval in brackets). With one seed there is no interval.", ""]
+    lines.append(markdown_table(summary[["claim", "verdict", "frequency", "parts", "statement"]]))
     if flags:
         lines += ["Methods flagged for unstable learning (see Learning stability): "
                   + "; ".join(f"{m}: {text}" for m, text in flags.items()) + ".", ""]
@@ -85,10 +90,10 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
                   f"Paper: {claim.paper} Parts: {claim.rule}", ""]
         rows = []
         for row in mine.itertuples(index=False):
-            judged = row.role != claims_module.SHOWN
+            judged = row.role not in claims_module.NOT_JUDGED
             rows.append({
                 "part": row.part_text, "role": row.role, "statistic": row.statistic,
-                "median [95%]": _interval(row), "over seeds": row.distribution,
+                "passes when": getattr(row, "threshold", "") or "–", "median [95%]": _interval(row), "over seeds": row.distribution,
                 "passes": (f"{row.passed} of {row.evaluable} [{row.share_low:.2f}, {row.share_high:.2f}]"
                            if judged and row.evaluable else "–"),
                 "verdict": row.part_verdict, "note": row.notes,
@@ -104,8 +109,9 @@ _RULE_TEXT = (
     "within the iterations it reads fails; a baseline that diverged counts as an infinite norm). Over seeds "
     "a part holds when it passes in a strict majority of the seeds where it is evaluable. A claim fails when "
     "any central part fails; otherwise it is not evaluable when a central part is; otherwise it holds when "
-    "every secondary part holds, and holds in part when a secondary part fails. Shown parts are printed, "
-    "never judged. The claim's frequency applies the same rule to each seed."
+    "every secondary part holds, and holds in part when a secondary part fails. Shown parts (and cause "
+    "parts, which name a modelling choice behind a verdict) are printed, never judged. The claim's frequency "
+    "applies the same rule to each seed; a deterministic setting (no noise source active) is one evaluation."
 )
 
 
@@ -114,14 +120,17 @@ def stability_markdown(growth: pd.DataFrame, flags: Mapping[str, str]) -> list[s
     text = stability.__doc__.split("The test\n--------\n", 1)[-1].strip()
     lines = [re.sub(r":\w+:`([^`]+)`", r"`\1`", text).replace("``", "`"), ""]
     if growth.empty:
-        return lines + ["No growth rate could be fitted (too few complete iterations).", ""]
+        return lines + [f"Not evaluable: {stability.NOT_FITTED.removeprefix('not evaluable (').rstrip(')')}.", ""]
     table = pd.DataFrame({
         "method": growth["method"], "quantity": [stability.short_name(q) for q in growth["quantity"]],
+        "judged": ["yes" if j else "shown" for j in growth["judged"]],
         "window": growth["window"],
-        "rate per iteration [95%]": [f"{r.rate:.4g} [{r.rate_low:.4g}, {r.rate_high:.4g}]" if r.fitted > 1
-                                     else f"{r.rate:.4g}" for r in growth.itertuples(index=False)],
-        "seeds growing": [f"{r.growing} of {r.fitted}" for r in growth.itertuples(index=False)],
-        "grows": ["yes" if g else "no" for g in growth["grows"]],
+        "rate per iteration [95%]": [f"{r.rate:.4g} [{r.rate_low:.4g}, {r.rate_high:.4g}]"
+                                     for r in growth.itertuples(index=False)],
+        "value at the window's end": [f"{v:.3g}" for v in growth["value_end"]],
+        "floor": [f"{f:g}" if f else "-" for f in growth["floor"]],
+        "seeds growing": [f"{r.growing} of {r.fitted}" if r.judged else "-" for r in growth.itertuples(index=False)],
+        "grows": ["yes" if g else "no" if j else "-" for g, j in zip(growth["grows"], growth["judged"], strict=True)],
     })
     lines.append(markdown_table(table))
     if flags:

@@ -28,6 +28,7 @@ from ilcforce.metrics import convergence_iteration
 from ilcforce.report import paper, table_write, tables
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.seedframes import SeedMetrics, split_seeds
+from ilcforce.report.study_match import study_methods_and_seeds
 from ilcforce.stats import Interval, format_interval, median_interval
 
 #: Iterations whose error norms are tabulated (clipped to the study's iterations).
@@ -116,6 +117,8 @@ def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -
         for axis in ("x", "y"):
             pairs.append((f"H(C1)/H(C3) {axis} at j = {j_h}", "c1", "c3",
                           lambda m, a=axis: _value(m, f"chattering_task_{a}", j_h)))
+            pairs.append((f"H(C1)/H(C3) {axis} settled (judged by claim 5) at j = {j_h}", "c1", "c3",
+                          lambda m, a=axis: _value(m, f"chattering_task_{a}_settled", j_h)))
     for quantity, top, bottom, get in pairs:
         for seed in sorted(set(seeds[top]) & set(seeds[bottom])):
             numerator, denominator = get(seeds[top][seed]), get(seeds[bottom][seed])
@@ -149,6 +152,14 @@ def _cell(interval: Interval, n_seeds: int) -> str:
         return "-"
     text = format_interval(interval)
     return text if interval.n == n_seeds else f"{text} (n = {interval.n})"
+
+
+def _config(config_json: str) -> dict:
+    try:
+        loaded = json.loads(config_json)
+    except (ValueError, TypeError):
+        return {}
+    return loaded if isinstance(loaded, dict) else {}
 
 
 def setting_perturbation(config_json: str) -> int:
@@ -222,9 +233,12 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         numbers = key_numbers(mine, methods, iterations)
         report.files += table_write.write_table(numbers, directory, f"key_numbers_s{k}")
         lines += ["### Key numbers (median [95% interval] over seeds)", "", table_write.markdown_table(numbers), ""]
-        growth = stability.learning_growth(mine, perturbation_iteration=p)
+        deterministic = claims_module.is_deterministic(_config(setting.config_json))
+        judged = claims_module.first_seed_only(mine) if deterministic else mine  # one evaluation
+        growth = stability.learning_growth(judged, perturbation_iteration=p)
         flags = stability.unstable_methods(growth)
-        parts = claims_module.judge_claims_over_seeds(mine, perturbation_iteration=p)
+        parts = claims_module.judge_claims_over_seeds(judged, perturbation_iteration=p, deterministic=deterministic,
+                                                      config=_config(setting.config_json))
         report.files += table_write.write_table(parts, directory, f"claims_s{k}")
         lines += ["### The paper's claims over seeds", ""] + sections.claims_markdown(parts, flags)
         lines += ["### Learning stability", ""] + sections.stability_markdown(growth, flags)
@@ -261,8 +275,6 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
 def incomplete_text(results) -> str:
     """A sentence for a study whose latest run stopped before storing every cell it planned
     (settings x seeds x methods of its study file); '' for a complete study or an older store."""
-    from ilcforce.report.study_match import study_methods_and_seeds
-
     planned, cells = results.planned_cells, results.cells
     if planned is None:
         return ""
@@ -312,16 +324,6 @@ def _index_lines(name: str, results, headline: pd.DataFrame, n_seeds: int, done:
         lines += [f"The paper's claims ({what}):", "",
                   table_write.markdown_table(headline[["claim", "verdict", "frequency", "statement"]]), ""]
     return lines
-
-
-def find_study_stores(results_dir: Path) -> list[Path]:
-    """``results_dir/studies/*.h5`` (leftover temporary copies skipped), sorted; the paper's Monte
-    Carlo (``paper-mc``) first, as the report leads with it."""
-    folder = Path(results_dir) / "studies"
-    if not folder.is_dir():
-        return []
-    found = [p for p in folder.glob("*.h5") if p.is_file() and not p.name.startswith(".")]
-    return sorted(found, key=lambda p: (p.stem != "paper-mc", p.stem))
 
 
 def study_index_section(reports: list[StudyReport]) -> list[str]:

@@ -8,6 +8,7 @@ Reads a :class:`ilcforce.study.tidy.StudyResults`; writes nothing itself except 
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -20,7 +21,8 @@ from ilcforce.report import claims as claims_module
 from ilcforce.report import figures, paper, stability
 from ilcforce.report.figure_files import save_figure, write_text_whole
 from ilcforce.report.study import incomplete_text, setting_iterations, setting_perturbation
-from ilcforce.report.table_write import markdown_table
+from ilcforce.report import verdicts as verdict_rows
+from ilcforce.report.table_write import markdown_table, write_csv
 from ilcforce.stats import format_interval, median_interval
 
 #: Key numbers per setting and method, read at the paper's Table 3 iteration (j = 19, or the setting's
@@ -56,11 +58,16 @@ def _divergence_text(div: pd.DataFrame) -> str:
     return f"j = {format_interval(median_interval(div['diverged_at']))} ({k} of {n} seeds)"
 
 
-def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int,
-                 iterations: int) -> tuple[list[dict], pd.DataFrame, dict, bool]:
-    """One setting's per-method rows (key numbers, divergence, flag), its claim parts, flags, and
-    whether any growth rate could be fitted (the stability test could run)."""
-    parts = claims_module.judge_claims_over_seeds(frame, perturbation_iteration=perturbation_iteration)
+def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int, iterations: int,
+                 deterministic: bool = False, config: dict | None = None
+                 ) -> tuple[list[dict], pd.DataFrame, dict, pd.DataFrame]:
+    """One setting's per-method rows (key numbers, divergence, flag), its claim parts, flags, and its
+    growth frame (empty: the stability test could not run). A deterministic setting (no noise
+    source active) is one evaluation: its first seed alone."""
+    if deterministic:
+        frame = claims_module.first_seed_only(frame)
+    parts = claims_module.judge_claims_over_seeds(frame, perturbation_iteration=perturbation_iteration,
+                                                  deterministic=deterministic, config=config)
     growth = stability.learning_growth(frame, perturbation_iteration=perturbation_iteration)
     flags = stability.unstable_methods(growth)
     fitted = set(growth["method"].astype(str))
@@ -77,16 +84,18 @@ def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int,
             at = per_method[(per_method["iteration"] == j_key) & (per_method["status"].astype(str) == "complete")]
             row[f"{label} at j = {j_key}"] = format_interval(median_interval(at[column]))
         rows.append(row)
-    return rows, parts, flags, bool(fitted)
+    return rows, parts, flags, growth
 
 
 def _setting_name(values: dict) -> str:
     return ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in values.items()) or "-"
 
 
-def study_markdown(results) -> tuple[str, dict]:
-    """The study's findings page and a summary for the README (setting -> verdicts and flags). Each
-    setting is judged with its own perturbation iteration and number of iterations (its configuration)."""
+def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
+    """The study's findings page, a summary for the README (setting -> per-method rows and seeds),
+    and its verdicts as rows (``claims.csv``, ``stability.csv``: :mod:`ilcforce.report.verdicts`).
+    Each setting is judged with its own perturbation iteration and number of iterations (its
+    configuration)."""
     lines = [f"# Study `{results.name}`", "", f"**{results.description or 'no description'}**", ""]
     incomplete = incomplete_text(results)
     lines += [incomplete, ""] if incomplete else []
@@ -94,37 +103,55 @@ def study_markdown(results) -> tuple[str, dict]:
               "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
               "(a claim fails when a central part fails); unstable learning follows the stated growth test.", ""]
     overview, summary, body = [], {}, []
+    claim_tables, stability_tables = [], []
     for setting in results.settings.index:
         values = {k: results.settings.loc[setting, k] for k in results.sweep_keys}
         frame = results.setting_metrics(int(setting))
         if frame.empty:
             continue
         config_json = str(results.settings.loc[setting, "config_json"])
-        rows, parts, flags, fitted = setting_rows(frame, perturbation_iteration=setting_perturbation(config_json),
-                                                  iterations=setting_iterations(config_json))
+        deterministic = claims_module.is_deterministic(_config(config_json))
+        rows, parts, flags, growth = setting_rows(frame, perturbation_iteration=setting_perturbation(config_json),
+                                                  iterations=setting_iterations(config_json),
+                                                  deterministic=deterministic, config=_config(config_json))
         verdicts = claims_module.claim_summary(parts)
         # a listed setting is named by its label (its key values are in the study report and the table)
         name = (str(results.settings.loc[setting, "label"]) if getattr(results, "labelled", False)
                 else _setting_name(values))
+        claim_tables.append(verdict_rows.claim_rows(parts, source=verdict_rows.STUDY, name=results.name,
+                                                    setting=name))
+        stability_tables.append(verdict_rows.stability_rows(growth, source=verdict_rows.STUDY, name=results.name,
+                                                            setting=name))
         entry = {"setting": name}
         entry.update({f"claim {r.claim}": f"{r.verdict}" for r in verdicts.itertuples(index=False)})
-        entry["unstable learning"] = ", ".join(flags) or ("none" if fitted else stability.NOT_FITTED)
+        entry["unstable learning"] = ", ".join(flags) or ("none" if len(growth) else stability.NOT_FITTED)
         overview.append(entry)
-        summary[name] = {"verdicts": dict(zip(verdicts["claim"], verdicts["verdict"])), "flags": dict(flags),
-                         "rows": rows, "seeds": int(frame["seed"].nunique()), "stability_fitted": fitted}
+        summary[name] = {"rows": rows, "seeds": int(frame["seed"].nunique()), "deterministic": deterministic}
         body += [f"## Setting: {name}", "", markdown_table(pd.DataFrame(rows))]
-        body.append(markdown_table(verdicts[["claim", "verdict", "frequency", "statement"]]))
+        body.append(markdown_table(verdicts[["claim", "verdict", "frequency", "parts", "statement"]]))
     if overview:
         lines += ["## Overview", "", markdown_table(pd.DataFrame(overview))]
     lines += body
-    return "\n".join(lines) + "\n", summary
+    claims_frame = (pd.concat(claim_tables, ignore_index=True) if claim_tables
+                    else pd.DataFrame(columns=verdict_rows.CLAIM_COLUMNS))
+    stability_frame = (pd.concat(stability_tables, ignore_index=True) if stability_tables
+                       else pd.DataFrame(columns=verdict_rows.STABILITY_COLUMNS))
+    return "\n".join(lines) + "\n", summary, claims_frame, stability_frame
+
+
+def _config(config_json: str) -> dict:
+    try:
+        loaded = json.loads(config_json)
+    except ValueError:
+        return {}
+    return loaded if isinstance(loaded, dict) else {}
 
 
 def figure_boundary(results) -> Figure | None:
     """For a one-key numeric sweep: (a) first diverged iteration per method against the swept
     value (median over the seeds that diverged, bars from min to max; a hollow marker at the top
     means stable through the last iteration in every seed), (b) the growth rate per iteration of
-    H_x per method with its 95% interval, and 1 (no growth) dashed."""
+    H_x settled (t >= 20 ms) per method with its 95% interval, and 1 (no growth) dashed."""
     if len(results.sweep_keys) != 1 or getattr(results, "labelled", False):
         return None
     key = results.sweep_keys[0]
@@ -135,7 +162,7 @@ def figure_boundary(results) -> Figure | None:
     ax_div, ax_rate = fig.subplots(2, 1, sharex=True)
     methods = list(dict.fromkeys(results.metrics["method"]))
     offsets = {m: 1 + 0.06 * (k - (len(methods) - 1) / 2) for k, m in enumerate(methods)}
-    top = 0
+    top, rates_drawn = 0, 0
     for method in methods:
         color = figures._color(method)
         for setting, x in zip(results.settings.index, xs, strict=True):
@@ -157,9 +184,10 @@ def figure_boundary(results) -> Figure | None:
                 ax_div.plot([xm], [div["iterations"].max()], marker="^", markerfacecolor="none", color=color)
             p = setting_perturbation(str(results.settings.loc[setting, "config_json"]))
             growth = stability.learning_growth(frame, perturbation_iteration=p)
-            hx = growth[growth["quantity"] == "chattering_task_x"]
+            hx = growth[growth["quantity"] == "chattering_task_x_settled"]
             if len(hx):
                 r = hx.iloc[0]
+                rates_drawn += 1
                 ax_rate.errorbar([xm], [r.rate], yerr=[[r.rate - r.rate_low], [r.rate_high - r.rate]], marker="o",
                                  color=color, capsize=3)
         ax_div.plot([], [], marker="o", color=color, label=figures.method_label(method))
@@ -169,7 +197,10 @@ def figure_boundary(results) -> Figure | None:
     ax_div.set_ylim(-0.5, top + 1)
     ax_div.legend(fontsize="small")
     ax_rate.axhline(1.0, color="0.4", linestyle="--", linewidth=1.0)
-    ax_rate.set_ylabel("growth rate of H_x per iteration")
+    ax_rate.set_ylabel("growth rate of settled H_x per iteration")
+    if not rates_drawn:
+        ax_rate.text(0.5, 0.5, stability.NOT_FITTED, transform=ax_rate.transAxes, ha="center", va="center",
+                     fontsize="small", color="0.3")
     ax_rate.set_xlabel(key)
     if min(xs) > 0:
         ax_rate.set_xscale("log")
@@ -182,14 +213,15 @@ def figure_boundary(results) -> Figure | None:
 
 
 def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], str, dict]:
-    """Write ``out_dir/<name>/findings.md`` (+ the boundary figure for 1-key sweeps)."""
+    """Write ``out_dir/<name>/findings.md``, ``claims.csv`` and ``stability.csv`` (+ the boundary
+    figure for 1-key sweeps)."""
     from ilcforce.study.tidy import read_study
 
     results = read_study(study_store)
     directory = Path(out_dir) / results.name
     directory.mkdir(parents=True, exist_ok=True)
-    text, summary = study_markdown(results)
-    written = []
+    text, summary, claims_frame, stability_frame = study_markdown(results)
+    written = [write_csv(claims_frame, directory / "claims.csv"), write_csv(stability_frame, directory / "stability.csv")]
     with figures.report_style():
         fig = figure_boundary(results)
         if fig is not None:
@@ -200,4 +232,6 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
     written.append(directory / "findings.md")
     return written, results.name, {"description": results.description, "settings": summary,
                                    "incomplete": incomplete_text(results),
-                                   "labelled": bool(getattr(results, "labelled", False))}
+                                   "labelled": bool(getattr(results, "labelled", False)),
+                                   "claim_rows": claims_frame.to_dict("list"),
+                                   "stability_rows": stability_frame.to_dict("list")}

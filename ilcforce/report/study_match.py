@@ -68,6 +68,16 @@ def _latest_study_toml(header: dict) -> str:
     return latest_study_toml(sessions if isinstance(sessions, list) else [], str(header.get("study_toml", "")))
 
 
+def find_study_stores(results_dir: Path) -> list[Path]:
+    """``results_dir/studies/*.h5`` (leftover temporary copies skipped), sorted; the paper's Monte
+    Carlo (``paper-mc``) first, as the report leads with it."""
+    folder = Path(results_dir) / "studies"
+    if not folder.is_dir():
+        return []
+    found = [p for p in folder.glob("*.h5") if p.is_file() and not p.name.startswith(".")]
+    return sorted(found, key=lambda p: (p.stem != "paper-mc", p.stem))
+
+
 def _same(setting: dict, run: dict, method: str) -> bool:
     """Same results configuration for ``method``, the seed apart, and the same number of iterations
     (which the same-run policy ignores, as a run may be extended): a 20-iteration study must not
@@ -80,7 +90,6 @@ def _same(setting: dict, run: dict, method: str) -> bool:
 
 def find_study(results_dir: Path, configs: dict[str, dict]) -> StudyMatch | None:
     """The study (most seeds first) with a setting that ran ``configs`` (method -> stored config)."""
-    from ilcforce.report.study import find_study_stores
     from ilcforce.store.study import StudyStoreError, read_header
 
     best: StudyMatch | None = None

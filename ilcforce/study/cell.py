@@ -8,7 +8,8 @@ method). It returns plain data and writes no study file: only the driver writes 
 Each row is one iteration: every column of :data:`ilcforce.metrics.METRIC_COLUMNS` plus, per learned
 memory of the method, ``memory_norm_<name>`` (:func:`ilcforce.metrics.memory_norms`: the RMS over the
 control grid of the Euclidean norm per sample of the memory after that iteration, NaN when it holds
-a non-finite value, as after a divergence).
+a non-finite value, as after a divergence), and the same settled and at t = 0 alone
+(``memory_settled_<name>``, ``memory_start_<name>``).
 
 tau_d (:func:`ilcforce.simulate.desired_inputs`) depends only on the true plant, the wall, the
 reference and the grids, not on the seed or the method, so each worker process keeps it in a
@@ -69,8 +70,10 @@ def run_cell(config: Config, method: str, keep_store: str | None = None) -> dict
     rows: list[dict] = []
     cache = desired_cache(config)
 
+    k0 = metrics.settled_sample(config.simulation.sample_time)
+
     def collect(record: IterationRecord, row: dict) -> None:
-        rows.append({**row, **metrics.memory_norms(record.memory)})
+        rows.append({**row, **metrics.memory_norms(record.memory, settled_from_sample=k0)})
 
     if keep_store:
         from ilcforce.experiment import run_method

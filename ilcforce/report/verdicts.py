@@ -1,0 +1,182 @@
+"""Verdicts as data: the rows of ``claims.csv`` and ``stability.csv``, and the findings text drawn from them.
+
+Every sentence the findings generate about a claim or about learning stability is written from
+these rows, so a reader who loads the CSVs with pandas filters the very verdicts the README states.
+
+``claims.csv``: one row per claim (``part`` = "claim", ``role`` = "claim": the claim's verdict by the
+stated rule, ``seeds_passed`` = the seeds where the whole claim holds) and one row per part (judged
+or shown). Columns: :data:`CLAIM_COLUMNS`. ``stability.csv``: one row per method and quantity
+fitted by :func:`ilcforce.report.stability.learning_growth`. Columns: :data:`STABILITY_COLUMNS`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pandas as pd
+
+from ilcforce.report import claims as claims_module
+from ilcforce.report import stability
+
+EXPERIMENT, STUDY = "experiment", "study"
+CLAIM_ROW = "claim"
+CLAIM_COLUMNS = ["source", "name", "setting", "claim", "part", "role", "verdict", "seeds_evaluated", "seeds_passed",
+                 "statistic", "statistic_low", "statistic_high", "threshold", "evaluation", "part_text",
+                 "statistic_name", "note"]
+STABILITY_COLUMNS = ["source", "name", "setting", "method", "quantity", "judged", "window", "rate_per_iteration",
+                     "rate_low", "rate_high", "seeds_growing", "seeds_fitted", "value_end", "floor", "flagged"]
+
+
+def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> pd.DataFrame:
+    """The ``claims.csv`` rows of one setting from :func:`ilcforce.report.claims.judge_claims_over_seeds`'s frame."""
+    rows = []
+    if parts.empty:
+        return pd.DataFrame(rows, columns=CLAIM_COLUMNS)
+    for claim, mine in parts.groupby("claim", sort=True):
+        first = mine.iloc[0]
+        n = int(first["n_seeds"])
+        evaluation = str(first["claim_frequency"])
+        base = {"source": source, "name": name, "setting": setting, "claim": int(claim), "evaluation": evaluation}
+        rows.append({**base, "part": CLAIM_ROW, "role": CLAIM_ROW, "verdict": str(first["verdict"]),
+                     "seeds_evaluated": n, "seeds_passed": int(first["claim_seeds_holding"]),
+                     "statistic": math.nan, "statistic_low": math.nan, "statistic_high": math.nan,
+                     "threshold": "", "part_text": str(first["statement"]), "statistic_name": "", "note": ""})
+        for row in mine.itertuples(index=False):
+            shown = row.role in claims_module.NOT_JUDGED
+            rows.append({**base, "part": row.part, "role": row.role,
+                         "verdict": str(row.role) if shown else str(row.part_verdict),
+                         "seeds_evaluated": int(row.evaluable),
+                         "seeds_passed": pd.NA if shown else int(row.passed),
+                         "statistic": float(row.median), "statistic_low": float(row.low),
+                         "statistic_high": float(row.high), "threshold": str(row.threshold or ""),
+                         "part_text": str(row.part_text), "statistic_name": str(row.statistic),
+                         "note": str(row.notes or "")})
+    frame = pd.DataFrame(rows, columns=CLAIM_COLUMNS)
+    frame["seeds_passed"] = frame["seeds_passed"].astype("Int64")
+    return frame
+
+
+def stability_rows(growth: pd.DataFrame, *, source: str, name: str, setting: str) -> pd.DataFrame:
+    """The ``stability.csv`` rows of one setting from :func:`ilcforce.report.stability.learning_growth`'s frame."""
+    rows = [{"source": source, "name": name, "setting": setting, "method": r.method, "quantity": r.quantity,
+             "judged": bool(r.judged), "window": r.window, "rate_per_iteration": r.rate, "rate_low": r.rate_low,
+             "rate_high": r.rate_high, "seeds_growing": int(r.growing), "seeds_fitted": int(r.fitted),
+             "value_end": r.value_end, "floor": r.floor, "flagged": bool(r.grows)}
+            for r in growth.itertuples(index=False)]
+    return pd.DataFrame(rows, columns=STABILITY_COLUMNS)
+
+
+# ---------------------------------------------------------------------------------------------
+# The findings text, from the rows
+# ---------------------------------------------------------------------------------------------
+
+
+def statistic_text(row) -> str:
+    """"0.56 [0.5, 0.6]" (median and 95% interval over seeds), "0.56" with one value, "n/a" without."""
+    value = row.statistic
+    if value is None or not math.isfinite(float(value)):
+        return "n/a"
+    low, high = float(row.statistic_low), float(row.statistic_high)
+    if not (math.isfinite(low) and math.isfinite(high)) or low == high:
+        return f"{value:.3g}"
+    return f"{value:.3g} [{low:.3g}, {high:.3g}]"
+
+
+def _passes(row) -> str:
+    if row.role in claims_module.NOT_JUDGED:
+        return str(row.role)
+    if int(row.seeds_evaluated) == 0:
+        return f"{row.verdict}"
+    return f"{row.verdict}; passes in {int(row.seeds_passed)} of {int(row.seeds_evaluated)}"
+
+
+def claim_lines(rows: pd.DataFrame) -> list[str]:
+    """One bullet per claim: its verdict, how it was evaluated, and every judged part's statistic,
+    threshold and verdict (so a claim that fails on one part of four says which)."""
+    lines = []
+    for claim, mine in rows.groupby("claim", sort=True):
+        head = mine[mine["role"] == CLAIM_ROW].iloc[0]
+        judged = mine[~mine["role"].isin([CLAIM_ROW, *claims_module.NOT_JUDGED])]
+        detail = "; ".join(f"{r.part_text}: {statistic_text(r)} ({r.threshold} {_passes(r)})"
+                           for r in judged.itertuples(index=False))
+        how = "one evaluation" if head["evaluation"] == claims_module.ONE_EVALUATION else head["evaluation"]
+        lines.append(f"* Claim {int(claim)} **{head['verdict']}** ({how}). {detail}.")
+    return lines
+
+
+def cause_lines(rows: pd.DataFrame) -> list[str]:
+    """Why C1 leads where claim 1 does not hold, from claim 1's ``cause`` rows: whether C1's nominal
+    model is exact in the judged window, its fixed alpha against the disturbance bound, and the
+    alpha_hat C3 learned. Empty when claim 1 holds or C1 leads nowhere."""
+    one = rows[rows["claim"] == 1]
+    central = one[one["role"] == "central"]
+    if one.empty or central.empty or (central["verdict"] == "holds").all():
+        return []
+    leads = central[central["statistic"] >= 1.0]
+    if leads.empty:
+        return []
+    cause = {r.part: r for r in one[one["role"] == claims_module.CAUSE].itertuples(index=False)}
+    said = []
+    model = cause.get("cause_c1_model")
+    if model is not None and math.isfinite(float(model.statistic)):
+        said.append("C1's nominal model is the true plant in the window judged (the m3 change comes after it)"
+                    if float(model.statistic) == 1.0 else
+                    f"C1's nominal model is off by x{float(model.statistic):.3g} in the window judged")
+    alpha = cause.get("cause_c1_alpha")
+    if alpha is not None and math.isfinite(float(alpha.statistic)):
+        said.append(f"its fixed switching gain alpha is {float(alpha.statistic):.3g}x the non-repetitive "
+                    "disturbance's bound, so it rejects that disturbance in every iteration")
+    elif alpha is not None and float(alpha.statistic) == math.inf:
+        said.append("there is no disturbance for its alpha to reject")
+    learned = cause.get("cause_c3_alpha_hat")
+    if learned is not None and math.isfinite(float(learned.statistic)):
+        said.append(f"C3's learned alpha_hat is {statistic_text(learned)} N (settled RMS), which the paper's proof "
+                    "needs above that bound")
+    names = ", ".join(str(r.part_text) for r in leads.itertuples(index=False))
+    if not said:
+        return []
+    return [f"* Why claim 1 does not hold ({names}: C1 ahead): " + "; ".join(said) + "."]
+
+
+def flag_lines(rows: pd.DataFrame) -> list[str]:
+    """One bullet per flagged method, and one line when the test could not run (runs too short)."""
+    if rows.empty:
+        return [f"* Learning stability: {stability.NOT_FITTED}."]
+    lines = []
+    for method, mine in rows[rows["flagged"]].groupby("method", sort=False):
+        mine = mine.sort_values("rate_per_iteration", ascending=False)
+        parts = ", ".join(f"{stability.short_name(r.quantity)} x{r.rate_per_iteration:.3g}/iteration over "
+                          f"{r.window} ({r.seeds_growing} of {r.seeds_fitted} seeds)" for r in mine.itertuples())
+        lines.append(f"* Unstable learning, {method}: {parts}.")
+    if not lines:
+        lines.append("* Learning stability: no method grows over the trajectory in the late iterations ("
+                     + ", ".join(sorted(set(rows["window"]))) + ").")
+    return lines
+
+
+def flagged_methods(rows: pd.DataFrame) -> list[str]:
+    """The flagged methods of one setting's stability rows, in order of appearance."""
+    return list(dict.fromkeys(rows.loc[rows["flagged"].astype(bool), "method"].astype(str))) if len(rows) else []
+
+
+def claim_verdicts(rows: pd.DataFrame) -> dict[int, str]:
+    """claim -> verdict of one setting's claim rows."""
+    head = rows[rows["role"] == CLAIM_ROW]
+    return {int(c): str(v) for c, v in zip(head["claim"], head["verdict"], strict=True)}
+
+
+def read_back(path) -> pd.DataFrame:
+    """A ``claims.csv`` or ``stability.csv`` as written (empty strings stay empty strings)."""
+    frame = pd.read_csv(path, keep_default_na=False, na_values=[""])
+    for column in ("threshold", "part_text", "note", "evaluation", "statistic_name", "window"):
+        if column in frame.columns:
+            values = frame[column].astype(object)
+            frame[column] = values.where(values.notna(), "").astype(str)
+    for column in ("flagged", "judged"):
+        if column in frame.columns:
+            text = frame[column].astype(str).str.strip().str.lower()
+            unknown = ~text.isin(["true", "false", "1", "0", "1.0", "0.0"])
+            if unknown.any():
+                raise ValueError(f"{path}: column {column} holds {frame.loc[unknown, column].iloc[0]!r}, not a truth value")
+            frame[column] = text.isin(["true", "1", "1.0"])
+    return frame
