@@ -10,7 +10,7 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
 
     [experiment]  name, description, seed, iterations
     [plant]       model ("fivebar" | "serial2r")
-    [plant.fivebar]  L1 ... I4 (Table 1)   [plant.serial2r]  L1 ... I2, g (SPEC 8)
+    [plant.fivebar]  L1 ... I4 (Table 1)   [plant.serial2r]  L1 ... I2, g (docs/model.md#serial2r)
     [plant.perturbation]  parameter, factor, from_iteration
     [wall]        position, stiffness, force_sign
     [reference]   duration, x_amplitude, ...
@@ -47,7 +47,7 @@ class ConfigError(ValueError):
 @dataclass(frozen=True)
 class ExperimentInfo:
     name: str = "paper"  # names the results folder results/<name>/
-    description: str = "The paper's setup (SPEC defaults)"
+    description: str = "The paper's setup (the defaults of docs/model.md)"
     seed: int = 0  # root of every random draw: (seed, iteration) -> disturbance and noise
     iterations: int = 20  # number of iterations j = 0 .. iterations - 1
 
@@ -83,8 +83,8 @@ class PlantConfig:
     """
 
     model: str = "fivebar"  # a key of ilcforce.plants.MODELS
-    fivebar: FiveBarParams = field(default_factory=FiveBarParams)  # SPEC section 1, Table 1
-    serial2r: Serial2RParams = field(default_factory=Serial2RParams)  # SPEC section 8
+    fivebar: FiveBarParams = field(default_factory=FiveBarParams)  # docs/model.md#fivebar, Table 1
+    serial2r: Serial2RParams = field(default_factory=Serial2RParams)  # docs/model.md#serial2r
     perturbation: Perturbation = field(default_factory=Perturbation)
 
     def __post_init__(self) -> None:
@@ -92,7 +92,7 @@ class PlantConfig:
             raise ValueError(f"plant.model must be one of {', '.join(MODELS)}, got {self.model!r}")
         names = tuple(f.name for f in dataclasses.fields(self.nominal()))
         p = self.perturbation
-        if p.parameter == "":  # the model's default perturbation (SPEC sections 1 and 8)
+        if p.parameter == "":  # the model's default perturbation (docs/model.md#perturbation)
             object.__setattr__(self, "perturbation", dataclasses.replace(p, parameter=MODELS[self.model][3]))
         elif p.parameter not in names:
             raise ValueError(f"plant.perturbation.parameter must be one of {', '.join(names)} for "

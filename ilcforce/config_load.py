@@ -4,7 +4,7 @@ One loader (:func:`load_config`) builds and validates every field of the tree in
 :mod:`ilcforce.config` (the TOML layout is described there) and names the bad one in a one-line
 :class:`~ilcforce.config.ConfigError`: types and ranges per field (:mod:`ilcforce.config_ranges`),
 then cross-field checks (resources, grid, reachable workspace) before any simulation starts. With
-no file, :func:`default_config` is the paper's setup (SPEC sections 1-6); ``experiments/paper.toml``
+no file, :func:`default_config` is the paper's setup as docs/model.md decides it; ``experiments/paper.toml``
 spells the same values out and a test pins that the two agree.
 """
 
@@ -192,7 +192,7 @@ def _check_consistency(config: Config) -> None:
 
 
 def default_config() -> Config:
-    """The paper's setup (SPEC defaults)."""
+    """The paper's setup (the defaults of docs/model.md)."""
     return config_from_dict({})
 
 

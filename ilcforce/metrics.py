@@ -1,4 +1,4 @@
-"""Per-iteration metrics (SPEC section 6): error norms, chattering, convergence iteration.
+"""Per-iteration metrics (docs/model.md#metrics): error norms, chattering, convergence iteration.
 
 Pure numpy; consumes :class:`ilcforce.records.IterationRecord` and never touches files.
 
@@ -21,7 +21,7 @@ setup) from ``record.log``:
   task_input``, N) and in joint space per joint (``desired_torque - torque``, N m), in three
   forms, each its own column:
 
-  - ``chattering_<axis>``: over the whole grid (SPEC section 6, today's definition);
+  - ``chattering_<axis>``: over the whole grid (docs/model.md#metrics, the paper's reading);
   - ``chattering_<axis>_no_t0``: without the t = 0 sample. Every iteration starts at rest while
     the reference asks for dF_yd/dt(0) = 5 pi + 5 N/s, so ``Delta(0)`` is a start mismatch that no
     learning can remove; this form shows how much of H that one sample is;
@@ -230,7 +230,7 @@ def convergence_iteration(
     window: tuple[int, int] = (5, 9),
     last: int = 9,
 ) -> int | None:
-    """The convergence iteration j-bar (SPEC section 6; the paper never defines it).
+    """The convergence iteration j-bar (docs/model.md#metrics; the paper never defines it).
 
     j-bar is the first ``j <= last`` with ``norms[j] <= factor * median(norms[window[0] ..
     window[1]])`` (both window ends inclusive).

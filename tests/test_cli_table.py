@@ -31,7 +31,7 @@ def _summary(n: int, diverged: bool, ascii_box: bool = False) -> Table:
 
 def _comparison(methods: int) -> Table:
     names = ("c1", "c2", "c3", "smc-bl", "pd-ilc", "c3-leak", "sl-adapt")[:methods]
-    table = Table("paper: The paper's setup (SPEC defaults) (seed 0, 20 iterations)  ->  results/paper")
+    table = Table("paper: The paper's setup (the defaults of docs/model.md) (seed 0, 20 iterations)  ->  results/paper")
     table.add_column("")
     for name in names:
         table.add_column(name, justify="right")

@@ -20,7 +20,7 @@ from scipy import signal
 from ilcforce import store
 from ilcforce.config_load import default_config, load_config
 from ilcforce.controllers import LEARNS, PAPER_METHODS, REGISTRY
-from ilcforce.controllers.base import GAIN_SPECIFIC, gain_layout
+from ilcforce.controllers.base import GAIN_OWN_FIRST, gain_layout
 from ilcforce.experiment import make_controller, run_method
 from ilcforce.plants import MODELS
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
@@ -76,7 +76,7 @@ def test_gains_are_packed_by_name(method):
             continue  # encoded (e.g. psi_acceleration), checked by the law's reference test
         expected = np.atleast_1d(np.asarray(value, dtype=float))
         np.testing.assert_array_equal(packed[layout[f.name]], expected, err_msg=f"{method}.{f.name} misplaced")
-    last = max(s.stop for s in layout.values()) if layout else GAIN_SPECIFIC
+    last = max(s.stop for s in layout.values()) if layout else GAIN_OWN_FIRST
     assert packed.size >= last, "packed vector shorter than its layout"
 
 

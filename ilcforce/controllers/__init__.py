@@ -69,7 +69,7 @@ class MethodSpec:
         return dict(self.controller_class.memory_layout)
 
 
-_SPECS = (
+_ENTRIES = (
     MethodSpec("c1", "C1: sliding mode control with nominal model (eq. 26)", "C1 (SMC)", "C0",
                "ilcforce.controllers.c1", "C1Controller", "C1Gains", "none", False, True,
                "the paper, eq. (26)"),
@@ -94,7 +94,7 @@ _SPECS = (
 )
 
 #: method name -> spec, in report order (the paper's three first).
-REGISTRY: dict[str, MethodSpec] = {spec.name: spec for spec in _SPECS}
+REGISTRY: dict[str, MethodSpec] = {spec.name: spec for spec in _ENTRIES}
 
 #: the paper's methods, in the paper's order
 PAPER_METHODS: tuple[str, ...] = tuple(name for name, spec in REGISTRY.items() if spec.in_paper)

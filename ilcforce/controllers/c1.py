@@ -1,4 +1,4 @@
-"""C1: traditional sliding mode control with a nominal model (eq. 26, SPEC section 3).
+"""C1: traditional sliding mode control with a nominal model (eq. 26, docs/model.md#c1).
 
 tau_j = J^T (k sigma_j + alpha sgn(sigma_j) + Xi_nom^T Psi_j + w F_j), with
 Xi_nom^T Psi_j = D_nom psi1 + C_nom (dP + sigma) + G_nom (eqs. 11-12), D_nom, C_nom and G_nom the

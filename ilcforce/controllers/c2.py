@@ -1,4 +1,4 @@
-"""C2: traditional ILC of Azenha (2000), eq. (27) (SPEC section 3).
+"""C2: traditional ILC of Azenha (2000), eq. (27) (docs/model.md#c2).
 
 tau_j = v_j + w J^T F_j,  v_j(t) = v_{j-1}(t) + J_j^T k sigma_j(t),  v_{-1} = 0.
 The update is current-iteration: this iteration's sigma enters this iteration's v at the same sample.

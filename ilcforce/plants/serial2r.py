@@ -1,4 +1,4 @@
-"""The serial 2R arm in a vertical plane (SPEC section 8): the paper's n-DOF form with gravity.
+"""The serial 2R arm in a vertical plane (docs/model.md#serial2r): the paper's n-DOF form with gravity.
 
 theta1 is the absolute angle of link 1 from +x at the base joint (0, 0); theta2 the angle of link 2
 relative to link 1. P = (L1 c1 + L2 c12, L1 s1 + L2 s12). Working mode: theta2 in (0, pi), i.e.
@@ -42,7 +42,7 @@ PARAM_NAMES = ("L1", "L2", "Lc1", "Lc2", "m1", "m2", "I1", "I2", "g")
 
 @dataclass(frozen=True)
 class Serial2RParams(PackedParams):
-    """Link parameters (SPEC section 8). Lengths in m, masses in kg, centroidal inertias in kg m^2,
+    """Link parameters (docs/model.md#serial2r). Lengths in m, masses in kg, centroidal inertias in kg m^2,
     g in m/s^2 (>= 0; 0 turns gravity off)."""
 
     param_names = PARAM_NAMES  # packing order of as_array (not a field: no annotation)
@@ -193,7 +193,7 @@ def kernels() -> PlantKernels:
 
 
 class Serial2R(Plant):
-    """The serial 2R arm with parameters ``params`` (SPEC section 8), gravity along -y."""
+    """The serial 2R arm with parameters ``params`` (docs/model.md#serial2r), gravity along -y."""
 
     params_class = Serial2RParams
     working_mode = "the working mode theta2 in (0, pi)"

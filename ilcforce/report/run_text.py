@@ -187,8 +187,8 @@ def report_text(
         "## Table 3: chattering H at the 20th iteration",
         "",
         "`iteration` is the iteration read (19 unless that iteration was not run). The paper gives "
-        "task-space values for C1 and C3 only. H is given in three forms: over the whole grid (SPEC "
-        "section 6, the columns without suffix), without the t = 0 sample (`_no_t0`) and settled, from "
+        "task-space values for C1 and C3 only. H is given in three forms: over the whole grid (docs/model.md"
+        "#metrics, the columns without suffix), without the t = 0 sample (`_no_t0`) and settled, from "
         "t >= 20 ms (`_settled`). Every iteration starts at rest while the reference asks for "
         "dF_yd/dt(0) = 5 pi + 5 N/s, so Delta at t = 0 is a mismatch no learning removes; the settled "
         "form is the one that leaves the start transient out.",
@@ -218,7 +218,7 @@ def report_text(
     lines += ["", "## Implicit-loop fallbacks", ""]
     lines += [
         "Control samples where the implicit acceleration scheme found no real solution and reused the "
-        "previous sample's acceleration (SPEC section 4), per method.",
+        "previous sample's acceleration (docs/model.md#acceleration), per method.",
         "",
     ]
     lines.append(md(fallback_table(experiment)) if experiment.methods else "No readable store.\n")
