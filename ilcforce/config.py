@@ -139,7 +139,9 @@ def _default_gains() -> dict[str, object]:
 
 @dataclass(frozen=True)
 class Config:
-    """A whole experiment. ``gains`` maps each registered method name to its gains dataclass."""
+    """A whole experiment. ``gains`` maps each registered method name to its gains dataclass; each is
+    also an attribute: ``config.c3`` is ``config.gains["c3"]``, ``config.smc_bl`` is
+    ``config.gains["smc-bl"]``."""
 
     experiment: ExperimentInfo = field(default_factory=ExperimentInfo)
     plant: PlantConfig = field(default_factory=PlantConfig)
@@ -149,6 +151,23 @@ class Config:
     noise: NoiseModel = field(default_factory=NoiseModel)
     surface: SurfaceGains = field(default_factory=SurfaceGains)
     gains: dict = field(default_factory=_default_gains)
+
+    def __getattr__(self, name: str):
+        # Only reached when ordinary lookup fails: ``config.c3`` is ``config.gains["c3"]``, and a method
+        # whose name has a hyphen is reachable with an underscore (``config.smc_bl``), as a notebook
+        # user types it. Private and special names are never gains (copy and pickle probe for them).
+        gains = self.__dict__.get("gains")
+        if gains is not None and not name.startswith("_"):
+            for key in (name, name.replace("_", "-")):
+                if key in gains:
+                    return gains[key]
+        sections = [f.name for f in dataclasses.fields(self) if f.name != "gains"]
+        methods = ", ".join(k.replace("-", "_") for k in (gains or {}))
+        raise AttributeError(f"'Config' has no attribute {name!r} (sections: {', '.join(sections)}; "
+                             f"methods' gains: {methods})")
+
+    def __dir__(self):
+        return sorted(set(super().__dir__()) | {k.replace("-", "_") for k in self.__dict__.get("gains", {})})
 
     @property
     def n_control(self) -> int:

@@ -196,3 +196,21 @@ def test_config_command_output_loads_back_whatever_the_user_typed(tmp_path):
     loaded = load_config(printed)
     assert result.stdout.isascii(), "plain ASCII whatever the terminal's encoding"
     assert loaded.experiment.description == "smile \U0001f600 :smile: caf\u00e9" and loaded.gains["c3"].k == (1.0, 2.0)
+
+
+def test_gains_are_attributes_of_the_config():
+    """``config.c3`` is ``config.gains["c3"]`` for every registered method (a hyphen reads as an
+    underscore), survives copy and pickle, and an unknown name is one AttributeError line."""
+    import copy
+    import pickle
+
+    from ilcforce.config_load import load_config
+    from ilcforce.controllers import REGISTRY
+
+    config = load_config(None, {"c2.k": [300.0, 300.0]})
+    for name in REGISTRY:
+        assert getattr(config, name.replace("-", "_")) is config.gains[name]
+    assert config.c2.k == (300.0, 300.0)
+    assert pickle.loads(pickle.dumps(config)) == config and copy.deepcopy(config).c3 == config.c3
+    with pytest.raises(AttributeError, match=r"^'Config' has no attribute 'c9' \(sections: experiment, plant"):
+        config.c9
