@@ -46,12 +46,13 @@ import numpy as np
 
 from ilcforce.records import JOINT_AXES, STATUS_DIVERGED, TASK_AXES, IterationRecord
 
-#: Metric columns, in table order: name -> (unit, description). ``"-"`` marks a dimensionless
-#: column. The store keeps one row per iteration with exactly these columns.
+#: Metric columns, in table order: name -> (unit, description). Units as everywhere in ilcforce:
+#: ``"1"`` for a dimensionless number (an index, a count), ``""`` for text. The store keeps one row
+#: per iteration with exactly these columns.
 METRIC_COLUMNS: dict[str, tuple[str, str]] = {
-    "iteration": ("-", "iteration index j, counted from 0"),
-    "status": ("-", "'complete' or 'diverged'"),
-    "fallback_count": ("-", "control samples where the implicit acceleration scheme reused the previous acceleration"),
+    "iteration": ("1", "iteration index j, counted from 0"),
+    "status": ("", "'complete' or 'diverged'"),
+    "fallback_count": ("1", "control samples where the implicit acceleration scheme reused the previous acceleration"),
     "diverged_time": ("s", "time at which the watchdog stopped the iteration; NaN if complete"),
     "position_error_2norm": ("m", "paper's 2-norm sqrt(sum_k |e_P(t_k)|^2) over the log grid"),
     "position_error_l2": ("m s^1/2", "L2 norm sqrt(dt sum_k |e_P(t_k)|^2) over the log grid (unit m s^1/2)"),

@@ -7,6 +7,7 @@ The update is current-iteration: this iteration's sigma enters this iteration's 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from ilcforce.controllers.base import (
 @dataclass(frozen=True)
 class C2Gains:
     """Gains of eq. (27)."""
+
+    #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
+    units: ClassVar[dict[str, str]] = {"k": "N s/m"}
 
     k: tuple[float, float] = (400.0, 400.0)  # learning gain diagonal, N s/m
 

@@ -32,6 +32,11 @@ PSI_ACCELERATION = {"measured": 0.0, "desired": 1.0}
 class C3Gains:
     """Gains of eq. (14) (Section 4.1)."""
 
+    #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
+    units: ClassVar[dict[str, str]] = {"k": "N s/m", "eta": "N s/m",
+                                       "gamma": "mixed: kg s^3/m^2 (D entries), kg s/m^2 (C entries)",
+                                       "gamma_gravity": "N s/m", "psi_acceleration": ""}
+
     k: tuple[float, float] = (10.0, 100.0)  # feedback gain diagonal, N s/m
     eta: float = 5.0  # learning rate of the switching gain
     gamma: tuple[float, ...] = (4e3, 40.0, 1e4, 1e4, 1e3, 1e3, 1e4, 1e4)  # Gamma diagonal, Theta order

@@ -42,6 +42,7 @@ class C3LeakGains(C3Gains):
     """C3's gains (eq. 14) plus the leakage and the switching-gain bound."""
 
     section: ClassVar[str] = "c3-leak"
+    units: ClassVar[dict[str, str]] = {**C3Gains.units, "leakage": "1", "alpha_max": "N"}
     leakage: float = 0.02  # lambda: fraction of the previous iteration's memory forgotten, 0 <= lambda < 1
     alpha_max: float = 0.1  # bound on alpha_hat, N
 

@@ -30,6 +30,7 @@ Phi sigma moves Theta_hat by as much as one C3 iteration moves Theta_hat_j(t).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -43,6 +44,10 @@ from ilcforce.controllers.base import (
 @dataclass(frozen=True)
 class SlotineLiGains:
     """Gains of the adaptive sliding controller (Slotine & Li 1991, eqs. 9.25-9.27)."""
+
+    #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
+    units: ClassVar[dict[str, str]] = {"k": "N s/m", "gamma": "mixed: kg s^2/m^2 (D entries), kg/m^2 (C entries)",
+                                       "gamma_gravity": "N/m"}
 
     k: tuple[float, float] = (10.0, 100.0)  # feedback gain diagonal, N s/m (C3's)
     gamma: tuple[float, ...] = (2e3, 20.0, 5e3, 5e3, 500.0, 500.0, 5e3, 5e3)  # Gamma_a diagonal, 1/s (Gamma_C3 / 2 s)
