@@ -214,3 +214,20 @@ def test_gains_are_attributes_of_the_config():
     assert pickle.loads(pickle.dumps(config)) == config and copy.deepcopy(config).c3 == config.c3
     with pytest.raises(AttributeError, match=r"^'Config' has no attribute 'c9' \(sections: experiment, plant"):
         config.c9
+
+
+def test_a_runs_description_says_what_its_overrides_changed():
+    """A run made with --set said "The paper's setup" in its store and report; its description now
+    names each changed key with the value it replaced. Name, iterations and unchanged values are not
+    variants; an overridden description is taken as given."""
+    from ilcforce.config_load import load_config
+
+    base = load_config(None).experiment.description
+    config = load_config(None, {"c3.eta": 2, "simulation.sample_time": 2.5e-4, "experiment.iterations": 3})
+    assert config.experiment.description == (f"{base}, with c3.eta = 2 (was 5), simulation.sample_time = 0.00025 "
+                                              "(was 0.0001)")
+    assert load_config(None, {"c3.eta": 5.0, "experiment.name": "x"}).experiment.description == base
+    assert load_config(None, {"c3.eta": 2, "experiment.description": "mine"}).experiment.description == "mine"
+    assert load_config(None, {"c3.eta": 2}, note_overrides=False).experiment.description == base
+    serial = load_config(Path(__file__).resolve().parents[1] / "experiments" / "serial2r.toml", {"experiment.seed": 3})
+    assert serial.experiment.description.endswith(", with experiment.seed = 3 (was 0)")

@@ -142,6 +142,7 @@ def write_store(
     last: int = N_ITERATIONS - 1,
     diverge_at: int | None = None,
     finish: bool = True,
+    command: str | None = None,
 ) -> Path:
     """A store of ``method`` with iterations 0..``last`` (or up to a divergence at ``diverge_at``)."""
     with StoreWriter(
@@ -151,7 +152,7 @@ def write_store(
         config_toml=CONFIG_TOML,
         config_json=json.dumps(CONFIG),
         seed=7,
-        command=f"ilcforce simulate --method {method} (test)",
+        command=command or f"ilcforce simulate --method {method} (test)",
         n_iterations=N_ITERATIONS,
         reference=_reference(),
     ) as writer:
@@ -832,6 +833,31 @@ def test_readme_findings_check(tmp_path: Path, results_dir: Path) -> None:
     assert readme.check(target, findings) != ""
     (tmp_path / "bare.md").write_text("no markers\n", encoding="utf-8")
     assert "markers missing" in readme.check(tmp_path / "bare.md", findings)
+
+
+def test_a_users_variants_are_kept_apart_from_the_experiments(tmp_path: Path, results_dir: Path) -> None:
+    """A user's own run (``--out results/mine/c3.h5``, or ``--set`` overrides) entered the shared
+    report as if it were the experiment it was made from, and the README's findings then differed.
+    It is now listed under "Your runs and variants" with the reason, and kept out of findings.md."""
+    import shutil
+
+    root = tmp_path / "results"
+    shutil.copytree(results_dir / "synthetic", root / "synthetic")
+    for method in ("c1", "c2", "c3"):
+        write_store(root / "mine" / f"{method}.h5", method)  # experiment 'synthetic', folder 'mine'
+        write_store(root / "tuned" / f"{method}.h5", method, experiment="tuned",
+                    command=f"ilcforce simulate -m {method} --set c3.eta=2 --seed 3")
+    out = tmp_path / "out"
+    write_report(root, out, formats=())
+    index = (out / "index.md").read_text(encoding="utf-8")
+    shared, variants = index.split("## Your runs and variants", 1)
+    assert "[synthetic]" in shared and "[mine]" not in shared and "[tuned]" not in shared, index
+    assert "stored in results/mine/ but run as experiment 'synthetic'" in variants
+    assert "run with --set c3.eta=2 --seed 3" in variants
+    findings = (out / "findings.md").read_text(encoding="utf-8")
+    assert "**`synthetic`**" in findings and "`mine`" not in findings and "`tuned`" not in findings
+    assert "A variant, not an experiment file as written" in (out / "mine" / "report.md").read_text(encoding="utf-8")
+    assert "A variant" not in (out / "synthetic" / "report.md").read_text(encoding="utf-8")
 
 
 def test_h_form_match_names_the_closest_form_or_says_none_is_close():

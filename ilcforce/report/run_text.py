@@ -160,11 +160,15 @@ def report_text(
     own = sections.description(experiment.config())
     if own:
         lines += [f"**{own}**", ""]
+    if experiment.variant:
+        lines += [f"A variant, not an experiment file as written ({experiment.variant}); it is kept out of the "
+                  "findings.", ""]
     lines += [
         "Methods: " + "; ".join(experiment.label(m, flags) for m in experiment.methods) + ". "
         "C1 = sliding mode control (eq. 26), C2 = traditional ILC (eq. 27), C3 = the paper's ILC + "
         "sliding mode (eq. 14). "
-        f"The m3 perturbation (x 1.4) acts from iteration j = {p} on (from the configuration). "
+        f"The true plant's change ({sections.perturbation_label(experiment.config())}) acts from iteration "
+        f"j = {p} on (from the configuration). "
         f"Written by ilcforce {ilcforce.__version__} from the stores alone.",
         "",
         "## Warnings",
