@@ -587,6 +587,61 @@ def test_plot_error_norms(metrics_by_method: dict[str, pd.DataFrame], column: st
     assert list(artists[-1].get_xdata()) == [10, 10], "the perturbation iteration is marked"
 
 
+def test_error_norms_mark_divergence_without_hiding_one_method_under_another() -> None:
+    """Four methods that diverged at j = 0 had no point, and their "diverged" labels were drawn on top
+    of each other; the perturbation was labelled "m3 x 1.4" whatever the configuration changed, and
+    the legend covered the data. Each now has its own cross along the top (stacked), above every data
+    value, the perturbation line carries the configured label, and the legend stands right of the axes."""
+    good = metrics_frame([1e-3 / (j + 1) for j in range(12)], [0.1] * 12)
+    early = {m: metrics_frame([1.0] * 12, [1.0] * 12, diverged_at=0) for m in ("c2", "c3", "pd-ilc")}
+    with figures.report_style():
+        fig = Figure(layout="constrained")
+        ax = fig.subplots()
+        artists = figures.plot_error_norms(ax, {"c1": good, **early}, "position_error_2norm",
+                                           perturbation_iteration=10, perturbation_label="m2 x 1.4")
+        fig.canvas.draw()
+    crosses = [a for a in artists if getattr(a, "get_marker", lambda: None)() == figures.DIVERGED_MARKER]
+    assert [list(c.get_xdata()) for c in crosses] == [[0.0]] * 3
+    heights = sorted(float(c.get_ydata()[0]) for c in crosses)
+    assert len(set(heights)) == 3 and heights[1] - heights[0] >= 0.05, "stacked, not on top of each other"
+    bottom, top = (math.log10(v) for v in ax.get_ylim())
+    data_top = (math.log10(1e-3) - bottom) / (top - bottom)  # where the highest data value sits, axes fraction
+    assert data_top < min(heights) - 0.02, "every cross stands above the data"
+    assert [c.get_color() for c in crosses] == [figures._color(m) for m in early]
+    assert "m2 x 1.4 from j = 10" in [t.get_text() for t in ax.get_legend().get_texts()]
+    legend_box = ax.get_legend().get_window_extent()
+    assert legend_box.x0 >= ax.get_window_extent().x1, "the legend is outside the axes, off the data"
+
+
+def test_fig5_panels_each_have_their_own_scale(frames: dict[str, dict[int, pd.DataFrame]]) -> None:
+    """One shared y axis per row let PD-ILC's 7 mm flatten C1, C2 and C3 to lines at zero."""
+    chosen = {m: {j: frames[m][j] for j in (0, 5)} for m in ("c1", "c3")}
+    scaled = {j: frame.assign(position_error_x=frame["position_error_x"] * 100.0) for j, frame in chosen["c3"].items()}
+    with figures.report_style():
+        fig = figures.figure_tracking_error({"c1": chosen["c1"], "c3": scaled})
+    top = fig.axes[0].get_ylim(), fig.axes[1].get_ylim()
+    assert abs(top[1][1] - top[1][0]) > 20 * abs(top[0][1] - top[0][0]), "each panel scales to its own data"
+    assert fig.legends and not any(ax.get_legend() for ax in fig.axes), "one legend for the figure"
+
+
+def test_input_panels_keep_legend_and_note_off_the_data(frames: dict[str, dict[int, pd.DataFrame]]) -> None:
+    """Fig. 6's "off scale" note was drawn over the samples; legend and note now stand in a band
+    above the data (the y range from t >= 20 ms, plus HEADROOM)."""
+    with figures.report_style():
+        fig = figures.figure_input({"c1": frames["c1"][19]}, "x")
+        fig.canvas.draw()
+    frame = frames["c1"][19]
+    t = frame.index.to_numpy()
+    for ax, values in zip(fig.axes, (frame["task_input_x"], frame["desired_task_input_x"] - frame["task_input_x"])):
+        shown = np.asarray(values)[t >= figures.RANGE_FROM]
+        low, high = ax.get_ylim()
+        assert (high - shown.max()) / (high - low) > 0.25, "a free band above the data for legend and note"
+        data_top = ax.transData.transform((0.0, shown.max()))[1]
+        assert ax.get_legend().get_window_extent().y0 > data_top, "the legend sits in that band"
+        for text in ax.texts:  # the off-scale note, where there is one
+            assert text.get_window_extent().y0 > data_top, "the note sits in that band"
+
+
 def test_plot_tracking_error(frames: dict[str, dict[int, pd.DataFrame]]) -> None:
     chosen = {j: frames["c3"][j] for j in figures.TRACKING_ITERATIONS}
     for column in ("position_error_x", "force_error_y"):

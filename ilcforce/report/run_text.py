@@ -229,12 +229,14 @@ def report_text(
     lines += ["## Figures", ""]
     match = _matching_study(experiment)
     for stem, caption in FIGURES.items():
+        title, _, what = caption.rstrip(".").partition(". ")  # the first sentence heads, the rest says how to read it
         made = sorted((p.name for p in figure_files if p.stem == stem), key=lambda n: not n.endswith(".png"))
         if made:
             others = " ".join(f"([{name.rsplit('.', 1)[-1].upper()}]({name}))" for name in made[1:])
-            lines += [f"### {caption}", "", f"![{caption}]({made[0]}) {others}".rstrip(), ""]
+            lines += [f"### {title}", "", f"![{title}]({made[0]}) {others}".rstrip(), ""]
+            lines += [f"{what}.", ""] if what else []
         else:
-            lines += [f"### {caption}", "", f"Not drawn: {experiment.notes.get(stem, 'unknown reason')}.", ""]
+            lines += [f"### {title}", "", f"Not drawn: {experiment.notes.get(stem, 'unknown reason')}.", ""]
         lines += study_match.band_lines(match, stem)  # the same figure over seeds, where a study ran this setup
     lines += [
         "## Files",
