@@ -1017,3 +1017,20 @@ def test_a_report_that_cannot_be_written_fails_naming_the_file_and_keeps_the_old
     after = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
     assert after == before, sorted(str(p) for p in set(after) ^ set(before) or
                                    [p for p in after if after[p] != before.get(p)])
+
+
+def test_findings_name_each_number_and_lead_with_a_bottom_line() -> None:
+    """The findings printed bare ratios ("C2 below C1, position: 14.7 (fails)") without saying the
+    number is C2 / C1 or which side passes; each number now comes with what it is and the rule, and
+    each experiment's findings start with one plain sentence."""
+    from ilcforce.report import readme
+
+    assert readme.measured("mean 2-norm over j = 1..p-1, C2 / C1 (< 1 holds)", "14.7") == \
+        "mean 2-norm over j = 1..p-1, C2 / C1 = 14.7, holds if < 1"
+    assert readme.measured("j̄ (within +-1 of 3 holds)", "1") == "j̄ = 1, holds if within +-1 of 3"
+    assert readme.measured("ratio of the mean 2-norm over j = 5..9", "0.5") == \
+        "ratio of the mean 2-norm over j = 5..9: 0.5"
+    parts = pd.DataFrame({"claim": [1, 1, 2, 3, 4, 5], "verdict": ["fails", "fails", "holds", "in part", "holds",
+                                                                   "not evaluable"]})
+    assert readme.bottom_line(parts) == ("Bottom line: of the paper's 5 claims, 2 hold (2, 4), 1 hold in part (3), "
+                                         "1 fail (1), 1 cannot be judged (5).")

@@ -29,16 +29,43 @@ def _stat(row) -> str:
     return f"{row.median:.3g} [{row.low:.3g}, {row.high:.3g}]"
 
 
+def measured(statistic: str, value: str) -> str:
+    """A part's number with what it is and which side passes, from its statistic's text
+    (``"mean 2-norm over j = 1..p-1, C2 / C1 (< 1 holds)"``, ``"14.7"`` ->
+    ``"mean 2-norm over j = 1..p-1, C2 / C1 = 14.7, holds if < 1"``); a statistic without a
+    stated rule gives ``"<statistic> = <value>"``."""
+    text = str(statistic).strip()
+    rule = ""
+    if text.endswith(" holds)") and " (" in text:
+        text, rule = text.rsplit(" (", 1)
+        rule = "holds if " + rule.removesuffix(" holds)")
+    joined = f"{text}: {value}" if " = " in text.rsplit(",", 1)[-1] else f"{text} = {value}"
+    return f"{joined}, {rule}" if rule else joined
+
+
+def bottom_line(parts: pd.DataFrame) -> str:
+    """One plain sentence: how many of the claims hold, hold in part, fail or cannot be judged."""
+    verdicts = parts.groupby("claim", sort=True)["verdict"].first()
+    counts = [(verdict, [int(c) for c in verdicts.index[verdicts == verdict]])
+              for verdict in ("holds", "in part", "fails", "not evaluable")]
+    words = {"holds": "hold", "in part": "hold in part", "fails": "fail", "not evaluable": "cannot be judged"}
+    said = [f"{len(claims)} {words[verdict]} ({', '.join(map(str, claims))})" for verdict, claims in counts if claims]
+    return f"Bottom line: of the paper's {len(verdicts)} claims, " + ", ".join(said) + "."
+
+
 def experiment_findings(name: str, description: str, parts: pd.DataFrame, flags: Mapping[str, str],
                         divergence: Sequence[str]) -> list[str]:
-    """One experiment's findings: each claim's verdict with its judged parts' medians, flags, divergence."""
+    """One experiment's findings: a bottom line, then each claim's verdict with its judged parts'
+    medians (each named: what the number is and which side passes), flags, divergence."""
     n = int(parts["n_seeds"].iloc[0]) if len(parts) else 0
     lines = [f"**`{name}`**: {description or 'no description'} ({n} seed{'s' if n != 1 else ''}; "
              "medians over seeds with 95% intervals where there are several)", ""]
+    if len(parts):
+        lines += [bottom_line(parts), ""]
     for claim, mine in parts.groupby("claim", sort=True):
         judged = mine[mine["role"] != "shown"]
-        detail = "; ".join(f"{r.part_text}: {_stat(r)} ({r.part_verdict}; passes in {int(r.passed)} of {int(r.evaluable)} seeds)"
-                           for r in judged.itertuples(index=False))
+        detail = "; ".join(f"{r.part_text}: {measured(r.statistic, _stat(r))} ({r.part_verdict}; passes in "
+                           f"{int(r.passed)} of {int(r.evaluable)} seeds)" for r in judged.itertuples(index=False))
         lines.append(f"* Claim {claim} **{mine['verdict'].iloc[0]}** ({mine['claim_frequency'].iloc[0]}). {detail}.")
     if flags:
         lines += [f"* Unstable learning, {m}: {text.split(': ', 1)[-1]}." for m, text in flags.items()]
