@@ -915,6 +915,20 @@ def test_a_users_variants_are_kept_apart_from_the_experiments(tmp_path: Path, re
     assert "A variant" not in (out / "synthetic" / "report.md").read_text(encoding="utf-8")
 
 
+def test_index_names_the_methods_that_diverged(tmp_path: Path) -> None:
+    """Six of seven methods diverged on the serial 2R arm while the index said only "unstable
+    learning: none"; the index now has a column naming each diverged method and where."""
+    root = tmp_path / "results"
+    write_store(root / "exp" / "c1.h5", "c1", experiment="exp")
+    write_store(root / "exp" / "c2.h5", "c2", experiment="exp", diverge_at=0)
+    write_store(root / "exp" / "c3.h5", "c3", experiment="exp", diverge_at=3)
+    write_report(root, tmp_path / "out", formats=())
+    index = (tmp_path / "out" / "index.md").read_text(encoding="utf-8")
+    assert "| unstable learning | diverged | warnings |" in index
+    row = next(line for line in index.splitlines() if line.startswith("| [exp]"))
+    assert row.rstrip(" |").split(" | ")[-2] == "c2 (j = 0), c3 (j = 3)", row
+
+
 def test_h_form_match_names_the_closest_form_or_says_none_is_close():
     from ilcforce.report.tables import h_form_match
 

@@ -228,6 +228,8 @@ def _write_experiment(
     written.append(report)
     summary.attrs["description"] = sections.description(experiment.config())
     summary.attrs["variant"] = experiment.variant
+    summary.attrs["diverged"] = {name: found[0] for name, method in experiment.methods.items()
+                                 if (found := tables.divergence(method.metrics)) is not None}
     summary.attrs["flags"] = dict(flags)
     summary.attrs["parts"] = claims.to_dict("list")
     summary.attrs["divergence"] = _divergence_lines(experiment, {})
@@ -387,6 +389,11 @@ def _index_text(
                     row[f"claim {claim.claim}"] = claim.verdict
                 flagged = claims.attrs.get("flags", {})
                 row["unstable learning"] = ", ".join(flagged) if flagged else "none"
+                # "unstable learning" is a growth test over the complete iterations after the perturbation,
+                # so a method that diverged before them is not flagged by it: its divergence has its own
+                # column, and "unstable learning: none" no longer reads as "all was well"
+                diverged = claims.attrs.get("diverged", {})
+                row["diverged"] = ", ".join(f"{m} (j = {j})" for m, j in diverged.items()) or "none"
                 row["warnings"] = len(experiment_warnings.get(name, []))
                 rows.append(row)
             return table_write.markdown_table(pd.DataFrame(rows))
