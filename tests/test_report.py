@@ -1048,3 +1048,16 @@ def test_findings_name_each_number_and_lead_with_a_bottom_line() -> None:
                                                                    "not evaluable"]})
     assert readme.bottom_line(parts) == ("Bottom line: of the paper's 5 claims, 2 hold (2, 4), 1 hold in part (3), "
                                          "1 fail (1), 1 cannot be judged (5).")
+
+
+def test_list_of_figures_headings_are_each_captions_first_sentence() -> None:
+    """The report's list of figures says what each shows: a heading (the caption's first sentence,
+    "Fig. 7: the same as Fig. 6 along Y" kept whole) and, under the figure, how to read it."""
+    from ilcforce.report.run_text import _first_sentence
+
+    for stem, caption in build.FIGURES.items():
+        title, rest = _first_sentence(caption)
+        assert caption.startswith(title) and (not rest or rest in caption), stem
+        assert not title.endswith(("Fig", "Figs")) and len(title) > 20, title
+    assert _first_sentence("Fig. 7: the same as Fig. 6 along Y.") == ("Fig. 7: the same as Fig. 6 along Y", "")
+    assert _first_sentence("Fig. 3: norms. A cross marks divergence.") == ("Fig. 3: norms", "A cross marks divergence")

@@ -21,7 +21,7 @@ FIGURES = {
     "fig2_reference": "Fig. 2: the reference every method tracks: desired position x_d (m) and desired contact "
                       "force F_yd (N) against time.",
     "fig3_position_error_norm": "Fig. 3: the paper's 2-norm of the position error e_P (X) at each iteration j, one "
-                                "line per method, log scale. A cross along the top edge marks where a method "
+                                "line per method, log scale. A cross above the data marks where a method "
                                 "diverged (it has no value from there on); the dashed line marks the true plant's "
                                 "change. Lower is better.",
     "fig4_force_error_norm": "Fig. 4: the same for the force error e_F (Y), in N.",

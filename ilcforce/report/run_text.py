@@ -4,6 +4,8 @@ fallbacks, and the assembly of every section. Reads only the results store; neve
 
 from __future__ import annotations
 
+import re
+
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -109,6 +111,17 @@ def fallback_table(experiment) -> pd.DataFrame:
             }
         )
     return pd.DataFrame(rows)
+
+
+def _first_sentence(caption: str) -> tuple[str, str]:
+    """("Fig. 3: what it shows", "how to read it") from a figure caption: split after the first
+    sentence, i.e. at the first full stop followed by a capital, after the caption's "name: " (so
+    "Fig. 3" and "as Fig. 6 along Y" are not cut at their own full stops)."""
+    name, colon, text = caption.rstrip(".").partition(": ")
+    if not colon:
+        name, text = "", caption.rstrip(".")
+    first, *rest = re.split(r"\.\s+(?=[A-Z])", text, maxsplit=1)
+    return (f"{name}{colon}{first}", rest[0] if rest else "")
 
 
 def tidy_metrics(experiment) -> pd.DataFrame:
@@ -229,7 +242,7 @@ def report_text(
     lines += ["## Figures", ""]
     match = _matching_study(experiment)
     for stem, caption in FIGURES.items():
-        title, _, what = caption.rstrip(".").partition(". ")  # the first sentence heads, the rest says how to read it
+        title, what = _first_sentence(caption)  # the first sentence heads, the rest says how to read it
         made = sorted((p.name for p in figure_files if p.stem == stem), key=lambda n: not n.endswith(".png"))
         if made:
             others = " ".join(f"([{name.rsplit('.', 1)[-1].upper()}]({name}))" for name in made[1:])
