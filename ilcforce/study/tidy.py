@@ -9,7 +9,7 @@ setting), ``seed``, ``method``,
 then any further columns (a study's ``memory_norm_*``). A run store is the one-setting, one-seed
 case. Failed cells have no rows (see :attr:`StudyResults.cells`).
 
-Units. The frame carries them as ``frame.attrs["units"]`` (column -> unit) and
+Units. The frame :func:`tidy_metrics` returns carries them as ``frame.attrs["units"]`` (column -> unit) and
 ``frame.attrs["descriptions"]`` (column -> what it is); :func:`export` writes them beside the CSV in
 a sidecar table ``<name>.units.csv`` (columns ``column``, ``unit``, ``description``, one row per
 column of the CSV, in its order), so the CSV itself stays one header row that any reader takes.
@@ -202,7 +202,7 @@ def read_study(path: Path | str) -> StudyResults:
                        "worker"]].sort_values(["setting", "seed", "method"]).reset_index(drop=True)
     return StudyResults(name=str(header.get("name", "")), description=str(header.get("description", "")),
                         study_toml=str(header.get("study_toml", "")), sweep_keys=sweep_keys, labelled=labelled,
-                        settings=settings, metrics=_with_units(metrics), cells=cells,
+                        settings=settings, metrics=metrics, cells=cells,
                         sessions=json.loads(header.get("sessions_json", "[]")), row_setting=row_setting)
 
 
@@ -214,7 +214,7 @@ def run_store_metrics(path: Path | str) -> pd.DataFrame:
     frame = store.read_metrics(path).reset_index()
     frame.insert(0, "seed", int(provenance.get("seed", 0)))
     frame.insert(1, "method", str(provenance.get("method", Path(path).stem)))
-    return _with_units(_order(frame, []).reset_index(drop=True))
+    return _order(frame, []).reset_index(drop=True)
 
 
 def tidy_metrics(path: Path | str) -> pd.DataFrame:
@@ -230,14 +230,16 @@ def tidy_metrics(path: Path | str) -> pd.DataFrame:
         raise ExportError(f"{path} does not exist")
     if not path.is_file():
         raise ExportError(f"{path} is not a regular file")
+    # units go on the frame handed out, not on the frames the report works on (pandas deep-copies
+    # attrs at every operation)
     if is_study_store(path):
         try:
-            return read_study(path).metrics
+            return _with_units(read_study(path).metrics)
         except StudyStoreError as exc:
             raise ExportError(str(exc)) from None
     try:
         store.validate(path)
-        return run_store_metrics(path)
+        return _with_units(run_store_metrics(path))
     except (store.StoreError, OSError, KeyError, ValueError) as exc:
         raise ExportError(" ".join(str(exc).split()) or f"{path}: not an ilcforce store") from None
 
