@@ -8,7 +8,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 MODEL = ROOT / "docs" / "model.md"
-#: where citations live: code, tests, experiment files and docs (README is checked by its own tests)
+#: where citations live: code, tests, experiment files and docs (README.md is not searched here)
 SEARCHED = ("ilcforce", "tests", "docs", "experiments")
 SUFFIXES = {".py", ".md", ".toml"}
 #: files other work is rewriting at the same time; each still cites the outside document and
