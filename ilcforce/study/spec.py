@@ -332,7 +332,9 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
 
 def _load(experiment: Path | None, overrides: dict, where: str) -> Config:
     try:
-        return load_config(experiment, {**overrides, "experiment.seed": 0})
+        # a setting is described by its own label and values (and a study store compares settings by
+        # their whole configuration), so its description stays the experiment file's
+        return load_config(experiment, {**overrides, "experiment.seed": 0}, note_overrides=False)
     except ConfigError as exc:
         if experiment is not None:  # the experiment file's own fault (the same one alone) is not the setting's
             try:
