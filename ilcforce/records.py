@@ -39,7 +39,7 @@ LOG_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
     "velocity": (TASK_AXES, "m/s", "true end-effector velocity dP/dt"),
     "contact_force": (TASK_AXES, "N", "true contact force F, the force the end-effector applies (docs/model.md#wall)"),
     "contact_force_measured": (TASK_AXES, "N", "force sensor reading (true + noise)"),
-    "disturbance": (TASK_AXES, "N", "task-space disturbance F_v acting on the robot"),
+    "disturbance": (TASK_AXES, "N", "task-space disturbance F_v of eq. (1), tau_v = J^T F_v: the robot feels -F_v (docs/model.md#noise)"),
     "torque": (JOINT_AXES, "N m", "applied joint torque tau (zero-order hold)"),
     "task_input": (TASK_AXES, "N", "task-space input F_E = J^-T tau at the true pose"),
     "desired_torque": (JOINT_AXES, "N m", "tau_d: inverse dynamics of this iteration's true plant along the desired motion, with the desired contact force"),
