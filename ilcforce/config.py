@@ -10,7 +10,7 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
 
     [experiment]  name, description, seed, iterations
     [plant]       model ("fivebar" | "serial2r")
-    [plant.fivebar]  L1 ... I4 (Table 1)   [plant.serial2r]  L1 ... I2, g (SPEC 8)
+    [plant.fivebar]  L1 ... I4 (Table 1)   [plant.serial2r]  L1 ... I2, g (docs/model.md#serial2r)
     [plant.perturbation]  parameter, factor, from_iteration
     [wall]        position, stiffness, force_sign
     [reference]   duration, x_amplitude, ...
@@ -51,7 +51,7 @@ class ConfigError(ValueError):
 @dataclass(frozen=True)
 class ExperimentInfo:
     name: str = "paper"  # names the results folder results/<name>/
-    description: str = "The paper's setup (SPEC defaults)"
+    description: str = "The paper's setup (the defaults of docs/model.md)"
     seed: int = 0  # root of every random draw: (seed, iteration) -> disturbance and noise
     iterations: int = 20  # number of iterations j = 0 .. iterations - 1
 
@@ -87,8 +87,8 @@ class PlantConfig:
     """
 
     model: str = "fivebar"  # a key of ilcforce.plants.MODELS
-    fivebar: FiveBarParams = field(default_factory=FiveBarParams)  # SPEC section 1, Table 1
-    serial2r: Serial2RParams = field(default_factory=Serial2RParams)  # SPEC section 8
+    fivebar: FiveBarParams = field(default_factory=FiveBarParams)  # docs/model.md#fivebar, Table 1
+    serial2r: Serial2RParams = field(default_factory=Serial2RParams)  # docs/model.md#serial2r
     perturbation: Perturbation = field(default_factory=Perturbation)
 
     def __post_init__(self) -> None:
@@ -96,7 +96,7 @@ class PlantConfig:
             raise ValueError(f"plant.model must be one of {', '.join(MODELS)}, got {self.model!r}")
         names = tuple(f.name for f in dataclasses.fields(self.nominal()))
         p = self.perturbation
-        if p.parameter == "":  # the model's default perturbation (SPEC sections 1 and 8)
+        if p.parameter == "":  # the model's default perturbation (docs/model.md#perturbation)
             object.__setattr__(self, "perturbation", dataclasses.replace(p, parameter=MODELS[self.model][3]))
         elif p.parameter not in names:
             raise ValueError(f"plant.perturbation.parameter must be one of {', '.join(names)} for "
@@ -143,7 +143,9 @@ def _default_gains() -> dict[str, object]:
 
 @dataclass(frozen=True)
 class Config:
-    """A whole experiment. ``gains`` maps each registered method name to its gains dataclass."""
+    """A whole experiment. ``gains`` maps each registered method name to its gains dataclass; each is
+    also an attribute: ``config.c3`` is ``config.gains["c3"]``, ``config.smc_bl`` is
+    ``config.gains["smc-bl"]``."""
 
     experiment: ExperimentInfo = field(default_factory=ExperimentInfo)
     plant: PlantConfig = field(default_factory=PlantConfig)
@@ -153,6 +155,23 @@ class Config:
     noise: NoiseModel = field(default_factory=NoiseModel)
     surface: SurfaceGains = field(default_factory=SurfaceGains)
     gains: dict = field(default_factory=_default_gains)
+
+    def __getattr__(self, name: str):
+        # Only reached when ordinary lookup fails: ``config.c3`` is ``config.gains["c3"]``, and a method
+        # whose name has a hyphen is reachable with an underscore (``config.smc_bl``), as a notebook
+        # user types it. Private and special names are never gains (copy and pickle probe for them).
+        gains = self.__dict__.get("gains")
+        if gains is not None and not name.startswith("_"):
+            for key in (name, name.replace("_", "-")):
+                if key in gains:
+                    return gains[key]
+        sections = [f.name for f in dataclasses.fields(self) if f.name != "gains"]
+        methods = ", ".join(k.replace("-", "_") for k in (gains or {}))
+        raise AttributeError(f"'Config' has no attribute {name!r} (sections: {', '.join(sections)}; "
+                             f"methods' gains: {methods})")
+
+    def __dir__(self):
+        return sorted(set(super().__dir__()) | {k.replace("-", "_") for k in self.__dict__.get("gains", {})})
 
     @property
     def n_control(self) -> int:

@@ -4,7 +4,7 @@ One loader (:func:`load_config`) builds and validates every field of the tree in
 :mod:`ilcforce.config` (the TOML layout is described there) and names the bad one in a one-line
 :class:`~ilcforce.config.ConfigError`: types and ranges per field (:mod:`ilcforce.config_ranges`),
 then cross-field checks (resources, grid, reachable workspace) before any simulation starts. With
-no file, :func:`default_config` is the paper's setup (SPEC sections 1-6); ``experiments/paper.toml``
+no file, :func:`default_config` is the paper's setup as docs/model.md decides it; ``experiments/paper.toml``
 spells the same values out and a test pins that the two agree.
 """
 
@@ -231,7 +231,7 @@ def _check_consistency(config: Config) -> None:
 
 
 def default_config() -> Config:
-    """The paper's setup (SPEC defaults)."""
+    """The paper's setup (the defaults of docs/model.md)."""
     return config_from_dict({})
 
 
@@ -305,8 +305,64 @@ def _name_after_file(data: dict, path: Path) -> None:
     experiment.setdefault("description", f"experiment file {path.name}")
 
 
-def load_config(path: Path | str | None = None, overrides: dict[str, object] | None = None) -> Config:
-    """Load ``path`` (None: the paper's setup), apply dotted ``overrides``, validate everything."""
+#: Overrides that do not make a run different from its experiment's (they are not noted in its description).
+_NOT_A_VARIANT = ("experiment.name", "experiment.description", "experiment.iterations")
+
+
+def _plain(value):
+    """A configuration value as it reads in a description: 2.0 -> 2, [1.0, 2.0] -> [1, 2]."""
+    if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
+        return str(int(value))
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_plain(v) for v in value) + "]"
+    return str(value)
+
+
+def _noted(config: Config, base: dict, overrides: dict[str, object]) -> Config:
+    """``config`` whose description also says what the overrides changed against the experiment
+    (``base``: the file's data, or {} for the paper's setup), e.g. "..., with c3.eta = 2 (was 5)".
+    An overridden description, or overrides that change nothing, leave it as it is."""
+    if "experiment.description" in overrides:
+        return config
+    keys = [key for key in overrides if key not in _NOT_A_VARIANT]
+    if not keys:
+        return config
+    try:
+        before = _flat(config_from_dict(base).to_dict())
+    except ConfigError:  # the file alone is not valid (an override completes it): no "was"
+        before = {}
+    after = _flat(config.to_dict())
+    changes = [f"{key} = {_plain(after[key])}" + (f" (was {_plain(before[key])})" if key in before else "")
+               for key in sorted(keys) if key in after and before.get(key, object()) != after[key]]
+    if not changes:
+        return config
+    text = f"{config.experiment.description}, with {', '.join(changes)}"
+    if len(text) > MAX_STRING:  # as long as a description may be, so that the stored config reads back
+        text = text[:MAX_STRING - 3] + "..."
+    experiment = dataclasses.replace(config.experiment, description=text)
+    return dataclasses.replace(config, experiment=experiment)
+
+
+def _flat(tree: dict, prefix: str = "") -> dict[str, object]:
+    out: dict[str, object] = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(_flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def load_config(path: Path | str | None = None, overrides: dict[str, object] | None = None, *,
+                note_overrides: bool = True) -> Config:
+    """Load ``path`` (None: the paper's setup), apply dotted ``overrides``, validate everything.
+
+    With ``note_overrides`` (the default) the experiment's description also says what the overrides
+    changed (``"The paper's setup (...), with c3.eta = 2 (was 5)"``), so a stored run says what it
+    ran; ``experiment.name``, ``experiment.iterations`` and an overridden description are not noted.
+    """
     data: dict = {}
     file_data: dict = {}
     overrides = overrides or {}
@@ -315,13 +371,15 @@ def load_config(path: Path | str | None = None, overrides: dict[str, object] | N
         data, _ = read_toml(path, "config file", ConfigError)
         file_data = copy.deepcopy(data)
         _name_after_file(data, path)
+    base = copy.deepcopy(data) if note_overrides and overrides else None
     for key, value in overrides.items():
         try:
             _set_path(data, key, value, file_data)
         except _NotATable as exc:  # a value where a table belongs: the file's (experiment = 3) or an override's
             raise ConfigError(f"{path}: {exc}" if exc.from_file else str(exc)) from None
     try:
-        return config_from_dict(data)
+        config = config_from_dict(data)
     except ConfigError as exc:  # the file is named unless the message names an overridden key
         blame = path is not None and not _from_overrides(str(exc), overrides)
         raise ConfigError(f"{path}: {exc}" if blame else str(exc)) from None
+    return _noted(config, base, overrides) if base is not None else config

@@ -1,4 +1,4 @@
-"""The reference's inverse dynamics, compiled (SPEC section 6): tau_d and J^-T tau_d along the
+"""The reference's inverse dynamics, compiled (docs/model.md#metrics): tau_d and J^-T tau_d along the
 desired motion, for Table 3's H and the logs' ``desired_torque``. :func:`ilcforce.simulate.desired_inputs`
 calls it; like :mod:`ilcforce.loop` it reaches the plant only through the kernel signatures of
 :mod:`ilcforce.plants.base`.

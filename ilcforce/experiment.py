@@ -6,7 +6,7 @@
    controller keeps the nominal model;
 2. draws the disturbance and noise from (seed, j): the same for every method;
 3. simulates the iteration (``ilcforce.simulate``), the learning updates happening inside at each
-   sample (current-iteration ILC, SPEC section 3);
+   sample (current-iteration ILC, docs/model.md#c3);
 4. attaches tau_d and the learned memory and commits the iteration to the HDF5 store.
 
 A diverged iteration is stored and ends the method's run. ``resume=True`` continues a stored run
@@ -29,7 +29,7 @@ import numpy as np
 
 from ilcforce import pipeline, samerun
 from ilcforce.config import Config, ConfigError
-from ilcforce.controllers import REGISTRY
+from ilcforce.controllers import REGISTRY, MethodNameError, canonical_method
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.simulate import (IterationInputs, complete_record, desired_inputs, prepare_first_chunk, prepare_setup,
@@ -57,10 +57,17 @@ class RunSummary:
         return self.status == STATUS_DIVERGED
 
 
+def canonical(method: str) -> str:
+    """The registry's name of ``method`` (any case); UnknownMethodError, one line, for no method."""
+    try:
+        return canonical_method(method)
+    except MethodNameError as exc:
+        raise UnknownMethodError(str(exc)) from None
+
+
 def make_controller(config: Config, method: str):
-    """Instantiate the registered controller ``method`` with the experiment's gains."""
-    if method not in REGISTRY:
-        raise UnknownMethodError(f"unknown method {method!r}; choose one of {', '.join(REGISTRY)}")
+    """Instantiate the registered controller ``method`` (any case) with the experiment's gains."""
+    method = canonical(method)
     cls = REGISTRY[method].controller_class
     try:
         # a law with the plant's own regressor (sl-adapt) also takes the nominal plant's parameters
@@ -126,7 +133,7 @@ def simulate_iterations(config: Config, method: str, first: int = 0, memory: dic
     loop runs, and that background thread makes what is not needed at once while it does; it is
     over when this ends.
     """
-    controller = make_controller(config, method)
+    controller = make_controller(config, canonical(method))
     for unfinished in _unfinished_iterations(config, controller, first, memory, stop_requested, chunk_steps,
                                              desired_cache, prefetch, turns):
         yield unfinished.complete()
@@ -252,6 +259,7 @@ def run_method(config: Config, method: str, out: Path, *, overwrite: bool = Fals
     every finished iteration is stored and the store is left "partial", ready for ``resume``.
     Raises ``ilcforce.store.StoreError`` for store problems (existing result, concurrent writer, ...).
     """
+    method = canonical(method)  # the store says the registry's name, whatever the spelling asked
     controller = make_controller(config, method)  # fails on a bad method before any file is touched
     rows = []
 

@@ -1,4 +1,4 @@
-"""The compiled simulation loop (SPEC sections 4-5): one chunk of control samples of one iteration.
+"""The compiled simulation loop (docs/model.md#acceleration, docs/model.md#sampling): one chunk of control samples of one iteration.
 
 It calls the control law and the plant only through numba function pointers (``LAW_TYPE`` of
 ``ilcforce.controllers.base``, ``ACCEL_TYPE`` / ``KIN_TYPE`` / ``TASK_TYPE`` of

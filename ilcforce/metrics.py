@@ -1,4 +1,4 @@
-"""Per-iteration metrics (SPEC section 6): error norms, chattering, convergence iteration.
+"""Per-iteration metrics (docs/model.md#metrics): error norms, chattering, convergence iteration.
 
 Pure numpy; consumes :class:`ilcforce.records.IterationRecord` and never touches files.
 
@@ -21,7 +21,7 @@ setup) from ``record.log``:
   task_input``, N) and in joint space per joint (``desired_torque - torque``, N m), in three
   forms, each its own column:
 
-  - ``chattering_<axis>``: over the whole grid (SPEC section 6, today's definition);
+  - ``chattering_<axis>``: over the whole grid (docs/model.md#metrics, the paper's reading);
   - ``chattering_<axis>_no_t0``: without the t = 0 sample. Every iteration starts at rest while
     the reference asks for dF_yd/dt(0) = 5 pi + 5 N/s, so ``Delta(0)`` is a start mismatch that no
     learning can remove; this form shows how much of H that one sample is;
@@ -47,12 +47,13 @@ import numpy as np
 
 from ilcforce.records import JOINT_AXES, STATUS_DIVERGED, TASK_AXES, IterationRecord
 
-#: Metric columns, in table order: name -> (unit, description). ``"-"`` marks a dimensionless
-#: column. The store keeps one row per iteration with exactly these columns.
+#: Metric columns, in table order: name -> (unit, description). Units as everywhere in ilcforce:
+#: ``"1"`` for a dimensionless number (an index, a count), ``""`` for text. The store keeps one row
+#: per iteration with exactly these columns.
 METRIC_COLUMNS: dict[str, tuple[str, str]] = {
-    "iteration": ("-", "iteration index j, counted from 0"),
-    "status": ("-", "'complete' or 'diverged'"),
-    "fallback_count": ("-", "control samples where the implicit acceleration scheme reused the previous acceleration"),
+    "iteration": ("1", "iteration index j, counted from 0"),
+    "status": ("", "'complete' or 'diverged'"),
+    "fallback_count": ("1", "control samples where the implicit acceleration scheme reused the previous acceleration"),
     "diverged_time": ("s", "time at which the watchdog stopped the iteration; NaN if complete"),
     "position_error_2norm": ("m", "paper's 2-norm sqrt(sum_k |e_P(t_k)|^2) over the log grid"),
     "position_error_l2": ("m s^1/2", "L2 norm sqrt(dt sum_k |e_P(t_k)|^2) over the log grid (unit m s^1/2)"),
@@ -256,7 +257,7 @@ def convergence_iteration(
     window: tuple[int, int] = (5, 9),
     last: int = 9,
 ) -> int | None:
-    """The convergence iteration j-bar (SPEC section 6; the paper never defines it).
+    """The convergence iteration j-bar (docs/model.md#metrics; the paper never defines it).
 
     j-bar is the first ``j <= last`` with ``norms[j] <= factor * median(norms[window[0] ..
     window[1]])`` (both window ends inclusive).

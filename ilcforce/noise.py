@@ -1,4 +1,4 @@
-"""Non-repetitive disturbance and bounded sensor noise (SPEC section 5).
+"""Non-repetitive disturbance and bounded sensor noise (docs/model.md#noise).
 
 Every draw comes from a ``numpy.random.Generator`` derived from (seed, iteration) only, so every
 method in an experiment sees the same disturbance and noise (common random numbers), a rerun is

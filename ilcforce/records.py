@@ -37,9 +37,9 @@ LOG_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
     "joint_rate_measured": (JOINT_AXES, "rad/s", "rate sensor reading (true + noise)"),
     "position": (TASK_AXES, "m", "true end-effector position P"),
     "velocity": (TASK_AXES, "m/s", "true end-effector velocity dP/dt"),
-    "contact_force": (TASK_AXES, "N", "true contact force F (SPEC section 2 convention)"),
+    "contact_force": (TASK_AXES, "N", "true contact force F, the force the end-effector applies (docs/model.md#wall)"),
     "contact_force_measured": (TASK_AXES, "N", "force sensor reading (true + noise)"),
-    "disturbance": (TASK_AXES, "N", "task-space disturbance F_v acting on the robot"),
+    "disturbance": (TASK_AXES, "N", "task-space disturbance F_v of eq. (1), tau_v = J^T F_v: the robot feels -F_v (docs/model.md#noise)"),
     "torque": (JOINT_AXES, "N m", "applied joint torque tau (zero-order hold)"),
     "task_input": (TASK_AXES, "N", "task-space input F_E = J^-T tau at the true pose"),
     "desired_torque": (JOINT_AXES, "N m", "tau_d: inverse dynamics of this iteration's true plant along the desired motion, with the desired contact force"),
@@ -80,7 +80,7 @@ class IterationRecord:
         One line naming the watchdog rule that fired; empty if complete.
     fallback_count : int
         Control samples where the implicit acceleration scheme found no real solution and
-        reused the previous sample's acceleration (SPEC section 4). 0 for other schemes.
+        reused the previous sample's acceleration (docs/model.md#acceleration). 0 for other schemes.
     log : dict[str, ndarray]
         Every entry of :data:`LOG_SIGNALS`, on the log grid, shape (n_log,) or (n_log, 2).
     memory : dict[str, ndarray]

@@ -1,4 +1,4 @@
-"""The sampled-data simulator: one iteration of one controller on the true plant (SPEC sections 4-5).
+"""The sampled-data simulator: one iteration of one controller on the true plant (docs/model.md#acceleration, docs/model.md#sampling).
 
 Blocks and their doors (Drake style): the **plant** (any model of ``ilcforce.plants``, through its
 compiled kernels) and the **wall** (``ilcforce.task``) are integrated with fixed-step RK4 in the
@@ -12,7 +12,7 @@ Per control sample k (t_k = k Ts), inside one compiled loop:
 1. true plant terms at the sample: Dq^-1, Cq dtheta, J, dJ dtheta, contact force, disturbance;
 2. measurements: angles, rates and force plus bounded noise; P, dP (and D, C, G if the law asks)
    from the *nominal* model at the measured state;
-3. acceleration estimates (SPEC section 4):
+3. acceleration estimates (docs/model.md#acceleration):
    * ``implicit``: the law's torque is a polynomial of degree <= 2 in the force-axis acceleration
      a (eq. 14 is quadratic through Phi^T Gamma Phi sigma). The simulator evaluates the law at
      a = -1, 0, 1 m/s^2 (without writing memory), recovers tau(a) = tau0 + tau1 a + tau2 a^2 exactly,
@@ -66,7 +66,7 @@ CHUNK_RK4_STEPS = 32768
 
 @dataclass(frozen=True)
 class SimulationSettings:
-    """Sampling, integration, acceleration scheme and watchdog (SPEC sections 4 and 5)."""
+    """Sampling, integration, acceleration scheme and watchdog (docs/model.md#sampling, docs/model.md#acceleration, docs/model.md#watchdog)."""
 
     sample_time: float = 1e-4  # Ts, zero-order-hold control period, s
     substeps: int = 1  # RK4 steps per control period
@@ -295,7 +295,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
 
 
 def desired_inputs(plant, wall: Wall, reference_log: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """tau_d and J^-T tau_d along the desired motion (SPEC section 6, Table 3's H).
+    """tau_d and J^-T tau_d along the desired motion (docs/model.md#metrics, Table 3's H).
 
     tau_d = Dq ddtheta_d + Cq dtheta_d + G_q + J^T (w F_d) is the inverse dynamics (eq. 1) of
     ``plant`` (parameters of any model) along P_d(t) = (x_d, y_e + w F_yd / K_e), including the

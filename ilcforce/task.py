@@ -1,4 +1,4 @@
-"""The contact task: the compliant wall and the reference (SPEC sections 2 and 3, paper Section 4.1).
+"""The contact task: the compliant wall and the reference (docs/model.md#wall, docs/model.md#task; paper Section 4.1).
 
 Force convention (erratum 1). With the default ``force_sign = "applied"`` the robot works on the side
 y <= y_e and F is the force the end-effector applies to the wall, F = (0, K_e max(0, y - y_e)) >= 0;
@@ -33,14 +33,14 @@ REF_WIDTH = 12
 @njit(cache=True, error_model="numpy")
 def wall_force(y, ye, ke, w):
     """The wall's contact law, its one definition: F_y = K_e max(0, w (y - y_e)) (N), the force the
-    end-effector applies at height y (m) (SPEC section 2; the robot feels -w F_y)."""
+    end-effector applies at height y (m) (docs/model.md#wall; the robot feels -w F_y)."""
     pen = w * (y - ye)
     return ke * pen if pen > 0.0 else 0.0
 
 
 @njit(cache=True, error_model="numpy")
 def wall_stiffness(y, vy, ye, ke, w):
-    """dF_y/dy of :func:`wall_force` along the motion (the stiffness relation of SPEC 4): w K_e in
+    """dF_y/dy of :func:`wall_force` along the motion (the stiffness relation of docs/model.md#acceleration): w K_e in
     contact, 0 out of it; exactly on the surface, the one-sided derivative in the direction of the
     velocity vy (w K_e when entering the wall, 0 when leaving or at rest)."""
     pen = w * (y - ye)
@@ -53,7 +53,7 @@ class Wall:
 
     position: float = 0.4  # y_e, the wall's surface, m
     stiffness: float = 1000.0  # K_e, N/m
-    force_sign: str = "applied"  # "applied" (SPEC default) or "paper" (literal signs of eqs. 9-14)
+    force_sign: str = "applied"  # "applied" (the default, docs/model.md#wall) or "paper" (literal signs of eqs. 9-14)
 
     def __post_init__(self) -> None:
         if self.force_sign not in FORCE_SIGNS:

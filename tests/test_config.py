@@ -201,7 +201,7 @@ def test_config_command_output_loads_back_whatever_the_user_typed(tmp_path):
 def test_a_key_set_for_c3_reaches_c3_leak_unless_c3_leak_sets_it(tmp_path):
     """A method family shares its keys: C3-leak's gains extend C3's, so ``[c3] psi_acceleration``
     reaches C3-leak (realistic.toml once set it for C3 alone and C3-leak diverged at j = 0 with the
-    measured acceleration SPEC section 4 warns about); C3-leak's own table wins; other methods are
+    measured acceleration docs/model.md#acceleration warns about); C3-leak's own table wins; other methods are
     untouched; an override reaches the family the same way."""
     config = config_from_dict({"c3": {"psi_acceleration": "desired", "eta": 2.0}})
     assert config.gains["c3-leak"].psi_acceleration == "desired" and config.gains["c3-leak"].eta == 2.0
@@ -215,3 +215,38 @@ def test_a_key_set_for_c3_reaches_c3_leak_unless_c3_leak_sets_it(tmp_path):
     assert default_config().gains["c3-leak"].psi_acceleration == "measured"
     with pytest.raises(ConfigError, match="c3.psi_acceleration"):
         config_from_dict({"c3": {"psi_acceleration": "guessed"}})
+
+
+def test_gains_are_attributes_of_the_config():
+    """``config.c3`` is ``config.gains["c3"]`` for every registered method (a hyphen reads as an
+    underscore), survives copy and pickle, and an unknown name is one AttributeError line."""
+    import copy
+    import pickle
+
+    from ilcforce.config_load import load_config
+    from ilcforce.controllers import REGISTRY
+
+    config = load_config(None, {"c2.k": [300.0, 300.0]})
+    for name in REGISTRY:
+        assert getattr(config, name.replace("-", "_")) is config.gains[name]
+    assert config.c2.k == (300.0, 300.0)
+    assert pickle.loads(pickle.dumps(config)) == config and copy.deepcopy(config).c3 == config.c3
+    with pytest.raises(AttributeError, match=r"^'Config' has no attribute 'c9' \(sections: experiment, plant"):
+        config.c9
+
+
+def test_a_runs_description_says_what_its_overrides_changed():
+    """A run made with --set said "The paper's setup" in its store and report; its description now
+    names each changed key with the value it replaced. Name, iterations and unchanged values are not
+    variants; an overridden description is taken as given."""
+    from ilcforce.config_load import load_config
+
+    base = load_config(None).experiment.description
+    config = load_config(None, {"c3.eta": 2, "simulation.sample_time": 2.5e-4, "experiment.iterations": 3})
+    assert config.experiment.description == (f"{base}, with c3.eta = 2 (was 5), simulation.sample_time = 0.00025 "
+                                              "(was 0.0001)")
+    assert load_config(None, {"c3.eta": 5.0, "experiment.name": "x"}).experiment.description == base
+    assert load_config(None, {"c3.eta": 2, "experiment.description": "mine"}).experiment.description == "mine"
+    assert load_config(None, {"c3.eta": 2}, note_overrides=False).experiment.description == base
+    serial = load_config(Path(__file__).resolve().parents[1] / "experiments" / "serial2r.toml", {"experiment.seed": 3})
+    assert serial.experiment.description.endswith(", with experiment.seed = 3 (was 0)")

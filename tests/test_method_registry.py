@@ -19,8 +19,8 @@ from scipy import signal
 
 from ilcforce import store
 from ilcforce.config_load import default_config, load_config
-from ilcforce.controllers import LEARNS, PAPER_METHODS, REGISTRY
-from ilcforce.controllers.base import GAIN_SPECIFIC, gain_layout
+from ilcforce.controllers import LEARNS, PAPER_METHODS, REGISTRY, MethodNameError, canonical_method
+from ilcforce.controllers.base import GAIN_OWN_FIRST, gain_layout
 from ilcforce.experiment import make_controller, run_method
 from ilcforce.plants import MODELS
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
@@ -76,8 +76,43 @@ def test_gains_are_packed_by_name(method):
             continue  # encoded (e.g. psi_acceleration), checked by the law's reference test
         expected = np.atleast_1d(np.asarray(value, dtype=float))
         np.testing.assert_array_equal(packed[layout[f.name]], expected, err_msg=f"{method}.{f.name} misplaced")
-    last = max(s.stop for s in layout.values()) if layout else GAIN_SPECIFIC
+    last = max(s.stop for s in layout.values()) if layout else GAIN_OWN_FIRST
     assert packed.size >= last, "packed vector shorter than its layout"
+
+
+@pytest.mark.parametrize("given, name", [("C3", "c3"), (" c1 ", "c1"), ("SMC-BL", "smc-bl"), ("Sl-Adapt", "sl-adapt")])
+def test_method_names_are_matched_without_case_and_kept_in_the_registry_spelling(given, name):
+    """A method name is accepted in any case and becomes the registry's name (what stores, tables
+    and results folders say), so `-m C3` and `-m c3` are one method, never two."""
+    assert canonical_method(given) == name
+
+
+@pytest.mark.parametrize("given", ["smc_bl", "c4", "C 3", "", "c3,c1", 3])
+def test_an_unknown_method_name_is_one_line_with_the_choices(given):
+    with pytest.raises(MethodNameError) as caught:
+        canonical_method(given)
+    message = str(caught.value)
+    assert "\n" not in message and message.endswith(f"choose from {', '.join(REGISTRY)}")
+    if given == "smc_bl":
+        assert "did you mean" in message
+
+
+def test_study_methods_take_any_case_and_store_the_registry_name():
+    from ilcforce.study import StudyError, build_study
+
+    table = {"name": "t", "seeds": [0], "set": {"experiment.iterations": 1}}
+    study = build_study({"study": {**table, "methods": ["C3", "Smc-BL"]}})
+    assert tuple(study.methods) == ("c3", "smc-bl")
+    with pytest.raises(StudyError, match="lists 'c3' twice"):
+        build_study({"study": {**table, "methods": ["C3", "c3"]}})
+
+
+def test_simulate_with_an_upper_case_method_stores_the_registry_name(tmp_path):
+    out = tmp_path / "run.h5"
+    made = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "C3", "-n", "1", "--out", str(out),
+                           "--set", "reference.duration=0.05"], capture_output=True, text=True, timeout=300)
+    assert made.returncode == 0, made.stderr
+    assert store.read_provenance(out)["method"] == "c3"
 
 
 def test_registry_import_loads_no_kernel():

@@ -1,4 +1,4 @@
-"""Metrics (SPEC section 6): hand-computed norms, chattering of a known sinusoid, NaN on
+"""Metrics (docs/model.md#metrics): hand-computed norms, chattering of a known sinusoid, NaN on
 divergence, and the convergence iteration.
 
 Tolerances: every expected value here is computed by hand from a few exact inputs, so the only

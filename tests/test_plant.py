@@ -1,4 +1,4 @@
-"""Physics tests of the five-bar plant (SPEC section 1, ``ilcforce.plants.fivebar``).
+"""Physics tests of the five-bar plant (docs/model.md#fivebar, ``ilcforce.plants.fivebar``).
 
 What is checked, and against what:
 
@@ -6,7 +6,7 @@ What is checked, and against what:
   and task space over a grid of the task region, for the nominal plant and the m3 x 1.4 plant.
 * Kinematics: fk(ik(P)) = P, loop closure, the elbows-out working mode, and every analytic
   derivative (J, R = dphi/dtheta, dJ/dt) against central finite differences.
-* The SPEC's claim that cond(J) stays between about 1.4 and 1.7 along the paper's task.
+* The model's statement (docs/model.md#fivebar) that cond(J) stays between about 1.4 and 1.7 along the paper's task.
 * Free motion conserves kinetic energy, and with a constant torque the energy gained equals the work
   done, both through a fixed-step RK4 whose fourth-order convergence is itself checked.
 * The fast model against a slow, independent reference (bottom of this file): the open-tree
@@ -43,7 +43,7 @@ EPS = np.finfo(float).eps  # 2.2e-16
 # Grids
 # ---------------------------------------------------------------------------------------------
 
-# The task region (SPEC sections 2-3): x_d spans [0.05, 0.35] m, y spans [0.400, 0.432] m; the grid
+# The task region (docs/model.md#task): x_d spans [0.05, 0.35] m, y spans [0.400, 0.432] m; the grid
 # is wider on every side so that the properties are checked around the task, not just on it.
 GRID_X = np.linspace(0.03, 0.37, 6)  # m
 GRID_Y = np.linspace(0.33, 0.45, 5)  # m
@@ -88,7 +88,7 @@ def plant() -> FiveBar:
 
 @pytest.fixture(scope="module")
 def heavy_plant() -> FiveBar:
-    """The true plant from iteration 10 on (SPEC section 1): m3 x 1.4, I3 unchanged."""
+    """The true plant from iteration 10 on (docs/model.md#perturbation): m3 x 1.4, I3 unchanged."""
     return FiveBar(FiveBarParams().scaled("m3", 1.4))
 
 
@@ -248,7 +248,7 @@ def test_inverse_kinematics_never_returns_another_pose(plant):
     the acos argument; 1e-9 m leaves room for that while a wrong pose misses by centimetres.
 
     A point P reached only in the lower assembly (P right of E1 -> E2) with elbows out has valid
-    elbows-out angles from the SPEC's ik formulas, but fk of those angles is the *upper*
+    elbows-out angles from the ik formulas of docs/model.md#fivebar, but fk of those angles is the *upper*
     intersection, a different point: ik must then raise, not return them.
     """
     xs = np.linspace(-0.6, 0.9, 61)  # m, 2.5 cm spacing
@@ -287,7 +287,7 @@ def test_loop_closure_and_elbows_out(plant, point):
     np.testing.assert_allclose(E2 + pr.L4 * u4, P, rtol=0, atol=POS_ATOL, err_msg="E2 + L4 u4 != P")
     np.testing.assert_allclose([np.linalg.norm(P - E1), np.linalg.norm(P - E2)], [pr.L3, pr.L4],
                                rtol=0, atol=POS_ATOL, err_msg="distal link lengths not preserved")
-    # elbows out (SPEC section 1); on the grid these cross products are > 1e-3 m^2, far from 0
+    # elbows out (docs/model.md#fivebar); on the grid these cross products are > 1e-3 m^2, far from 0
     assert cross2(P - B1, E1 - B1) > 0, f"E1 not left of P - B1 at P={point}"
     assert cross2(P - B2, E2 - B2) < 0, f"E2 not right of P - B2 at P={point}"
     # forward kinematics takes the intersection to the left of E1 -> E2 (upper assembly)
@@ -334,15 +334,15 @@ def test_jacobian_derivative_matches_finite_differences(plant, point):
 
 
 # ---------------------------------------------------------------------------------------------
-# 4. SPEC: conditioning along the paper's task
+# 4. The model's conditioning along the paper's task
 # ---------------------------------------------------------------------------------------------
 
 
 def test_jacobian_condition_along_paper_task(plant):
-    """SPEC section 1: along the task cond(J) stays between about 1.4 and 1.7 (measured: 1.37 to 1.73).
+    """docs/model.md#fivebar: along the task cond(J) stays between about 1.4 and 1.7 (measured: 1.37 to 1.73).
 
     x_d(t) = 0.15 cos(pi t / 2) + 0.2 m; y(t) = y_e + F_yd(t) / K_e goes from 0.400 to 0.432 m.
-    The band 1.3..1.8 is the SPEC's "about", not a numerical tolerance.
+    The band 1.3..1.8 is the design's "about", not a numerical tolerance.
     """
     t = np.linspace(0.0, 2.0, 50)
     x = 0.15 * np.cos(np.pi * t / 2.0) + 0.2

@@ -1,4 +1,4 @@
-"""Physics tests of the serial 2R arm with gravity (SPEC section 8, ``ilcforce.plants.serial2r``).
+"""Physics tests of the serial 2R arm with gravity (docs/model.md#serial2r, ``ilcforce.plants.serial2r``).
 
 What is checked, and against what:
 
@@ -26,7 +26,7 @@ import pytest
 from ilcforce.plants import UnreachableError, make_plant, plant_class
 from ilcforce.plants.serial2r import PARAM_NAMES, Serial2R, Serial2RParams
 
-# The task region (SPEC 2-3: x in [0.05, 0.35] m, y in [0.400, 0.432] m), widened on every side.
+# The task region (docs/model.md#task: x in [0.05, 0.35] m, y in [0.400, 0.432] m), widened on every side.
 GRID = [(float(x), float(y)) for x, y in itertools.product(np.linspace(0.03, 0.37, 5), np.linspace(0.33, 0.45, 4))]
 GRID_IDS = [f"P=({x:.3f},{y:.3f})" for x, y in GRID]
 RATES = [np.array(r) for r in ((1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (1.0, -1.0), (-0.7, 1.9))]
@@ -35,7 +35,7 @@ RATES = [np.array(r) for r in ((1.0, 0.0), (0.0, 1.0), (1.0, 1.0), (1.0, -1.0), 
 # the grid) vary up to ~cond^2 faster, so 1e-7 keeps a margin of about 5 above the worst case.
 H_FD = 1e-6
 FD_RTOL = 1e-7
-START = (0.35, 0.40)  # SPEC 2: the start pose of every iteration
+START = (0.35, 0.40)  # docs/model.md#task: the start pose of every iteration
 
 
 def central_difference(f, x, direction, h=H_FD):

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 import ilcforce
 from ilcforce import store
@@ -96,3 +97,27 @@ def test_every_public_name_resolves_and_import_ilcforce_loads_nothing_heavy():
     code = "import sys, ilcforce\nprint(*(m for m in ('numpy', 'pandas', 'h5py', 'numba') if m in sys.modules))"
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert done.returncode == 0 and done.stdout.strip() == "", done.stdout + done.stderr
+
+
+def test_notebook_spellings(tmp_path: Path):
+    """What a notebook user types first works: len(run), iteration over a run, run.iteration(-1) and
+    run[-1] (negative indices count from the last stored iteration, as Python lists do), and the
+    gains as attributes of the configuration."""
+    out = tmp_path / "c3.h5"
+    made = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c3", "-n", "3", "--out", str(out),
+                           *SHORT, "--set", "c3.eta=2"], capture_output=True, text=True, timeout=300)
+    assert made.returncode == 0, made.stderr
+    run = ilcforce.open(out)
+    assert len(run) == 3
+    assert [record.iteration for record in run] == [0, 1, 2]
+    assert run.iteration(-1).iteration == 2 and run.iteration(-3).iteration == 0 and run[-2].iteration == 1
+    np.testing.assert_array_equal(run.iteration(-1).log["position"], run.iteration(2).log["position"])
+    assert run.memory(-1).equals(run.memory(2))
+    assert run.config.c3 is run.config.gains["c3"] and run.config.c3.eta == 2.0
+    assert run.config.smc_bl is run.config.gains["smc-bl"] and "smc_bl" in dir(run.config)
+    with pytest.raises(store.StoreError, match=r"iteration -4 is not stored \(3 iterations stored\)"):
+        run.iteration(-4)
+    with pytest.raises(IndexError, match="iteration 3 is not stored"):
+        run[3]
+    with pytest.raises(AttributeError, match="methods' gains: c1, c2, c3"):
+        run.config.c9

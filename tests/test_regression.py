@@ -1,4 +1,4 @@
-"""Study-level regressions: behaviour SPEC.md predicts for whole runs.
+"""Study-level regressions: behaviour docs/model.md predicts for whole runs.
 
 The quick ones run in `make test`; the long studies are marked ``slow`` (`make test-slow`). None of
 them pins a number to the paper's: they pin qualitative findings and numerical convergence.
@@ -20,7 +20,7 @@ def _run(overrides, method):
 
 
 def test_c3_sample_time_boundary():
-    """SPEC section 5: with the paper's Gamma, C3 diverges within 20 iterations at Ts = 1 ms and stays
+    """docs/model.md#sampling: with the paper's Gamma, C3 diverges within 20 iterations at Ts = 1 ms and stays
     stable at Ts = 0.25 ms (Ts lambda_max(D^-1 (k + Phi^T Gamma Phi)) crosses 2 near 1 ms)."""
     coarse, _ = _run({"simulation.sample_time": 1e-3, "simulation.log_every": 1}, "c3")
     assert coarse[-1].status == "diverged", "C3 at Ts = 1 ms should lose stability within 20 iterations"
@@ -68,7 +68,7 @@ def test_c3_learning_is_not_bounded_under_noise():
     assert h[-1] > 5 * h[19], "the chattering grows as the learned memory drifts"
 
 
-#: SPEC section 5: Ts lambda_max(D^-1 (k + Phi^T Gamma Phi)) is about 2 at Ts = 1 ms, so the fastest
+#: docs/model.md#sampling: Ts lambda_max(D^-1 (k + Phi^T Gamma Phi)) is about 2 at Ts = 1 ms, so the fastest
 #: closed-loop rate is about 2000 1/s.
 FASTEST_RATE = 2.0e3
 

@@ -142,6 +142,7 @@ def write_store(
     last: int = N_ITERATIONS - 1,
     diverge_at: int | None = None,
     finish: bool = True,
+    command: str | None = None,
 ) -> Path:
     """A store of ``method`` with iterations 0..``last`` (or up to a divergence at ``diverge_at``)."""
     with StoreWriter(
@@ -151,7 +152,7 @@ def write_store(
         config_toml=CONFIG_TOML,
         config_json=json.dumps(CONFIG),
         seed=7,
-        command=f"ilcforce simulate --method {method} (test)",
+        command=command or f"ilcforce simulate --method {method} (test)",
         n_iterations=N_ITERATIONS,
         reference=_reference(),
     ) as writer:
@@ -697,6 +698,61 @@ def test_plot_error_norms(metrics_by_method: dict[str, pd.DataFrame], column: st
     assert list(artists[-1].get_xdata()) == [10, 10], "the perturbation iteration is marked"
 
 
+def test_error_norms_mark_divergence_without_hiding_one_method_under_another() -> None:
+    """Four methods that diverged at j = 0 had no point, and their "diverged" labels were drawn on top
+    of each other; the perturbation was labelled "m3 x 1.4" whatever the configuration changed, and
+    the legend covered the data. Each now has its own cross along the top (stacked), above every data
+    value, the perturbation line carries the configured label, and the legend stands right of the axes."""
+    good = metrics_frame([1e-3 / (j + 1) for j in range(12)], [0.1] * 12)
+    early = {m: metrics_frame([1.0] * 12, [1.0] * 12, diverged_at=0) for m in ("c2", "c3", "pd-ilc")}
+    with figures.report_style():
+        fig = Figure(layout="constrained")
+        ax = fig.subplots()
+        artists = figures.plot_error_norms(ax, {"c1": good, **early}, "position_error_2norm",
+                                           perturbation_iteration=10, perturbation_label="m2 x 1.4")
+        fig.canvas.draw()
+    crosses = [a for a in artists if getattr(a, "get_marker", lambda: None)() == figures.DIVERGED_MARKER]
+    assert [list(c.get_xdata()) for c in crosses] == [[0.0]] * 3
+    heights = sorted(float(c.get_ydata()[0]) for c in crosses)
+    assert len(set(heights)) == 3 and heights[1] - heights[0] >= 0.05, "stacked, not on top of each other"
+    bottom, top = (math.log10(v) for v in ax.get_ylim())
+    data_top = (math.log10(1e-3) - bottom) / (top - bottom)  # where the highest data value sits, axes fraction
+    assert data_top < min(heights) - 0.02, "every cross stands above the data"
+    assert [c.get_color() for c in crosses] == [figures._color(m) for m in early]
+    assert "m2 x 1.4 from j = 10" in [t.get_text() for t in ax.get_legend().get_texts()]
+    legend_box = ax.get_legend().get_window_extent()
+    assert legend_box.x0 >= ax.get_window_extent().x1, "the legend is outside the axes, off the data"
+
+
+def test_fig5_panels_each_have_their_own_scale(frames: dict[str, dict[int, pd.DataFrame]]) -> None:
+    """One shared y axis per row let PD-ILC's 7 mm flatten C1, C2 and C3 to lines at zero."""
+    chosen = {m: {j: frames[m][j] for j in (0, 5)} for m in ("c1", "c3")}
+    scaled = {j: frame.assign(position_error_x=frame["position_error_x"] * 100.0) for j, frame in chosen["c3"].items()}
+    with figures.report_style():
+        fig = figures.figure_tracking_error({"c1": chosen["c1"], "c3": scaled})
+    top = fig.axes[0].get_ylim(), fig.axes[1].get_ylim()
+    assert abs(top[1][1] - top[1][0]) > 20 * abs(top[0][1] - top[0][0]), "each panel scales to its own data"
+    assert fig.legends and not any(ax.get_legend() for ax in fig.axes), "one legend for the figure"
+
+
+def test_input_panels_keep_legend_and_note_off_the_data(frames: dict[str, dict[int, pd.DataFrame]]) -> None:
+    """Fig. 6's "off scale" note was drawn over the samples; legend and note now stand in a band
+    above the data (the y range from t >= 20 ms, plus HEADROOM)."""
+    with figures.report_style():
+        fig = figures.figure_input({"c1": frames["c1"][19]}, "x")
+        fig.canvas.draw()
+    frame = frames["c1"][19]
+    t = frame.index.to_numpy()
+    for ax, values in zip(fig.axes, (frame["task_input_x"], frame["desired_task_input_x"] - frame["task_input_x"])):
+        shown = np.asarray(values)[t >= figures.RANGE_FROM]
+        low, high = ax.get_ylim()
+        assert (high - shown.max()) / (high - low) > 0.25, "a free band above the data for legend and note"
+        data_top = ax.transData.transform((0.0, shown.max()))[1]
+        assert ax.get_legend().get_window_extent().y0 > data_top, "the legend sits in that band"
+        for text in ax.texts:  # the off-scale note, where there is one
+            assert text.get_window_extent().y0 > data_top, "the note sits in that band"
+
+
 def test_plot_tracking_error(frames: dict[str, dict[int, pd.DataFrame]]) -> None:
     chosen = {j: frames["c3"][j] for j in figures.TRACKING_ITERATIONS}
     for column in ("position_error_x", "force_error_y"):
@@ -960,6 +1016,45 @@ def test_readme_findings_check(tmp_path: Path, results_dir: Path) -> None:
     assert "markers missing" in readme.check(tmp_path / "bare.md", findings)
 
 
+def test_a_users_variants_are_kept_apart_from_the_experiments(tmp_path: Path, results_dir: Path) -> None:
+    """A user's own run (``--out results/mine/c3.h5``, or ``--set`` overrides) entered the shared
+    report as if it were the experiment it was made from, and the README's findings then differed.
+    It is now listed under "Your runs and variants" with the reason, and kept out of findings.md."""
+    import shutil
+
+    root = tmp_path / "results"
+    shutil.copytree(results_dir / "synthetic", root / "synthetic")
+    for method in ("c1", "c2", "c3"):
+        write_store(root / "mine" / f"{method}.h5", method)  # experiment 'synthetic', folder 'mine'
+        write_store(root / "tuned" / f"{method}.h5", method, experiment="tuned",
+                    command=f"ilcforce simulate -m {method} --set c3.eta=2 --seed 3")
+    out = tmp_path / "out"
+    write_report(root, out, formats=())
+    index = (out / "index.md").read_text(encoding="utf-8")
+    shared, variants = index.split("## Your runs and variants", 1)
+    assert "[synthetic]" in shared and "[mine]" not in shared and "[tuned]" not in shared, index
+    assert "stored in results/mine/ but run as experiment 'synthetic'" in variants
+    assert "run with --set c3.eta=2 --seed 3" in variants
+    findings = (out / "findings.md").read_text(encoding="utf-8")
+    assert "**`synthetic`**" in findings and "`mine`" not in findings and "`tuned`" not in findings
+    assert "A variant, not an experiment file as written" in (out / "mine" / "report.md").read_text(encoding="utf-8")
+    assert "A variant" not in (out / "synthetic" / "report.md").read_text(encoding="utf-8")
+
+
+def test_index_names_the_methods_that_diverged(tmp_path: Path) -> None:
+    """Six of seven methods diverged on the serial 2R arm while the index said only "unstable
+    learning: none"; the index now has a column naming each diverged method and where."""
+    root = tmp_path / "results"
+    write_store(root / "exp" / "c1.h5", "c1", experiment="exp")
+    write_store(root / "exp" / "c2.h5", "c2", experiment="exp", diverge_at=0)
+    write_store(root / "exp" / "c3.h5", "c3", experiment="exp", diverge_at=3)
+    write_report(root, tmp_path / "out", formats=())
+    index = (tmp_path / "out" / "index.md").read_text(encoding="utf-8")
+    assert "| unstable learning | diverged | warnings |" in index
+    row = next(line for line in index.splitlines() if line.startswith("| [exp]"))
+    assert row.rstrip(" |").split(" | ")[-2] == "c2 (j = 0), c3 (j = 3)", row
+
+
 def test_h_form_match_names_the_closest_form_or_says_none_is_close():
     from ilcforce.report.tables import h_form_match
 
@@ -1073,3 +1168,28 @@ def test_a_method_family_setting_is_named_on_every_method_it_reaches() -> None:
     config = load_config(Path(__file__).parent.parent / "experiments" / "realistic.toml").to_dict()
     for method in ("c3", "c3-leak"):
         assert "psi_acceleration = 'desired'" in sections.method_label(method, config), method
+
+
+def test_findings_lead_with_a_bottom_line() -> None:
+    """Each experiment's findings start with one plain sentence counting the claims by verdict, from
+    the claim rows of claims.csv."""
+    from ilcforce.report import verdicts
+
+    rows = pd.DataFrame({"claim": [1, 1, 2, 3, 4, 5], "role": ["claim", "central", "claim", "claim", "claim", "claim"],
+                         "verdict": ["fails", "fails", "holds", "in part", "holds", "not evaluable"]})
+    assert verdicts.bottom_line(rows) == ("Bottom line: of the paper's 5 claims, 2 hold (2, 4), 1 hold in part (3), "
+                                          "1 fail (1), 1 cannot be judged (5).")
+    assert verdicts.bottom_line(rows.iloc[0:0]) == ""
+
+
+def test_list_of_figures_headings_are_each_captions_first_sentence() -> None:
+    """The report's list of figures says what each shows: a heading (the caption's first sentence,
+    "Fig. 7: the same as Fig. 6 along Y" kept whole) and, under the figure, how to read it."""
+    from ilcforce.report.run_text import _first_sentence
+
+    for stem, caption in build.FIGURES.items():
+        title, rest = _first_sentence(caption)
+        assert caption.startswith(title) and (not rest or rest in caption), stem
+        assert not title.endswith(("Fig", "Figs")) and len(title) > 20, title
+    assert _first_sentence("Fig. 7: the same as Fig. 6 along Y.") == ("Fig. 7: the same as Fig. 6 along Y", "")
+    assert _first_sentence("Fig. 3: norms. A cross marks divergence.") == ("Fig. 3: norms", "A cross marks divergence")

@@ -80,3 +80,44 @@ def test_inputs_over_seeds_are_the_three_forms_of_h_for_c1_and_c3():
     c3 = frame[(frame["method"] == "c3")].groupby("iteration")["chattering_task_y"].median()
     assert any(np.allclose(line.get_ydata(), c3.to_numpy()) for line in medians)
     assert seed_bands.figure_input_over_seeds(frame[frame["method"] == "c2"], "x") == "no C1 or C3 cells in the study"
+
+
+def test_band_legends_say_what_the_bands_are_and_name_the_configured_change():
+    """The band figures' legends named the methods but not the two shades; and the plant's change was
+    always "m3 x 1.4", also on the serial 2R arm whose configuration changes m2."""
+    from ilcforce.report.study_figures import DARK_BAND, LIGHT_BAND
+
+    with report_style():
+        fig = seed_bands.figure_input_over_seeds(_frame(), "x", perturbation_iteration=4,
+                                                 perturbation_label="m2 x 1.4")
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert DARK_BAND in texts and LIGHT_BAND in texts and "m2 x 1.4 from j = 4" in texts, texts
+    assert fig.legends[0].get_title().get_text() == "line: median over seeds"
+
+
+def test_sweep_figure_names_the_unit_of_the_swept_key_and_its_bands(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from ilcforce.report import study_figures
+
+    rows = []
+    for setting, ts in enumerate((1e-4, 2.5e-4)):
+        frame = _frame(seeds=(0, 1, 2))
+        for column in ("position_error_l2", "force_error_l2"):
+            frame[column] = frame["position_error_rms"]
+        rows.append(frame.assign(setting=setting, **{"simulation.sample_time": ts}))
+    metrics = pd.concat(rows, ignore_index=True)
+    settings = pd.DataFrame({"setting": [0, 1], "label": ["a", "b"], "simulation.sample_time": [1e-4, 2.5e-4],
+                             "config_json": ['{"experiment": {"iterations": 6}}'] * 2})
+    results = SimpleNamespace(sweep_keys=["simulation.sample_time"], metrics=metrics, settings=settings,
+                              labelled=False,
+                              setting_metrics=lambda k: metrics[metrics["setting"] == k].drop(
+                                  columns=["setting", "simulation.sample_time"]).reset_index(drop=True))
+    drawn = []
+    monkeypatch.setattr(study_figures, "save_figure", lambda fig, *args: drawn.append(fig) or [])
+    with report_style():
+        study_figures.sweep_figures(results, tmp_path, ("png",))
+    (fig,) = drawn
+    assert fig.axes[-1].get_xlabel() == "simulation.sample_time (s)"
+    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert study_figures.DARK_BAND in texts and study_figures.LIGHT_BAND in texts

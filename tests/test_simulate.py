@@ -318,7 +318,7 @@ def test_desired_inputs_refuse_an_unreachable_reference(short_config):
 
 def test_c3_learns_the_gravity_block_on_a_plant_with_gravity(short_config):
     """On the 2R arm C3's memory has the paper's 12 Theta entries, and its G entries are written;
-    on the five-bar it keeps 8 (decided from the plant, SPEC 8 / erratum 3)."""
+    on the five-bar it keeps 8 (decided from the plant, docs/model.md#c3, erratum 3)."""
     from ilcforce.experiment import simulate_iterations
     from ilcforce.report.gravity import learned_gravity
 

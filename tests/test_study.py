@@ -17,7 +17,7 @@ from ilcforce import store
 from ilcforce.cli.main import app
 from ilcforce.experiment import run_method
 from ilcforce.metrics import METRIC_COLUMNS
-from ilcforce.study import (StudyError, StudyStoreError, build_study, export, load_study, read_study,
+from ilcforce.study import (ExportError, StudyError, StudyStoreError, build_study, export, load_study, read_study,
                             run_study, tidy_metrics)
 from ilcforce.study.spec import parse_seeds
 from ilcforce.store.study import StudyStore, read_tables
@@ -214,6 +214,21 @@ def test_tidy_frame_columns_and_memory_norms(tmp_path):
     assert (c3["memory_norm_theta_hat"] > 0).all()
     assert c1["memory_norm_theta_hat"].isna().all()
     assert frame["seed"].dtype == np.int64 and frame["iteration"].dtype == np.int64
+    # every column carries its unit and what it is, the swept key's included; the export writes them
+    # beside the CSV, one row per CSV column in its order
+    units = frame.attrs["units"]
+    assert set(units) == set(frame.columns) == set(frame.attrs["descriptions"])
+    assert (units["c3.eta"], units["seed"], units["method"], units["iteration"]) == ("N s/m", "1", "", "1")
+    assert (units["position_error_l2"], units["memory_norm_alpha_hat"]) == ("m s^1/2", "N")
+    out, _rows = export(tmp_path / "studies" / "tiny.h5", tmp_path / "tiny.csv")
+    sidecar = pd.read_csv(tmp_path / "tiny.units.csv", keep_default_na=False)
+    assert list(sidecar.columns) == ["column", "unit", "description"]
+    assert sidecar["column"].tolist() == pd.read_csv(out).columns.tolist()
+    assert dict(zip(sidecar["column"], sidecar["unit"])) == units
+    (tmp_path / "again.units.csv").write_text("mine\n")
+    with pytest.raises(ExportError, match=r"units file .*again\.units\.csv .* exists; pass --overwrite"):
+        export(tmp_path / "studies" / "tiny.h5", tmp_path / "again.csv")
+    assert not (tmp_path / "again.csv").exists() and (tmp_path / "again.units.csv").read_text() == "mine\n"
 
 
 def test_memory_norm_is_rms_of_the_learned_memory(tmp_path):

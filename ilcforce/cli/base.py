@@ -130,13 +130,16 @@ def _variant(seed: Optional[int], sets: Optional[list[str]]) -> dict[str, object
 
 
 def _methods(text: str) -> list[str]:
-    names = [m.strip().lower() for m in text.split(",") if m.strip()]
+    """The registry's names of a comma-separated list (any case: the registry's one rule)."""
+    from ilcforce.controllers import MethodNameError, canonical_method
+
+    names = [m for m in text.split(",") if m.strip()]
     if not names:
         raise CliError("--methods is empty; e.g. --methods c1,c2,c3")
-    for name in names:
-        if name not in REGISTRY:
-            raise CliError(f"unknown method {name!r}; choose from {', '.join(REGISTRY)}")
-    return names
+    try:
+        return [canonical_method(name) for name in names]
+    except MethodNameError as exc:
+        raise CliError(str(exc)) from None
 
 
 def _g(value) -> str:

@@ -21,7 +21,7 @@ from ilcforce.cli.base import _guard, _load, app
 SECTIONS = {
     "experiment": "name, seed, iterations",
     "plant": "the robot (model) and the true plant's change from an iteration on (perturbation)",
-    "wall": "the constraint surface (SPEC section 2)",
+    "wall": "the constraint surface (docs/model.md#wall)",
     "reference": "the desired position and force",
     "simulation": "integration, estimates and bounds",
     "noise": "measurement noise and disturbance (0 turns a source off)",
@@ -48,7 +48,7 @@ def config(
              *(["--seed", str(seed)] if seed is not None else []),
              *(["--iters", str(iters)] if iters is not None else []),
              *[arg for text in sets or [] for arg in ("--set", text)]]
-    header = "ilcforce config" + (f" {shlex.join(given)}" if given else ": the paper's setup (SPEC defaults)")
+    header = "ilcforce config" + (f" {shlex.join(given)}" if given else ": the paper's setup (the defaults of docs/model.md)")
     # plain ASCII on stdout, not through rich (which would turn ':smile:' in a string into an emoji)
     sys.stdout.write(toml_comment(header) + "\n" + dump_toml(cfg.to_dict(), comments))
     sys.stdout.flush()

@@ -151,4 +151,6 @@ def export(
         _fail_plain(str(exc) or type(exc).__name__)
     except OSError as exc:
         _fail_plain(f"{exc.filename or out_path}: {exc.strerror or exc}")
-    out.print(f"{rows} rows written to {path}", highlight=False, markup=False)
+    from ilcforce.study.tidy import units_path
+
+    out.print(f"{rows} rows written to {path} (units in {units_path(path)})", highlight=False, markup=False)

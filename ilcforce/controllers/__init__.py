@@ -69,7 +69,7 @@ class MethodSpec:
         return dict(self.controller_class.memory_layout)
 
 
-_SPECS = (
+_ENTRIES = (
     MethodSpec("c1", "C1: sliding mode control with nominal model (eq. 26)", "C1 (SMC)", "C0",
                "ilcforce.controllers.c1", "C1Controller", "C1Gains", "none", False, True,
                "the paper, eq. (26)"),
@@ -94,7 +94,7 @@ _SPECS = (
 )
 
 #: method name -> spec, in report order (the paper's three first).
-REGISTRY: dict[str, MethodSpec] = {spec.name: spec for spec in _SPECS}
+REGISTRY: dict[str, MethodSpec] = {spec.name: spec for spec in _ENTRIES}
 
 #: the paper's methods, in the paper's order
 PAPER_METHODS: tuple[str, ...] = tuple(name for name, spec in REGISTRY.items() if spec.in_paper)
@@ -105,6 +105,25 @@ def method_names() -> tuple[str, ...]:
     return tuple(REGISTRY)
 
 
+class MethodNameError(ValueError):
+    """A name that is no registered method; the message is one line with the choices."""
+
+
+def canonical_method(name: str) -> str:
+    """The registry's name for ``name``: method names are matched without regard to case or
+    surrounding spaces (``"C3"``, ``" c3 "`` -> ``"c3"``; ``"SMC-BL"`` -> ``"smc-bl"``), and every
+    store, table and folder then uses the registry's spelling. MethodNameError (one line, with a
+    close match if there is one) for anything else."""
+    text = name.strip().lower() if isinstance(name, str) else name
+    if text in REGISTRY:
+        return text
+    import difflib
+
+    close = difflib.get_close_matches(str(text), list(REGISTRY), n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    raise MethodNameError(f"unknown method {name!r}{hint}; choose from {', '.join(REGISTRY)}")
+
+
 def __getattr__(name: str):
     # ``from ilcforce.controllers import Controller`` without importing numba at registry import
     if name == "Controller":
@@ -113,4 +132,5 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["LEARNS", "MethodSpec", "PAPER_METHODS", "REGISTRY", "Controller", "method_names"]
+__all__ = ["LEARNS", "MethodNameError", "MethodSpec", "PAPER_METHODS", "REGISTRY", "Controller", "canonical_method",
+           "method_names"]

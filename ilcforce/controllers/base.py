@@ -19,7 +19,7 @@ A controller has two halves:
   The law never integrates anything and never sees the true plant. It must be a polynomial of
   degree at most 2 in the acceleration ``meas[MEAS_ACCEL + force axis]`` (with
   ``meas[MEAS_FORCE_ACCEL + ...]`` following it through the stiffness relation): the simulator
-  uses that to resolve the algebraic loop of SPEC section 4 ("implicit" scheme). The contract test
+  uses that to resolve the algebraic loop of docs/model.md#acceleration ("implicit" scheme). The contract test
   checks this for every registered law.
 
 * a Python **object** implementing :class:`Controller`: it packs the gains, owns the learned memory
@@ -72,8 +72,8 @@ GAIN_SELECTION = 0  # s: 1 on force-controlled axes (S = diag(s), Sbar = I - S)
 GAIN_LAMBDA_P = 2  # lambda_P diagonal
 GAIN_LAMBDA_F1 = 4  # lambda_F1 diagonal
 GAIN_LAMBDA_F2 = 6  # lambda_F2 diagonal
-GAIN_FEEDFORWARD_SIGN = 8  # w of task.Wall: +1 adds +F (SPEC default), -1 the paper's -F
-GAIN_SPECIFIC = 9  # first index of a controller's own gains
+GAIN_FEEDFORWARD_SIGN = 8  # w of task.Wall: +1 adds +F (docs/model.md#wall), -1 the paper's -F
+GAIN_OWN_FIRST = 9  # first index of a controller's own gains
 
 
 
@@ -106,7 +106,7 @@ def __getattr__(name: str):
 
 @njit(cache=True, error_model="numpy")
 def sgn(x):
-    """Signum with sgn(0) = 0 (SPEC section 3)."""
+    """Signum with sgn(0) = 0 (docs/model.md#surface)."""
     if x > 0.0:
         return 1.0
     if x < 0.0:
@@ -141,7 +141,7 @@ def surface_terms(k, meas, ref, gains, psi_desired):
     sigma = lambda_P e_P + de_P + lambda_F1 e_F + lambda_F2 de_F                     (eq. 8)
     psi1 = lambda_P de_P + lambda_F1 de_F + lambda_F2 dde_F + Sbar ddP_d + S ddP        (eq. 12)
     psi2 = dP + sigma                                                                (eq. 12)
-    With ``psi_desired`` the S ddP term uses the desired acceleration S ddP_d instead (SPEC 4).
+    With ``psi_desired`` the S ddP term uses the desired acceleration S ddP_d instead (docs/model.md#acceleration).
     """
     sx, p1x, p2x = _axis_terms(0, k, meas, ref, gains, psi_desired)
     sy, p1y, p2y = _axis_terms(1, k, meas, ref, gains, psi_desired)
@@ -174,9 +174,9 @@ def check_gravity_feedforward(section: str, value) -> None:
 
 
 def pack_common_gains(surface, wall_sign: float) -> list[float]:
-    """The shared prefix of every law's gain vector (indices GAIN_SELECTION .. GAIN_SPECIFIC - 1)."""
+    """The shared prefix of every law's gain vector (indices GAIN_SELECTION .. GAIN_OWN_FIRST - 1)."""
     values = [*surface.selection, *surface.lambda_p, *surface.lambda_f1, *surface.lambda_f2, wall_sign]
-    assert len(values) == GAIN_SPECIFIC
+    assert len(values) == GAIN_OWN_FIRST
     return [float(v) for v in values]
 
 
@@ -192,7 +192,7 @@ def gain_layout(gains_cls, derived: tuple[str, ...] = ()) -> dict[str, slice]:
     computes (e.g. the sample time) and appends after them.
     """
     default = gains_cls()
-    layout, start = {}, GAIN_SPECIFIC
+    layout, start = {}, GAIN_OWN_FIRST
     for f in dataclasses.fields(gains_cls):
         width = _field_width(getattr(default, f.name))
         layout[f.name] = slice(start, start + width)

@@ -1,4 +1,4 @@
-"""C1: traditional sliding mode control with a nominal model (eq. 26, SPEC section 3).
+"""C1: traditional sliding mode control with a nominal model (eq. 26, docs/model.md#c1).
 
 tau_j = J^T (k sigma_j + alpha sgn(sigma_j) + Xi_nom^T Psi_j + w F_j), with
 Xi_nom^T Psi_j = D_nom psi1 + C_nom (dP + sigma) + G_nom (eqs. 11-12), D_nom, C_nom and G_nom the
@@ -8,6 +8,7 @@ nominal task-space model at the measured state (G_nom = 0 for the five-bar). Mem
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -22,6 +23,9 @@ from ilcforce.controllers.base import (
 @dataclass(frozen=True)
 class C1Gains:
     """Gains of eq. (26)."""
+
+    #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
+    units: ClassVar[dict[str, str]] = {"k": "N s/m", "alpha": "N"}
 
     k: tuple[float, float] = (10.0, 100.0)  # diagonal of k, N s/m
     alpha: float = 0.1  # switching gain, N (must exceed |F_v|)

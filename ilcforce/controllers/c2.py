@@ -1,10 +1,10 @@
-"""C2: traditional ILC of Azenha (2000), eq. (27) (SPEC section 3).
+"""C2: traditional ILC of Azenha (2000), eq. (27) (docs/model.md#c2).
 
 tau_j = v_j + w J^T F_j,  v_j(t) = v_{j-1}(t) + J_j^T k sigma_j(t),  v_{-1} = 0.
 The update is current-iteration: this iteration's sigma enters this iteration's v at the same sample.
 
 ``gravity_feedforward`` (g_ff, default 0: the paper's law) adds g_ff J^T G_nom, the nominal model's
-task-space gravity at the measured angles, to tau_j: on a robot with gravity (SPEC 8) the learning
+task-space gravity at the measured angles, to tau_j: on a robot with gravity (docs/model.md#serial2r) the learning
 then starts from the nominal gravity load instead of from nothing (see ``ilcforce.plants.serial2r``
 for why the serial 2R arm's experiment needs it); on the five-bar G_nom = 0 and it changes nothing.
 """
@@ -12,6 +12,7 @@ for why the serial 2R arm's experiment needs it); on the five-bar G_nom = 0 and 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -24,6 +25,9 @@ from ilcforce.controllers.base import (
 @dataclass(frozen=True)
 class C2Gains:
     """Gains of eq. (27)."""
+
+    #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
+    units: ClassVar[dict[str, str]] = {"k": "N s/m", "gravity_feedforward": "1"}
 
     k: tuple[float, float] = (400.0, 400.0)  # learning gain diagonal, N s/m
     gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added (0: the paper's law)

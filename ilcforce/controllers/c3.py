@@ -1,4 +1,4 @@
-"""C3: the paper's ILC based on the sliding mode technique, eq. (14) (SPEC sections 3 and 4).
+"""C3: the paper's ILC based on the sliding mode technique, eq. (14) (docs/model.md#c3).
 
 tau_j = J^T (k sigma_j + Phi_j^T Theta_hat_j + w F_j + alpha_hat_j sgn(sigma_j))
 Theta_hat_j(t) = Theta_hat_{j-1}(t) + Gamma Phi_j(t) sigma_j(t),    Theta_hat_{-1} = 0
@@ -6,7 +6,7 @@ alpha_hat_j(t) = alpha_hat_{j-1}(t) + eta sigma_j(t)^T sgn(sigma_j(t)),  alpha_h
 
 With G = 0 (erratum 3, the five-bar): Psi = [psi1; dP + sigma] in R^4, Phi = blockdiag(Psi, Psi) in
 R^(8x2), Theta = [D11 D12 C11 C12 D21 D22 C21 C22], so Phi^T Theta = D psi1 + C (dP + sigma).
-With a plant that has gravity (SPEC 8, decided from the plant): the paper's full form, eqs. (12)-(13),
+With a plant that has gravity (docs/model.md#serial2r, decided from the plant): the paper's full form, eqs. (12)-(13),
 Psi = [psi1; dP + sigma; 1 1] in R^6 (Xi = [D C G]^T in R^(3n x n), G's block applied to the ones
 vector), Theta = [D11 D12 C11 C12 G11 G12 D21 D22 C21 C22 G21 G22] in R^12 = R^(3n^2), so
 Phi^T Theta = D psi1 + C (dP + sigma) + G 1, and the learned G_i1 + G_i2 estimates the task gravity G_i.
@@ -36,11 +36,16 @@ PSI_ACCELERATION = {"measured": 0.0, "desired": 1.0}
 class C3Gains:
     """Gains of eq. (14) (Section 4.1)."""
 
+    #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
+    units: ClassVar[dict[str, str]] = {"k": "N s/m", "eta": "N s/m",
+                                       "gamma": "mixed: kg s^3/m^2 (D entries), kg s/m^2 (C entries)",
+                                       "gamma_gravity": "N s/m", "psi_acceleration": "", "gravity_feedforward": "1"}
+
     k: tuple[float, float] = (10.0, 100.0)  # feedback gain diagonal, N s/m
     eta: float = 5.0  # learning rate of the switching gain
     gamma: tuple[float, ...] = (4e3, 40.0, 1e4, 1e4, 1e3, 1e3, 1e4, 1e4)  # Gamma diagonal, Theta order
-    # Gamma for Theta's G block (G11 G12 G21 G22), used only with a plant that has gravity (SPEC 8
-    # gives no value): the paper's D21/D22 gains. Each G entry adds gamma * sigma to the
+    # Gamma for Theta's G block (G11 G12 G21 G22), used only with a plant that has gravity (the paper
+    # gives no value, docs/model.md#c3): the paper's D21/D22 gains. Each G entry adds gamma * sigma to the
     # current-iteration feedback: Ts * 2 gamma / lambda_min(D) = 0.67 on the 2R arm's path
     # (lambda_min(D) = 0.30 kg, Ts = 0.1 ms), below the sampled loop's limit 2; 3e3 diverges at once
     gamma_gravity: tuple[float, float, float, float] = (1e3, 1e3, 1e3, 1e3)
@@ -160,7 +165,7 @@ class C3Controller(MemoryController):
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
-        if gravity:  # the full Theta of eq. (13), decided by the plant (SPEC 8); the law reads na from the memory width
+        if gravity:  # the full Theta of eq. (13), decided by the plant (docs/model.md#serial2r); the law reads na from the memory width
             self.memory_layout = {"theta_hat": (0, 12, "mixed: kg (D entries), kg/s (C entries), N (G entries)"),
                                   "alpha_hat": (12, 13, "N")}
             self.theta_names = ("D11", "D12", "C11", "C12", "G11", "G12", "D21", "D22", "C21", "C22", "G21", "G22")

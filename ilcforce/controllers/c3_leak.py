@@ -21,7 +21,7 @@ Default gains, from stated rules (not tuned against C3):
   20-iteration experiment, so learning within the paper's run is mostly kept ((1 - lambda)^20 = 0.67
   of a contribution survives) while what noise adds is forgotten over a long run;
 * alpha_max = 0.1 N: the fixed switching gain the paper itself deems sufficient for C1 (Section
-  4.1; 5x the 0.02 N disturbance bound of SPEC section 5), so the learned gain may reach, but not
+  4.1; 5x the 0.02 N disturbance bound of docs/model.md#noise), so the learned gain may reach, but not
   exceed, what a robust switching term needs.
 """
 
@@ -42,6 +42,7 @@ class C3LeakGains(C3Gains):
     """C3's gains (eq. 14) plus the leakage and the switching-gain bound."""
 
     section: ClassVar[str] = "c3-leak"
+    units: ClassVar[dict[str, str]] = {**C3Gains.units, "leakage": "1", "alpha_max": "N"}
     leakage: float = 0.02  # lambda: fraction of the previous iteration's memory forgotten, 0 <= lambda < 1
     alpha_max: float = 0.1  # bound on alpha_hat, N
 

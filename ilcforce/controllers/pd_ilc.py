@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -38,6 +39,10 @@ from ilcforce.controllers.base import (
 @dataclass(frozen=True)
 class PDILCGains:
     """Feedback, learning gain and Q filter of the PD-type ILC."""
+
+    #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
+    units: ClassVar[dict[str, str]] = {"k": "N s/m", "learning": "N s/m", "q_cutoff": "Hz", "q_order": "1",
+                                       "gravity_feedforward": "1"}
 
     k: tuple[float, float] = (10.0, 100.0)  # PD feedback gain diagonal on sigma, N s/m
     learning: tuple[float, float] = (10.0, 100.0)  # learning gain L diagonal, N s/m

@@ -38,6 +38,7 @@ at zero as every method's memory does; its last row seeds the next iteration.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -59,6 +60,10 @@ REGRESSOR_WIDTH = 6
 @dataclass(frozen=True)
 class SlotineLiGains:
     """Gains of the adaptive controller (Slotine & Li 1991, eqs. 9.25-9.27)."""
+
+    #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
+    units: ClassVar[dict[str, str]] = {"k": "N s/m", "gamma": "mixed: per base parameter, its unit^2 per (N s)",
+                                       "initial_estimate": "1", "psi_acceleration": ""}
 
     k: tuple[float, float] = (10.0, 100.0)  # task-space feedback on sigma, N s/m (C3's): K_D = J^T k J
     # Gamma diagonal per base parameter, in the plant's order (five-bar: M11 M22 M33 M44 k3 k4; 2R arm:

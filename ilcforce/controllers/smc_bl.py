@@ -18,6 +18,7 @@ bounded by the layer (Slotine & Li: |sigma| <= phi once inside it).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -32,6 +33,9 @@ from ilcforce.controllers.c1 import nominal_model_force
 @dataclass(frozen=True)
 class SMCBoundaryLayerGains:
     """Gains of eq. (26) with a boundary layer."""
+
+    #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
+    units: ClassVar[dict[str, str]] = {"k": "N s/m", "alpha": "N", "phi": "m/s"}
 
     k: tuple[float, float] = (10.0, 100.0)  # diagonal of k, N s/m (C1's)
     alpha: float = 0.1  # switching gain, N (C1's)

@@ -1,4 +1,4 @@
-"""The five-bar parallel manipulator of the paper's Section 4.1 (SPEC section 1).
+"""The five-bar parallel manipulator of the paper's Section 4.1 (docs/model.md#fivebar).
 
 Two layers (the plant interface of ``ilcforce.plants.base``):
 
@@ -373,7 +373,7 @@ def kernels() -> PlantKernels:
 
 
 class FiveBar(Plant):
-    """The five-bar manipulator with parameters ``params`` (SPEC section 1), G_q = 0.
+    """The five-bar manipulator with parameters ``params`` (docs/model.md#fivebar), G_q = 0.
 
     All methods take and return numpy arrays: joint vectors (theta1, theta2) of shape (2,),
     task vectors (x, y) of shape (2,), matrices of shape (2, 2). SI units throughout.

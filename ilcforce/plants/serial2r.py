@@ -1,4 +1,4 @@
-"""The serial 2R arm in a vertical plane (SPEC section 8): the paper's n-DOF form with gravity.
+"""The serial 2R arm in a vertical plane (docs/model.md#serial2r): the paper's n-DOF form with gravity.
 
 theta1 is the absolute angle of link 1 from +x at the base joint (0, 0); theta2 the angle of link 2
 relative to link 1. P = (L1 c1 + L2 c12, L1 s1 + L2 s12). Working mode: theta2 in (0, pi), i.e.
@@ -23,10 +23,10 @@ position feedback once contact is lost. With the five-bar's gains that axis has 
 puts it (so the two robots run one task); instead
 
 * the learning methods keep the paper's laws and no gravity model, so they must learn G (C3 in
-  Theta's G block, SPEC 8), and the force axis is given the authority to hold the tool while they
+  Theta's G block, docs/model.md#serial2r), and the force axis is given the authority to hold the tool while they
   do: k_y = 5000 (C3, PD-ILC) or 1e4 (C2, C3-leak), i.e. 5-10 N of command per N of force error;
 * C3's gravity gains are sized per axis: 100 on x (its position loop has k_x = 10) and 1000 on y;
-* C3 takes the desired acceleration in Psi (``psi_acceleration = "desired"``, SPEC 4): with the
+* C3 takes the desired acceleration in Psi (``psi_acceleration = "desired"``, docs/model.md#acceleration): with the
   measured one and k_y = 5000 the noise it carries ran away after 21-25 iterations;
 * C1 and SMC-BL carry the nominal G in their model and only need the stiffer axes (k = [100, 3000]).
 
@@ -63,7 +63,7 @@ PARAM_NAMES = ("L1", "L2", "Lc1", "Lc2", "m1", "m2", "I1", "I2", "g")
 
 @dataclass(frozen=True)
 class Serial2RParams(PackedParams):
-    """Link parameters (SPEC section 8). Lengths in m, masses in kg, centroidal inertias in kg m^2,
+    """Link parameters (docs/model.md#serial2r). Lengths in m, masses in kg, centroidal inertias in kg m^2,
     g in m/s^2 (>= 0; 0 turns gravity off)."""
 
     param_names = PARAM_NAMES  # packing order of as_array (not a field: no annotation)
@@ -214,7 +214,7 @@ def kernels() -> PlantKernels:
 
 
 class Serial2R(Plant):
-    """The serial 2R arm with parameters ``params`` (SPEC section 8), gravity along -y."""
+    """The serial 2R arm with parameters ``params`` (docs/model.md#serial2r), gravity along -y."""
 
     params_class = Serial2RParams
     working_mode = "the working mode theta2 in (0, pi)"

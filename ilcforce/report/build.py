@@ -94,6 +94,7 @@ class _Experiment:
     methods: dict[str, _Method] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     notes: dict[str, str] = field(default_factory=dict)  # figure stem -> why it was not drawn
+    variant: str = ""  # why this is a user's variant, not an experiment file as written ("" when it is one)
 
     def warn(self, text: str) -> None:
         self.warnings.append(f"{self.name}: {' '.join(str(text).split())}")
@@ -163,6 +164,9 @@ def _load_experiment(name: str, paths: Mapping[str, Path]) -> _Experiment:
             experiment.warn(f"{method}: store holds no complete iteration; skipped")
             continue
         experiment.methods[method] = _Method(method, path, provenance, metrics)
+        why = sections.variant_reason(name, provenance)
+        if why and not experiment.variant:
+            experiment.variant = f"{method}: {why}"
     for method in EXPECTED_METHODS:
         if method not in experiment.methods and method not in paths:
             experiment.warn(f"method {method} missing (no {method}.h5); claims that need it are not evaluable")
@@ -237,6 +241,9 @@ def _write_experiment(
     ))
     written.append(report)
     summary.attrs["description"] = sections.description(experiment.config())
+    summary.attrs["variant"] = experiment.variant
+    summary.attrs["diverged"] = {name: found[0] for name, method in experiment.methods.items()
+                                 if (found := tables.divergence(method.metrics)) is not None}
     summary.attrs["flags"] = dict(flags)
     summary.attrs["claim_rows"] = claim_rows.to_dict("list")
     summary.attrs["stability_rows"] = stability_rows.to_dict("list")
@@ -381,11 +388,11 @@ def write_report(
         all_stability[column] = all_stability[column].astype(bool)
     written.append(table_write.write_csv(all_claims, out_dir / "claims.csv"))
     written.append(table_write.write_csv(all_stability, out_dir / "stability.csv"))
-    findings = out_dir / "findings.md"
+    findings = out_dir / "findings.md"  # experiment files as written only: a user's variant is not the README's
     write_text_whole(findings, readme.findings_markdown(
         {name: {"description": frame.attrs.get("description", ""), "diverged": frame.attrs.get("diverged", {}),
                 "iterations": frame.attrs.get("iterations", 0)}
-         for name, frame in verdicts.items()}, studies,
+         for name, frame in verdicts.items() if not frame.attrs.get("variant")}, studies,
         claims=verdict_rows.read_back(out_dir / "claims.csv"),
         stability=verdict_rows.read_back(out_dir / "stability.csv")))
     written.append(findings)
@@ -435,18 +442,38 @@ def _index_text(
     if not verdicts:
         lines += ["No experiment found (expected `<experiment>/<method>.h5` stores).", ""]
     else:
-        rows = []
-        for name, claims in verdicts.items():
-            row: dict[str, object] = {"experiment": f"[{name}]({name}/report.md)",
-                                      "description": claims.attrs.get("description", "")}
-            for claim in claims.itertuples(index=False):
-                row[f"claim {claim.claim}"] = claim.verdict
-            flagged = claims.attrs.get("flags", {})
-            row["unstable learning"] = ", ".join(flagged) if flagged else "none"
-            row["warnings"] = len(experiment_warnings.get(name, []))
-            rows.append(row)
-        lines += ["Verdicts on the paper's five claims (see each report for the numbers and rules):", ""]
-        lines.append(table_write.markdown_table(pd.DataFrame(rows)))
+        def table(names, with_reason: bool) -> str:
+            rows = []
+            for name in names:
+                claims = verdicts[name]
+                row: dict[str, object] = {"experiment": f"[{name}]({name}/report.md)",
+                                          "description": claims.attrs.get("description", "")}
+                if with_reason:
+                    row["why it is a variant"] = claims.attrs.get("variant", "")
+                for claim in claims.itertuples(index=False):
+                    row[f"claim {claim.claim}"] = claim.verdict
+                flagged = claims.attrs.get("flags", {})
+                row["unstable learning"] = ", ".join(flagged) if flagged else "none"
+                # "unstable learning" is a growth test over the complete iterations after the perturbation,
+                # so a method that diverged before them is not flagged by it: its divergence has its own
+                # column, and "unstable learning: none" no longer reads as "all was well"
+                diverged = claims.attrs.get("diverged", {})
+                row["diverged"] = ", ".join(f"{m} (j = {j})" for m, j in diverged.items()) or "none"
+                row["warnings"] = len(experiment_warnings.get(name, []))
+                rows.append(row)
+            return table_write.markdown_table(pd.DataFrame(rows))
+
+        as_written = [name for name, claims in verdicts.items() if not claims.attrs.get("variant")]
+        variants = [name for name in verdicts if name not in as_written]
+        if as_written:
+            lines += ["Verdicts on the paper's five claims, one experiment file each, run as written (see each "
+                      "report for the numbers and rules):", "", table(as_written, False)]
+        if variants:
+            lines += ["## Your runs and variants", "",
+                      "Runs that are not an experiment file as written: stored under another experiment's "
+                      "folder, or run with `--set` or `--seed` overrides. "
+                      "Their descriptions say what they changed; they are kept out of the findings "
+                      "(`findings.md`, the README's copy).", "", table(variants, True)]
         for number, claim in enumerate(claims_module.CLAIMS, start=1):
             lines.append(f"{number}. {claim.statement}")
         lines.append("")

@@ -97,7 +97,7 @@ CLAIMS: tuple[Claim, ...] = (
           "asks for a moving force, so Delta at the first samples is a start mismatch no law removes; on the "
           "whole grid that one sample sets C3's H_y. "
           f"Secondary: magnitude, the settled ratio within a factor {RATIO_FACTOR:g} of the paper's 1.67 / 2.44. "
-          "Shown: the ratio with H on the whole grid (SPEC section 6) and without t = 0, the settled ratio at "
+          "Shown: the ratio with H on the whole grid (docs/model.md#metrics) and without t = 0, the settled ratio at "
           "j = p - 1 (before the m3 change), and our settled H / Table 3's H."),
 )
 
@@ -418,7 +418,7 @@ def _claim5_parts() -> list[_Part]:
                            lambda s, f=ratio, pub=published: (
                                f(s), bool(abs(math.log(f(s) / pub)) <= math.log(RATIO_FACTOR))),
                            f"within x{RATIO_FACTOR:g} of {published}"))
-        for form, what in (("", "on the whole grid (SPEC section 6)"), ("_no_t0", "without t = 0")):
+        for form, what in (("", "on the whole grid (docs/model.md#metrics)"), ("_no_t0", "without t = 0")):
             parts.append(_Part(5, f"ratio{form or '_whole_grid'}_{axis}", f"H(C1) / H(C3) {what}, {axis.upper()}",
                                SHOWN, f"ratio of H {what}", lambda s, f=ratio, form=form: (f(s, form=form), None)))
         parts.append(_Part(5, f"before_perturbation_{axis}", f"H(C1) / H(C3) before the perturbation, {axis.upper()}",

@@ -1,4 +1,4 @@
-"""The paper's five claims (SPEC section 7), judged part by part over seeds from OUR numbers.
+"""The paper's five claims (docs/model.md#claims), judged part by part over seeds from OUR numbers.
 
 Input is a tidy metrics frame for ONE setting (columns ``seed``, ``method``, ``iteration`` and the
 metric columns of :data:`ilcforce.metrics.METRIC_COLUMNS`); a single run is the one-seed case,
@@ -94,7 +94,7 @@ ONE_EVALUATION = "one evaluation (deterministic: no noise source active, every s
 
 def is_deterministic(config: Mapping) -> bool:
     """Whether a resolved configuration (the TOML layout as a dict) draws nothing random: the
-    disturbance and every sensor noise are 0 (SPEC section 5: 0 turns a source off), so every
+    disturbance and every sensor noise are 0 (docs/model.md#noise: 0 turns a source off), so every
     seed gives the same run. A configuration without a ``noise`` table is the paper's: noisy."""
     noise = config.get("noise") if isinstance(config, Mapping) else None
     if not isinstance(noise, Mapping):

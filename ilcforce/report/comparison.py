@@ -2,7 +2,7 @@
 
 :class:`MethodMetrics` holds one method's metrics (one run, or one seed of a study) as aligned
 arrays and answers the lookups the tables and the claims make: the value at an iteration if that
-iteration completed, the first divergence, the convergence iteration j̄ (SPEC section 6), the
+iteration completed, the first divergence, the convergence iteration j̄ (docs/model.md#metrics), the
 iteration Table 3 reads. :func:`comparison_rows` is the method comparison (``ilcforce compare``
 prints it; :func:`ilcforce.report.tables.comparison_frame` is the same rows as a DataFrame).
 
@@ -25,7 +25,7 @@ from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
 from ilcforce.report import paper
 
 #: Last iteration that may be the convergence iteration j̄, and the window whose median defines
-#: "converged" (SPEC section 6: first j <= 9 within 1.5x the median of iterations 5..9).
+#: "converged" (docs/model.md#metrics: first j <= 9 within 1.5x the median of iterations 5..9).
 JBAR_LAST = 9
 JBAR_WINDOW = (5, 9)
 JBAR_FACTOR = 1.5
@@ -89,7 +89,7 @@ class MethodMetrics:
         return [j for j, done in zip(self.iterations, self.complete, strict=True) if done]
 
     def jbar(self, column: str) -> int | None:
-        """Convergence iteration j̄ of ``column`` (SPEC section 6), cached per column; None when
+        """Convergence iteration j̄ of ``column`` (docs/model.md#metrics), cached per column; None when
         any of iterations 0..9 is missing or not complete (the definition needs all ten)."""
         if column not in self._jbar:
             norms = np.array([self.value_at(column, j) for j in range(JBAR_LAST + 1)])

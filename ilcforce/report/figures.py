@@ -57,8 +57,14 @@ def method_label(method: str) -> str:
 RANGE_FROM = 0.02
 
 
-def _range_without_start(ax: Axes, series: Sequence[tuple[np.ndarray, np.ndarray]]) -> str:
-    """Set ax's y range from the samples at t >= RANGE_FROM; return a note on what is off scale."""
+#: Free band above the data of an input panel, as a fraction of the data's range: the legend and the
+#: "off scale" note stand in it, so neither covers a sample (the signals fill their whole range).
+HEADROOM = 0.45
+
+
+def _range_without_start(ax: Axes, series: Sequence[tuple[np.ndarray, np.ndarray]], headroom: float = 0.0) -> str:
+    """Set ax's y range from the samples at t >= RANGE_FROM, with ``headroom`` x the range free above
+    them; return a note on what is off scale."""
     inside = [np.asarray(v, dtype=float)[np.asarray(t) >= RANGE_FROM] for t, v in series]
     inside = [v[np.isfinite(v)] for v in inside]
     values = np.concatenate(inside) if inside else np.array([])
@@ -66,12 +72,12 @@ def _range_without_start(ax: Axes, series: Sequence[tuple[np.ndarray, np.ndarray
         return ""
     low, high = float(values.min()), float(values.max())
     pad = 0.08 * (high - low) if high > low else max(abs(high), 1e-12) * 0.1
-    ax.set_ylim(low - pad, high + pad)
+    ax.set_ylim(low - pad, high + pad + headroom * (high - low + 2 * pad))
     outside = [float(np.nanmax(np.abs(np.asarray(v, dtype=float)[np.asarray(t) < RANGE_FROM])))
                for t, v in series if np.any(np.asarray(t) < RANGE_FROM)]
     peak = max(outside, default=0.0)
     if peak > max(abs(low), abs(high)) + pad:
-        return f"off scale before t = {RANGE_FROM * 1e3:.0f} ms: |value| up to {peak:.3g}"
+        return f"off scale before t = {RANGE_FROM * 1e3:.0f} ms:\n|value| up to {peak:.3g}"
     return ""
 
 
@@ -108,22 +114,44 @@ def plot_desired_force(ax: Axes, reference: pd.DataFrame) -> list[Artist]:
     return artists
 
 
+def _free_top(ax: Axes, fraction: float) -> None:
+    """Raise the top of ax's y range so that the upper ``fraction`` of the axes holds no data (on a
+    log axis, in decades)."""
+    low, high = ax.get_ylim()
+    if ax.get_yscale() == "log" and low > 0 and high > low:
+        span = math.log10(high) - math.log10(low)
+        ax.set_ylim(low, 10 ** (math.log10(low) + span / (1.0 - fraction)))
+    elif high > low:
+        ax.set_ylim(low, low + (high - low) / (1.0 - fraction))
+
+
+#: Marker of the iteration at which a method diverged (Figs. 3, 4): drawn at the top of the axes,
+#: stacked when several methods diverged at the same iteration, never at a data value.
+DIVERGED_MARKER = "X"
+
+
 def plot_error_norms(
     ax: Axes,
     metrics_by_method: Mapping[str, pd.DataFrame],
     column: str,
     *,
     perturbation_iteration: int | None = paper.PERTURBATION_ITERATION,
+    perturbation_label: str = "m3 x 1.4",
     ylabel: str = "",
     labels: Mapping[str, str] | None = None,
 ) -> list[Artist]:
     """Figs. 3, 4: ``metrics[column]`` (an error 2-norm) against iteration j for every method, log y.
 
-    Only complete iterations are drawn; a method that diverged is labelled with the iteration and
-    marked by a dotted vertical line in its colour with the word "diverged" (not a marker, which
-    would read as a data point). A grey dashed line marks ``perturbation_iteration`` (None: none).
+    Only complete iterations are drawn. A method that diverged says so in its legend label
+    ("diverged at j = 3") and gets a cross in its colour at that iteration along the top edge of the
+    axes (outside the data, so it cannot read as a value); crosses of methods that diverged at the
+    same iteration are stacked, one under the other, so none hides another (a method that diverged
+    at j = 0 has no point, and the cross is what shows it). A grey dashed line marks
+    ``perturbation_iteration`` (None: none), labelled ``perturbation_label`` (the configuration's
+    change, e.g. "m2 x 1.4"). The legend stands outside the axes, on the right, off the data.
     """
     artists: list[Artist] = []
+    stacked: dict[float, int] = {}
     for method, metrics in metrics_by_method.items():
         complete = metrics["status"].astype(str).to_numpy() == STATUS_COMPLETE
         j = np.asarray(metrics.index.to_numpy()[complete], dtype=float)
@@ -136,18 +164,24 @@ def plot_error_norms(
         artists.append(line)
         if len(diverged):
             where = float(diverged[0])
-            artists.append(ax.axvline(where, color=line.get_color(), linestyle=":", linewidth=1.5))
-            artists.append(ax.text(where, 0.98, " diverged", transform=ax.get_xaxis_transform(), rotation=90,
-                                   va="top", ha="right", fontsize="small", color=line.get_color()))
+            level = stacked.get(where, 0)
+            stacked[where] = level + 1
+            artists += ax.plot([where], [0.97 - 0.06 * level], transform=ax.get_xaxis_transform(), linestyle="none",
+                               marker=DIVERGED_MARKER, markersize=8, color=line.get_color(), clip_on=False)
     if any(np.any(np.asarray(line.get_ydata(), dtype=float) > 0) for line in artists if hasattr(line, "get_marker")
            and line.get_marker() == "o"):
         ax.set_yscale("log")
+    if stacked:  # room above the data for the crosses, and one legend entry that says what they are
+        _free_top(ax, 0.06 * max(stacked.values()) + 0.04)
+        ax.plot([], [], linestyle="none", marker=DIVERGED_MARKER, markersize=8, color="0.35",
+                label="diverged at this j (no value from there on)")
     if perturbation_iteration is not None:
-        artists.append(ax.axvline(perturbation_iteration, color="0.4", linestyle="--", linewidth=1.0, label="m3 x 1.4"))
+        artists.append(ax.axvline(perturbation_iteration, color="0.4", linestyle="--", linewidth=1.0,
+                                  label=f"{perturbation_label} from j = {perturbation_iteration}"))
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("iteration j")
     ax.set_ylabel(ylabel or column)
-    ax.legend()
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     return artists
 
 
@@ -158,18 +192,21 @@ def plot_tracking_error(
     *,
     ylabel: str | None = None,
     title: str = "",
+    legend: bool = True,
 ) -> list[Artist]:
     """Fig. 5: one error signal (e.g. ``position_error_x``) against time, one line per iteration.
 
-    ``ylabel``: None labels the axis with ``column``; "" leaves it unlabelled (a shared axis)."""
+    ``ylabel``: None labels the axis with ``column``; "" leaves it unlabelled. ``legend``: False
+    when the figure holds one legend for all its panels."""
     artists: list[Artist] = []
     for j, frame in sorted(frames_by_iteration.items()):
-        artists += ax.plot(_time(frame), frame[column], label=f"j = {j}")
+        artists += ax.plot(_time(frame), frame[column], color=f"C{TRACKING_ITERATIONS.index(j)}"
+                           if j in TRACKING_ITERATIONS else None, label=f"j = {j}")
     ax.set_xlabel("time (s)")
     ax.set_ylabel(column if ylabel is None else ylabel)
     if title:
         ax.set_title(title)
-    if artists:
+    if artists and legend:
         ax.legend()
     return artists
 
@@ -286,13 +323,14 @@ def figure_error_norm(
     ylabel: str,
     *,
     perturbation_iteration: int | None,
+    perturbation_label: str = "m3 x 1.4",
     labels: Mapping[str, str] | None = None,
 ) -> Figure:
-    """Figs. 3, 4: one error 2-norm against iteration for every method."""
-    fig = Figure(layout="constrained")
+    """Figs. 3, 4: one error 2-norm against iteration for every method (legend on the right)."""
+    fig = Figure(figsize=(9.0, 4.2), layout="constrained")
     ax = fig.subplots()
-    plot_error_norms(ax, metrics_by_method, column, perturbation_iteration=perturbation_iteration, ylabel=ylabel,
-                     labels=labels)
+    plot_error_norms(ax, metrics_by_method, column, perturbation_iteration=perturbation_iteration,
+                     perturbation_label=perturbation_label, ylabel=ylabel, labels=labels)
     return fig
 
 
@@ -301,26 +339,33 @@ def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]], *,
     """Fig. 5: position error X (top row) and force error Y (bottom row), one column per method.
 
     ``frames[method][j]`` is the iteration frame of iteration j (j in 0, 5, 10, 15 where run).
-    Each row shares its y axis across methods, so a method with a 100x smaller error looks 100x
-    smaller (the paper's panels each had their own scale).
+    Every panel has its own y scale, as the paper's had: one shared scale let a method with a 100x
+    larger error flatten the others (C1, C2 and C3, the paper's comparison) to lines at zero. Read
+    the sizes on each panel's axis. One legend for the iterations, below the panels.
     """
     methods = list(frames)
     n = max(1, len(methods))
-    fig = Figure(figsize=(3.4 * n, 5.4), layout="constrained")
-    axes = np.atleast_2d(fig.subplots(2, n, sharex=True, sharey="row", squeeze=False))
+    fig = Figure(figsize=(3.0 * n, 5.6), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(2, n, sharex=True, squeeze=False))
     for k, method in enumerate(methods):
-        plot_tracking_error(
-            axes[0, k], frames[method], "position_error_x", ylabel="position error X (m)" if k == 0 else "",
-            title=_label(method, labels)
-        )
-        plot_tracking_error(axes[1, k], frames[method], "force_error_y", ylabel="force error Y (N)" if k == 0 else "")
+        plot_tracking_error(axes[0, k], frames[method], "position_error_x",
+                            ylabel="position error X (m)" if k == 0 else "", title=_label(method, labels), legend=False)
+        plot_tracking_error(axes[1, k], frames[method], "force_error_y", ylabel="force error Y (N)" if k == 0 else "",
+                            legend=False)
         axes[0, k].set_xlabel("")
+    handles = {}
+    for ax in axes.ravel():
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(label, handle)
+    if handles:
+        fig.legend(list(handles.values()), list(handles), loc="outside lower center", ncols=len(handles),
+                   title="iteration (each panel on its own y scale)")
     return fig
 
 
 def figure_input(
     frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None,
-    labels: Mapping[str, str] | None = None,
+    labels: Mapping[str, str] | None = None, absent: Mapping[str, str] | None = None,
 ) -> Figure:
     """Figs. 6 (``axis="x"``), 7 (``"y"``): (a) control input, (b) Delta tau, C1 and C3 at j = 19.
 
@@ -328,7 +373,8 @@ def figure_input(
     its own scale (C1's Delta tau is about ten times C3's; compare the values, and H in Table 3).
     The y range is set from
     t >= RANGE_FROM, so the start mismatch at t = 0 does not flatten the rest; what lies off
-    scale is written in the panel.
+    scale is written in the panel, in a free band above the data that it shares with the legend.
+    ``absent`` (method -> reason) names a method that has no row, in the figure's title.
     """
     methods = list(frames_by_method)
     n = max(1, len(methods))
@@ -346,16 +392,19 @@ def figure_input(
             (ax_input, [(t, frame[f"task_input_{axis}"]), (t, frame[f"desired_task_input_{axis}"])]),
             (ax_delta, [(t, frame[f"desired_task_input_{axis}"] - frame[f"task_input_{axis}"])]),
         ):
-            note = _range_without_start(ax, series)
+            # the data fill the lower part; the legend (left) and the note (right) share the band above
+            note = _range_without_start(ax, series, headroom=HEADROOM)
+            ax.legend(loc="upper left", ncols=2)
             if note:
-                ax.text(0.01, 0.02, note, transform=ax.transAxes, ha="left", va="bottom", fontsize="x-small",
-                        bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
-                ax.legend(loc="upper right")
+                ax.text(0.99, 0.97, note, transform=ax.transAxes, ha="right", va="top", fontsize="x-small")
         if k < n - 1:
             ax_input.set_xlabel("")
             ax_delta.set_xlabel("")
     axes[0, 0].set_title(f"(a) control input, {axis.upper()}")
     axes[0, 1].set_title(rf"(b) $\Delta\tau$, {axis.upper()}")
+    if absent:  # ``absent``: method -> why it has no row here
+        fig.suptitle("; ".join(f"{_label(m, labels)} not drawn: {why}" for m, why in absent.items()),
+                     fontsize="small")
     return fig
 
 

@@ -53,16 +53,33 @@ def gravity_figure(store_path: Path, config, iterations=None):
     positions = config.reference_samples()[:, 0:2]
     fig = Figure(figsize=(9, 3.4), layout="constrained")
     axes = fig.subplots(1, 2, sharex=True)
+    metrics = store.read_metrics(store_path)
+    shown: list[list[np.ndarray]] = [[], []]  # per axis: the values the y range is set from
     for j in chosen:
         g_hat = learned_gravity(store.read_memory(store_path, j)["theta_hat"])
+        label = f"learned, j = {j}"
+        keep = np.ones(len(t), dtype=bool)
+        if j in metrics.index and str(metrics.at[j, "status"]) == "diverged":
+            # the memory blows up in the last samples before the watchdog stops the iteration: say so,
+            # and set the y range from before those 20 ms, so the blow-up does not flatten the rest
+            when = float(metrics.at[j, "diverged_time"])
+            label += f" (diverged at t = {when:.3g} s; off scale near it)"
+            keep = t <= when - 0.02
         for k, ax in enumerate(axes):
-            ax.plot(t, g_hat[:, k], lw=1, label=f"learned, j = {j}")
+            ax.plot(t, g_hat[:, k], lw=1, label=label)
+            shown[k].append(g_hat[keep, k])
     truth = true_gravity(config, chosen[-1], positions)
     for k, (ax, axis) in enumerate(zip(axes, G_COLUMNS)):
         ax.plot(t, truth[:, k], "k--", lw=1.2, label=f"true J^-T G_q (j = {chosen[-1]})")
+        values = np.concatenate([*shown[k], truth[:, k]])
+        values = values[np.isfinite(values)]
+        if values.size:
+            low, high = float(values.min()), float(values.max())
+            pad = 0.08 * (high - low) if high > low else max(abs(high), 1.0) * 0.1
+            ax.set_ylim(low - pad, high + pad)
         i = "1" if axis == "x" else "2"
         ax.set_title(f"G_{axis}: C3's G{i}1 + G{i}2 against J^-T G_q")
         ax.set_xlabel("t (s)")
         ax.set_ylabel("N")
-    axes[0].legend(fontsize=7)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=7)  # off the curves
     return fig

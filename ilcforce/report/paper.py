@@ -4,7 +4,7 @@ Nothing here is used to *judge* a claim: verdicts come from our measured numbers
 (:mod:`ilcforce.report.claims`). These values are shown for comparison.
 
 Iterations are counted from 0 (j = 0 is the first trial), as everywhere in ilcforce. The paper's
-"iteration j = 20" of Table 3 is the 20th trial, i.e. our j = 19 (SPEC section 6).
+"iteration j = 20" of Table 3 is the 20th trial, i.e. our j = 19 (docs/model.md#sampling).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 #: (Section 4.1: "m_3 ... is changed to 1.4 times from iteration j = 10").
 PERTURBATION_ITERATION = 10
 
-#: Table 3 is read at the paper's "iteration j = 20", the 20th trial: our j = 19 (SPEC section 6).
+#: Table 3 is read at the paper's "iteration j = 20", the 20th trial: our j = 19 (docs/model.md#sampling).
 CHATTERING_ITERATION = 19
 
 
@@ -30,7 +30,7 @@ class ConvergenceRow:
     jbar_position, jbar_force : int
         Convergence iteration j̄ of the position error (X) and of the force error (Y).
     position_error_2norm : float
-        ||e_P||_2 at j̄, in m (2-norm over the 2001 samples of the 1 ms grid, SPEC section 6).
+        ||e_P||_2 at j̄, in m (2-norm over the 2001 samples of the 1 ms grid, docs/model.md#metrics).
     force_error_2norm : float
         ||e_F||_2 at j̄, in N.
     """

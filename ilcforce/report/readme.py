@@ -43,6 +43,8 @@ def experiment_findings(name: str, description: str, claims: pd.DataFrame, stabi
     methods that diverged within the run and leave the iteration to the run's report; the
     frequency of a divergence over seeds is a study's finding."""
     lines = [f"**`{name}`**: {description or 'no description'} ({_evaluation(claims)})", ""]
+    if verdict_rows.bottom_line(claims):
+        lines += [verdict_rows.bottom_line(claims), ""]
     lines += verdict_rows.claim_lines(claims)
     lines += verdict_rows.cause_lines(claims)
     lines += verdict_rows.flag_lines(stability_rows)
@@ -79,6 +81,8 @@ def study_findings(name: str, found: Mapping[str, object], claims: pd.DataFrame,
                 f"claim {int(r.claim)} {r.part_text}: {verdict_rows.statistic_text(r)} ({r.threshold}; {r.verdict})"
                 for r in bad.itertuples(index=False)) + ".")
             failing += [f"  {line.removeprefix('* ')}" for line in verdict_rows.cause_lines(mine)]
+    if len(found["settings"]) == 1 and verdict_rows.bottom_line(claims):  # type: ignore[arg-type]
+        lines += [verdict_rows.bottom_line(claims), ""]
     if rows:
         from ilcforce.report.table_write import markdown_table
 

@@ -16,16 +16,27 @@ from ilcforce import store
 from ilcforce.report import figures, sections, stability, tables
 from ilcforce.report.figure_files import ReportWriteError, save_figure
 
-#: Figures written per experiment: file stem -> caption.
+#: Figures written per experiment: file stem -> caption, the report's list of figures (what each shows).
 FIGURES = {
-    "fig2_reference": "Fig. 2: desired position x_d and desired force F_yd",
-    "fig3_position_error_norm": "Fig. 3: 2-norm of the position error (X) against iteration",
-    "fig4_force_error_norm": "Fig. 4: 2-norm of the force error (Y) against iteration",
-    "fig5_tracking_error": "Fig. 5: position error X and force error Y at j = 0, 5, 10, 15",
-    "fig6_input_x": "Fig. 6: (a) control input and (b) Delta tau in X, C1 and C3 at j = 19",
-    "fig7_input_y": "Fig. 7: (a) control input and (b) Delta tau in Y, C1 and C3 at j = 19",
-    "fig_alpha_hat": "C3's learned switching gain alpha_hat_j(t) (not in the paper)",
-    "fig_gravity": "Does C3 learn gravity? Theta_hat's G entries against the true J^-T G_q (plants with gravity)",
+    "fig2_reference": "Fig. 2: the reference every method tracks: desired position x_d (m) and desired contact "
+                      "force F_yd (N) against time.",
+    "fig3_position_error_norm": "Fig. 3: the paper's 2-norm of the position error e_P (X) at each iteration j, one "
+                                "line per method, log scale. A cross above the data marks where a method "
+                                "diverged (it has no value from there on); the dashed line marks the true plant's "
+                                "change. Lower is better.",
+    "fig4_force_error_norm": "Fig. 4: the same for the force error e_F (Y), in N.",
+    "fig5_tracking_error": "Fig. 5: the position error X (top row, m) and the force error Y (bottom row, N) "
+                           "against time at j = 0, 5, 10, 15, one column per method; every panel has its own y "
+                           "scale, so compare sizes on the axes.",
+    "fig6_input_x": "Fig. 6: C1 and C3 at j = 19 (or their last complete iteration): (a) the task-space control "
+                    "input X against the desired input (dashed), (b) Delta tau = desired - applied input X, whose "
+                    "standard deviation is H (Table 3). Samples before t = 20 ms may lie off scale (noted in "
+                    "the panel).",
+    "fig7_input_y": "Fig. 7: the same as Fig. 6 along Y.",
+    "fig_alpha_hat": "C3's learned switching gain alpha_hat_j(t) (not in the paper): its profile over t at a few "
+                     "iterations (top) and its mean and maximum over t at every iteration (bottom).",
+    "fig_gravity": "Does C3 learn gravity? Theta_hat's G entries against the true J^-T G_q (plants with gravity "
+                   "only).",
 }
 #: Every figure format the report can write; by default it writes PNG only (the pages link the
 #: PNG; a PDF of each figure doubles the drawing time of a full report), PDF on request (--pdf).
@@ -50,6 +61,7 @@ def _figure_builders(experiment, p: int,
 
     def norms(column: str, ylabel: str) -> Callable[[], Figure | str]:
         return lambda: figures.figure_error_norm(experiment.metrics, column, ylabel, perturbation_iteration=p,
+                                                 perturbation_label=sections.perturbation_label(experiment.config()),
                                                  labels=labels)
 
     def tracking() -> Figure | str:
@@ -63,7 +75,7 @@ def _figure_builders(experiment, p: int,
 
     def inputs(axis: str) -> Callable[[], Figure | str]:
         def build() -> Figure | str:
-            chosen, read_at = {}, {}
+            chosen, read_at, absent = {}, {}, {}
             for name in ("c1", "c3"):
                 if name not in methods:
                     continue
@@ -71,9 +83,14 @@ def _figure_builders(experiment, p: int,
                 if j is not None:
                     chosen[name] = store.read_iteration(methods[name].path, j)
                     read_at[name] = j
+                else:  # say why a method is missing rather than leave the reader to guess
+                    statuses = methods[name].metrics["status"].astype(str)
+                    diverged = methods[name].metrics.index[statuses != "complete"]
+                    absent[name] = ("no complete iteration" + (f" (diverged at j = {int(diverged[0])})"
+                                                               if len(diverged) else ""))
             if not chosen:
                 return "no complete C1 or C3 iteration"
-            return figures.figure_input(chosen, axis, iterations=read_at, labels=labels)
+            return figures.figure_input(chosen, axis, iterations=read_at, labels=labels, absent=absent)
 
         return build
 

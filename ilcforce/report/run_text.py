@@ -4,6 +4,8 @@ fallbacks, and the assembly of every section. Reads only the results store; neve
 
 from __future__ import annotations
 
+import re
+
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -111,6 +113,17 @@ def fallback_table(experiment) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def _first_sentence(caption: str) -> tuple[str, str]:
+    """("Fig. 3: what it shows", "how to read it") from a figure caption: split after the first
+    sentence, i.e. at the first full stop followed by a capital, after the caption's "name: " (so
+    "Fig. 3" and "as Fig. 6 along Y" are not cut at their own full stops)."""
+    name, colon, text = caption.rstrip(".").partition(": ")
+    if not colon:
+        name, text = "", caption.rstrip(".")
+    first, *rest = re.split(r"\.\s+(?=[A-Z])", text, maxsplit=1)
+    return (f"{name}{colon}{first}", rest[0] if rest else "")
+
+
 def tidy_metrics(experiment) -> pd.DataFrame:
     """The run's tidy frame (seed, method, iteration, metrics) with each learned memory's norm."""
     frame = claims_module.tidy_from_methods(experiment.metrics)
@@ -164,11 +177,15 @@ def report_text(
     own = sections.description(experiment.config())
     if own:
         lines += [f"**{own}**", ""]
+    if experiment.variant:
+        lines += [f"A variant, not an experiment file as written ({experiment.variant}); it is kept out of the "
+                  "findings.", ""]
     lines += [
         "Methods: " + "; ".join(experiment.label(m, flags) for m in experiment.methods) + ". "
         "C1 = sliding mode control (eq. 26), C2 = traditional ILC (eq. 27), C3 = the paper's ILC + "
         "sliding mode (eq. 14). "
-        f"The m3 perturbation (x 1.4) acts from iteration j = {p} on (from the configuration). "
+        f"The true plant's change ({sections.perturbation_label(experiment.config())}) acts from iteration "
+        f"j = {p} on (from the configuration). "
         f"Written by ilcforce {ilcforce.__version__} from the stores alone.",
         "",
         "## Warnings",
@@ -191,8 +208,8 @@ def report_text(
         "## Table 3: chattering H at the 20th iteration",
         "",
         "`iteration` is the iteration read (19 unless that iteration was not run). The paper gives "
-        "task-space values for C1 and C3 only. H is given in three forms: over the whole grid (SPEC "
-        "section 6, the columns without suffix), without the t = 0 sample (`_no_t0`) and settled, from "
+        "task-space values for C1 and C3 only. H is given in three forms: over the whole grid (docs/model.md"
+        "#metrics, the columns without suffix), without the t = 0 sample (`_no_t0`) and settled, from "
         "t >= 20 ms (`_settled`). Every iteration starts at rest while the reference asks for "
         "dF_yd/dt(0) = 5 pi + 5 N/s, so Delta at t = 0 is a mismatch no learning removes; the settled "
         "form is the one that leaves the start transient out.",
@@ -222,19 +239,21 @@ def report_text(
     lines += ["", "## Implicit-loop fallbacks", ""]
     lines += [
         "Control samples where the implicit acceleration scheme found no real solution and reused the "
-        "previous sample's acceleration (SPEC section 4), per method.",
+        "previous sample's acceleration (docs/model.md#acceleration), per method.",
         "",
     ]
     lines.append(md(fallback_table(experiment)) if experiment.methods else "No readable store.\n")
     lines += ["## Figures", ""]
     match = _matching_study(experiment)
     for stem, caption in FIGURES.items():
+        title, what = _first_sentence(caption)  # the first sentence heads, the rest says how to read it
         made = sorted((p.name for p in figure_files if p.stem == stem), key=lambda n: not n.endswith(".png"))
         if made:
             others = " ".join(f"([{name.rsplit('.', 1)[-1].upper()}]({name}))" for name in made[1:])
-            lines += [f"### {caption}", "", f"![{caption}]({made[0]}) {others}".rstrip(), ""]
+            lines += [f"### {title}", "", f"![{title}]({made[0]}) {others}".rstrip(), ""]
+            lines += [f"{what}.", ""] if what else []
         else:
-            lines += [f"### {caption}", "", f"Not drawn: {experiment.notes.get(stem, 'unknown reason')}.", ""]
+            lines += [f"### {title}", "", f"Not drawn: {experiment.notes.get(stem, 'unknown reason')}.", ""]
         lines += study_match.band_lines(match, stem)  # the same figure over seeds, where a study ran this setup
     lines += [
         "## Files",

@@ -39,6 +39,38 @@ def description(config: Mapping[str, object]) -> str:
     return str(experiment.get("description", "")) if isinstance(experiment, dict) else ""
 
 
+def perturbation_label(config: Mapping[str, object]) -> str:
+    """The true plant's change as the configuration states it, e.g. ``"m3 x 1.4"`` (five-bar) or
+    ``"m2 x 1.4"`` (serial 2R arm); the paper's ``"m3 x 1.4"`` when the configuration says nothing."""
+    plant = config.get("plant", {}) if isinstance(config, Mapping) else {}
+    change = plant.get("perturbation", {}) if isinstance(plant, Mapping) else {}
+    parameter = change.get("parameter") if isinstance(change, Mapping) else None
+    factor = change.get("factor") if isinstance(change, Mapping) else None
+    if not parameter:  # a configuration stored before the parameter was resolved: the model's default
+        model = plant.get("model", "fivebar") if isinstance(plant, Mapping) else "fivebar"
+        parameter = {"serial2r": "m2"}.get(str(model), "m3")
+    factor = 1.4 if not isinstance(factor, (int, float)) or isinstance(factor, bool) else factor
+    return f"{parameter} x {factor:g}"
+
+
+def variant_reason(folder: str, provenance: Mapping[str, object]) -> str:
+    """Why the run in results folder ``folder`` is a user's variant rather than an experiment file
+    run as written ("" when it is one): stored under another experiment's name (``--out``
+    elsewhere, or the folder ``--set`` gives a variant), or run with ``--set`` / ``--seed``."""
+    import shlex
+
+    name = str(provenance.get("experiment", folder))
+    if name != folder:
+        return f"stored in results/{folder}/ but run as experiment '{name}'"
+    try:
+        words = shlex.split(str(provenance.get("command", "")))
+    except ValueError:
+        words = str(provenance.get("command", "")).split()
+    given = [f"{word} {words[k + 1]}" if "=" not in word and k + 1 < len(words) else word
+             for k, word in enumerate(words) if word.split("=", 1)[0] in ("--set", "--seed")]
+    return "run with " + " ".join(given) if given else ""
+
+
 def law_differences(method: str, config: Mapping[str, object]) -> list[str]:
     """How ``method``'s law under ``config`` differs from the paper's, e.g. ["psi_acceleration = desired"]."""
     found = []

@@ -37,7 +37,7 @@ from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import paper, tables
 from ilcforce.report.figures import TRACKING_ITERATIONS, _color, _label
 from ilcforce.report.figure_files import save_figure
-from ilcforce.report.study_figures import _band_plot, _bands, _log_scale
+from ilcforce.report.study_figures import _band_plot, _bands, _log_scale, band_legend_entries
 from ilcforce.stats import BOOTSTRAP_SEED, LEVEL, N_BOOTSTRAP
 
 #: Methods Figs. 6 and 7 compare (the paper's).
@@ -48,7 +48,7 @@ CAPTION = (
     "signals Figs. 5-7 draw, at every iteration: Fig. 5's errors by their RMS and peak over t (shaded: the "
     "iterations Fig. 5 draws), Figs. 6/7's Delta tau by H, its standard deviation over t (Table 3's measure), "
     "in three forms, as the t = 0 spike dominates the whole-grid form (shaded: the iteration Figs. 6/7 draw; dash-dotted grey: the "
-    "m3 change). "
+    "true plant's change). "
     "Line: median over seeds; dark band: 95% percentile-bootstrap interval of that median; light band: central "
     "95% of the seeds. Thin dashed line: {seed_text} alone; a dotted vertical line marks where it diverged. "
     "Seeds that diverged leave the bands from their divergence on (the legend counts the seeds at the end).")
@@ -131,22 +131,25 @@ def _finish(ax, marked: tuple[int, ...], last: int, perturbation_iteration: int 
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
 
 
-def _seed_proxy(ax, seed: int | None, perturbation_iteration: int | None) -> None:
+def _seed_proxy(ax, seed: int | None, perturbation_iteration: int | None, perturbation_label: str = "m3 x 1.4") -> None:
+    """The legend entries beyond the methods: the band shades, the seed drawn alone, the plant's change."""
+    band_legend_entries(ax)
     if seed is not None:
         ax.plot([], [], color="0.3", linestyle="--", linewidth=0.9, label=f"seed {seed} alone")
     if perturbation_iteration is not None:
-        ax.plot([], [], color="0.5", linestyle="-.", linewidth=1.0, label=f"m3 x 1.4 from j = {perturbation_iteration}")
+        ax.plot([], [], color="0.5", linestyle="-.", linewidth=1.0,
+                label=f"{perturbation_label} from j = {perturbation_iteration}")
 
 
 def figure_fig5_over_seeds(frame: pd.DataFrame, flags: Mapping[str, str] | None = None,
-                           perturbation_iteration: int | None = None) -> Figure:
+                           perturbation_iteration: int | None = None, perturbation_label: str = "m3 x 1.4") -> Figure:
     """Fig. 5 over seeds: RMS and peak over t of the position and force errors against j."""
     methods = tables.ordered_methods(frame["method"].unique().tolist())
     n_seeds, seed = frame["seed"].nunique(), _single_seed(frame)
     last = int(frame["iteration"].max())
     # fixed margins, not the style's constrained layout: that was a third of these figures' cost
     fig = Figure(figsize=(10.0, 7.0), layout="none")
-    fig.subplots_adjust(left=0.09, right=0.98, top=0.94, bottom=0.14, hspace=0.08, wspace=0.24)
+    fig.subplots_adjust(left=0.09, right=0.98, top=0.94, bottom=0.2, hspace=0.08, wspace=0.24)
     axes = fig.subplots(2, 2, sharex=True)
     panels = ((("position_error_rms", "position error |e_P|, RMS over t (m)"),
                ("position_error_max", "position error |e_P|, peak over t (m)")),
@@ -162,15 +165,17 @@ def figure_fig5_over_seeds(frame: pd.DataFrame, flags: Mapping[str, str] | None 
             ax.set_ylabel(ylabel, fontsize="small")
             if row == 1:
                 ax.set_xlabel("iteration j")
-    _seed_proxy(axes[0, 0], seed, perturbation_iteration)
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncols=3, fontsize="small")
+    _seed_proxy(axes[0, 0], seed, perturbation_iteration, perturbation_label)
+    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncols=3, fontsize="small",
+               title="line: median over seeds", title_fontsize="small")
     fig.suptitle(f"Fig. 5 over {n_seeds} seeds: size of the tracking errors per iteration "
                  f"(shaded: j = {', '.join(map(str, TRACKING_ITERATIONS))}, drawn in Fig. 5)", fontsize="medium")
     return fig
 
 
 def figure_input_over_seeds(frame: pd.DataFrame, axis: str, flags: Mapping[str, str] | None = None,
-                            perturbation_iteration: int | None = None) -> Figure | str:
+                            perturbation_iteration: int | None = None,
+                            perturbation_label: str = "m3 x 1.4") -> Figure | str:
     """Fig. 6 (``axis="x"``) or 7 (``"y"``) over seeds: H of Delta tau along ``axis`` against j, three forms."""
     methods = [m for m in INPUT_METHODS if m in set(frame["method"])]
     if not methods:
@@ -190,8 +195,9 @@ def figure_input_over_seeds(frame: pd.DataFrame, axis: str, flags: Mapping[str, 
         ax.set_title(f"H {axis.upper()}, {what}", fontsize="small")
         ax.set_xlabel("iteration j")
     axes[0].set_ylabel(rf"H = std over t of $\Delta\tau$ {axis.upper()} (N)", fontsize="small")
-    _seed_proxy(axes[0], seed, perturbation_iteration)
-    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncols=2, fontsize="small")
+    _seed_proxy(axes[0], seed, perturbation_iteration, perturbation_label)
+    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncols=3, fontsize="small",
+               title="line: median over seeds", title_fontsize="small")
     fig.suptitle(f"Fig. {6 if axis == 'x' else 7} over {n_seeds} seeds: spread of Delta tau {axis.upper()} per "
                  f"iteration (shaded: j = {min(paper.CHATTERING_ITERATION, last)}, drawn in Fig. {6 if axis == 'x' else 7})",
                  fontsize="medium")
@@ -200,14 +206,16 @@ def figure_input_over_seeds(frame: pd.DataFrame, axis: str, flags: Mapping[str, 
 
 def seed_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: tuple[str, ...],
                       flags: Mapping[str, str] | None = None,
-                      perturbation_iteration: int | None = None) -> tuple[list[Path], list[str]]:
+                      perturbation_iteration: int | None = None,
+                      perturbation_label: str = "m3 x 1.4") -> tuple[list[Path], list[str]]:
     """Write Figs. 5-7 over seeds for ONE setting; returns the files and the report's lines."""
     written: list[Path] = []
     notes: list[str] = []
     p = perturbation_iteration
-    builders = (("fig5_tracking_error_seeds", lambda: figure_fig5_over_seeds(frame, flags, p)),
-                ("fig6_input_x_seeds", lambda: figure_input_over_seeds(frame, "x", flags, p)),
-                ("fig7_input_y_seeds", lambda: figure_input_over_seeds(frame, "y", flags, p)))
+    label = perturbation_label
+    builders = (("fig5_tracking_error_seeds", lambda: figure_fig5_over_seeds(frame, flags, p, label)),
+                ("fig6_input_x_seeds", lambda: figure_input_over_seeds(frame, "x", flags, p, label)),
+                ("fig7_input_y_seeds", lambda: figure_input_over_seeds(frame, "y", flags, p, label)))
     for stem, build in builders:
         made = build()
         if isinstance(made, str):

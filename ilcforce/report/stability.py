@@ -51,7 +51,7 @@ WATCHED = ("chattering_task_x_settled", "chattering_task_y_settled", "position_e
 #: Shown beside the judged quantities, never judged: the forms the start mismatch drives.
 SHOWN = ("chattering_task_x", "chattering_task_y")
 #: Absolute floors: a quantity whose value at the window's end is at most this is not flagged,
-#: whatever its rate. H: the 0.02 N bound of the non-repetitive disturbance (SPEC section 5), the
+#: whatever its rate. H: the 0.02 N bound of the non-repetitive disturbance (docs/model.md#noise), the
 #: size of the paper's own C3 H_y (0.0219 N); errors: the paper's converged C2 2-norms (Table 2,
 #: 7.6e-6 m and 0.096 N). A memory norm has mixed units and no floor (0: its rate alone decides).
 FLOORS = {"chattering_task_x_settled": 0.02, "chattering_task_y_settled": 0.02,

@@ -246,8 +246,9 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         report.files += figures
         lines += ["### Figs. 3 and 4 over seeds", "", study_figures.BAND_CAPTION, ""]
         lines += [f"![{f.stem}]({f.name})" for f in figures if f.suffix == ".png"] + [""]
-        band_files, band_lines = seed_bands.seed_band_figures(mine, directory, f"s{k}", formats, flags,
-                                                                  perturbation_iteration=p)
+        band_files, band_lines = seed_bands.seed_band_figures(
+            mine, directory, f"s{k}", formats, flags, perturbation_iteration=p,
+            perturbation_label=sections.perturbation_label(sections.config_of({"config_json": setting.config_json})))
         report.files += band_files
         lines += ["### Figs. 5-7 over seeds", ""] + band_lines
         if k == 0:

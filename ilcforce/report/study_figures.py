@@ -18,6 +18,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
+from ilcforce.config_units import axis_label
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import table_write, tables
 from ilcforce.report.figure_files import save_figure
@@ -45,6 +46,23 @@ def _log_scale(ax, drawn: list[np.ndarray]) -> None:
     values = values[np.isfinite(values)]
     if values.size and np.all(values > 0):
         ax.set_yscale("log")
+
+
+#: What the two shades of a band are, for the legend of every band figure.
+DARK_BAND = "dark band: 95% interval of the median"
+LIGHT_BAND = "light band: central 95% of the seeds"
+
+
+def band_legend_entries(ax) -> None:
+    """Add the two band shades (in grey) to ``ax``'s legend entries, so the legend says what they are."""
+    ax.fill_between([], [], [], color="0.3", alpha=0.35, linewidth=0, label=DARK_BAND)
+    ax.fill_between([], [], [], color="0.3", alpha=0.12, linewidth=0, label=LIGHT_BAND)
+
+
+def _bar_legend_entries(ax) -> None:
+    """The same for the bars of unordered settings (thick: interval of the median; thin: seeds)."""
+    ax.vlines([], [], [], color="0.3", linewidth=4.0, alpha=0.8, label="thick bar: 95% interval of the median")
+    ax.vlines([], [], [], color="0.3", linewidth=1.0, alpha=0.45, label="thin bar: central 95% of the seeds")
 
 
 def _band_plot(ax, x, stats, method: str, label: str) -> np.ndarray:
@@ -76,7 +94,7 @@ def norm_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: t
     n_seeds = frame["seed"].nunique()
     for stem, column, ylabel in (("fig3_position_error_norm", "position_error_2norm", "position error 2-norm (m)"),
                                  ("fig4_force_error_norm", "force_error_2norm", "force error 2-norm (N)")):
-        fig = Figure(figsize=(6.4, 4.0))
+        fig = Figure(figsize=(8.8, 4.0))
         ax = fig.add_subplot()
         drawn = []
         for method in methods:
@@ -92,7 +110,9 @@ def norm_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: t
         ax.set_xlabel("iteration j")
         ax.set_ylabel(ylabel)
         ax.set_title(f"{'Fig. 3' if stem.startswith('fig3') else 'Fig. 4'} over {n_seeds} seeds")
-        ax.legend(fontsize="small")
+        band_legend_entries(ax)
+        ax.legend(fontsize="small", title="line: median over seeds", title_fontsize="small", loc="upper left",
+                  bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         written += save_figure(fig, directory, f"{stem}_{tag}", formats)
     return written
 
@@ -181,7 +201,7 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
         numeric = not labelled and _numeric(values)
         x = np.asarray(values, dtype=float) if numeric else np.arange(len(values), dtype=float)
         numbers = _sweep_numbers(frame, iterations)
-        fig = Figure(figsize=(6.4, 2.8 * len(numbers)))
+        fig = Figure(figsize=(8.8, 2.8 * len(numbers)))
         axes = fig.subplots(len(numbers), 1, sharex=True)
         for ax, (_name, (ylabel, get)) in zip(axes, numbers.items()):
             drawn = []
@@ -202,8 +222,10 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
                                 ha="right" if labelled else "center")
             for ax in axes:
                 ax.set_xlim(-0.5, len(values) - 0.5)
-        axes[-1].set_xlabel(key)
-        axes[0].legend(fontsize="small")
+        axes[-1].set_xlabel(key if labelled else axis_label(key))
+        (_bar_legend_entries if labelled else band_legend_entries)(axes[0])
+        axes[0].legend(fontsize="small", title=f"{'marker' if labelled else 'line'}: median over seeds",
+                       title_fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
         axes[0].set_title(f"key numbers {'per setting' if labelled else 'against ' + key}; "
                           "seeds that diverged are left out")
         files += save_figure(fig, directory, "sweep_key_numbers", formats)
@@ -243,8 +265,8 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
             ax.grid(False)
             ax.set_xticks(range(len(v2)), v2, fontsize="small")
             ax.set_yticks(range(len(v1)), v1, fontsize="small")
-            ax.set_xlabel(second)
-            ax.set_ylabel(first)
+            ax.set_xlabel(axis_label(second))
+            ax.set_ylabel(axis_label(first))
             ax.set_title(f"{_label(method)}: first diverged iteration", fontsize="small")
         fig.colorbar(image, ax=list(axes), label="earliest diverged iteration over seeds")
         files += save_figure(fig, directory, "sweep_divergence_heatmap", formats)

@@ -28,7 +28,7 @@ from ilcforce.report.table_write import is_missing
 #: The paper's methods in the paper's order (the registry's ``in_paper`` specs); the report expects them.
 METHOD_ORDER = PAPER_METHODS
 
-# JBAR_LAST, JBAR_WINDOW, JBAR_FACTOR (SPEC section 6's j̄), COMPARISON_ITERATIONS and
+# JBAR_LAST, JBAR_WINDOW, JBAR_FACTOR (the j̄ of docs/model.md#metrics), COMPARISON_ITERATIONS and
 # ordered_methods are ilcforce.report.comparison's, imported above (the comparison needs no pandas).
 
 #: Suffixes of the two further forms of H (without t = 0; settled from 20 ms), see ilcforce.metrics.
@@ -91,7 +91,7 @@ def describe_divergence(metrics: pd.DataFrame) -> str:
 
 
 def jbar(metrics: pd.DataFrame, column: str) -> int | None:
-    """Convergence iteration j̄ of ``metrics[column]`` (SPEC section 6), or None.
+    """Convergence iteration j̄ of ``metrics[column]`` (docs/model.md#metrics), or None.
 
     None when any of iterations 0..9 is missing or not complete (the definition needs all ten).
     """

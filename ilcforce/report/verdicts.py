@@ -180,3 +180,18 @@ def read_back(path) -> pd.DataFrame:
                 raise ValueError(f"{path}: column {column} holds {frame.loc[unknown, column].iloc[0]!r}, not a truth value")
             frame[column] = text.isin(["true", "1", "1.0"])
     return frame
+
+
+def bottom_line(rows: pd.DataFrame) -> str:
+    """One plain sentence from the claim rows: how many of the paper's claims hold, hold in part,
+    fail or cannot be judged (empty when there is no claim row)."""
+    head = rows[rows["role"] == CLAIM_ROW] if len(rows) else rows
+    if not len(head):
+        return ""
+    words = {"holds": "hold", "in part": "hold in part", "fails": "fail", "not evaluable": "cannot be judged"}
+    said = []
+    for verdict, word in words.items():
+        claims = sorted(int(c) for c in head.loc[head["verdict"] == verdict, "claim"])
+        if claims:
+            said.append(f"{len(claims)} {word} ({', '.join(map(str, claims))})")
+    return f"Bottom line: of the paper's {len(head)} claims, " + ", ".join(said) + "."

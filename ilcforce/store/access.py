@@ -140,7 +140,7 @@ def read_metrics(path: str | os.PathLike[str]) -> pd.DataFrame:
     DataFrame
         Indexed by ``iteration`` (int), ascending; columns :data:`ilcforce.metrics.METRIC_COLUMNS`
         except ``iteration``, in that order (``status`` str, ``fallback_count`` int, the rest
-        float). ``df.attrs["units"]`` maps column -> unit (``"-"`` for dimensionless),
+        float). ``df.attrs["units"]`` maps column -> unit (``"1"`` dimensionless, ``""`` text),
         ``df.attrs["descriptions"]`` column -> description. Taken from the store's ``/metrics``
         cache when it is current, else computed from the stored logs.
     """

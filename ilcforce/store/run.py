@@ -3,9 +3,12 @@
     run = ilcforce.open("results/paper/c3.h5")
     run.metrics                 # DataFrame, one row per iteration, units in .attrs["units"]
     run.iteration(19)           # IterationRecord (logs as arrays) ...
+    run.iteration(-1)           # ... the last stored iteration (negative indices count from the end)
     run.iteration(19).to_pandas()   # ... or a DataFrame indexed by time, units in .attrs["units"]
     run.memory(19)              # learned memory after iteration 19 (DataFrame on the control grid)
-    run.config                  # the Config the run was made with
+    run.config                  # the Config the run was made with; run.config.c3 its C3 gains
+    len(run), run[-1]           # number of stored iterations; an iteration by index
+    for record in run: ...      # every stored iteration, in order
 
 Every read goes through the store's readers (checked, checksummed, one-line StoreError). What a
 run object shows is the file as it is now: a store that another process extends (``simulate
@@ -24,6 +27,7 @@ import pandas as pd
 
 from ilcforce.records import IterationRecord
 from ilcforce.store import access, safeio
+from ilcforce.store.safeio import StoreError
 
 
 @dataclass(frozen=True)
@@ -99,8 +103,38 @@ class Run:
         """The reference trajectories on the log grid (index ``time``, units in attrs)."""
         return self._current("reference", lambda: access.read_reference(self.path)).copy()
 
+    def __len__(self) -> int:
+        """The number of stored iterations."""
+        return len(self.iterations)
+
+    def __iter__(self):
+        """Every stored iteration as a :class:`StoredIteration`, in order (those stored when the loop starts)."""
+        for j in self.iterations:
+            yield self.iteration(j)
+
+    def __getitem__(self, j: int) -> StoredIteration:
+        """``run[j]`` is ``run.iteration(j)``; IndexError (one line) for an iteration not stored."""
+        number = self._number(j)
+        if number not in self.iterations:
+            raise IndexError(f"{self.path}: iteration {j} is not stored ({len(self)} stored)")
+        return self.iteration(number)
+
+    def _number(self, j: int) -> int:
+        """The iteration number j, or for a negative j the stored iteration counted from the end
+        (-1 the last), as Python indexes a list. StoreError (one line) if there are too few."""
+        if isinstance(j, bool) or not isinstance(j, (int, np.integer)):
+            raise TypeError(f"an iteration is an integer index, got {j!r}")
+        if j >= 0:
+            return int(j)
+        stored = self.iterations
+        if -j > len(stored):
+            raise StoreError(f"{self.path}: iteration {j} is not stored ({len(stored)} iterations stored)")
+        return stored[j]
+
     def iteration(self, j: int) -> StoredIteration:
-        """Iteration ``j``: logs (arrays on the log grid), memory, status; ``.to_pandas()``."""
+        """Iteration ``j`` (negative: counted from the last stored, -1 the last): logs (arrays on the
+        log grid), memory, status; ``.to_pandas()``."""
+        j = self._number(j)
         frame = access.read_iteration(self.path, j)
         from ilcforce.records import LOG_SIGNALS
 
@@ -123,8 +157,10 @@ class Run:
         """The learned memory after iteration ``j`` as a DataFrame on the control grid.
 
         One column per memory entry (a matrix gives one column per labelled entry, e.g.
-        ``theta_hat_D11``); ``attrs["units"]`` column -> unit.
+        ``theta_hat_D11``); ``attrs["units"]`` column -> unit. A negative ``j`` counts from the
+        last stored iteration (-1 the last).
         """
+        j = self._number(j)
         arrays = access.read_memory(self.path, j)
         info = access.read_memory_info(self.path, j)
         time = access.read_control_time(self.path)

@@ -201,7 +201,7 @@ def _check_name(name) -> str:
 
 
 def _check_methods(value) -> tuple[str, ...]:
-    from ilcforce.controllers import REGISTRY
+    from ilcforce.controllers import REGISTRY, MethodNameError, canonical_method
 
     if value is None:
         return tuple(REGISTRY)
@@ -209,11 +209,10 @@ def _check_methods(value) -> tuple[str, ...]:
         raise StudyError(f"study.methods must be a non-empty list of method names, got {shown(value)}")
     names = []
     for item in value:
-        name = str(item).strip().lower() if isinstance(item, str) else item
-        if name not in REGISTRY:
-            close = difflib.get_close_matches(str(name), list(REGISTRY), n=1)
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
-            raise StudyError(f"study.methods: unknown method {item!r}{hint}; choose from {', '.join(REGISTRY)}")
+        try:
+            name = canonical_method(item)  # any case, stored under the registry's name
+        except MethodNameError as exc:
+            raise StudyError(f"study.methods: {exc}") from None
         if name in names:
             raise StudyError(f"study.methods lists {name!r} twice")
         names.append(name)
@@ -333,7 +332,9 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
 
 def _load(experiment: Path | None, overrides: dict, where: str) -> Config:
     try:
-        return load_config(experiment, {**overrides, "experiment.seed": 0})
+        # a setting is described by its own label and values (and a study store compares settings by
+        # their whole configuration), so its description stays the experiment file's
+        return load_config(experiment, {**overrides, "experiment.seed": 0}, note_overrides=False)
     except ConfigError as exc:
         if experiment is not None:  # the experiment file's own fault (the same one alone) is not the setting's
             try:

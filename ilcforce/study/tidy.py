@@ -8,6 +8,13 @@ setting), ``seed``, ``method``,
 ``iteration``, then the metric columns of :data:`ilcforce.metrics.METRIC_COLUMNS` in their order,
 then any further columns (a study's ``memory_norm_*``). A run store is the one-setting, one-seed
 case. Failed cells have no rows (see :attr:`StudyResults.cells`).
+
+Units. The frame :func:`tidy_metrics` returns carries them as ``frame.attrs["units"]`` (column -> unit) and
+``frame.attrs["descriptions"]`` (column -> what it is); :func:`export` writes them beside the CSV in
+a sidecar table ``<name>.units.csv`` (columns ``column``, ``unit``, ``description``, one row per
+column of the CSV, in its order), so the CSV itself stays one header row that any reader takes.
+Units are SI text (``"m"``, ``"N s^1/2"``), ``"1"`` for a dimensionless number (seed, iteration,
+a count), ``""`` for text (method, status, a setting's label).
 """
 
 from __future__ import annotations
@@ -108,6 +115,60 @@ def _order(frame: pd.DataFrame, leading: list[str], methods: list[str] | None = 
     return frame
 
 
+def column_units(columns) -> tuple[dict[str, str], dict[str, str]]:
+    """(units, descriptions) of the tidy columns ``columns`` (module doc); a column the tidy frame
+    does not define (none in a frame this module makes) is left out of both."""
+    from ilcforce.config_units import config_unit
+    from ilcforce.controllers import REGISTRY
+
+    memory_units = {name: unit for spec in REGISTRY.values() for name, (_a, _b, unit) in spec.memory_layout.items()}
+    fixed = {LABEL_COLUMN: ("", "the setting's label (the study's [[study.settings]] entry)"),
+             "seed": ("1", "random seed of the cell: the root of its disturbance and sensor noise draws"),
+             "method": ("", "the method (an ilcforce --method name)")}
+    units: dict[str, str] = {}
+    descriptions: dict[str, str] = {}
+    for column in columns:
+        column = str(column)
+        if column in fixed:
+            units[column], descriptions[column] = fixed[column]
+        elif column in METRIC_COLUMNS:
+            units[column], descriptions[column] = METRIC_COLUMNS[column]
+        elif (kind := next((k for k in _MEMORY_NORMS if column.startswith(k)), None)) is not None \
+                and column.removeprefix(kind) in memory_units:
+            name = column.removeprefix(kind)
+            units[column] = memory_units[name]
+            descriptions[column] = _MEMORY_NORMS[kind].format(name=name)
+        else:
+            try:
+                units[column] = config_unit(column)
+            except KeyError:
+                continue
+            descriptions[column] = "configuration value of the cell's setting (the config key it is named by)"
+    return units, descriptions
+
+
+#: the learned-memory norm columns a study stores (:func:`ilcforce.metrics.memory_norms`): prefix -> description
+_MEMORY_NORMS = {
+    "memory_norm_": "RMS over the control grid of the per-sample Euclidean norm of the learned memory {name} "
+                    "after the iteration",
+    "memory_settled_": "the same RMS from the settled time on (without the start mismatch at t = 0) of the learned "
+                       "memory {name}",
+    "memory_start_": "the Euclidean norm of the learned memory {name} at t = 0 alone",
+}
+
+
+def _with_units(frame: pd.DataFrame) -> pd.DataFrame:
+    frame.attrs["units"], frame.attrs["descriptions"] = column_units(frame.columns)
+    return frame
+
+
+def units_path(out: Path | str) -> Path:
+    """The units sidecar :func:`export` writes beside table ``out``: ``paper-mc.csv`` ->
+    ``paper-mc.units.csv``."""
+    out = Path(out)
+    return out.with_name(f"{out.stem}.units{out.suffix}")
+
+
 def read_study(path: Path | str) -> StudyResults:
     """Read a study store (consolidated file plus journal); StudyStoreError if it is not one."""
     path = Path(path)
@@ -169,7 +230,8 @@ def run_store_metrics(path: Path | str) -> pd.DataFrame:
 def tidy_metrics(path: Path | str) -> pd.DataFrame:
     """The tidy metrics frame of a study store or a run store (the Python API of ``ilcforce export``).
 
-    Raises ExportError (one line) for a missing, damaged or foreign file.
+    ``frame.attrs["units"]`` maps each column to its unit and ``frame.attrs["descriptions"]`` to what
+    it is (module doc). Raises ExportError (one line) for a missing, damaged or foreign file.
     """
     from ilcforce import store
 
@@ -178,47 +240,58 @@ def tidy_metrics(path: Path | str) -> pd.DataFrame:
         raise ExportError(f"{path} does not exist")
     if not path.is_file():
         raise ExportError(f"{path} is not a regular file")
+    # units go on the frame handed out, not on the frames the report works on (pandas deep-copies
+    # attrs at every operation)
     if is_study_store(path):
         try:
-            return read_study(path).metrics
+            return _with_units(read_study(path).metrics)
         except StudyStoreError as exc:
             raise ExportError(str(exc)) from None
     try:
         store.validate(path)
-        return run_store_metrics(path)
+        return _with_units(run_store_metrics(path))
     except (store.StoreError, OSError, KeyError, ValueError) as exc:
         raise ExportError(" ".join(str(exc).split()) or f"{path}: not an ilcforce store") from None
 
 
 def export(path: Path | str, out: Path | str, *, overwrite: bool = False) -> tuple[Path, int]:
-    """Write the tidy metrics of ``path`` to ``out`` (``.csv``); returns (out, number of rows).
+    """Write the tidy metrics of ``path`` to ``out`` (``.csv``) and their units to
+    :func:`units_path` (``<name>.units.csv``: ``column``, ``unit``, ``description``, one row per
+    column of ``out``); returns (out, number of rows).
 
     Floats are written with Python's shortest round-trip representation, so reading the CSV back
-    gives the stored values bit for bit. An existing ``out`` is replaced only with ``overwrite``
-    and only if it is a regular file; the new file appears atomically (temporary name, rename).
+    gives the stored values bit for bit. An existing ``out`` (or units file) is replaced only with
+    ``overwrite`` and only if it is a regular file; each new file appears atomically (temporary
+    name, rename), the units file first.
     """
     out = Path(out)
     if out.suffix.lower() != ".csv":
         hint = " (parquet would need pyarrow, which ilcforce does not install)" if out.suffix.lower() == ".parquet" else ""
         raise ExportError(f"--out {out}: only .csv is supported{hint}")
-    if os.path.lexists(out):
-        if out.is_symlink() or not out.is_file():
-            raise ExportError(f"--out {out} exists and is not a regular file; refusing to replace it")
-        if not overwrite:
-            raise ExportError(f"--out {out} exists; pass --overwrite to replace it")
-        _check_replaceable(Path(path), out)
+    sidecar = units_path(out)
+    for target, what in ((out, f"--out {out}"), (sidecar, f"the units file {sidecar} of --out {out}")):
+        if os.path.lexists(target):
+            if target.is_symlink() or not target.is_file():
+                raise ExportError(f"{what} exists and is not a regular file; refusing to replace it")
+            if not overwrite:
+                raise ExportError(f"{what} exists; pass --overwrite to replace it")
+            _check_replaceable(Path(path), target)
     frame = tidy_metrics(path)
     if not out.parent.is_dir():
         raise ExportError(f"--out {out}: folder {out.parent} does not exist")
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    try:
-        frame.to_csv(tmp, index=False)
-        os.replace(tmp, out)
-    except OSError as exc:  # named by --out, not by the temporary file
-        raise ExportError(f"--out {out}: {exc.strerror or exc}") from None
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    units = pd.DataFrame({"column": [str(c) for c in frame.columns],
+                          "unit": [frame.attrs["units"].get(str(c), "") for c in frame.columns],
+                          "description": [frame.attrs["descriptions"].get(str(c), "") for c in frame.columns]})
+    for table, target in ((units, sidecar), (frame, out)):
+        tmp = target.with_name(f".{target.name}.tmp-{os.getpid()}")
+        try:
+            table.to_csv(tmp, index=False)
+            os.replace(tmp, target)
+        except OSError as exc:  # named by --out, not by the temporary file
+            raise ExportError(f"--out {target}: {exc.strerror or exc}") from None
+        finally:
+            if tmp.exists():
+                tmp.unlink()
     return out, len(frame)
 
 
