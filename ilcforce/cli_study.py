@@ -125,6 +125,8 @@ def study(
 
 
 def _summarise(spec, summary, quiet: bool) -> None:
+    for line in summary.quarantined:
+        err.print(f"warning: {spec.name}: journal record {line}", highlight=False, markup=False, soft_wrap=True)
     for cell, message in summary.failed[:10]:
         err.print(f"warning: {spec.name}: cell {cell.method} seed {cell.seed} setting {cell.setting} failed twice: "
                   f"{message}", highlight=False, markup=False, soft_wrap=True)

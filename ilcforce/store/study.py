@@ -34,16 +34,18 @@ import json
 import math
 import os
 import shutil
+import uuid
 from pathlib import Path
 
 import h5py
 import numpy as np
 
 from ilcforce import interrupts
+from ilcforce.store import study_journal
 from ilcforce.store.safeio import is_hdf5_file, one_line
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
-    _journal_records, _keys, _lock_path, _table, is_study_store, journal_dir, read_header, read_tables,
+    _keys, _lock_path, _table, is_study_store, journal_dir, read_header, read_tables, scan_journal, study_facts,
 )
 
 
@@ -250,27 +252,54 @@ class StudyStore:
         self._lock_fd = self._lock()
         self.created = not self.path.exists()  # this handle makes the store (see discard_if_unused)
         self.committed = 0
+        self.quarantined: list[str] = []  # one line per refused journal record moved aside
         try:
             self._prepare(overwrite, replace_stale, require_existing)
+            self._open_journal()
         except BaseException:
             self.close()
             raise
+
+    def _open_journal(self) -> None:
+        """Read what the store and its journal hold: the journal's records are checked against the
+        store (:mod:`.study_journal`), the refused ones moved aside. A store made before stores had
+        an identity, or a run that plans cells no earlier run planned, is consolidated at once, so
+        that every record this run commits is a cell of the study as the store itself tells it."""
+        stored = read_header(self.path, check=False)
+        self._study_id = str(stored.get("study_id", "")) or uuid.uuid4().hex
+        plan = (self._session.get("seeds"), self._session.get("methods"))
+        current = {**stored, "study_id": self._study_id,
+                   "sessions_json": json.dumps([*json.loads(str(stored.get("sessions_json", "[]"))), self._session])}
+        self._facts = study_facts(current)
+        found = scan_journal(self.path, current)
+        for item, why in found.refused:
+            try:
+                where = study_journal.quarantine(item)
+            except OSError as exc:
+                raise StudyStoreError(f"{item}: a refused journal record ({why}) cannot be moved aside "
+                                      f"({exc.strerror or exc})") from None
+            self.quarantined.append(f"{item}: {why}; moved to {where}, its cell runs again")
         self.done: set[tuple[int, int, str]] = set()
         self.failed: dict[tuple[int, int, str], str] = {}
-        _header, _metrics, cells = read_tables(self.path, check=False)
-        if len(cells):
-            for key, state, message in zip(_keys(cells), cells["state"], cells["message"]):
-                if state == DONE:
-                    self.done.add(key)
-                else:
-                    self.failed[key] = str(message)
-        self._pending = [r for r in _journal_records(self.path)]
-        self._last = 0.0
-        # what the HDF5 file itself holds, kept in memory so that a consolidation reads nothing back
         with h5py.File(self.path, "r") as handle:
-            stored = _table(handle["cells"])
+            stored_cells = _table(handle["cells"])
             self._sessions = json.loads(handle.attrs.get("sessions_json", "[]"))
-        self._in_file = set(_keys(stored[stored["state"] == DONE])) if len(stored) else set()
+        self._in_file = set(_keys(stored_cells[stored_cells["state"] == DONE])) if len(stored_cells) else set()
+        states = list(zip(_keys(stored_cells), stored_cells["state"], stored_cells["message"])) if len(
+            stored_cells) else []
+        states += [((r["setting"], r["seed"], r["method"]), r["state"], r["message"]) for r in found.records]
+        for key, state, message in states:
+            if state == DONE:
+                self.done.add(key)
+                self.failed.pop(key, None)
+            elif key not in self.done:
+                self.failed[key] = str(message)
+        self._pending = list(found.records)
+        self._last = 0.0
+        planned = all(plan) and all(any(s in seeds and m in methods for seeds, methods in
+                                        study_facts(stored).plans) for s in plan[0] for m in plan[1])
+        if not stored.get("study_id") or not planned:
+            self._consolidate(0.0)
 
     # -- setup --------------------------------------------------------------------------------
 
@@ -308,7 +337,8 @@ class StudyStore:
             handle.attrs["schema_version"] = SCHEMA_VERSION
             for key in ("name", "description", "study_toml", "definition_json", "fingerprint", "created"):
                 handle.attrs[key] = str(self._header.get(key, ""))
-            handle.attrs["sessions_json"] = "[]"
+            handle.attrs["study_id"] = uuid.uuid4().hex
+            handle.attrs["sessions_json"] = json.dumps([self._session])
             _append(handle.create_group("settings"), list(self._header["settings"]))
             handle.create_group("metrics").attrs["n_rows"] = 0
             handle.create_group("cells").attrs["n_rows"] = 0
@@ -323,7 +353,12 @@ class StudyStore:
         with interrupts.critical():  # a stop signal takes effect when the commit has ended
             folder = journal_dir(self.path)
             folder.mkdir(exist_ok=True)
-            target = folder / f"{record['setting']}-{record['seed']}-{record['method']}.json"
+            target = folder / study_journal.record_name(record["setting"], record["seed"], record["method"])
+            record = study_journal.seal(record, self._study_id, self._facts.digests[record["setting"]])
+            try:  # never commit a record that a reader would refuse
+                study_journal.check(record, self._facts)
+            except study_journal.RecordError as exc:
+                raise StudyStoreError(f"{target}: refusing to commit the cell ({exc})") from None
             _write_json_atomic(target, record)
             self.committed += 1
             self._pending.append({**record, "_file": target})
@@ -369,6 +404,7 @@ class StudyStore:
                 _append(handle["cells"], cells)
                 _append(handle["metrics"], rows)
                 handle.attrs["sessions_json"] = json.dumps(sessions)
+                handle.attrs["study_id"] = self._study_id
             _fsync(tmp)
             os.replace(tmp, self.path)
             self._in_file |= added

@@ -68,6 +68,7 @@ class StudySummary:
     workers: int
     scheduler: str
     wall_time: float
+    quarantined: tuple[str, ...] = ()  # one line per refused journal record moved aside (its cell ran again)
 
 
 def fingerprint() -> str:
@@ -193,7 +194,9 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
                "command": command, "scheduler": scheduler or ("in-process" if workers == 1 else "LocalCluster"),
                "workers": workers, "host": platform.node(), "versions": _versions(),
                # what this run set out to store, so that a report can say a stopped study is incomplete
-               "cells_planned": len(study.cells()), "study_toml": study.source}
+               "cells_planned": len(study.cells()), "study_toml": study.source,
+               # the cells this run may commit: a journal record of any other cell is refused
+               "seeds": list(study.seeds), "methods": list(study.methods)}
     store = StudyStore(path, header=_header(study), session=session, overwrite=overwrite,
                        replace_stale=replace_stale, require_existing=resume)
     try:
@@ -252,7 +255,7 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
                     store.consolidate(time.perf_counter())
         return StudySummary(path, len(cells), skipped, ran, tuple(failed_now), workers or 0,
                             scheduler or ("in-process" if workers == 1 else "LocalCluster"),
-                            time.perf_counter() - start)
+                            time.perf_counter() - start, tuple(store.quarantined))
     except BaseException:
         store.discard_if_unused()  # e.g. an unreachable scheduler: no empty store left behind
         raise
