@@ -14,6 +14,8 @@ import h5py  # the tests forge files directly; library code leaves h5py to the s
 import numpy as np
 import pytest
 
+from ilcforce.store.seal import seal_attrs
+
 from ilcforce import store
 from ilcforce.store import StoreError
 from storekit import assert_one_line_naming, make_record, resumed_config, write_run, writer
@@ -189,6 +191,7 @@ def test_int_status_column_in_metrics_is_not_trusted(path: Path):
         del handle["metrics/status"]
         handle["metrics"].create_dataset("status", data=np.array([1, 2]))
         handle["metrics/status"].attrs["units"] = "-"
+        seal_attrs(handle["metrics/status"])  # a cache column of the wrong kind, sealed by its writer
     store.validate(path)  # a stale cache is recomputed from the logs, never trusted
     assert list(store.read_metrics(path)["status"]) == ["complete", "complete"]
 

@@ -12,6 +12,8 @@ import h5py  # the tests inspect and forge files directly; library code leaves h
 import numpy as np
 import pytest
 
+from ilcforce.store.seal import seal_attrs
+
 from ilcforce import store
 from ilcforce.records import STATUS_COMPLETE, IterationRecord
 from ilcforce.store import StoreError, StoreExistsError, StoreLockedError
@@ -303,6 +305,7 @@ def test_running_state_left_by_kill_becomes_partial_on_resume(path: Path):
     write_run(path, 2, finish=None)
     with h5py.File(path, "a") as handle:  # what a kill -9 after a commit leaves
         handle.attrs["run_state"] = "running"
+        seal_attrs(handle)  # the commit's seal covers its run_state
     with writer(path, resume=True):
         pass
     assert store.read_provenance(path)["run_state"] == "partial"

@@ -25,6 +25,7 @@ if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports n
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
 from ilcforce.records import IterationRecord
 from ilcforce.store import schema
+from ilcforce.store.seal import ATTRS_SEAL, attrs_state
 from ilcforce.store.template import verify
 from ilcforce.store.safeio import (IS_A_STUDY_STORE, StoreError, check_regular_file, one_line, probe,
                                    read_locked, superblock_version, writer_active)
@@ -131,7 +132,28 @@ def check_header(handle: h5py.File, path: Path) -> int:
     run_state = py(handle.attrs["run_state"])
     if run_state not in schema.RUN_STATES:
         raise StoreError(f"{path}: unknown run_state {run_state!r} (expected one of {', '.join(schema.RUN_STATES)})")
+    for key, plain in (("method", schema.METHOD_NAME.fullmatch), ("experiment", schema.is_plain_name)):
+        value = str(py(handle.attrs[key]))  # each names a results file or folder: never a path
+        if not plain(value):
+            raise StoreError(f"{path}: root attribute {key} {value[:60]!r} is not a plain name")
+    for key in ("seed", "n_iterations_requested"):
+        if int(py(handle.attrs[key])) < 0:
+            raise StoreError(f"{path}: root attribute {key} is {int(py(handle.attrs[key]))}, below 0")
+    state = attrs_state(handle)
+    if state == "damaged":
+        raise StoreError(f"{path}: the root attributes (configuration, command, provenance) do not match their "
+                         f"checksum {ATTRS_SEAL}: changed or damaged after they were written")
+    if state == "unsealed" and is_sealed_schema(version):
+        raise StoreError(f"{path}: the root attributes carry no checksum ({ATTRS_SEAL}), which schema {version} requires")
     return major
+
+
+def is_sealed_schema(version: str) -> bool:
+    """Whether a store of schema ``version`` seals every object's attributes (:mod:`.seal`)."""
+    try:
+        return schema.parse_version(version) >= schema.SEALED_FROM
+    except ValueError:
+        return True
 
 
 def require_group(parent: h5py.Group, name: str, path: Path) -> h5py.Group:

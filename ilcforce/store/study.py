@@ -42,6 +42,7 @@ import numpy as np
 
 from ilcforce import interrupts
 from ilcforce.store import study_journal
+from ilcforce.store.seal import STRINGS_SEAL, seal_attrs, strings_checksum
 from ilcforce.store.safeio import is_hdf5_file, one_line
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
@@ -80,12 +81,31 @@ def _append(group: h5py.Group, rows: list[dict]) -> None:
         fill = dataset.attrs["fill"]
         if h5py.check_string_dtype(dataset.dtype) is not None:
             array = np.asarray(["" if v is None else str(v) for v in values], dtype=object)
+            before = dataset.attrs.get(STRINGS_SEAL)
+            if before is None:  # a new column, or one of a store made before strings were sealed
+                before = strings_checksum(dataset.asstr()[()]) if n_old else 0
+            dataset.attrs[STRINGS_SEAL] = np.uint32(strings_checksum(array, int(before)))
         else:
             array = np.asarray([fill if v is None else v for v in values], dtype=dataset.dtype)
         dataset.resize((n_new,))
         dataset[n_old:n_new] = array
     group.attrs["n_rows"] = n_new
     group.attrs["columns_json"] = json.dumps(columns)
+
+
+def _seal(handle: h5py.File) -> None:
+    """Seal the attributes of the root, every group and every column, and the strings of every string
+    column not sealed yet (a store made before seals), as the last step of every write."""
+    handle.attrs["schema_version"] = SCHEMA_VERSION
+    for group_name in ("settings", "metrics", "cells"):
+        group = handle[group_name]
+        for name in group:
+            dataset = group[name]
+            if h5py.check_string_dtype(dataset.dtype) is not None and STRINGS_SEAL not in dataset.attrs:
+                dataset.attrs[STRINGS_SEAL] = np.uint32(strings_checksum(dataset.asstr()[()]))
+            seal_attrs(dataset)
+        seal_attrs(group)
+    seal_attrs(handle)
 
 
 def _fsync(path: Path) -> None:
@@ -342,6 +362,7 @@ class StudyStore:
             _append(handle.create_group("settings"), list(self._header["settings"]))
             handle.create_group("metrics").attrs["n_rows"] = 0
             handle.create_group("cells").attrs["n_rows"] = 0
+            _seal(handle)
         _fsync(tmp)
         os.replace(tmp, self.path)
 
@@ -405,6 +426,7 @@ class StudyStore:
                 _append(handle["metrics"], rows)
                 handle.attrs["sessions_json"] = json.dumps(sessions)
                 handle.attrs["study_id"] = self._study_id
+                _seal(handle)
             _fsync(tmp)
             os.replace(tmp, self.path)
             self._in_file |= added

@@ -13,11 +13,17 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.store import study_journal
+from ilcforce.store.seal import ATTRS_SEAL, STRINGS_SEAL, attrs_state, strings_checksum
 from ilcforce.store.safeio import is_hdf5_file
 from ilcforce.store.schema import STUDY_NAME, STUDY_SCHEMA_NAME
 
 SCHEMA_NAME = STUDY_SCHEMA_NAME
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"
+#: From this version on, the root, every group and every column carry attribute seals and every
+#: string column a checksum of its values (:mod:`.seal`). A 1.0 store has none: it is read and
+#: ``validate`` says its strings are unverified (accepted: its numbers are Fletcher-32 checked, and
+#: the driver seals it at its next consolidation).
+SEALED_FROM = (1, 1)
 CELL_COLUMNS = ("setting", "seed", "method", "state", "attempts", "message", "elapsed", "worker")
 KEY_COLUMNS = ("setting", "seed", "method")
 DONE, FAILED = "done", "failed"
@@ -53,17 +59,44 @@ def is_study_store(path: Path) -> bool:
 # reading
 
 
-def _column(dataset: h5py.Dataset) -> np.ndarray:
+def is_sealed(handle: h5py.File) -> bool:
+    """Whether the study store open as ``handle`` is of a schema whose attributes and strings are sealed."""
+    try:
+        major, minor = (int(x) for x in str(handle.attrs.get("schema_version", "")).split("."))
+    except ValueError:
+        return True
+    return (major, minor) >= SEALED_FROM
+
+
+def _verify_attrs(obj, sealed: bool) -> None:
+    state = attrs_state(obj)
+    if state == "damaged" or (state == "unsealed" and sealed):
+        what = "root" if obj.name == "/" else obj.name
+        raise StudyStoreError(f"{obj.file.filename}: the attributes of {what} do not match their checksum "
+                              f"({ATTRS_SEAL}) or have none: damaged")
+
+
+def _column(dataset: h5py.Dataset, sealed: bool) -> np.ndarray:
+    _verify_attrs(dataset, sealed)
     if h5py.check_string_dtype(dataset.dtype) is not None:
-        return np.asarray(dataset.asstr()[()], dtype=object)
+        values = np.asarray(dataset.asstr()[()], dtype=object)
+        stored = dataset.attrs.get(STRINGS_SEAL)
+        if stored is None and not sealed:
+            return values
+        if stored is None or int(stored) != strings_checksum(values):
+            raise StudyStoreError(f"{dataset.file.filename}: the strings of {dataset.name} do not match their "
+                                  f"checksum ({STRINGS_SEAL}): damaged")
+        return values
     return dataset[()]
 
 
 def _table(group: h5py.Group) -> pd.DataFrame:
+    sealed = is_sealed(group.file)
+    _verify_attrs(group, sealed)
     n = int(group.attrs.get("n_rows", 0))
     data = {}
     for name in json.loads(group.attrs.get("columns_json", "[]")):
-        values = _column(group[name])
+        values = _column(group[name], sealed)
         if values.shape != (n,):
             raise StudyStoreError(f"{group.file.filename}: /{group.name.strip('/')}/{name} has {values.shape[0]} "
                                   f"rows, expected {n}")
@@ -164,6 +197,7 @@ def read_header(path: Path, *, check: bool = True) -> dict:
             version = str(handle.attrs.get("schema_version", ""))
             if version.split(".")[0] != SCHEMA_VERSION.split(".")[0]:
                 raise StudyStoreError(f"{path}: study store schema {version!r}; this ilcforce reads {SCHEMA_VERSION}")
+            _verify_attrs(handle, is_sealed(handle))
             attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in handle.attrs.items()}
             name = attrs.get("name")
             if not isinstance(name, str) or not STUDY_NAME.fullmatch(name) or name in (".", ".."):
@@ -228,8 +262,11 @@ def check_study_store(path: Path) -> dict:
     ignored = _entries(found)
     if found.quarantined:
         ignored.append(f"{study_journal.QUARANTINE}: {found.quarantined} refused record(s) moved aside earlier")
+    with h5py.File(path, "r") as handle:
+        sealed = is_sealed(handle)
+    notes = [] if sealed else ["strings and attributes unverified (schema 1.0, written before they were sealed)"]
     return {"name": str(header.get("name", "")), "cells": len(states), "done": states.count(DONE),
-            "failed": states.count(FAILED), "ignored": ignored}
+            "failed": states.count(FAILED), "ignored": ignored, "notes": notes}
 
 
 # ------------------------------------------------------------------------------------------------
