@@ -16,6 +16,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
+import re
 import select
 import signal
 import stat
@@ -68,7 +69,58 @@ def lock_path(path: Path) -> Path:
 
 
 def tmp_path(path: Path) -> Path:
-    return path.with_name(path.name + ".tmp")
+    """This process's temporary copy of the store at ``path``: hidden and named by its PID, a name
+    no store may have (:func:`is_temporary_name`), so removing it can never remove a store."""
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
+
+
+_TEMPORARY = re.compile(r"\.(.+)\.tmp-([0-9]{1,10})")
+
+
+def is_temporary_name(name: str) -> bool:
+    """Whether ``name`` is one ilcforce gives its temporary copies (``.<name>.tmp-<pid>``)."""
+    return _TEMPORARY.fullmatch(name) is not None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process: alive
+        return True
+    return True
+
+
+def dead_writers_copies(path: Path) -> list[Path]:
+    """The temporary copies of the store at ``path`` (exactly ``.<name>.tmp-<pid>``, regular files)
+    whose writer process is gone: left by a kill -9. The caller holds the store's writer lock, so
+    no live writer of this store is making one; a copy of a live process is never listed."""
+    try:
+        names = os.listdir(path.parent)
+    except OSError:
+        return []
+    found = []
+    for name in names:
+        match = _TEMPORARY.fullmatch(name)
+        if match is None or match.group(1) != path.name:
+            continue
+        pid = int(match.group(2))
+        if pid == os.getpid() or _alive(pid):
+            continue
+        try:
+            if stat.S_ISREG(os.lstat(path.parent / name).st_mode):
+                found.append(path.parent / name)
+        except OSError:
+            pass
+    return found
+
+
+def file_identity(path: Path) -> Path:
+    """The name the writers of ``path`` lock: its real path (symbolic links resolved), so that two
+    names of one file take one lock. (Hard links need no lock in common: a commit to a file with
+    other names copies it and renames the copy over its own name, see :mod:`.commit`.)"""
+    return Path(os.path.realpath(path))
 
 
 def companion_of(path: Path) -> str | None:
@@ -88,12 +140,13 @@ def companion_of(path: Path) -> str | None:
 
 
 def acquire_writer_lock(path: Path) -> int:
-    """Take ``<path>.lock`` exclusively; the fd (closing it releases the lock).
+    """Take ``<real path>.lock`` exclusively (:func:`file_identity`: every name of the file
+    reaches one lock); the fd (closing it releases the lock).
 
     Never follows a symlink, never truncates: the PID is written only into a file this call
     created. StoreLockedError if another writer holds it.
     """
-    lock = lock_path(path)
+    lock = lock_path(file_identity(path))
     flags = os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC
     created = False
     try:
@@ -131,7 +184,7 @@ def acquire_writer_lock(path: Path) -> int:
 def writer_active(path: str | os.PathLike[str]) -> bool:
     """True while a writer holds ``<path>.lock`` (the flock dies with its process)."""
     try:
-        fd = os.open(lock_path(Path(path)), os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK)
+        fd = os.open(lock_path(file_identity(Path(path))), os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK)
     except OSError:
         return False
     try:

@@ -43,7 +43,7 @@ import numpy as np
 from ilcforce import interrupts
 from ilcforce.store import study_journal
 from ilcforce.store.seal import STRINGS_SEAL, seal_attrs, strings_checksum
-from ilcforce.store.safeio import is_hdf5_file, one_line
+from ilcforce.store.safeio import dead_writers_copies, is_hdf5_file, is_temporary_name, one_line
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
     _keys, _lock_path, _table, is_study_store, journal_dir, read_header, read_tables, scan_journal, study_facts,
@@ -274,6 +274,7 @@ class StudyStore:
         self.committed = 0
         self.quarantined: list[str] = []  # one line per refused journal record moved aside
         try:
+            self._remove_dead_copies()
             self._prepare(overwrite, replace_stale, require_existing)
             self._open_journal()
         except BaseException:
@@ -335,6 +336,19 @@ class StudyStore:
             os.close(fd)
             raise StudyStoreError(f"{self.path}: another ilcforce study is writing this store") from None
         return fd
+
+    def _remove_dead_copies(self) -> None:
+        """Remove what a killed driver of this study left half written: ``.<name>.h5.tmp-<pid>`` beside
+        the store and ``.<record>.tmp-<pid>`` in its journal, of processes that are gone, each by its
+        exact name (we hold the study's lock: no live driver of it is writing one)."""
+        stale = dead_writers_copies(self.path)
+        folder = journal_dir(self.path)
+        if folder.is_dir() and not folder.is_symlink():
+            records = {item.name[1:].rsplit(".tmp-", 1)[0] for item in folder.iterdir() if is_temporary_name(item.name)}
+            for record in sorted(records):
+                stale += dead_writers_copies(folder / record)
+        for item in dict.fromkeys(stale):
+            _remove(item)
 
     def _prepare(self, overwrite: bool, replace_stale: bool, require_existing: bool) -> None:
         if check_usable(self.path, self._header, overwrite=overwrite, replace_stale=replace_stale,

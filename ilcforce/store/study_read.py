@@ -40,7 +40,8 @@ def journal_dir(path: Path) -> Path:
 
 
 def _lock_path(path: Path) -> Path:
-    return Path(f"{path}.lock")
+    """The study's lock file, beside its real path: every name of the store takes one lock."""
+    return Path(f"{os.path.realpath(path)}.lock")
 
 
 def is_study_store(path: Path) -> bool:
