@@ -331,12 +331,12 @@ def test_report_skips_a_store_with_forged_types(tmp_path: Path):
 def test_a_store_marked_walked_skips_the_probe_until_it_changes(path: Path, monkeypatch):
     """compare's parent skips the forked walk of a store its worker has just written (the worker sends
     the file's key); any later change to the file is a new key and is walked again."""
-    from ilcforce.store import safeio
+    from ilcforce.store import filecheck, safeio
 
     write_run(path, 2)
     marks = path.parent / "walks.txt"  # the walk runs in a forked child: it leaves a mark in a file
 
-    def walk(p, real=safeio._walk):
+    def walk(p, real=filecheck._walk):
         with open(marks, "a") as handle:
             handle.write("walk\n")
         real(p)
@@ -344,8 +344,8 @@ def test_a_store_marked_walked_skips_the_probe_until_it_changes(path: Path, monk
     def walks():
         return marks.read_text().split() if marks.exists() else []
 
-    monkeypatch.setattr(safeio, "_walk", walk)
-    monkeypatch.setattr(safeio, "_probed", set())
+    monkeypatch.setattr(filecheck, "_walk", walk)
+    monkeypatch.setattr(filecheck, "_probed", set())
     safeio.mark_walked(safeio.file_key(path))
     store.read_metrics(path)
     assert walks() == []

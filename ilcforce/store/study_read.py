@@ -14,7 +14,7 @@ import pandas as pd
 
 from ilcforce.store import study_journal
 from ilcforce.store.seal import ATTRS_SEAL, STRINGS_SEAL, attrs_state, strings_checksum
-from ilcforce.store.safeio import is_hdf5_file
+from ilcforce.store.filecheck import StoreError, check_regular_file, is_hdf5_file, probe
 from ilcforce.store.schema import STUDY_NAME, STUDY_SCHEMA_NAME
 
 SCHEMA_NAME = STUDY_SCHEMA_NAME
@@ -165,9 +165,7 @@ def latest_study_toml(sessions: list, first: str) -> str:
 
 def _probe(path: Path) -> None:
     """Bounded time on a damaged file: walk its structure in a forked child first (the run store's
-    :func:`ilcforce.store.safeio.probe`); StudyStoreError if that fails."""
-    from ilcforce.store.safeio import StoreError, check_regular_file, probe
-
+    :func:`ilcforce.store.filecheck.probe`); StudyStoreError if that fails."""
     try:
         check_regular_file(Path(path))  # a FIFO would block the open below for ever
     except StoreError as exc:
