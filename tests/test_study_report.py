@@ -296,3 +296,24 @@ def test_a_stored_study_name_never_makes_a_path_outside_the_report(tmp_path, sto
     assert summary.studies == () and any("tiny.h5" in w for w in summary.warnings)
     assert sorted(p for p in tmp_path.rglob("*") if "report" not in p.parts) == before
     assert not target.exists() or target == (tmp_path / "results").resolve()
+
+
+def test_report_on_a_sweep_whose_setting_diverges_in_every_cell(tmp_path):
+    """A setting that diverges for every seed and method (a wall a million times stiffer): the
+    report's divergence table took the count of diverged seeds for the setting's index and stopped
+    with a KeyError and a 100-line traceback (found by an attack); it is now written, and says so."""
+    from typer.testing import CliRunner
+
+    from ilcforce.cli import app
+    from ilcforce.study import run_study
+    from ilcforce.study.spec import build_study
+
+    study = build_study({"study": {"name": "stiff", "seeds": "0-1", "methods": ["c1", "c3"],
+                                   "set": {"experiment.iterations": 2, "reference.duration": 0.2},
+                                   "sweep": {"wall.stiffness": [1000.0, 1e9]}}})
+    run_study(study, tmp_path / "results", workers=1)
+    result = CliRunner().invoke(app, ["report", "--results", str(tmp_path / "results"), "--out",
+                                      str(tmp_path / "out"), "--jobs", "1", "--quiet"])
+    assert result.exit_code == 0, result.output
+    text = "\n".join(p.read_text(encoding="utf-8") for p in (tmp_path / "out").rglob("*.md"))
+    assert "j = 0 (2 of 2 seeds)" in text, text[:2000]

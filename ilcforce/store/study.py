@@ -108,6 +108,17 @@ def _seal(handle: h5py.File) -> None:
     seal_attrs(handle)
 
 
+def _make_folders(folder: Path) -> list[Path]:
+    """Make ``folder`` and its missing parents; the ones made, outermost first."""
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    for item in reversed(missing):
+        item.mkdir(exist_ok=True)
+    return list(reversed(missing))
+
+
 def _fsync(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:
@@ -268,7 +279,7 @@ class StudyStore:
         self._session = dict(session)
         self._pending: list[dict] = []
         self.consolidate_every = consolidate_every
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._made_folders = _make_folders(self.path.parent)
         self._lock_fd = self._lock()
         self.created = not self.path.exists()  # this handle makes the store (see discard_if_unused)
         self.committed = 0
@@ -470,6 +481,9 @@ class StudyStore:
         with contextlib.suppress(OSError):
             journal_dir(self.path).rmdir()  # only if empty
         self.close()
+        for folder in reversed(self._made_folders):  # e.g. results/studies/: only the ones made here, if empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
     def close(self) -> None:
         if getattr(self, "_lock_fd", None) is not None:
