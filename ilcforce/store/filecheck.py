@@ -111,7 +111,7 @@ def mark_walked(key: tuple[int, int, int, int]) -> None:
     _probed.add(tuple(key))
 
 
-def _walk(path: Path) -> None:
+def _walk(path: Path, image: bytes | None = None) -> None:
     """What HDF5 must parse to read a store: the root attributes (dense storage: where a zeroed
     block hung every command), every object header and link (``H5Ovisit`` with object info,
     which parses each header and its attribute info) and the chunk index of every chunked dataset
@@ -126,7 +126,8 @@ def _walk(path: Path) -> None:
         if info.type == h5py.h5o.TYPE_DATASET:
             chunked.append(name)
 
-    with h5py.File(path, "r", locking=False) as handle:
+    opened = h5py.File(h5py.h5f.open_file_image(image)) if image is not None else h5py.File(path, "r", locking=False)
+    with opened as handle:
         for key in handle.attrs:
             handle.attrs[key]
         h5py.h5o.visit(handle.id, visit, info=True)
@@ -136,7 +137,8 @@ def _walk(path: Path) -> None:
                 dataset[()]
 
 
-def probe(path: Path, fd: int, timeout: float = PROBE_TIMEOUT) -> None:
+def probe(path: Path, fd: int | None, timeout: float = PROBE_TIMEOUT, *, image: bytes | None = None,
+          key: tuple[int, int, int, int] | None = None) -> None:
     """Walk the file's structure in a forked child with a time limit; StoreError if it fails.
 
     HDF5 can loop forever on a damaged metadata block (a 4 KB block of zeros early in a file hangs
@@ -144,8 +146,9 @@ def probe(path: Path, fd: int, timeout: float = PROBE_TIMEOUT) -> None:
     ignores Ctrl-C. The child inherits the imported h5py, so the check costs a fork and one walk
     of the metadata (no data), once per version of the file (keyed by inode, size and mtime).
     """
-    info = os.fstat(fd)
-    key = (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
+    if key is None:
+        info = os.fstat(fd)
+        key = (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
     if key in _probed:
         return
     import h5py  # noqa: F401  (imported before the fork, so the child does not pay for it)
@@ -157,7 +160,7 @@ def probe(path: Path, fd: int, timeout: float = PROBE_TIMEOUT) -> None:
         try:
             os.close(read_end)
             signal.signal(signal.SIGINT, signal.SIG_DFL)
-            _walk(path)
+            _walk(path, image)
             os.write(write_end, b"ok")
             code = 0
         except BaseException as error:  # noqa: BLE001 - anything is a damaged file here

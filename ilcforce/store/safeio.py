@@ -1,10 +1,12 @@
 """Opening store files safely: errors, locks, interrupted commits and damaged files.
 
 * :class:`StoreError` and its subclasses: one line naming the file and the problem.
-* Locks. ``<store>.lock`` (flock, exclusive) is held by a writer for its whole run: a second
-  writer is refused. The store file itself (flock on the inode, so every name of the file sees
-  it) is locked shared by readers while they read and exclusive by a writer while it commits:
-  a reader never sees half a commit, whatever ``HDF5_USE_FILE_LOCKING`` says. Lock files are
+* Locks. ``<real path>.lock`` (flock, exclusive) is held by a writer for its whole run: a second
+  writer is refused, through whichever name (:func:`file_identity`). The store file itself
+  (flock on the inode, so every name of the file sees it) is locked shared by readers while they
+  copy it (or, a very large one, read it: :data:`ilcforce.store.read.SNAPSHOT_BYTES`) and
+  exclusive by a writer while it commits: a reader never sees half a commit, whatever
+  ``HDF5_USE_FILE_LOCKING`` says. Lock files are
   opened with O_NOFOLLOW, never truncated, and written only when this process created them.
 * Bounded time on damaged files: :mod:`.filecheck` (which also holds :class:`StoreError`), the
   layer below this one and below the study store's reader.
