@@ -287,8 +287,11 @@ def test_a_stored_study_name_never_makes_a_path_outside_the_report(tmp_path, sto
     path = tmp_path / "results" / "studies" / "tiny.h5"
     target = (tmp_path / "results" / "report" / stored_name).resolve() if not stored_name.startswith("/") \
         else tmp_path / "abs" / "elsewhere"
+    from ilcforce.store.seal import seal_attrs
+
     with h5py.File(path, "r+") as handle:
         handle.attrs["name"] = str(tmp_path / "abs" / "elsewhere") if stored_name.startswith("/") else stored_name
+        seal_attrs(handle)  # as a writer would (unsealed, the checksum refuses it first)
     with pytest.raises(StudyStoreError, match="not a plain file name"):
         check_study_store(path)
     before = sorted(p for p in tmp_path.rglob("*") if "report" not in p.parts)

@@ -12,13 +12,18 @@ Only the driver writes it. Durability without ever writing an HDF5 file in place
 3. Readers take the HDF5 file plus the journal records not yet in it.
 
 So ``kill -9`` of the driver loses only the cells in flight; a rerun skips every committed cell.
-A lock (``flock`` on ``<name>.h5.lock``, opened without following links and never truncated)
-refuses a second driver on the same study.
+A lock (``flock`` on ``<real path of the store>.lock``, opened without following links and never
+truncated) refuses a second driver on the same study.
 
-Layout (schema ``ilcforce.study`` 1.0)::
+Every record is sealed and checked against the store before it is used (:mod:`.study_journal`);
+every attribute and string column of the HDF5 file carries a checksum (:mod:`.seal`).
+
+Layout (schema ``ilcforce.study`` 1.1; 1.0 lacks study_id and the seals)::
 
     /             attrs: schema, schema_version, name, description, study_toml, definition_json,
-                         fingerprint, created, sessions_json
+                         fingerprint, created, sessions_json (each run's seeds and methods among
+                         its fields), study_id (the identity the journal's records carry),
+                         attrs_crc32 (on every group and column too; strings_crc32 on string columns)
     /settings     datasets (n_settings,): config_json, label, values_json (swept key -> value, JSON)
     /metrics      one dataset per column, (n_rows,): setting, seed, method, iteration, then the
                   metric columns of the cells' rows (status, ..., memory_norm_*)
