@@ -36,6 +36,9 @@ def test_two_names_of_one_file_are_one_writer(path):
             with pytest.raises(StoreLockedError):
                 with writer(name, overwrite=True):
                     pass
+        with pytest.raises(StoreLockedError):  # two resumes through two names: duplicate /metrics rows
+            with writer(link, config=resumed_config(3), resume=True):
+                pass
         assert store.writer_active(link), "a reader through the link sees the writer"
         first.append(make_record(2))
         first.finish("complete")
