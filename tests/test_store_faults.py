@@ -417,24 +417,26 @@ def test_a_reader_holds_the_store_lock_only_while_it_copies_the_file(path: Path,
 
     from ilcforce.store import read
 
-    write_run(path, 2, finish=None)
-    with read.open_store(path) as (handle, _checked, _major):
-        with writer(path, config=resumed_config(3), resume=True) as w:
-            fd = os.open(path, os.O_RDONLY)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # no reader holds the store now
-                fcntl.flock(fd, fcntl.LOCK_UN)
-            finally:
-                os.close(fd)
-            w.append(make_record(2))
-            w.finish("complete")
-        assert sorted(handle["iterations"]) == ["0000", "0001"], "the reader's copy is the store it opened"
-    assert store.iterations(path) == [0, 1, 2]
-    monkeypatch.setattr(read, "SNAPSHOT_BYTES", 0)  # a store too large to copy is read under the lock
-    with read.open_store(path):
+    def locked_by_a_reader() -> bool:
         fd = os.open(path, os.O_RDONLY)
         try:
-            with pytest.raises(BlockingIOError):
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            return False
+        except BlockingIOError:
+            return True
         finally:
             os.close(fd)
+
+    write_run(path, 2, finish=None)
+    with read.open_store(path):  # no writer at work: read in place, lazily, under the lock
+        assert locked_by_a_reader()
+    with writer(path, config=resumed_config(3), resume=True) as w:
+        with read.open_store(path) as (handle, _checked, _major):
+            assert not locked_by_a_reader(), "the reader holds no lock while it reads its copy"
+            w.append(make_record(2))
+            w.finish("complete")
+            assert sorted(handle["iterations"]) == ["0000", "0001"], "the reader's copy is the store it opened"
+        monkeypatch.setattr(read, "SNAPSHOT_BYTES", 0)  # a store too large to copy is read under the lock
+        with read.open_store(path):
+            assert locked_by_a_reader()
+    assert store.iterations(path) == [0, 1, 2]

@@ -60,7 +60,8 @@ class Layout:
 
 
 #: Largest store a reader copies into memory under its shared lock and then reads without the lock,
-#: bytes. A reader that held the lock while it read (``ilcforce.open`` validates every byte: 150 ms
+#: bytes, while a writer is at work on it (a finished store is read in place, lazily: a report reads
+#: hundreds of them, a few datasets each). A reader that held the lock while it read (``ilcforce.open`` validates every byte: 150 ms
 #: for a 40-iteration store) made a writer that commits every 35 ms wait for it at each commit, or
 #: copy the file after a second: a reader polling a live store slowed its writer 6x (1.4 s -> 8.1 s,
 #: measured). Copying the file takes 14 ms for 20 MB. A larger store is read under the lock.
@@ -72,8 +73,8 @@ def open_store(path: str | os.PathLike[str]) -> Iterator[tuple[h5py.File, Path, 
     """Open a store read-only in bounded time, check its header; every h5py failure -> StoreError.
 
     Yields (file, path, schema major version). The file is read under its shared lock (a reader never
-    sees half a commit): a store up to :data:`SNAPSHOT_BYTES` is copied into memory under the lock
-    and read from there after it, a larger one is read with the lock held.
+    sees half a commit): a store a writer is at work on, up to :data:`SNAPSHOT_BYTES`, is copied
+    into memory under the lock and read from there after it; any other is read with the lock held.
     """
     path = Path(path)
     image = None
@@ -82,7 +83,7 @@ def open_store(path: str | os.PathLike[str]) -> Iterator[tuple[h5py.File, Path, 
         if version is None:
             raise StoreError(f"{path}: not a readable HDF5 file (no HDF5 signature)")
         info = os.fstat(fd)
-        if info.st_size > SNAPSHOT_BYTES:
+        if info.st_size > SNAPSHOT_BYTES or not writer_active(path):
             probe(path, fd)  # bounded time even on a damaged file (safeio.probe)
             with _opened(path, None) as opened:
                 yield opened
