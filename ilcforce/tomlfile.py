@@ -11,19 +11,46 @@ from pathlib import Path
 #: thousand named settings is a few hundred kB. A bigger file is a mistake (a store or a log given
 #: as TOML), and reading it whole would cost time and memory without bound (a 3 GB file: 21 s, 6 GB).
 MAX_TOML_BYTES = 4 * 1024 * 1024
+#: Deepest nesting of tables and arrays read. A configuration is 3 deep, a study file 4; a header
+#: 500 tables deep parsed (tomllib builds it without recursion) and then broke every recursive walk
+#: of the result with a RecursionError traceback.
+MAX_TOML_DEPTH = 32
+
+
+def _depth(node) -> int:
+    """How deep tables and arrays nest in ``node`` (0 for a scalar), without recursion."""
+    deepest, stack = 0, [(node, 0)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, dict):
+            items = item.values()
+        elif isinstance(item, list):
+            items = item
+        else:
+            continue
+        depth += 1
+        deepest = max(deepest, depth)
+        if depth <= MAX_TOML_DEPTH:
+            stack.extend((child, depth) for child in items)
+    return deepest
+
 
 def parse_toml(text: str) -> dict:
     """``tomllib.loads``; every refusal raised as ``tomllib.TOMLDecodeError`` with a one-line reason
     (tomllib itself lets an integer over 4300 digits escape as ValueError, Python's int-string limit,
-    and nesting deeper than the recursion limit as RecursionError)."""
+    and nesting deeper than the recursion limit as RecursionError); tables or arrays nested deeper
+    than :data:`MAX_TOML_DEPTH` are refused too."""
     try:
-        return tomllib.loads(text)
+        table = tomllib.loads(text)
     except tomllib.TOMLDecodeError:
         raise
     except ValueError as exc:
         raise tomllib.TOMLDecodeError(" ".join(str(exc).split())[:200]) from None
     except RecursionError:
         raise tomllib.TOMLDecodeError("arrays or tables nested too deeply") from None
+    if _depth(table) > MAX_TOML_DEPTH:
+        raise tomllib.TOMLDecodeError(f"tables or arrays nested more than {MAX_TOML_DEPTH} deep")
+    return table
 
 
 def read_toml(path: Path, what: str, error: type[Exception]) -> tuple[dict, str]:
@@ -54,6 +81,9 @@ def read_toml(path: Path, what: str, error: type[Exception]) -> tuple[dict, str]
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
         raise error(f"{what} {path} cannot be read: it is not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    if text.startswith("\ufeff"):  # tomllib says only "Invalid statement (line 1, col 1)"
+        raise error(f"{what} {path} starts with a UTF-8 byte-order mark (BOM), which TOML does not allow; "
+                    "save it as UTF-8 without BOM")
     if not text.strip():
         raise error(f"{what} {path} is empty")
     try:

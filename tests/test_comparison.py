@@ -1,4 +1,4 @@
-"""The pandas-free comparison (ilcforce/comparison.py) against the DataFrame readers of the report.
+"""The pandas-free comparison (ilcforce/report/comparison.py) against the DataFrame readers of the report.
 
 :class:`~ilcforce.report.comparison.MethodMetrics` answers the lookups the tables and the claims make
 (value at an iteration, first divergence, j̄, the iteration Table 3 reads) from arrays; the

@@ -35,7 +35,7 @@ def test_the_simulation_path_imports_neither_pandas_nor_matplotlib():
 
 
 def test_compare_prints_its_table_without_pandas(tmp_path):
-    """compare's table comes from the stores' metrics rows (ilcforce/comparison.py): pandas'
+    """compare's table comes from the stores' metrics rows (ilcforce/report/comparison.py): pandas'
     import (about 0.2 s of CPU beside the workers) is not part of the command."""
     argv = ["compare", "--methods", "c1,c3", "--iters", "2", "--set", "reference.duration=0.05",
             "--results", str(tmp_path)]

@@ -955,9 +955,12 @@ def test_newer_schema_gives_one_warning(results_dir: Path, tmp_path: Path, versi
     """A newer minor version is read with a warning; a newer major version is skipped with one."""
     import h5py  # only to fake a store written by a newer ilcforce
 
+    from ilcforce.store.seal import seal_attrs
+
     _copy_stores(results_dir / "synthetic", tmp_path / "results" / "synthetic")
     with h5py.File(tmp_path / "results" / "synthetic" / "c3.h5", "a") as handle:
         handle.attrs["schema_version"] = version
+        seal_attrs(handle)  # as the newer writer would
     summary = write_report(tmp_path / "results", tmp_path / "out", formats=())
     about_c3 = [w for w in summary.warnings if "c3" in w]
     assert any(version in w and "newer" in w for w in about_c3), summary.warnings

@@ -12,6 +12,8 @@ import h5py  # the tests inspect and forge files directly; library code leaves h
 import numpy as np
 import pytest
 
+from ilcforce.store.seal import seal_attrs
+
 from ilcforce import store
 from ilcforce.metrics import METRIC_COLUMNS, iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED
@@ -270,6 +272,7 @@ def broken_no_units(path: Path) -> str:
     write_run(path, 1)
     with h5py.File(path, "a") as handle:
         del handle["iterations/0000/memory/theta_hat"].attrs["units"]
+        seal_attrs(handle["iterations/0000/memory/theta_hat"])  # as a writer that forgot the unit would
     return "no 'units' attribute"
 
 
@@ -280,12 +283,16 @@ def broken_metrics_lengths(path: Path) -> str:
     return "metrics columns have different lengths"
 
 
-def _forged(name: str, n: int, where: str, key: str, value, message: str):
-    """A breaker that writes n iterations, then sets attribute ``key`` of ``where`` to ``value``."""
+def _forged(name: str, n: int, where: str, key: str, value, message: str, reseal: bool = True):
+    """A breaker that writes n iterations, then sets attribute ``key`` of ``where`` to ``value`` and
+    (``reseal``) seals it again, as a writer with that bug would: only the consistency check can
+    catch it; without ``reseal``, as damage after writing would."""
     def breaker(path: Path) -> str:
         write_run(path, n)
         with h5py.File(path, "a") as handle:
             handle[where].attrs[key] = value
+            if reseal:
+                seal_attrs(handle[where])
         return message
     breaker.__name__ = f"broken_{name}"
     return breaker
@@ -300,13 +307,37 @@ FORGED = [
     _forged("iteration_after_divergence", 2, "iterations/0000", "status", "diverged",
             "iteration 1 is stored after the diverged iteration 0"),
     _forged("config_json", 1, "/", "config_json", "[1, 2", "config_json is not a JSON object"),
+    _forged("method_path", 1, "/", "method", "../../etc", "root attribute method '../../etc' is not a plain name"),
+    _forged("method_unregistered", 1, "/", "method", "c9", "method 'c9' is not a registered method"),
+    _forged("negative_requested", 1, "/", "n_iterations_requested", -3,
+            "root attribute n_iterations_requested is -3, below 0"),
+    _forged("negative_seed", 1, "/", "seed", -1, "root attribute seed is -1, below 0"),
+    # changed after writing, seal untouched: config, units, Theta labels, metrics description
+    _forged("config_changed", 1, "/", "config_json", '{"c3": {"eta": 4.0}}',
+            "the root attributes (configuration, command, provenance) do not match their checksum", reseal=False),
+    _forged("units_changed", 1, "iterations/0000/log/contact_force", "units", "mN",
+            "the attributes of /iterations/0000/log/contact_force (units, labels, description or state) do not match",
+            reseal=False),
+    _forged("log_axes_changed", 1, "iterations/0000/log/contact_force", "axes", ["y", "x"],
+            "the attributes of /iterations/0000/log/contact_force", reseal=False),
+    _forged("status_changed", 1, "metrics", "description", "x", "the attributes of /metrics ", reseal=False),
+    _forged("reference_description_changed", 1, "reference/time", "description", "t",
+            "the attributes of /reference/time", reseal=False),
 ]
+
+
+def broken_seal_removed(path: Path) -> str:
+    write_run(path, 1)
+    with h5py.File(path, "a") as handle:
+        del handle["iterations/0000"].attrs["attrs_crc32"]
+    return ("the attributes of /iterations/0000 (units, labels, description or state) do not match their checksum "
+            "attrs_crc32 or have none")
 
 
 BROKEN = [
     broken_missing, broken_empty, broken_truncated, broken_text, broken_foreign, broken_other_schema,
     broken_newer, broken_missing_attr, broken_missing_signal, broken_wrong_shape, broken_no_units,
-    broken_metrics_lengths, *FORGED,
+    broken_metrics_lengths, broken_seal_removed, *FORGED,
 ]
 
 
@@ -336,6 +367,7 @@ def test_newer_minor_version_is_read(path: Path):
     major = SCHEMA_VERSION.split(".")[0]
     with h5py.File(path, "a") as handle:
         handle.attrs["schema_version"] = f"{major}.99"
+        seal_attrs(handle)  # as a newer writer would
     store.validate(path)
 
 

@@ -12,6 +12,8 @@ import h5py  # the tests inspect and forge files directly; library code leaves h
 import numpy as np
 import pytest
 
+from ilcforce.store.seal import seal_attrs
+
 from ilcforce import store
 from ilcforce.records import STATUS_COMPLETE, IterationRecord
 from ilcforce.store import StoreError, StoreExistsError, StoreLockedError
@@ -256,15 +258,17 @@ def test_crash_leaves_partial_valid_file(path: Path, interrupt: type[BaseExcepti
 
 def test_killed_writer_leftovers_do_not_affect_readers(path: Path):
     write_run(path, 2, finish=None)
-    stale = path.with_name(path.name + ".tmp-999999")
+    stale = path.with_name(f".{path.name}.tmp-999999")  # a killed writer's copy (PID 999999 is gone)
     stale.write_bytes(b"half a copy")
-    stale_prev = path.with_name(path.name + ".tmp-999999.prev")
-    stale_prev.write_bytes(b"")
+    old_names = [path.with_name(path.name + ".tmp-999999"), path.with_name(path.name + ".tmp")]
+    for old in old_names:  # an older version's temporary names: they may be stores of their own now
+        old.write_bytes(b"someone's file")
     store.validate(path)
     assert store.iterations(path) == [0, 1]
     assert store.find_stores(path.parent.parent) == {"paper": {"c3": path}}
     with writer(path, config=resumed_config(3), resume=True) as w:
-        assert not stale.exists() and not stale_prev.exists(), "the next writer removes stale copies"
+        assert not stale.exists(), "the next writer removes a dead writer's copy"
+        assert all(old.read_bytes() == b"someone's file" for old in old_names), "and nothing by a name pattern"
         w.append(make_record(2))
     store.validate(path)
 
@@ -295,7 +299,7 @@ def test_kill_9_mid_run_leaves_valid_file(path: Path):
     assert store.read_provenance(path)["run_state"] == "partial"  # no writer holds the lock any more: reported as partial
     with writer(path, n_iterations=1000, resume=True) as w:  # the lock died with the process
         assert w.last_complete_iteration == done[-1]
-        assert not list(path.parent.glob(path.name + ".tmp-*")), "leftover copies removed"
+        assert not list(path.parent.glob(f".{path.name}.tmp-*")), "leftover copies removed"
     assert store.read_provenance(path)["run_state"] == "partial"
 
 
@@ -303,6 +307,7 @@ def test_running_state_left_by_kill_becomes_partial_on_resume(path: Path):
     write_run(path, 2, finish=None)
     with h5py.File(path, "a") as handle:  # what a kill -9 after a commit leaves
         handle.attrs["run_state"] = "running"
+        seal_attrs(handle)  # the commit's seal covers its run_state
     with writer(path, resume=True):
         pass
     assert store.read_provenance(path)["run_state"] == "partial"
@@ -336,7 +341,7 @@ def test_reader_holding_old_file_open_is_safe(path: Path):
         with h5py.File(path, "r") as old:
             w.append(records[2])
             # The kept copy was the file the reader holds: the writer dropped it, did not touch it.
-            assert not list(path.parent.glob(path.name + ".tmp-*")), "writer should have fallen back"
+            assert not list(path.parent.glob(f".{path.name}.tmp-*")), "writer should have fallen back"
             assert sorted(old["iterations"]) == ["0000", "0001"]
             np.testing.assert_array_equal(old["iterations/0001/log/position"][()], records[1].log["position"])
         w.append(records[3])
@@ -355,19 +360,19 @@ def test_commit_copy_kept_between_commits_matches_the_store(path: Path):
     with writer(path) as w:
         for j in range(3):
             w.append(make_record(j))
-        copies = list(path.parent.glob(path.name + ".tmp-*"))
+        copies = list(path.parent.glob(f".{path.name}.tmp-*"))
         for copy in copies:  # the kept copy (if any) is a valid store with the same content
             store.validate(copy)
             assert store.iterations(copy) == [0, 1, 2]
             assert store.read_metrics(copy).equals(store.read_metrics(path))
         w.finish(STATUS_COMPLETE)
-    assert not list(path.parent.glob(path.name + ".tmp-*"))
+    assert not list(path.parent.glob(f".{path.name}.tmp-*"))
 
 
 def test_without_hdf5_locking_every_commit_copies(path: Path, monkeypatch: pytest.MonkeyPatch):
     monkeypatch.setenv("HDF5_USE_FILE_LOCKING", "FALSE")
     records = write_run(path, 3)
-    assert not list(path.parent.glob(path.name + ".tmp-*"))
+    assert not list(path.parent.glob(f".{path.name}.tmp-*"))
     np.testing.assert_array_equal(store.read_memory(path, 2)["alpha_hat"], records[2].memory["alpha_hat"])
 
 

@@ -339,19 +339,22 @@ def test_committed_cells_survive_a_driver_that_never_consolidated(tmp_path):
 
     study = small_study()
     path = tmp_path / "studies" / "tiny.h5"
-    writer = StudyStore(path, header=_header(study), session={"id": "a"}, consolidate_every=1e9)
+    plan = {"seeds": [0, 1], "methods": ["c1", "c3"]}
+    writer = StudyStore(path, header=_header(study), session={"id": "a", **plan}, consolidate_every=1e9)
+    row = {**{c: 0.0 for c in METRIC_COLUMNS}, "iteration": 0, "status": "complete", "fallback_count": 0,
+           "force_error_rms": 1.5}
     record = {"setting": 0, "seed": 1, "method": "c1", "state": "done", "attempts": 1, "message": "",
-              "elapsed": 0.1, "worker": "w", "rows": [{"iteration": 0, "status": "complete", "x": 1.5}]}
+              "elapsed": 0.1, "worker": "w", "rows": [row]}
     writer.commit(record, now=1.0)
     writer.close()  # no consolidate(): as if the driver were killed here
     _header_read, metrics, cells = read_tables(path)
-    assert metrics[["seed", "method", "iteration", "x"]].values.tolist() == [[1, "c1", 0, 1.5]]
-    reopened = StudyStore(path, header=_header(study), session={"id": "b"})
+    assert metrics[["seed", "method", "iteration", "force_error_rms"]].values.tolist() == [[1, "c1", 0, 1.5]]
+    reopened = StudyStore(path, header=_header(study), session={"id": "b", **plan})
     assert reopened.done == {(0, 1, "c1")}
     reopened.consolidate()
     reopened.close()
     assert not list((tmp_path / "studies" / "tiny.h5.journal").glob("*.json"))
-    assert read_tables(path)[1]["x"].tolist() == [1.5]
+    assert read_tables(path)[1]["force_error_rms"].tolist() == [1.5]
 
 
 def test_second_driver_is_refused(tmp_path):
@@ -673,7 +676,7 @@ def test_validate_names_what_the_study_journal_ignores(tmp_path):
     (journal / "notes.txt").write_text("x", encoding="utf-8")
     result = CliRunner().invoke(app, ["validate", str(path)])
     assert result.exit_code == 0, result.output
-    assert ("3 journal entries ignored (0-9-c3.json: not a cell record (damaged or foreign), notes.txt: not a "
+    assert ("3 journal entries ignored (0-9-c3.json: refused (not JSON (Unterminated string starting at)), notes.txt: not a "
             ".json record, sub: a folder); a damaged record's cell runs again on the next study run"
             ) in result.output, result.output
     assert len(result.output.strip().splitlines()) == 1

@@ -291,8 +291,11 @@ def test_a_stored_study_name_never_makes_a_path_outside_the_report(tmp_path, sto
     path = tmp_path / "results" / "studies" / "tiny.h5"
     target = (tmp_path / "results" / "report" / stored_name).resolve() if not stored_name.startswith("/") \
         else tmp_path / "abs" / "elsewhere"
+    from ilcforce.store.seal import seal_attrs
+
     with h5py.File(path, "r+") as handle:
         handle.attrs["name"] = str(tmp_path / "abs" / "elsewhere") if stored_name.startswith("/") else stored_name
+        seal_attrs(handle)  # as a writer would (unsealed, the checksum refuses it first)
     with pytest.raises(StudyStoreError, match="not a plain file name"):
         check_study_store(path)
     before = sorted(p for p in tmp_path.rglob("*") if "report" not in p.parts)
@@ -334,3 +337,24 @@ def test_the_findings_agree_with_claims_csv_row_for_row(results):
     assert list(stability.columns[:3]) == ["source", "name", "setting"]
     for row in stability[stability["flagged"]].itertuples(index=False):
         assert f"Unstable learning, {row.method}" in findings or row.source == "study", row
+
+
+def test_report_on_a_sweep_whose_setting_diverges_in_every_cell(tmp_path):
+    """A setting that diverges for every seed and method (a wall a million times stiffer): the
+    report's divergence table took the count of diverged seeds for the setting's index and stopped
+    with a KeyError and a 100-line traceback (found by an attack); it is now written, and says so."""
+    from typer.testing import CliRunner
+
+    from ilcforce.cli.main import app
+    from ilcforce.study import run_study
+    from ilcforce.study.spec import build_study
+
+    study = build_study({"study": {"name": "stiff", "seeds": "0-1", "methods": ["c1", "c3"],
+                                   "set": {"experiment.iterations": 2, "reference.duration": 0.2},
+                                   "sweep": {"wall.stiffness": [1000.0, 1e9]}}})
+    run_study(study, tmp_path / "results", workers=1)
+    result = CliRunner().invoke(app, ["report", "--results", str(tmp_path / "results"), "--out",
+                                      str(tmp_path / "out"), "--jobs", "1", "--quiet"])
+    assert result.exit_code == 0, result.output
+    text = "\n".join(p.read_text(encoding="utf-8") for p in (tmp_path / "out").rglob("*.md"))
+    assert "j = 0 (2 of 2 seeds)" in text, text[:2000]

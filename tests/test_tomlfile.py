@@ -19,6 +19,9 @@ from ilcforce.tomlfile import MAX_TOML_BYTES
 
 BIG_INT = "1" * 5000
 DEEP = "[" * 5000 + "]" * 5000
+#: A table header 500 tables deep: tomllib builds it without recursion, and every recursive walk of
+#: the result then raised RecursionError (found by an attack: a traceback; 200 deep got one line).
+DEEP_TABLES = ".".join(["a"] * 500)
 
 
 def _one_line_exit_2(result, expected: str) -> None:
@@ -38,6 +41,7 @@ def _write(tmp_path, kind: str, body: str):
 @pytest.mark.parametrize("body, expected", [
     (f"[experiment]\nseed = {BIG_INT}\n", "is not valid TOML: Exceeds the limit"),
     (f"[experiment]\nseed = {DEEP}\n", "is not valid TOML: arrays or tables nested too deeply"),
+    (f"[experiment]\nseed = 1\n[{DEEP_TABLES}]\nx = 1\n", "is not valid TOML: tables or arrays nested more than 32 deep"),
 ])
 def test_experiment_file_tomllib_cannot_take_is_one_line(tmp_path, body, expected):
     path = _write(tmp_path, "experiment", body)
@@ -46,7 +50,8 @@ def test_experiment_file_tomllib_cannot_take_is_one_line(tmp_path, body, expecte
     assert not (tmp_path / "x.h5").exists()
 
 
-@pytest.mark.parametrize("body", [f'[study]\nname = "x"\nseeds = {BIG_INT}\n', f'[study]\nname = "x"\nseeds = {DEEP}\n'])
+@pytest.mark.parametrize("body", [f'[study]\nname = "x"\nseeds = {BIG_INT}\n', f'[study]\nname = "x"\nseeds = {DEEP}\n',
+                                  f'[study]\nname = "x"\n[{DEEP_TABLES}]\nx = 1\n'])
 def test_study_file_tomllib_cannot_take_is_one_line(tmp_path, body):
     path = _write(tmp_path, "study", body)
     result = CliRunner().invoke(app, ["study", str(path), "--workers", "1", "--results", str(tmp_path / "r")])
@@ -79,3 +84,15 @@ def test_set_value_tomllib_cannot_take_is_a_string_then_refused_by_its_field(raw
     assert (key, value) == ("experiment.seed", raw)
     with pytest.raises(ConfigError, match="experiment.seed"):
         load_config(None, {key: value})
+
+
+@pytest.mark.parametrize("kind", ["experiment", "study"])
+def test_a_byte_order_mark_is_named(tmp_path, kind):
+    """A file saved "UTF-8 with BOM" (Windows editors): tomllib said only 'Invalid statement (line 1,
+    col 1)'; the line now names the byte-order mark."""
+    path = tmp_path / f"{kind}.toml"
+    body = '[study]\nname = "x"\nseeds = "0-1"\n' if kind == "study" else "[experiment]\nseed = 1\n"
+    path.write_bytes(b"\xef\xbb\xbf" + body.encode())
+    args = (["study", str(path), "--workers", "1", "--results", str(tmp_path / "r")] if kind == "study" else
+            ["simulate", "-m", "c1", "-n", "1", "-c", str(path), "--out", str(tmp_path / "x.h5")])
+    _one_line_exit_2(CliRunner().invoke(app, args), "starts with a UTF-8 byte-order mark (BOM)")

@@ -80,12 +80,12 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run, study or tun
                 if any(DAMAGED_RECORD in entry for entry in s["ignored"]):
                     ignored += "; a damaged record's cell runs again on the next study run"
                 _say(f"{path}: ok (study {s['name']}, {s['cells']} cells: {s['done']} done, {s['failed']} failed)"
-                     + ignored)
+                     + ignored + "".join(f"; {n}" for n in s.get("notes", ())))
                 continue
-            store.validate(path)
+            notes = store.validate(path) or []
             prov = store.read_provenance(path)
             _say(f"{path}: ok ({prov.get('experiment')}/{prov.get('method')}, "
-                 f"{len(store.iterations(path))} iterations, {prov.get('run_state')})")
+                 f"{len(store.iterations(path))} iterations, {prov.get('run_state')})" + "".join(f"; {n}" for n in notes))
         except (store.StoreError, StudyStoreError, TuningStoreError, OSError) as exc:
             message = f"{exc.filename or path}: {exc.strerror or exc}" if isinstance(exc, OSError) else str(exc)
             _say(f"error: {message.splitlines()[0] if message else type(exc).__name__}", stderr=True)

@@ -33,7 +33,7 @@ class _StudyProgress:
         import time
 
         self.name, self.quiet, self._time = name, quiet, time.monotonic
-        self._stop = stop if stop is not None else []  # non-empty: a stop signal came (cli_signals)
+        self._stop = stop if stop is not None else []  # non-empty: a stop signal came (ilcforce.stops)
         self.bar = None
         self._next_line = 0.0
         self._started = self._time()
@@ -96,7 +96,7 @@ def study(
     from ilcforce.study import load_study, run_study
     from ilcforce.study.runner import SharedClient, check_store
 
-    # SIGTERM and Ctrl-C: the entry point's cli_signals.stop_signals raise KeyboardInterrupt here
+    # SIGTERM and Ctrl-C: the entry point's stops.stop_signals raise KeyboardInterrupt here
     try:
         specs = [load_study(file) for file in files]  # every file valid before any cell runs
         names = [spec.name for spec in specs]
@@ -125,6 +125,8 @@ def study(
 
 
 def _summarise(spec, summary, quiet: bool) -> None:
+    for line in summary.quarantined:
+        err.print(f"warning: {spec.name}: journal record {line}", highlight=False, markup=False, soft_wrap=True)
     for cell, message in summary.failed[:10]:
         err.print(f"warning: {spec.name}: cell {cell.method} seed {cell.seed} setting {cell.setting} failed twice: "
                   f"{message}", highlight=False, markup=False, soft_wrap=True)

@@ -187,8 +187,8 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
         for method in methods:
             seeds = per_cell[(int(k), method)]
             firsts = np.array([_first_diverged(m) for m in seeds.values()])
-            k = int(np.isfinite(firsts).sum())
-            row[method] = (f"j = {int(np.nanmin(firsts))} ({k} of {len(seeds)} seeds)" if k
+            diverged = int(np.isfinite(firsts).sum())  # not k: the setting's index, used again for the next method
+            row[method] = (f"j = {int(np.nanmin(firsts))} ({diverged} of {len(seeds)} seeds)" if diverged
                            else f"stable through {iterations - 1} ({len(seeds)} seeds)")
         divergence_rows.append(row)
     lines += ["### First diverged iteration (earliest over seeds; how many seeds diverged)", "",

@@ -1,14 +1,17 @@
 """The HDF5 results store: one self-describing file per (experiment, method).
 
 The only package that imports h5py. One file per run: ``results/<experiment>/<method>.h5``.
-Modules, one job each: :mod:`.schema` (the layout as data, versioned), :mod:`.safeio` (errors,
-locks, opening damaged files in bounded time), :mod:`.journal` and :mod:`.commit` (atomic
-commits), :mod:`.read` and :mod:`.access` (reading and validation), :mod:`.write` (the writer)
-and :mod:`.prepare` (its checks of the path before the first commit), :mod:`.run` (the
-``ilcforce.open`` run object).
+Modules, one job each: :mod:`.filecheck` (errors, what a path is, opening damaged files in
+bounded time), :mod:`.safeio` (locks, interrupted commits), :mod:`.seal` (checksums over
+attributes and strings), :mod:`.schema` (the layout as data, versioned), :mod:`.journal` and
+:mod:`.commit` (atomic commits), :mod:`.read` and :mod:`.access` (reading and validation),
+:mod:`.write` (the writer) and :mod:`.prepare` (its checks of the path before the first commit),
+:mod:`.run` (the ``ilcforce.open`` run object); the study store: :mod:`.study_read`,
+:mod:`.study` (its writer) and :mod:`.study_journal` (its journal's records, checked).
 
-Layout (schema ``ilcforce.store`` 2.0; every dataset float64 unless stated, Fletcher-32
-checksummed, with ``units`` and ``description`` attributes)::
+Layout (schema ``ilcforce.store`` 2.1; every dataset float64 unless stated, Fletcher-32
+checksummed, with ``units`` and ``description`` attributes; every object's attributes sealed by
+``attrs_crc32``, :mod:`.seal`)::
 
     /                       root attrs: schema.ROOT_ATTRIBUTES (provenance, config, run_state)
     /reference/<signal>     records.REFERENCE_SIGNALS on the log grid, attr axes

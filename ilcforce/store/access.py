@@ -17,14 +17,20 @@ if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports n
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS
 from ilcforce.store import schema
+from ilcforce.store.seal import ATTRS_SEAL, attrs_state
 from ilcforce.store.read import (attr, cached_metrics, checked_data, control_length, frame_from_group, group_for,
-                                 is_complete, iteration_attrs, metrics_rows, open_store, provenance_of,
+                                 is_complete, is_sealed_schema, iteration_attrs, metrics_rows, open_store, provenance_of,
                                  py, read_log, read_memory_group, record_from_group, require_dataset, require_group, scan)
 from ilcforce.store.safeio import StoreError
 
 
-def validate(path: str | os.PathLike[str]) -> None:
+def validate(path: str | os.PathLike[str]) -> list[str]:
     """Check that ``path`` is a readable ilcforce store; raise StoreError (one line) if not.
+
+    Returns notes on what could not be verified: ``["metadata unverified ..."]`` for a store of
+    schema 2.0, written before attributes were sealed (:mod:`ilcforce.store.seal`): accepted, its
+    data checksums verified, its attributes not (a sealed store's every seal is verified, and a
+    sealed-schema store without one is refused).
 
     Reads every byte of every dataset (so every checksum is verified) and checks the kind of
     every attribute and the type and shape of every dataset a reader uses: the header
@@ -53,6 +59,8 @@ def validate(path: str | os.PathLike[str]) -> None:
                 checked_data(group, f"memory/{name}", dataset, checked, major)
         _check_units(handle, checked)
         _check_consistency(handle, statuses, checked)
+        _check_method(handle, checked)
+        unsealed = _check_seals(handle, checked)
         if columns is not None:  # a current cache must agree with the logs it was computed from
             for k, j in enumerate(columns["iteration"]):
                 j = int(j)
@@ -69,6 +77,48 @@ def validate(path: str | os.PathLike[str]) -> None:
                     if not same:
                         raise StoreError(f"{checked}: /metrics/{column} of iteration {j} is {cached!r} but the stored "
                                          f"log gives {value!r}")
+    if unsealed:
+        return [f"metadata unverified: {unsealed} object(s) without an attribute checksum (schema 2.0, written "
+                "before attributes were sealed)"]
+    return []
+
+
+def _check_method(handle: h5py.File, path: Path) -> None:
+    """The stored method is a registered one (the store's file name and its report labels come from it)."""
+    from ilcforce.controllers import REGISTRY
+
+    method = str(py(handle.attrs["method"]))
+    if method not in REGISTRY:
+        raise StoreError(f"{path}: method {method[:60]!r} is not a registered method ({', '.join(REGISTRY)})")
+
+
+def _check_seals(handle: h5py.File, path: Path) -> int:
+    """Verify the attribute checksum of every object a reader uses; the number of objects without
+    one (allowed only below schema 2.1; an incomplete iteration group is not read, so not checked)."""
+    sealed_schema = is_sealed_schema(str(py(handle.attrs["schema_version"])))
+    unsealed = [0]
+    problems: list[str] = []
+
+    def check(name: str, item: Any) -> None:
+        parts = name.split("/")
+        if parts[0] == "iterations" and len(parts) > 1:
+            group = handle.get(f"iterations/{parts[1]}")
+            if not isinstance(group, h5py.Group) or not is_complete(group):
+                return
+        if not len(item.attrs):
+            return
+        state = attrs_state(item)
+        if state == "damaged" or (state == "unsealed" and sealed_schema):
+            problems.append(item.name)
+        elif state == "unsealed":
+            unsealed[0] += 1
+
+    check("", handle)
+    handle.visititems(check)
+    if problems:
+        raise StoreError(f"{path}: the attributes of {problems[0]} (units, labels, description or state) do not match "
+                         f"their checksum {ATTRS_SEAL} or have none: damaged ({len(problems)} object(s))")
+    return unsealed[0]
 
 
 def _check_consistency(handle: h5py.File, statuses: dict[int, str], path: Path) -> None:

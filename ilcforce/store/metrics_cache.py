@@ -22,6 +22,7 @@ import numpy as np
 
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind
 from ilcforce.store import schema
+from ilcforce.store.seal import seal_attrs
 
 CHUNK_ROWS = 64  # rows per chunk of a /metrics column
 _STR_BYTES = 16  # the status column: fixed-length UTF-8
@@ -57,6 +58,8 @@ def _build(handle: h5py.File) -> None:
                                          dtype=dtype, **schema.DATASET_OPTIONS)
         dataset.attrs["units"] = unit
         dataset.attrs["description"] = description
+        seal_attrs(dataset)
+    seal_attrs(metrics)
 
 
 def _is_current(handle: h5py.File) -> bool:

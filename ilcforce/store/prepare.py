@@ -20,8 +20,9 @@ from ilcforce.samerun import DifferentRun
 from ilcforce.records import REFERENCE_SIGNALS
 from ilcforce.store.provenance import SameRunCheck
 from ilcforce.store.read import open_store
-from ilcforce.store.safeio import (StoreError, check_regular_file, journal_path, not_a_run_store, os_reason,
-                                   repair_interrupted_commit, superblock_version)
+from ilcforce.store.safeio import (StoreError, check_regular_file, dead_writers_copies, is_temporary_name,
+                                   journal_path, not_a_run_store, os_reason, repair_interrupted_commit,
+                                   superblock_version)
 
 
 def make_parent(path: Path) -> None:
@@ -38,31 +39,17 @@ def make_parent(path: Path) -> None:
 
 
 def clean_leftovers(path: Path) -> None:
-    """Undo an interrupted commit; delete this store's leftover copies (the caller holds the lock).
-
-    Names are matched literally: ``<name>.tmp`` and, from older versions, ``<name>.tmp-<pid>``
-    and ``<name>.tmp-<pid>.prev``. Never a glob: ``c[1].h5`` must not match ``c1.h5``'s files.
-    """
+    """Undo an interrupted commit; delete the copies a killed writer of this store left (the caller
+    holds the lock): only ``.<name>.tmp-<pid>`` of a process that is gone (:func:`dead_writers_copies`),
+    a name no store may have. Anything else stays, whatever its name: ``<name>.tmp`` may be a
+    store of its own (an older ilcforce's temporary name, once deleted while its writer ran)."""
     if os.path.lexists(journal_path(path)) and os.path.lexists(path):
         repair_interrupted_commit(path)
-    prefix = path.name + ".tmp"
-    try:
-        names = os.listdir(path.parent)
-    except OSError:
-        return
-    for name in names:
-        if not name.startswith(prefix):
-            continue
-        rest = name[len(prefix):]
-        if rest.endswith(".prev"):
-            rest = rest[:-5]
-        if rest == "" or (rest.startswith("-") and rest[1:].isdigit()):
-            stale = path.parent / name
-            try:
-                if stat.S_ISREG(os.lstat(stale).st_mode):
-                    os.unlink(stale)
-            except OSError:
-                pass
+    for stale in dead_writers_copies(path):
+        try:
+            os.unlink(stale)
+        except OSError:
+            pass
 
 
 def check_replaceable(path: Path) -> None:
@@ -83,14 +70,18 @@ def refuse_foreign_target(path: Path) -> None:
     """Refuse, before a lock file is made beside it, a target no option may write: a folder or other
     non-file, a study store (its journal is a folder), a file that is not HDF5 (--overwrite replaces
     only an ilcforce store). What needs the store opened is checked under the lock."""
+    if is_temporary_name(path.name):
+        raise StoreError(f"{path}: ilcforce names its temporary copies .<name>.tmp-<pid> and removes those "
+                         "of dead processes; choose another name for a store")
     journal_folder = journal_path(path).is_dir()  # a study store's journal: cells not yet merged
     if not os.path.lexists(path):
         if journal_folder:
             raise StoreError(f"{path}: {journal_path(path)} is a study store's journal folder (it may hold cells "
                              "not yet merged) and the store beside it is missing; choose another --out")
         return
-    if not os.path.exists(path):
-        return  # a dangling link: the checks under the lock say why
+    if not os.path.exists(path):  # refused before a lock file is made beside it
+        raise StoreError(f"{path} is a symbolic link to a missing file ({os.readlink(path)}); a store is written "
+                         "to a regular file: remove the link or choose another --out")
     check_regular_file(path)  # a folder, a FIFO, an empty file: refused here, before anything opens it
     if journal_folder:
         raise StoreError(not_a_run_store(path))

@@ -1,14 +1,15 @@
 """Opening store files safely: errors, locks, interrupted commits and damaged files.
 
 * :class:`StoreError` and its subclasses: one line naming the file and the problem.
-* Locks. ``<store>.lock`` (flock, exclusive) is held by a writer for its whole run: a second
-  writer is refused. The store file itself (flock on the inode, so every name of the file sees
-  it) is locked shared by readers while they read and exclusive by a writer while it commits:
-  a reader never sees half a commit, whatever ``HDF5_USE_FILE_LOCKING`` says. Lock files are
+* Locks. ``<real path>.lock`` (flock, exclusive) is held by a writer for its whole run: a second
+  writer is refused, through whichever name (:func:`file_identity`). The store file itself
+  (flock on the inode, so every name of the file sees it) is locked shared by readers while they
+  copy it (or, a very large one, read it: :data:`ilcforce.store.read.SNAPSHOT_BYTES`) and
+  exclusive by a writer while it commits: a reader never sees half a commit, whatever
+  ``HDF5_USE_FILE_LOCKING`` says. Lock files are
   opened with O_NOFOLLOW, never truncated, and written only when this process created them.
-* Bounded time on damaged files: before h5py opens a file here, :func:`probe` walks its
-  structure in a forked child with a time limit (HDF5 can loop forever on a damaged block, and
-  then ignores Ctrl-C). Data damage is caught by the checksums on read.
+* Bounded time on damaged files: :mod:`.filecheck` (which also holds :class:`StoreError`), the
+  layer below this one and below the study store's reader.
 """
 
 from __future__ import annotations
@@ -16,8 +17,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
-import select
-import signal
+import re
 import stat
 import time
 from contextlib import contextmanager
@@ -25,50 +25,66 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ilcforce.store import journal
+from ilcforce.store.filecheck import file_identity, lock_path, writers_lock  # noqa: F401 - the store's names for them
+from ilcforce.store.filecheck import (  # noqa: F401 - re-exported: the store's modules import them from here
+    HDF5_SIGNATURE, PROBE_TIMEOUT, StoreError, StoreExistsError, StoreLockedError, check_regular_file, file_key,
+    is_hdf5_file, mark_walked, one_line, os_reason, probe, superblock_version,
+)
 
 #: How long a reader waits for a writer's commit to finish, s (a commit takes milliseconds).
 READ_LOCK_TIMEOUT = 30.0
-#: Time limit for walking a file's structure in a child process, s (a healthy store: milliseconds).
-PROBE_TIMEOUT = 10.0
-
-#: The first bytes of every HDF5 file (a store, ours or not).
-HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-
-
-class StoreError(Exception):
-    """A problem with a store file. The message is one line naming the file and the problem."""
-
-    def __init__(self, message: str) -> None:
-        super().__init__(one_line(message))
-
-
-class StoreLockedError(StoreError):
-    """Another process (or another open writer) is writing the same store."""
-
-
-class StoreExistsError(StoreError):
-    """The store exists and neither overwrite nor resume was asked for."""
-
-
-def one_line(text: object) -> str:
-    """``text`` as one line (newlines and runs of blanks collapsed)."""
-    return " ".join(str(text).split())
-
-
-def os_reason(error: OSError) -> str:
-    return error.strerror or one_line(error)
 
 
 def journal_path(path: Path) -> Path:
     return path.with_name(path.name + ".journal")
 
 
-def lock_path(path: Path) -> Path:
-    return path.with_name(path.name + ".lock")
-
-
 def tmp_path(path: Path) -> Path:
-    return path.with_name(path.name + ".tmp")
+    """This process's temporary copy of the store at ``path``: hidden and named by its PID, a name
+    no store may have (:func:`is_temporary_name`), so removing it can never remove a store."""
+    return path.with_name(f".{path.name}.tmp-{os.getpid()}")
+
+
+_TEMPORARY = re.compile(r"\.(.+)\.tmp-([0-9]{1,10})")
+
+
+def is_temporary_name(name: str) -> bool:
+    """Whether ``name`` is one ilcforce gives its temporary copies (``.<name>.tmp-<pid>``)."""
+    return _TEMPORARY.fullmatch(name) is not None
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process: alive
+        return True
+    return True
+
+
+def dead_writers_copies(path: Path) -> list[Path]:
+    """The temporary copies of the store at ``path`` (exactly ``.<name>.tmp-<pid>``, regular files)
+    whose writer process is gone: left by a kill -9. The caller holds the store's writer lock, so
+    no live writer of this store is making one; a copy of a live process is never listed."""
+    try:
+        names = os.listdir(path.parent)
+    except OSError:
+        return []
+    found = []
+    for name in names:
+        match = _TEMPORARY.fullmatch(name)
+        if match is None or match.group(1) != path.name:
+            continue
+        pid = int(match.group(2))
+        if pid == os.getpid() or _alive(pid):
+            continue
+        try:
+            if stat.S_ISREG(os.lstat(path.parent / name).st_mode):
+                found.append(path.parent / name)
+        except OSError:
+            pass
+    return found
 
 
 def companion_of(path: Path) -> str | None:
@@ -88,12 +104,13 @@ def companion_of(path: Path) -> str | None:
 
 
 def acquire_writer_lock(path: Path) -> int:
-    """Take ``<path>.lock`` exclusively; the fd (closing it releases the lock).
+    """Take ``<real path>.lock`` exclusively (:func:`file_identity`: every name of the file
+    reaches one lock); the fd (closing it releases the lock).
 
     Never follows a symlink, never truncates: the PID is written only into a file this call
     created. StoreLockedError if another writer holds it.
     """
-    lock = lock_path(path)
+    lock = writers_lock(path)
     flags = os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC
     created = False
     try:
@@ -131,7 +148,7 @@ def acquire_writer_lock(path: Path) -> int:
 def writer_active(path: str | os.PathLike[str]) -> bool:
     """True while a writer holds ``<path>.lock`` (the flock dies with its process)."""
     try:
-        fd = os.open(lock_path(Path(path)), os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK)
+        fd = os.open(writers_lock(Path(path)), os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC | os.O_NONBLOCK)
     except OSError:
         return False
     try:
@@ -168,151 +185,6 @@ def flock_with_timeout(fd: int, operation: int, timeout: float) -> bool:
             return False
         time.sleep(delay)
         delay = min(delay * 2, FLOCK_RETRY_MAX)
-
-
-# ----------------------------------------------------------------------------------------------
-# checks before HDF5 touches a file
-
-
-def check_regular_file(path: Path) -> os.stat_result:
-    """stat of ``path`` (following links) if it is a non-empty regular file; StoreError otherwise."""
-    try:
-        info = os.stat(path)
-    except FileNotFoundError:
-        raise StoreError(f"{path}: no such file") from None
-    except OSError as error:
-        raise StoreError(f"{path}: cannot stat ({os_reason(error)})") from None
-    if stat.S_ISDIR(info.st_mode):
-        raise StoreError(f"{path}: is a directory, not a store file")
-    if not stat.S_ISREG(info.st_mode):
-        raise StoreError(f"{path}: not a regular file")
-    if info.st_size == 0:
-        raise StoreError(f"{path}: empty file (0 bytes), not a readable HDF5 file")
-    return info
-
-
-def superblock_version(fd: int) -> int | None:
-    """The HDF5 superblock version of the file open as ``fd`` (signature at 0, 512, 1024, ...)."""
-    size = os.fstat(fd).st_size
-    offset = 0
-    while offset + 9 <= size:
-        head = os.pread(fd, 9, offset)
-        if head[:8] == HDF5_SIGNATURE:
-            return head[8]
-        offset = 512 if offset == 0 else offset * 2
-    return None
-
-
-def is_hdf5_file(path: Path) -> bool:
-    """Whether ``path`` is a regular file with an HDF5 signature (never blocks on a FIFO, never raises)."""
-    try:
-        if not stat.S_ISREG(os.stat(path).st_mode):
-            return False
-        fd = os.open(path, os.O_RDONLY | os.O_CLOEXEC | os.O_NONBLOCK)
-    except OSError:
-        return False
-    try:
-        return superblock_version(fd) is not None
-    except OSError:
-        return False
-    finally:
-        os.close(fd)
-
-
-_probed: set[tuple[int, int, int, int]] = set()
-
-
-def file_key(path: Path) -> tuple[int, int, int, int]:
-    """(device, inode, size, mtime) of ``path``: one version of one file."""
-    info = os.stat(path)
-    return (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
-
-
-def mark_walked(key: tuple[int, int, int, int]) -> None:
-    """Skip the probe for this version of a file: a store that a child process of ours has just
-    written and closed (``ilcforce compare``'s workers send its :func:`file_key`); any later change
-    to the file gives another key, which is probed as usual."""
-    _probed.add(tuple(key))
-
-
-def _walk(path: Path) -> None:
-    """What HDF5 must parse to read a store: the root attributes (dense storage: where a zeroed
-    block hung every command), every object header and link (``H5Ovisit`` with object info,
-    which parses each header and its attribute info) and the chunk index of every chunked dataset
-    (the small ``/reference``, ``/control_time`` and ``/metrics`` ones). No bulk data: the
-    checksums catch damage there when it is read. About 50 ms for the paper's 20-iteration store
-    on a loaded machine (measured); reading every attribute through h5py took 0.7 s."""
-    import h5py
-
-    chunked: list[bytes] = []
-
-    def visit(name: bytes, info) -> None:
-        if info.type == h5py.h5o.TYPE_DATASET:
-            chunked.append(name)
-
-    with h5py.File(path, "r", locking=False) as handle:
-        for key in handle.attrs:
-            handle.attrs[key]
-        h5py.h5o.visit(handle.id, visit, info=True)
-        for name in chunked:
-            dataset = handle[name]
-            if dataset.chunks is not None and dataset.size <= 1 << 16:
-                dataset[()]
-
-
-def probe(path: Path, fd: int, timeout: float = PROBE_TIMEOUT) -> None:
-    """Walk the file's structure in a forked child with a time limit; StoreError if it fails.
-
-    HDF5 can loop forever on a damaged metadata block (a 4 KB block of zeros early in a file hangs
-    reading the root attributes, even with checksummed metadata: measured), and a hung HDF5 call
-    ignores Ctrl-C. The child inherits the imported h5py, so the check costs a fork and one walk
-    of the metadata (no data), once per version of the file (keyed by inode, size and mtime).
-    """
-    info = os.fstat(fd)
-    key = (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
-    if key in _probed:
-        return
-    import h5py  # noqa: F401  (imported before the fork, so the child does not pay for it)
-
-    read_end, write_end = os.pipe()
-    pid = os.fork()
-    if pid == 0:  # the child: walk, report one line, never return into the caller's code
-        code = 1
-        try:
-            os.close(read_end)
-            signal.signal(signal.SIGINT, signal.SIG_DFL)
-            _walk(path)
-            os.write(write_end, b"ok")
-            code = 0
-        except BaseException as error:  # noqa: BLE001 - anything is a damaged file here
-            try:
-                os.write(write_end, one_line(f"{type(error).__name__}: {error}")[:300].encode("utf-8", "replace"))
-            except BaseException:
-                pass
-        finally:
-            os._exit(code)
-    os.close(write_end)
-    try:
-        ready, _, _ = select.select([read_end], [], [], timeout)
-        message = os.read(read_end, 400).decode("utf-8", "replace") if ready else None
-        if message == "" and ready:  # the child closed without writing: wait for its status
-            pass
-    except BaseException:
-        os.kill(pid, signal.SIGKILL)
-        os.waitpid(pid, 0)
-        os.close(read_end)
-        raise
-    os.close(read_end)
-    if message is None:
-        os.kill(pid, signal.SIGKILL)
-        os.waitpid(pid, 0)
-        raise StoreError(f"{path}: not a readable HDF5 file (damaged: reading its structure did not finish in {timeout:g} s)")
-    _, status = os.waitpid(pid, 0)
-    if message != "ok":
-        if not message:
-            message = f"the reader died ({'signal ' + str(-os.waitstatus_to_exitcode(status))})"
-        raise StoreError(f"{path}: not a readable HDF5 file (damaged: {message})")
-    _probed.add(key)
 
 
 # ----------------------------------------------------------------------------------------------

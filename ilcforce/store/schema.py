@@ -24,7 +24,20 @@ STUDY_SCHEMA_NAME = "ilcforce.study"
 #: A study's name, which names its store and its report folder: a plain file name (checked when a
 #: study file is read, and again when a store is read, so that a stored name never makes a path).
 STUDY_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
-SCHEMA_VERSION = "2.0"
+SCHEMA_VERSION = "2.1"
+#: From this schema version on, every object with attributes carries ``attrs_crc32``
+#: (:mod:`ilcforce.store.seal`). A 2.0 store has none: it is read, and ``validate`` says that its
+#: metadata is unverified (accepted, not refused: its data is still checksummed, and refusing it
+#: would lose every store written before the seals; a rerun with --overwrite seals it).
+SEALED_FROM = (2, 1)
+#: A method name as stored (it names the store file ``<method>.h5``): never a path.
+METHOD_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
+
+
+def is_plain_name(text: str) -> bool:
+    """A name that makes one results folder, never a path (an experiment's, as stored)."""
+    return (bool(text) and not text.startswith(".") and text.isprintable() and len(text) <= 255
+            and not any(c in text for c in "/\\"))
 
 #: HDF5 file-format bounds: "v108" gives version-2 object headers and superblock, whose metadata
 #: blocks carry checksums, so a damaged block is an error instead of an endless walk.

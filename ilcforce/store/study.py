@@ -12,13 +12,18 @@ Only the driver writes it. Durability without ever writing an HDF5 file in place
 3. Readers take the HDF5 file plus the journal records not yet in it.
 
 So ``kill -9`` of the driver loses only the cells in flight; a rerun skips every committed cell.
-A lock (``flock`` on ``<name>.h5.lock``, opened without following links and never truncated)
-refuses a second driver on the same study.
+A lock (``flock`` on ``<real path of the store>.lock``, opened without following links and never
+truncated) refuses a second driver on the same study.
 
-Layout (schema ``ilcforce.study`` 1.0)::
+Every record is sealed and checked against the store before it is used (:mod:`.study_journal`);
+every attribute and string column of the HDF5 file carries a checksum (:mod:`.seal`).
+
+Layout (schema ``ilcforce.study`` 1.1; 1.0 lacks study_id and the seals)::
 
     /             attrs: schema, schema_version, name, description, study_toml, definition_json,
-                         fingerprint, created, sessions_json
+                         fingerprint, created, sessions_json (each run's seeds and methods among
+                         its fields), study_id (the identity the journal's records carry),
+                         attrs_crc32 (on every group and column too; strings_crc32 on string columns)
     /settings     datasets (n_settings,): config_json, label, values_json (swept key -> value, JSON)
     /metrics      one dataset per column, (n_rows,): setting, seed, method, iteration, then the
                   metric columns of the cells' rows (status, ..., memory_norm_*)
@@ -34,16 +39,20 @@ import json
 import math
 import os
 import shutil
+import uuid
 from pathlib import Path
 
 import h5py
 import numpy as np
 
 from ilcforce import stops
-from ilcforce.store.safeio import is_hdf5_file, one_line
+from ilcforce.store import study_journal
+from ilcforce.store.seal import STRINGS_SEAL, seal_attrs, strings_checksum
+from ilcforce.store.filecheck import writers_lock
+from ilcforce.store.safeio import dead_writers_copies, is_hdf5_file, is_temporary_name, one_line
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
-    _journal_records, _keys, _lock_path, _table, is_study_store, journal_dir, read_header, read_tables,
+    _keys, _table, is_study_store, journal_dir, read_header, read_tables, scan_journal, study_facts,
 )
 
 
@@ -78,12 +87,42 @@ def _append(group: h5py.Group, rows: list[dict]) -> None:
         fill = dataset.attrs["fill"]
         if h5py.check_string_dtype(dataset.dtype) is not None:
             array = np.asarray(["" if v is None else str(v) for v in values], dtype=object)
+            before = dataset.attrs.get(STRINGS_SEAL)
+            if before is None:  # a new column, or one of a store made before strings were sealed
+                before = strings_checksum(dataset.asstr()[()]) if n_old else 0
+            dataset.attrs[STRINGS_SEAL] = np.uint32(strings_checksum(array, int(before)))
         else:
             array = np.asarray([fill if v is None else v for v in values], dtype=dataset.dtype)
         dataset.resize((n_new,))
         dataset[n_old:n_new] = array
     group.attrs["n_rows"] = n_new
     group.attrs["columns_json"] = json.dumps(columns)
+
+
+def _seal(handle: h5py.File) -> None:
+    """Seal the attributes of the root, every group and every column, and the strings of every string
+    column not sealed yet (a store made before seals), as the last step of every write."""
+    handle.attrs["schema_version"] = SCHEMA_VERSION
+    for group_name in ("settings", "metrics", "cells"):
+        group = handle[group_name]
+        for name in group:
+            dataset = group[name]
+            if h5py.check_string_dtype(dataset.dtype) is not None and STRINGS_SEAL not in dataset.attrs:
+                dataset.attrs[STRINGS_SEAL] = np.uint32(strings_checksum(dataset.asstr()[()]))
+            seal_attrs(dataset)
+        seal_attrs(group)
+    seal_attrs(handle)
+
+
+def _make_folders(folder: Path) -> list[Path]:
+    """Make ``folder`` and its missing parents; the ones made, outermost first."""
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    for item in reversed(missing):
+        item.mkdir(exist_ok=True)
+    return list(reversed(missing))
 
 
 def _fsync(path: Path) -> None:
@@ -246,36 +285,64 @@ class StudyStore:
         self._session = dict(session)
         self._pending: list[dict] = []
         self.consolidate_every = consolidate_every
-        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._made_folders = _make_folders(self.path.parent)
         self._lock_fd = self._lock()
         self.created = not self.path.exists()  # this handle makes the store (see discard_if_unused)
         self.committed = 0
+        self.quarantined: list[str] = []  # one line per refused journal record moved aside
         try:
+            self._remove_dead_copies()
             self._prepare(overwrite, replace_stale, require_existing)
+            self._open_journal()
         except BaseException:
             self.close()
             raise
+
+    def _open_journal(self) -> None:
+        """Read what the store and its journal hold: the journal's records are checked against the
+        store (:mod:`.study_journal`), the refused ones moved aside. A store made before stores had
+        an identity, or a run that plans cells no earlier run planned, is consolidated at once, so
+        that every record this run commits is a cell of the study as the store itself tells it."""
+        stored = read_header(self.path, check=False)
+        self._study_id = str(stored.get("study_id", "")) or uuid.uuid4().hex
+        plan = (self._session.get("seeds"), self._session.get("methods"))
+        current = {**stored, "study_id": self._study_id,
+                   "sessions_json": json.dumps([*json.loads(str(stored.get("sessions_json", "[]"))), self._session])}
+        self._facts = study_facts(current)
+        found = scan_journal(self.path, current)
+        for item, why in found.refused:
+            try:
+                where = study_journal.quarantine(item)
+            except OSError as exc:
+                raise StudyStoreError(f"{item}: a refused journal record ({why}) cannot be moved aside "
+                                      f"({exc.strerror or exc})") from None
+            self.quarantined.append(f"{item}: {why}; moved to {where}, its cell runs again")
         self.done: set[tuple[int, int, str]] = set()
         self.failed: dict[tuple[int, int, str], str] = {}
-        _header, _metrics, cells = read_tables(self.path, check=False)
-        if len(cells):
-            for key, state, message in zip(_keys(cells), cells["state"], cells["message"]):
-                if state == DONE:
-                    self.done.add(key)
-                else:
-                    self.failed[key] = str(message)
-        self._pending = [r for r in _journal_records(self.path)]
-        self._last = 0.0
-        # what the HDF5 file itself holds, kept in memory so that a consolidation reads nothing back
         with h5py.File(self.path, "r") as handle:
-            stored = _table(handle["cells"])
+            stored_cells = _table(handle["cells"])
             self._sessions = json.loads(handle.attrs.get("sessions_json", "[]"))
-        self._in_file = set(_keys(stored[stored["state"] == DONE])) if len(stored) else set()
+        self._in_file = set(_keys(stored_cells[stored_cells["state"] == DONE])) if len(stored_cells) else set()
+        states = list(zip(_keys(stored_cells), stored_cells["state"], stored_cells["message"])) if len(
+            stored_cells) else []
+        states += [((r["setting"], r["seed"], r["method"]), r["state"], r["message"]) for r in found.records]
+        for key, state, message in states:
+            if state == DONE:
+                self.done.add(key)
+                self.failed.pop(key, None)
+            elif key not in self.done:
+                self.failed[key] = str(message)
+        self._pending = list(found.records)
+        self._last = 0.0
+        planned = all(plan) and all(any(s in seeds and m in methods for seeds, methods in
+                                        study_facts(stored).plans) for s in plan[0] for m in plan[1])
+        if not stored.get("study_id") or not planned:
+            self._consolidate(0.0)
 
     # -- setup --------------------------------------------------------------------------------
 
     def _lock(self) -> int:
-        lock = _lock_path(self.path)
+        lock = writers_lock(self.path)
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
         except OSError as exc:
@@ -286,6 +353,19 @@ class StudyStore:
             os.close(fd)
             raise StudyStoreError(f"{self.path}: another ilcforce study is writing this store") from None
         return fd
+
+    def _remove_dead_copies(self) -> None:
+        """Remove what a killed driver of this study left half written: ``.<name>.h5.tmp-<pid>`` beside
+        the store and ``.<record>.tmp-<pid>`` in its journal, of processes that are gone, each by its
+        exact name (we hold the study's lock: no live driver of it is writing one)."""
+        stale = dead_writers_copies(self.path)
+        folder = journal_dir(self.path)
+        if folder.is_dir() and not folder.is_symlink():
+            records = {item.name[1:].rsplit(".tmp-", 1)[0] for item in folder.iterdir() if is_temporary_name(item.name)}
+            for record in sorted(records):
+                stale += dead_writers_copies(folder / record)
+        for item in dict.fromkeys(stale):
+            _remove(item)
 
     def _prepare(self, overwrite: bool, replace_stale: bool, require_existing: bool) -> None:
         if check_usable(self.path, self._header, overwrite=overwrite, replace_stale=replace_stale,
@@ -308,10 +388,12 @@ class StudyStore:
             handle.attrs["schema_version"] = SCHEMA_VERSION
             for key in ("name", "description", "study_toml", "definition_json", "fingerprint", "created"):
                 handle.attrs[key] = str(self._header.get(key, ""))
-            handle.attrs["sessions_json"] = "[]"
+            handle.attrs["study_id"] = uuid.uuid4().hex
+            handle.attrs["sessions_json"] = json.dumps([self._session])
             _append(handle.create_group("settings"), list(self._header["settings"]))
             handle.create_group("metrics").attrs["n_rows"] = 0
             handle.create_group("cells").attrs["n_rows"] = 0
+            _seal(handle)
         _fsync(tmp)
         os.replace(tmp, self.path)
 
@@ -323,7 +405,12 @@ class StudyStore:
         with stops.critical():  # a stop signal takes effect when the commit has ended
             folder = journal_dir(self.path)
             folder.mkdir(exist_ok=True)
-            target = folder / f"{record['setting']}-{record['seed']}-{record['method']}.json"
+            target = folder / study_journal.record_name(record["setting"], record["seed"], record["method"])
+            record = study_journal.seal(record, self._study_id, self._facts.digests[record["setting"]])
+            try:  # never commit a record that a reader would refuse
+                study_journal.check(record, self._facts)
+            except study_journal.RecordError as exc:
+                raise StudyStoreError(f"{target}: refusing to commit the cell ({exc})") from None
             _write_json_atomic(target, record)
             self.committed += 1
             self._pending.append({**record, "_file": target})
@@ -369,6 +456,8 @@ class StudyStore:
                 _append(handle["cells"], cells)
                 _append(handle["metrics"], rows)
                 handle.attrs["sessions_json"] = json.dumps(sessions)
+                handle.attrs["study_id"] = self._study_id
+                _seal(handle)
             _fsync(tmp)
             os.replace(tmp, self.path)
             self._in_file |= added
@@ -393,11 +482,14 @@ class StudyStore:
         later --resume or report to pick up. A store that existed before is never touched."""
         if not self.created or self.committed or getattr(self, "_lock_fd", None) is None:
             return
-        for leftover in (self.path, _lock_path(self.path)):
+        for leftover in (self.path, writers_lock(self.path)):
             leftover.unlink(missing_ok=True)
         with contextlib.suppress(OSError):
             journal_dir(self.path).rmdir()  # only if empty
         self.close()
+        for folder in reversed(self._made_folders):  # e.g. results/studies/: only the ones made here, if empty
+            with contextlib.suppress(OSError):
+                folder.rmdir()
 
     def close(self) -> None:
         if getattr(self, "_lock_fd", None) is not None:

@@ -12,11 +12,18 @@ import h5py
 import numpy as np
 import pandas as pd
 
-from ilcforce.store.safeio import is_hdf5_file
+from ilcforce.store import study_journal
+from ilcforce.store.seal import ATTRS_SEAL, STRINGS_SEAL, attrs_state, strings_checksum
+from ilcforce.store.filecheck import StoreError, check_regular_file, is_hdf5_file, probe, writers_lock
 from ilcforce.store.schema import STUDY_NAME, STUDY_SCHEMA_NAME
 
 SCHEMA_NAME = STUDY_SCHEMA_NAME
-SCHEMA_VERSION = "1.0"
+SCHEMA_VERSION = "1.1"
+#: From this version on, the root, every group and every column carry attribute seals and every
+#: string column a checksum of its values (:mod:`.seal`). A 1.0 store has none: it is read and
+#: ``validate`` says its strings are unverified (accepted: its numbers are Fletcher-32 checked, and
+#: the driver seals it at its next consolidation).
+SEALED_FROM = (1, 1)
 CELL_COLUMNS = ("setting", "seed", "method", "state", "attempts", "message", "elapsed", "worker")
 KEY_COLUMNS = ("setting", "seed", "method")
 DONE, FAILED = "done", "failed"
@@ -30,10 +37,6 @@ class StudyStoreError(Exception):
 
 def journal_dir(path: Path) -> Path:
     return Path(f"{path}.journal")
-
-
-def _lock_path(path: Path) -> Path:
-    return Path(f"{path}.lock")
 
 
 def is_study_store(path: Path) -> bool:
@@ -52,17 +55,44 @@ def is_study_store(path: Path) -> bool:
 # reading
 
 
-def _column(dataset: h5py.Dataset) -> np.ndarray:
+def is_sealed(handle: h5py.File) -> bool:
+    """Whether the study store open as ``handle`` is of a schema whose attributes and strings are sealed."""
+    try:
+        major, minor = (int(x) for x in str(handle.attrs.get("schema_version", "")).split("."))
+    except ValueError:
+        return True
+    return (major, minor) >= SEALED_FROM
+
+
+def _verify_attrs(obj, sealed: bool) -> None:
+    state = attrs_state(obj)
+    if state == "damaged" or (state == "unsealed" and sealed):
+        what = "root" if obj.name == "/" else obj.name
+        raise StudyStoreError(f"{obj.file.filename}: the attributes of {what} do not match their checksum "
+                              f"({ATTRS_SEAL}) or have none: damaged")
+
+
+def _column(dataset: h5py.Dataset, sealed: bool) -> np.ndarray:
+    _verify_attrs(dataset, sealed)
     if h5py.check_string_dtype(dataset.dtype) is not None:
-        return np.asarray(dataset.asstr()[()], dtype=object)
+        values = np.asarray(dataset.asstr()[()], dtype=object)
+        stored = dataset.attrs.get(STRINGS_SEAL)
+        if stored is None and not sealed:
+            return values
+        if stored is None or int(stored) != strings_checksum(values):
+            raise StudyStoreError(f"{dataset.file.filename}: the strings of {dataset.name} do not match their "
+                                  f"checksum ({STRINGS_SEAL}): damaged")
+        return values
     return dataset[()]
 
 
 def _table(group: h5py.Group) -> pd.DataFrame:
+    sealed = is_sealed(group.file)
+    _verify_attrs(group, sealed)
     n = int(group.attrs.get("n_rows", 0))
     data = {}
     for name in json.loads(group.attrs.get("columns_json", "[]")):
-        values = _column(group[name])
+        values = _column(group[name], sealed)
         if values.shape != (n,):
             raise StudyStoreError(f"{group.file.filename}: /{group.name.strip('/')}/{name} has {values.shape[0]} "
                                   f"rows, expected {n}")
@@ -70,53 +100,55 @@ def _table(group: h5py.Group) -> pd.DataFrame:
     return pd.DataFrame(data)
 
 
-#: How :func:`ignored_journal_entries` names a .json that is not a readable cell record.
-DAMAGED_RECORD = "not a cell record (damaged or foreign)"
+#: How :func:`ignored_journal_entries` marks a .json record that readers refuse (its cell runs again).
+DAMAGED_RECORD = "refused"
 
 
-def _read_record(item: Path) -> dict | None:
-    """A journal file's cell record; None when it is damaged or not one (its cell runs again)."""
-    if not item.is_file():  # a FIFO (or a device) would block the read for ever
-        return None
+def study_facts(header: dict) -> study_journal.StudyFacts:
+    """What the journal's records of the study store with ``header`` (:func:`read_header`) are
+    checked against."""
     try:
-        record = json.loads(item.read_text(encoding="utf-8"))
-    except (OSError, ValueError, UnicodeDecodeError):
-        return None
-    if not isinstance(record, dict) or not all(k in record for k in (*KEY_COLUMNS, "state", "rows")):
-        return None
-    record["_file"] = item
-    return record
+        sessions = json.loads(str(header.get("sessions_json", "[]")))
+    except (ValueError, RecursionError):
+        sessions = []
+    settings = header["settings"]
+    configs = settings["config_json"].tolist() if "config_json" in settings else []
+    return study_journal.facts(str(header.get("study_id", "")), str(header.get("fingerprint", "")), configs,
+                               sessions if isinstance(sessions, list) else [])
 
 
-def _journal_records(path: Path) -> list[dict]:
+def _journal_folder(path: Path) -> Path:
+    """The journal folder of the study store at ``path``; StudyStoreError if it is a symbolic link
+    (another study's journal, whose cells this study would take as its own)."""
     folder = journal_dir(path)
-    if not folder.is_dir():
-        return []
-    records = (_read_record(item) for item in sorted(folder.iterdir())
-               if item.suffix == ".json" and not item.name.startswith("."))
-    return [record for record in records if record is not None]
+    if folder.is_symlink():
+        raise StudyStoreError(f"{folder}: the journal folder is a symbolic link (to {os.readlink(folder)}); a "
+                              "study's journal is its own folder, refusing it")
+    if os.path.lexists(folder) and not folder.is_dir():
+        raise StudyStoreError(f"{folder}: not a folder; a study's journal is a folder")
+    return folder
 
 
-def ignored_journal_entries(path: Path) -> list[str]:
-    """What the journal folder holds that readers skip, each as 'name: why', in one pass over it (a
-    record committed meanwhile is not taken for a damaged one): a damaged or foreign .json (its cell
-    runs again), a folder, another file. Hidden files (a record being written) are left out."""
-    folder = journal_dir(path)
-    if not folder.is_dir():
-        return []
-    found = []
-    for item in sorted(folder.iterdir()):
-        if item.name.startswith("."):
-            continue
-        if item.is_dir():
-            found.append(f"{item.name}: a folder")
-        elif not item.is_file():
-            found.append(f"{item.name}: not a regular file")
-        elif item.suffix != ".json":
-            found.append(f"{item.name}: not a .json record")
-        elif _read_record(item) is None:
-            found.append(f"{item.name}: {DAMAGED_RECORD}")
-    return found
+def scan_journal(path: Path, header: dict) -> study_journal.Scan:
+    """Every record of the study store's journal, checked against the store (:mod:`.study_journal`)."""
+    return study_journal.scan(_journal_folder(path), study_facts(header))
+
+
+def _journal_records(path: Path, header: dict) -> list[dict]:
+    return scan_journal(path, header).records
+
+
+def ignored_journal_entries(path: Path, header: dict | None = None) -> list[str]:
+    """What the journal folder holds that readers skip, each as 'name: why': a refused record (its
+    cell runs again) with the reason, a folder, another file. Hidden files (a record being written,
+    the quarantine) are left out."""
+    return _entries(scan_journal(path, read_header(path) if header is None else header))
+
+
+def _entries(found: study_journal.Scan) -> list[str]:
+    entries = [(item.name, f"{DAMAGED_RECORD} ({why})") for item, why in found.refused]
+    entries += [(item.name, what) for item, what in found.other]
+    return [f"{name}: {why}" for name, why in sorted(entries)]
 
 
 def latest_study_toml(sessions: list, first: str) -> str:
@@ -128,9 +160,7 @@ def latest_study_toml(sessions: list, first: str) -> str:
 
 def _probe(path: Path) -> None:
     """Bounded time on a damaged file: walk its structure in a forked child first (the run store's
-    :func:`ilcforce.store.safeio.probe`); StudyStoreError if that fails."""
-    from ilcforce.store.safeio import StoreError, check_regular_file, probe
-
+    :func:`ilcforce.store.filecheck.probe`); StudyStoreError if that fails."""
     try:
         check_regular_file(Path(path))  # a FIFO would block the open below for ever
     except StoreError as exc:
@@ -161,6 +191,7 @@ def read_header(path: Path, *, check: bool = True) -> dict:
             version = str(handle.attrs.get("schema_version", ""))
             if version.split(".")[0] != SCHEMA_VERSION.split(".")[0]:
                 raise StudyStoreError(f"{path}: study store schema {version!r}; this ilcforce reads {SCHEMA_VERSION}")
+            _verify_attrs(handle, is_sealed(handle))
             attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in handle.attrs.items()}
             name = attrs.get("name")
             if not isinstance(name, str) or not STUDY_NAME.fullmatch(name) or name in (".", ".."):
@@ -192,7 +223,7 @@ def read_tables(path: Path, *, check: bool = True) -> tuple[dict, pd.DataFrame, 
         raise StudyStoreError(f"{path}: damaged study store ({' '.join(str(exc).split())})") from None
     done = set(_keys(cells[cells["state"] == DONE])) if len(cells) else set()
     extra_rows, extra_cells = [], []
-    for record in _journal_records(path):
+    for record in _journal_records(path, header):
         key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
         if record["state"] == DONE and key in done:
             continue  # consolidated already (killed between the rename and the journal cleanup)
@@ -221,8 +252,15 @@ def check_study_store(path: Path) -> dict:
     :class:`StudyStoreError` (one line) on any damage."""
     header, _, cells = read_tables(Path(path))
     states = cells["state"].tolist() if len(cells) else []
+    found = scan_journal(Path(path), header)
+    ignored = _entries(found)
+    if found.quarantined:
+        ignored.append(f"{study_journal.QUARANTINE}: {found.quarantined} refused record(s) moved aside earlier")
+    with h5py.File(path, "r") as handle:
+        sealed = is_sealed(handle)
+    notes = [] if sealed else ["strings and attributes unverified (schema 1.0, written before they were sealed)"]
     return {"name": str(header.get("name", "")), "cells": len(states), "done": states.count(DONE),
-            "failed": states.count(FAILED), "ignored": ignored_journal_entries(Path(path))}
+            "failed": states.count(FAILED), "ignored": ignored, "notes": notes}
 
 
 # ------------------------------------------------------------------------------------------------

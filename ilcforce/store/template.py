@@ -22,6 +22,7 @@ import numpy as np
 
 from ilcforce.records import LOG_SIGNALS
 from ilcforce.store import schema
+from ilcforce.store.seal import seal_attrs
 
 _NAME = b"iteration"
 
@@ -62,6 +63,7 @@ class IterationTemplate:
         dataset.attrs["description"] = description
         if labels is not None:
             dataset.attrs[label_attr] = list(labels)
+        seal_attrs(dataset)  # copied with the dataset into every iteration
 
     def stamp(self, handle: h5py.File, path: str, log: Mapping[str, np.ndarray],
               memory: Mapping[str, np.ndarray]) -> h5py.Group:

@@ -23,6 +23,7 @@ from ilcforce.store import commit, metrics_cache, schema
 from ilcforce.store.provenance import SameRunCheck, git_state, text, utc_now
 from ilcforce.store.prepare import (check_replaceable, check_resumable, clean_leftovers, existing_refusal, make_parent,
                                     refuse_foreign_target)
+from ilcforce.store.seal import seal_attrs
 from ilcforce.store.template import IterationTemplate
 from ilcforce.store.safeio import StoreError, StoreExistsError, acquire_writer_lock, one_line
 
@@ -45,6 +46,7 @@ def _dataset(group: h5py.Group, name: str, data: np.ndarray, units: str, descrip
     attrs["description"] = description
     if axes is not None:
         attrs[columns_attr] = list(axes)
+    seal_attrs(dataset)
 
 
 class StoreWriter:
@@ -220,6 +222,7 @@ class StoreWriter:
                 metrics_cache.append_rows(handle, [*self._rows, row])
                 self._set_run_state(handle, finish, now)
             attrs["complete"] = True
+            seal_attrs(group)
 
         def build(handle: h5py.File) -> None:
             self._initialise(handle)
@@ -349,8 +352,10 @@ class StoreWriter:
 
     @staticmethod
     def _set_run_state(handle: h5py.File, state: str, now: str) -> None:
+        """Set the run state; the last change of the root attributes in every commit, so it seals them."""
         handle.attrs["run_state"] = state
         handle.attrs["updated_utc"] = now
+        seal_attrs(handle)
 
 
 def _same_run_policy(config_json: str, method: str) -> SameRunCheck:

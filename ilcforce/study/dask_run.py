@@ -8,6 +8,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import logging
+import os
 import time
 import uuid
 
@@ -19,6 +20,10 @@ WORKER_TIMEOUT = 30.0
 IN_FLIGHT_PER_THREAD = 2
 #: Tries per cell: the first run and one retry.
 ATTEMPTS = 2
+#: Seconds a local cluster may take to start before the study gives up on it (a worker stopped or
+#: hung while it starts made a study wait for more than 20 minutes). Two workers start in 3-8 s on
+#: a loaded 2-core machine; 64 took 48 s.
+CLUSTER_START_TIMEOUT = 120.0
 #: Seconds a local worker may go without a heartbeat before the scheduler has its nanny restart it
 #: (its cell then fails that attempt and is retried): a frozen worker (``kill -STOP``, a hung
 #: machine) no longer stalls a study. Dask's default is 5 minutes, checked every 5 minutes, so up to
@@ -111,50 +116,150 @@ def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TI
             finally:
                 client.close()
             return
+        def make():
+            return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,
+                                dashboard_address=None, silence_logs=logging.CRITICAL,
+                                # the scheduler's HTTP endpoint (health, metrics) on a free local
+                                # port: no clash with another cluster on 8787, no "port in use" warning
+                                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+
+        stack = contextlib.ExitStack()
+        stack.enter_context(workers_in_their_own_process_group())
         try:
-            with _ctrl_c_for_the_driver_only():
-                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,
-                                       dashboard_address=None, silence_logs=logging.CRITICAL,
-                                       # the scheduler's HTTP endpoint (health, metrics) on a free local
-                                       # port: no clash with another cluster on 8787, no "port in use" warning
-                                       scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+            cluster = start_local_cluster(make, CLUSTER_START_TIMEOUT)
+        except StudyRunError:
+            stack.close()
+            raise
         except Exception as exc:  # noqa: BLE001 - e.g. a worker process killed while it started
             failure = f"{type(exc).__name__}: {_one_line(exc)[:200]}"
+        except BaseException:  # a stop signal
+            stack.close()
+            raise
         else:
             failure = None
         if failure is not None:  # outside the except block: no chained traceback is kept alive
+            stack.close()
             raise StudyRunError(f"the local Dask cluster of {workers} workers did not start ({failure})")
-        try:
-            client = Client(cluster, set_as_default=False)
+        with stack:
             try:
-                yield client
+                client = Client(cluster, set_as_default=False)
+                try:
+                    yield client
+                finally:
+                    client.close()
             finally:
-                client.close()
-        finally:
-            cluster.close()
+                cluster.close()
 
 
 @contextlib.contextmanager
-def _ctrl_c_for_the_driver_only():
-    """Within: SIGINT ignored, so the worker processes started meanwhile inherit it ignored (an
-    ignored signal stays ignored across exec, and Python keeps it so) and a terminal's Ctrl-C, which
-    reaches the whole process group, is the driver's alone: the workers printed KeyboardInterrupt
-    tracebacks from wherever it found them. The driver stops the cluster itself. Meanwhile SIGINT is
-    also blocked in this thread (and in the threads started meanwhile), so a Ctrl-C that comes now
-    is kept pending, not discarded, and reaches the driver's own handler when this ends."""
+def workers_in_their_own_process_group():
+    """Within: the processes multiprocessing starts (a local cluster's workers) start in a process
+    group of their own, so a terminal's Ctrl-C, which reaches the whole foreground group, is the
+    driver's alone (the workers printed KeyboardInterrupt tracebacks from wherever it found them);
+    the driver stops the cluster itself. The driver keeps its own handlers all along: SIGINT used to
+    be ignored while the cluster started so that the workers inherited it ignored, and a Ctrl-C then
+    was lost (the study ran to its end and exited 0).
+
+    multiprocessing's ``util.spawnv_passfds`` is replaced by the same exec through ``os.posix_spawn``
+    with ``setpgroup=0``; the descriptors it passes are kept open across the exec by a dup2 onto
+    themselves (which clears their close-on-exec flag, POSIX 2008 TC2, glibc >= 2.29)."""
+    from multiprocessing import util
+
+    original = util.spawnv_passfds
+
+    def spawnv_passfds(path, args, passfds):
+        actions = [(os.POSIX_SPAWN_DUP2, fd, fd) for fd in sorted(map(int, passfds))]
+        if any("resource_tracker" in str(arg) for arg in args):
+            # its only words are warnings about the semaphores of workers killed while they started
+            actions.append((os.POSIX_SPAWN_OPEN, 2, os.devnull, os.O_WRONLY, 0))
+        return os.posix_spawn(path, list(args), os.environ, file_actions=actions, setpgroup=0)
+
+    util.spawnv_passfds = spawnv_passfds
+    try:
+        yield
+    finally:
+        util.spawnv_passfds = original
+
+
+def start_local_cluster(make, timeout: float):
+    """``make()`` (which starts a LocalCluster) run in a helper thread, with a stop that always works.
+
+    * The main thread keeps its handlers and waits in steps of 0.1 s, so Ctrl-C and SIGTERM act at
+      once, cluster start included (the helper thread blocks SIGINT, so Python's C-level handler
+      runs in the main thread and wakes its wait).
+    * After ``timeout`` s (a worker stopped or hung while it starts) the start is given up on:
+      StudyRunError, one line.
+
+    Whichever way the start is left before it ended, every process it started is killed (they are
+    children of this process started since the call; a stopped one too), so none outlives the study.
+    """
     import signal
     import threading
 
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    before = _child_pids()
+    box: dict = {}
+
+    def target() -> None:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+        try:
+            box["cluster"] = make()
+        except BaseException as exc:  # noqa: BLE001 - handed to the main thread
+            box["error"] = exc
+
+    thread = threading.Thread(target=target, name="ilcforce: local cluster start", daemon=True)
+    deadline = time.monotonic() + timeout
     try:
-        yield
-    finally:  # None: a handler not set from Python; Python's own is the nearest
-        signal.signal(signal.SIGINT, previous if previous is not None else signal.default_int_handler)
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        thread.start()
+        while thread.is_alive():
+            thread.join(0.1)
+            if thread.is_alive() and time.monotonic() > deadline:
+                raise StudyRunError(f"the local Dask cluster did not start within {timeout:g} s (a worker "
+                                    "hung while it started?); its processes were stopped")
+    except BaseException:
+        _give_up(before, thread)
+        raise
+    if "error" in box:
+        _give_up(before, thread)
+        raise box.pop("error")
+    return box["cluster"]
+
+
+def _give_up(before: set[int], thread) -> None:
+    """Kill the processes a cluster start made (children since ``before``), so the start fails in its
+    thread and unwinds (waited for up to 3 s). Not multiprocessing's resource tracker: killed, it was
+    relaunched by that unwinding; it ends by itself when this process does, after unlinking the
+    killed workers' semaphores."""
+    _kill_new_children(before, lambda cmdline: "resource_tracker" not in cmdline)
+    thread.join(3.0)
+
+
+def _child_pids() -> set[int]:
+    import psutil
+
+    with contextlib.suppress(psutil.Error):
+        return {child.pid for child in psutil.Process().children(recursive=True)}
+    return set()
+
+
+def _kill_new_children(before: set[int], which) -> None:
+    """SIGKILL every descendant of this process not in ``before`` whose command line passes ``which``
+    (a stopped one dies too) and reap it."""
+    import psutil
+
+    try:
+        children = [c for c in psutil.Process().children(recursive=True) if c.pid not in before]
+    except psutil.Error:
+        return
+    chosen = []
+    for child in children:
+        with contextlib.suppress(psutil.Error):
+            if which(" ".join(child.cmdline())):
+                chosen.append(child)
+    children = chosen
+    for child in children:
+        with contextlib.suppress(psutil.Error):
+            child.kill()
+    psutil.wait_procs(children, timeout=5)
 
 
 class SharedClient:
@@ -262,8 +367,8 @@ def run_on_dask(client, jobs, function, in_flight: int):
             meta[key] = (cell, args, attempt, future)
             queue.add(future)
 
-    fill()
     try:
+        fill()
         # fill() tops up after every outcome (a retry included) and as_completed takes the futures
         # added meanwhile, so the loop ends only when every cell has its outcome
         for future in queue:
@@ -272,6 +377,8 @@ def run_on_dask(client, jobs, function, in_flight: int):
             try:  # a result lost with its worker is computed again first (and that can fail)
                 result = future.result()
             except Exception as exc:  # noqa: BLE001 - the cell's error, or KilledWorker: this attempt failed
+                if _scheduler_lost(client, exc):  # not the cell's doing: it is not recorded at all
+                    raise _lost(client, exc) from None
                 message = describe_failure(exc)
             future.release()
             if message is not None and attempt < ATTEMPTS:
@@ -281,7 +388,26 @@ def run_on_dask(client, jobs, function, in_flight: int):
                 yield cell, attempt, result, None
             elif attempt >= ATTEMPTS:
                 yield cell, attempt, None, message
+    except StudyRunError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - submitting to, or waiting on, a client whose scheduler is gone
+        if not _scheduler_lost(client, exc):
+            raise
+        raise _lost(client, exc) from None
     finally:
-        if meta:
+        if meta and getattr(client, "status", "") == "running":
             with contextlib.suppress(Exception):
                 client.cancel([entry[3] for entry in meta.values()])
+
+
+def _scheduler_lost(client, exc: BaseException) -> bool:
+    """Whether ``exc`` says the client lost its scheduler (its futures are then cancelled by the
+    client, which the study itself never does while it waits on them), rather than a cell failed."""
+    return (type(exc).__name__ in ("CancelledError", "FutureCancelledError", "ClosedClientError", "CommClosedError")
+            or getattr(client, "status", "running") != "running")
+
+
+def _lost(client, exc: BaseException) -> StudyRunError:
+    where = getattr(getattr(client, "scheduler", None), "address", None) or "the Dask scheduler"
+    return StudyRunError(f"lost the connection to {where} ({type(exc).__name__}); every finished cell is "
+                         "stored, rerun the same command to continue")

@@ -23,7 +23,6 @@ import json
 import os
 import platform
 import re
-import subprocess
 import time
 import uuid
 from collections.abc import Callable
@@ -35,10 +34,11 @@ from ilcforce.study.cell import run_cell
 from ilcforce.study.dask_run import (ATTEMPTS, CONNECT_TIMEOUT, IN_FLIGHT_PER_THREAD, SharedClient,
                                      describe_failure, dask_client, run_on_dask)
 from ilcforce.study.spec import Cell, Study, StudyError
+from ilcforce.store.provenance import git_state
 from ilcforce.store.study import DONE, FAILED, StudyStore, check_usable
 
 #: Source files whose change makes stored cells stale (the simulation, not reporters or CLI).
-_NOT_FINGERPRINTED = ("report/", "cli.py", "bench.py", "store", "study/", "tune/", "__main__.py")
+_NOT_FINGERPRINTED = ("report/", "cli/", "store", "study/", "tune/", "__main__.py")
 
 
 #: A Dask scheduler address: [tcp:// or tls://]HOST:PORT (HOST a name, IPv4 or [IPv6]).
@@ -68,6 +68,7 @@ class StudySummary:
     workers: int
     scheduler: str
     wall_time: float
+    quarantined: tuple[str, ...] = ()  # one line per refused journal record moved aside (its cell ran again)
 
 
 def fingerprint() -> str:
@@ -82,21 +83,12 @@ def fingerprint() -> str:
     return digest.hexdigest()
 
 
-def _git_commit() -> str:
-    try:
-        result = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).resolve().parent,
-                                capture_output=True, text=True, timeout=10, check=False)
-    except (OSError, subprocess.SubprocessError):
-        return ""
-    return result.stdout.strip() if result.returncode == 0 else ""
-
-
 def _versions() -> dict:
     from importlib.metadata import PackageNotFoundError, version
 
     import ilcforce
 
-    out = {"ilcforce": ilcforce.__version__, "git_commit": _git_commit(), "python": platform.python_version()}
+    out = {"ilcforce": ilcforce.__version__, "git_commit": git_state()[0], "python": platform.python_version()}
     for package in ("numpy", "numba", "h5py", "dask", "distributed"):
         with contextlib.suppress(PackageNotFoundError):
             out[package] = version(package)
@@ -193,7 +185,9 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
                "command": command, "scheduler": scheduler or ("in-process" if workers == 1 else "LocalCluster"),
                "workers": workers, "host": platform.node(), "versions": _versions(),
                # what this run set out to store, so that a report can say a stopped study is incomplete
-               "cells_planned": len(study.cells()), "study_toml": study.source}
+               "cells_planned": len(study.cells()), "study_toml": study.source,
+               # the cells this run may commit: a journal record of any other cell is refused
+               "seeds": list(study.seeds), "methods": list(study.methods)}
     store = StudyStore(path, header=_header(study), session=session, overwrite=overwrite,
                        replace_stale=replace_stale, require_existing=resume)
     try:
@@ -252,7 +246,7 @@ def run_study(study: Study, results_dir: Path | str = "results", *, workers: int
                     store.consolidate(time.perf_counter())
         return StudySummary(path, len(cells), skipped, ran, tuple(failed_now), workers or 0,
                             scheduler or ("in-process" if workers == 1 else "LocalCluster"),
-                            time.perf_counter() - start)
+                            time.perf_counter() - start, tuple(store.quarantined))
     except BaseException:
         store.discard_if_unused()  # e.g. an unreachable scheduler: no empty store left behind
         raise

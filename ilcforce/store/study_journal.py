@@ -1,0 +1,311 @@
+"""A study's journal records: sealed when written, checked against their study before anyone uses them.
+
+A finished cell lives as one JSON record in ``<store>.h5.journal/<setting>-<seed>-<method>.json``
+until the driver folds it into the checksummed HDF5 file. Until then nothing but this module
+stands between the record's bytes and the study's table, so each record is checked here before
+it is read, folded or exported:
+
+* its ``checksum`` (sha256 over its canonical JSON, every field but the checksum itself) matches:
+  a changed digit after a kill -9 is caught;
+* its ``study`` is the identity (``study_id``, a random id the store gets when it is made) of the
+  store it sits beside: a journal folder copied from another study is refused record by record;
+* its ``setting_digest`` is sha256 of the study's simulation fingerprint and of the stored
+  setting's ``config_json``: a record computed with other settings or other code is refused;
+* its key is a cell the study has (a setting it stores, a seed and a method that one of its runs
+  planned: ``seeds`` and ``methods`` of a session) and its file name is that key, so a key cannot
+  appear twice under two names;
+* every field has its type, size and range, and the metric rows have the study's columns, one per
+  iteration ``0 .. n - 1`` with ``n`` at most the setting's ``experiment.iterations``.
+
+A record that fails is never used: readers skip it and name it (:func:`scan`); the driver moves it
+aside into ``<store>.h5.journal/.quarantine/`` (:func:`quarantine`) so it is kept for a human and
+its cell runs again. Records of an older ilcforce (no checksum) fail like damaged ones: their cell
+runs again, nothing computed is trusted unchecked.
+
+Only the format of a record lives here; the study store's reader and writer use it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import re
+import stat
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ilcforce.metrics import METRIC_COLUMNS, column_kind
+
+#: Version of a journal record's format (records without it are from before checksums).
+RECORD_FORMAT = 2
+#: The fields of a record, exactly.
+RECORD_FIELDS = frozenset({"format", "study", "setting_digest", "setting", "seed", "method", "state", "attempts",
+                           "message", "elapsed", "worker", "rows", "checksum"})
+#: Where the driver moves a refused record (inside the journal folder; hidden, so readers skip it).
+QUARANTINE = ".quarantine"
+#: A record larger than this is refused unread, bytes (a 1000-iteration cell is about 1 MB).
+MAX_RECORD_BYTES = 16 << 20
+#: Longest message or worker string kept in a record, characters.
+MAX_TEXT = 4000
+#: Most attempts a cell is given (the driver retries once; a margin for future retries).
+MAX_ATTEMPTS = 100
+
+_NAME = re.compile(r"(\d{1,9})-(\d{1,19})-([A-Za-z0-9_]{1,64})\.json")
+_MEMORY_COLUMN = re.compile(r"memory_(norm|settled|start)_[A-Za-z0-9_]{1,64}")  # metrics.memory_norms
+_INT64 = (-(1 << 63), (1 << 63) - 1)
+DONE, FAILED = "done", "failed"
+
+
+class RecordError(Exception):
+    """Why a journal record is refused (one short phrase, without the file name)."""
+
+
+def record_name(setting: int, seed: int, method: str) -> str:
+    """The file name of the record of a cell."""
+    return f"{setting}-{seed}-{method}.json"
+
+
+def setting_digest(fingerprint: str, config_json: str) -> str:
+    """sha256 of the simulation code's fingerprint and a setting's resolved configuration (JSON)."""
+    return hashlib.sha256(f"{fingerprint}\0{config_json}".encode()).hexdigest()
+
+
+def _canonical(body: dict) -> bytes:
+    return json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=True).encode()
+
+
+def _checksum(body: dict) -> str:
+    return hashlib.sha256(_canonical({k: v for k, v in body.items() if k != "checksum"})).hexdigest()
+
+
+def seal(record: dict, study_id: str, digest: str) -> dict:
+    """``record`` (a cell's fields) with its format, study identity, setting digest and checksum,
+    as plain JSON values (numpy scalars made Python numbers)."""
+    body = json.loads(json.dumps({**record, "format": RECORD_FORMAT, "study": study_id, "setting_digest": digest}))
+    body["checksum"] = _checksum(body)
+    return body
+
+
+@dataclass(frozen=True)
+class StudyFacts:
+    """What a record is checked against: the study store's identity, settings and planned cells."""
+
+    study_id: str  # the store's study_id attribute ('' for a store made before it existed)
+    digests: tuple[str, ...]  # per setting: setting_digest(fingerprint, config_json)
+    iterations: tuple[int, ...]  # per setting: experiment.iterations (the most rows a cell has)
+    plans: tuple[tuple[frozenset, frozenset], ...]  # per run of the study: (seeds, methods)
+
+    def has_cell(self, seed: int, method: str) -> bool:
+        return any(seed in seeds and method in methods for seeds, methods in self.plans)
+
+
+def facts(study_id: str, fingerprint: str, config_jsons: Iterable[str], sessions: Iterable) -> StudyFacts:
+    """:class:`StudyFacts` from a study store's attributes, its settings' ``config_json`` and its
+    sessions (each run's ``seeds`` and ``methods``; sessions of an older ilcforce plan nothing)."""
+    digests, iterations = [], []
+    for text in config_jsons:
+        text = str(text)
+        digests.append(setting_digest(str(fingerprint), text))
+        try:
+            n = json.loads(text)["experiment"]["iterations"]
+        except (ValueError, KeyError, TypeError, RecursionError):
+            n = 0
+        iterations.append(n if isinstance(n, int) and not isinstance(n, bool) and n > 0 else 0)
+    plans = []
+    for session in sessions:
+        if not isinstance(session, dict):
+            continue
+        seeds, methods = session.get("seeds"), session.get("methods")
+        if (isinstance(seeds, list) and isinstance(methods, list) and all(_is_int(s) for s in seeds)
+                and all(isinstance(m, str) for m in methods)):
+            plans.append((frozenset(seeds), frozenset(methods)))
+    return StudyFacts(str(study_id), tuple(digests), tuple(iterations), tuple(plans))
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and _INT64[0] <= value <= _INT64[1]
+
+
+def _is_float(value) -> bool:
+    return isinstance(value, float) or _is_int(value)
+
+
+def _text(value, field: str, limit: int = MAX_TEXT) -> None:
+    if not isinstance(value, str):
+        raise RecordError(f"{field} is {type(value).__name__}, not a string")
+    if len(value) > limit:
+        raise RecordError(f"{field} is {len(value)} characters long (at most {limit})")
+
+
+def read_record(item: Path, facts_: StudyFacts) -> dict:
+    """The checked record of the journal file ``item``; RecordError saying why it is refused.
+
+    Reads at most :data:`MAX_RECORD_BYTES`, never follows a symbolic link, never blocks on a FIFO.
+    """
+    match = _NAME.fullmatch(item.name)
+    if match is None:
+        raise RecordError("its name is not <setting>-<seed>-<method>.json")
+    try:
+        info = os.lstat(item)
+    except OSError as error:
+        raise RecordError(f"cannot be read ({error.strerror or error})") from None
+    if stat.S_ISLNK(info.st_mode):
+        raise RecordError("a symbolic link, not a record")
+    if not stat.S_ISREG(info.st_mode):
+        raise RecordError("not a regular file")
+    if info.st_size > MAX_RECORD_BYTES:
+        raise RecordError(f"{info.st_size} bytes, more than a record holds ({MAX_RECORD_BYTES})")
+    try:
+        fd = os.open(item, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+        try:
+            data = os.read(fd, MAX_RECORD_BYTES + 1)
+        finally:
+            os.close(fd)
+    except OSError as error:
+        raise RecordError(f"cannot be read ({error.strerror or error})") from None
+    try:
+        record = json.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise RecordError("not UTF-8 text") from None
+    except RecursionError:
+        raise RecordError("JSON nested too deeply") from None
+    except ValueError as error:
+        raise RecordError(f"not JSON ({str(error).split(':')[0]})") from None
+    check(record, facts_, match.groups())
+    return record
+
+
+def check(record, facts_: StudyFacts, name_key: tuple[str, str, str] | None = None) -> None:
+    """RecordError unless ``record`` is a sealed, whole record of a cell of the study ``facts_``
+    (stored under the file name whose parts are ``name_key``)."""
+    if not isinstance(record, dict):
+        raise RecordError(f"a JSON {type(record).__name__}, not a record")
+    if "checksum" not in record or "format" not in record:
+        raise RecordError("no checksum (written by an older ilcforce, or not a record)")
+    if set(record) != RECORD_FIELDS:
+        odd = sorted(set(record) ^ RECORD_FIELDS)
+        raise RecordError(f"fields differ from a record's ({', '.join(map(str, odd))[:120]})")
+    if record["format"] != RECORD_FORMAT:
+        raise RecordError(f"record format {str(record['format'])[:20]!r}; this ilcforce reads {RECORD_FORMAT}")
+    try:
+        expected = _checksum(record)
+    except (ValueError, TypeError, RecursionError):
+        raise RecordError("cannot be checksummed") from None
+    if record["checksum"] != expected:
+        raise RecordError("its checksum does not match its content (changed after it was written)")
+    if record["study"] != facts_.study_id or not facts_.study_id:
+        raise RecordError("it belongs to another study (its study id is not this store's)")
+    setting, seed, method = record["setting"], record["seed"], record["method"]
+    if not _is_int(setting) or not _is_int(seed):
+        raise RecordError("setting and seed must be integers")
+    _text(method, "method", 64)
+    if name_key is not None and (str(setting), str(seed), method) != tuple(name_key):
+        raise RecordError(f"it holds cell {record_name(setting, seed, method)}, not the cell of its file name")
+    if not 0 <= setting < len(facts_.digests):
+        raise RecordError(f"setting {setting} is not one of the study's {len(facts_.digests)} settings")
+    if record["setting_digest"] != facts_.digests[setting]:
+        raise RecordError(f"computed with other values of setting {setting} or other simulation code")
+    if not facts_.has_cell(seed, method):
+        raise RecordError(f"seed {seed}, method {method!r} is not a cell any run of this study planned")
+    state = record["state"]
+    if state not in (DONE, FAILED):
+        raise RecordError(f"state {str(state)[:20]!r} is neither {DONE!r} nor {FAILED!r}")
+    if not _is_int(record["attempts"]) or not 1 <= record["attempts"] <= MAX_ATTEMPTS:
+        raise RecordError(f"attempts {str(record['attempts'])[:20]} is not an integer 1 .. {MAX_ATTEMPTS}")
+    _text(record["message"], "message")
+    _text(record["worker"], "worker", 300)
+    elapsed = record["elapsed"]
+    if not _is_float(elapsed) or not (math.isnan(elapsed) or 0 <= elapsed < 1e9):
+        raise RecordError(f"elapsed {str(elapsed)[:20]} is not a time in s")
+    _check_rows(record["rows"], state, facts_.iterations[setting])
+
+
+def _check_rows(rows, state: str, most: int) -> None:
+    if not isinstance(rows, list):
+        raise RecordError("rows is not a list")
+    if state == FAILED:
+        if rows:
+            raise RecordError("a failed cell with metric rows")
+        return
+    if not rows or len(rows) > most:
+        raise RecordError(f"{len(rows)} metric rows; a cell of this setting has 1 .. {most}")
+    columns = None
+    for j, row in enumerate(rows):
+        if not isinstance(row, dict):
+            raise RecordError(f"row {j} is not an object")
+        keys = set(row)
+        if columns is None:
+            columns = keys
+            missing = sorted(set(METRIC_COLUMNS) - keys)
+            extra = sorted(k for k in keys if k not in METRIC_COLUMNS and not _MEMORY_COLUMN.fullmatch(str(k)))
+            if missing or extra:
+                raise RecordError(f"row 0 lacks {missing[:3]} or has unknown columns {extra[:3]}")
+        elif keys != columns:
+            raise RecordError(f"row {j} has other columns than row 0")
+        if not _is_int(row["iteration"]) or row["iteration"] != j:
+            raise RecordError(f"row {j} is iteration {str(row['iteration'])[:20]}, expected {j}")
+        for key, value in row.items():
+            kind = column_kind(key)
+            ok = (_is_int(value) if kind == "int" else
+                  isinstance(value, str) and len(value) <= 64 if kind == "str" else _is_float(value))
+            if not ok:
+                raise RecordError(f"row {j}: {key} = {str(value)[:30]!r} is not a {kind}")
+
+
+@dataclass(frozen=True)
+class Scan:
+    """One pass over a journal folder."""
+
+    records: list  # checked records, each with ``_file`` (its Path)
+    refused: list  # (Path, reason) of the .json records refused
+    other: list  # (Path, what) of entries that are not records (a folder, another file)
+    quarantined: int  # records already moved aside into the quarantine folder
+
+
+def scan(folder: Path, facts_: StudyFacts) -> Scan:
+    """Check every record in ``folder`` (sorted by name; hidden entries, a record being written and
+    the quarantine, are left out)."""
+    records, refused, other = [], [], []
+    if not folder.is_dir():
+        return Scan(records, refused, other, 0)
+    for item in sorted(folder.iterdir()):
+        if item.name.startswith("."):
+            continue
+        if item.is_dir() and not item.is_symlink():
+            other.append((item, "a folder"))
+        elif item.suffix != ".json" or not (item.is_symlink() or item.is_file()):
+            other.append((item, "not a .json record" if item.is_file() else "not a regular file"))
+        else:
+            try:
+                record = read_record(item, facts_)
+            except RecordError as error:
+                refused.append((item, str(error)))
+                continue
+            record["_file"] = item
+            records.append(record)
+    moved = folder / QUARANTINE
+    count = 0
+    if moved.is_dir() and not moved.is_symlink():
+        count = sum(1 for _ in moved.iterdir())
+    return Scan(records, refused, other, count)
+
+
+def quarantine(item: Path) -> Path:
+    """Move the refused record ``item`` into its folder's quarantine (made if missing, never
+    through a symbolic link), under a name not taken yet; returns where it went."""
+    folder = item.parent / QUARANTINE
+    try:
+        os.mkdir(folder, 0o755)
+    except FileExistsError:
+        if folder.is_symlink() or not folder.is_dir():
+            raise OSError(f"{folder} is not a folder") from None
+    target = folder / item.name
+    n = 1
+    while os.path.lexists(target):
+        target = folder / f"{item.name}.{n}"
+        n += 1
+    os.rename(item, target)
+    return target
