@@ -39,7 +39,9 @@ def plant_experiment(model: str):
     """
     from pathlib import Path
 
-    files = sorted(Path("experiments").glob("*.toml"), key=lambda p: (p.name != "paper.toml", p.name))
+    # paper.toml first, then the hand-written experiments, the tuned ones (make tune's) last
+    files = sorted(Path("experiments").glob("*.toml"),
+                   key=lambda p: (p.name != "paper.toml", p.stem.endswith("-tuned"), p.name))
     from ilcforce.study.spec import is_study_file
 
     for path in files:
