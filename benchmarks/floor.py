@@ -2,7 +2,7 @@
 
     python -m benchmarks.floor [--repeat 3] [--iters 20]
 
-Issue 12 asks that everything that is not the compiled loop stay under 30% of a command's wall time.
+The target was that everything that is not the compiled loop stay under 30% of a command's wall time.
 For ``compare`` (c1, c2, c3 x 20, every iteration stored) this module measures the parts that no
 design can leave out, each as cheaply as it can be done, and adds them up on the machine's cores:
 

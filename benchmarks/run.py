@@ -117,7 +117,7 @@ def per_step_figures(repeat: int) -> None:
 
 
 def chunking_figures(repeat: int) -> None:
-    """What returning to Python between chunks of the compiled loop costs (issue 8, fault 11), and
+    """What returning to Python between chunks of the compiled loop costs, and
     how long one chunk takes at substeps = 1000 (the Ctrl-C latency bound)."""
     from ilcforce.config_load import load_config
     from ilcforce.simulate import CHUNK_RK4_STEPS
@@ -156,6 +156,8 @@ def main(argv: list[str] | None = None) -> None:
                         help="alternated 1- and 2-worker runs of the speed-up study (its 2-worker cell phase, "
                              "about 8 s, varies by about 10%% between runs on this machine)")
     parser.add_argument("--cold-repeat", type=int, default=5, help="cold processes per user command (0: skip)")
+    parser.add_argument("--tune-repeat", type=int, default=1,
+                        help="alternated tuning/study pairs for the tuning's overhead per trial (0: skip)")
     parser.add_argument("--against", default=None,
                         help="another tree's ilcforce console script: its cold figures beside these, same rounds")
     parser.add_argument("--floor-repeat", type=int, default=3,
@@ -194,6 +196,10 @@ def main(argv: list[str] | None = None) -> None:
 
         bench_floor.main(["--repeat", str(args.floor_repeat)])
     study_figures(args)
+    if args.tune_repeat > 0:  # what a tuning trial costs beyond the same cells in a study (benchmarks.tuning)
+        from benchmarks import tuning as bench_tuning
+
+        bench_tuning.main(["--repeat", str(args.tune_repeat)])
 
 
 def study_figures(args) -> None:

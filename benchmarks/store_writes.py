@@ -106,7 +106,7 @@ def main() -> None:
     parser.add_argument("--old-tree", type=Path, default=None)
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
-    here = Path(__file__).resolve().parents[2]
+    here = Path(__file__).resolve().parents[1]
     trees = {"this tree": here} | ({"old tree": args.old_tree} if args.old_tree else {})
     with tempfile.TemporaryDirectory() as tmp:
         data = Path(tmp) / "records.pkl"

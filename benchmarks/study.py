@@ -23,7 +23,7 @@ from pathlib import Path
 from ilcforce.study import load_study, read_study, run_study
 from ilcforce.study.spec import parse_seeds
 
-PAPER_MC = Path(__file__).resolve().parents[2] / "experiments" / "paper-mc.toml"
+PAPER_MC = Path(__file__).resolve().parents[1] / "experiments" / "paper-mc.toml"
 
 
 def _rss_mb() -> tuple[float, float]:

@@ -1,4 +1,4 @@
-"""Valid ranges of the configuration's fields (issue 8, fault 5), checked before any work.
+"""Valid ranges of the configuration's fields, checked before any work.
 
 Every numeric field has a range: its own entry in :data:`RANGES`, a section-wide ``section.*``
 entry, or the default of its type (:data:`DEFAULT_RANGES`). Strings are printable and bounded.

@@ -103,7 +103,7 @@ class Turns:
     imports) hold the GIL for a few milliseconds at a time. When one of them held it as an
     iteration ended, the simulation thread waited for it before it could start the next, and
     every 0.1 ms (the switch interval) the two took turns: its 1.5 ms between two iterations took
-    3-15 ms (issue 12). Those threads therefore :meth:`wait` until the loop runs before each piece
+    3-15 ms. Those threads therefore :meth:`wait` until the loop runs before each piece
     of their work, which then overlaps the loop instead of the gap.
     """
 

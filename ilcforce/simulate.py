@@ -45,9 +45,9 @@ from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, Iter
 from ilcforce.task import REF_FORCE, REF_POSITION, REF_VELOCITY, Wall
 
 ACCELERATION_SCHEMES = {"implicit": 0, "filtered": 1}
-#: what the implicit scheme does where its quadratic has no usable root (issue 11)
+#: what the implicit scheme does where its quadratic has no usable root
 IMPLICIT_FALLBACKS = {"previous": 0, "least_residual": 1}
-#: each iteration's initial velocity (issue 11): at rest, or the velocity the reference asks for
+#: each iteration's initial velocity: at rest, or the velocity the reference asks for
 INITIAL_VELOCITIES = ("rest", "consistent")
 
 # watchdog outcomes, as ilcforce.loop returns them (kept here so importing this module compiles nothing)
@@ -58,7 +58,7 @@ DIVERGENCE_REASONS = {
 }
 
 #: RK4 steps per chunk of the compiled loop: it returns to Python this often so that Ctrl-C takes
-#: effect at once whatever ``substeps`` is (issue 8, fault 11). A return costs about 0.3 ms (numba
+#: effect at once whatever ``substeps`` is. A return costs about 0.3 ms (numba
 #: re-types about 20 arguments, four of them function pointers); 32768 steps take about 50 ms, so a
 #: chunk costs under 1% and Ctrl-C waits at most one chunk. The paper's 20000 steps are one chunk.
 CHUNK_RK4_STEPS = 32768

@@ -1,4 +1,4 @@
-"""Issue 8 faults 4, 8 and 13 at the command line, and issue 11's first-class variants: messages
+"""Faults at the command line, and first-class variants: messages
 are shown literally, one line, unwrapped, in any locale; the same-run policy decides what is
 stale; --set runs get a results folder of their own."""
 

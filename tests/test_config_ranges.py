@@ -1,4 +1,4 @@
-"""Issue 8, fault 5 (and the config part of 13): every field has a stated valid range, checked
+"""Every field has a stated valid range, checked
 before any work, including the memory a run would need. Each case was a traceback (some after an
 iteration had been simulated) before the ranges existed."""
 

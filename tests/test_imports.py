@@ -1,4 +1,4 @@
-"""Lazy imports (issue 12): each path imports only what it uses, so cold commands start fast.
+"""Lazy imports: each path imports only what it uses, so cold commands start fast.
 
 Timings belong to `make bench` (benchmarks/cold.py); this pins the structure that makes them:
 which heavy modules each path leaves unimported. A failure names the module that crept in.

@@ -64,7 +64,7 @@ def test_metric_columns_order_and_units():
     assert units["diverged_time"] == "s"
     assert {units[f"position_error_{k}"] for k in ("2norm", "rms", "max")} == {"m"}
     assert {units[f"force_error_{k}"] for k in ("2norm", "rms", "max")} == {"N"}
-    # the grid-independent L2 norm carries the square root of time (issue 8, section 2)
+    # the grid-independent L2 norm carries the square root of time
     assert units["position_error_l2"] == "m s^1/2" and units["force_error_l2"] == "N s^1/2"
     assert units["chattering_task_x"] == units["chattering_task_y"] == "N"
     assert units["chattering_joint_1"] == units["chattering_joint_2"] == "N m"

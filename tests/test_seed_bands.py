@@ -1,4 +1,4 @@
-"""Figs. 5-7 over seeds (issue 11, section 4): the band statistics and what the figures draw."""
+"""Figs. 5-7 over seeds: the band statistics and what the figures draw."""
 
 from __future__ import annotations
 

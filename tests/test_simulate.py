@@ -230,7 +230,7 @@ def test_every_plant_is_deterministic_and_chunking_changes_no_bit(short_config, 
 
 
 def test_stop_request_takes_effect_within_a_chunk(short_config):
-    """Ctrl-C (issue 8, fault 11): run_iteration checks stop_requested between chunks and
+    """Ctrl-C: run_iteration checks stop_requested between chunks and
     abandons the iteration at once, however long it is."""
     config = short_config(**{"simulation.substeps": 50})
     calls = []
@@ -333,7 +333,7 @@ def test_c3_learns_the_gravity_block_on_a_plant_with_gravity(short_config):
     assert bar.memory["theta_hat"].shape[1] == 8
 
 
-# --- issue 11's switches: initial velocity, implicit fallback (and when it happened) ---------------
+# --- the run's switches: initial velocity, implicit fallback (and when it happened) ---------------
 
 @njit(LAW_SIGNATURE)
 def rootless_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
@@ -443,7 +443,7 @@ def _busiest_side_thread(pid: int) -> float:
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads the process's threads from /proc")
 def test_ctrl_c_stops_a_long_iteration_at_once(tmp_path):
-    """Issue 8, fault 11: with substeps = 1000 an iteration takes tens of seconds; Ctrl-C (SIGINT)
+    """with substeps = 1000 an iteration takes tens of seconds; Ctrl-C (SIGINT)
     during it must end `ilcforce simulate` within about half a second (one chunk of the compiled
     loop is a few ms), exit 130, every finished iteration stored. The bound here is 3 s because
     the shared test machine is loaded; before the fix the process ran on for the whole iteration."""

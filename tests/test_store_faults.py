@@ -1,4 +1,4 @@
-"""Issue 8's store faults, each reproduced with real files and processes (hard links, symlinks,
+"""The store's faults, each reproduced with real files and processes (hard links, symlinks,
 a zeroed block, a file-size limit, flipped bits, forged types, symlinked lock files, FIFOs,
 glob characters, HDF5 locking off). Each test failed on the store before the rebuild."""
 

@@ -69,7 +69,7 @@ def test_study_report_contents(results):
         for stem in ("fig3_position_error_norm", "fig4_force_error_norm"):
             assert (out / "studies" / "sweep1" / f"{stem}_s{k}.png").stat().st_size > 0
     assert (out / "studies" / "sweep1" / "sweep_key_numbers.png").stat().st_size > 0
-    # Figs. 5-7 over seeds (issue 11, section 4), per setting, with the caption saying what is banded
+    # Figs. 5-7 over seeds, per setting, with the caption saying what is banded
     assert "### Figs. 5-7 over seeds" in text and "per-iteration metrics, not time signals" in text
     for k in (0, 1):
         for stem in ("fig5_tracking_error_seeds", "fig6_input_x_seeds", "fig7_input_y_seeds"):
@@ -91,7 +91,7 @@ def test_a_damaged_study_store_is_a_warning_not_a_crash(tmp_path):
 
 
 def test_study_findings_and_boundary_figure(results):
-    """The findings page of a study (issue 11): per setting the first diverged iteration, the flags
+    """The findings page of a study: per setting the first diverged iteration, the flags
     and the claims; for a one-key sweep, the stability-boundary figure; and the README section."""
     from ilcforce.report.study_findings import first_divergence
 
@@ -150,7 +150,7 @@ def test_report_command_shows_progress_and_quiet_silences_it(results, tmp_path, 
 
 
 def test_single_run_report_shows_the_bands_of_the_study_of_its_setup(results):
-    """Issue 11 section 4: the paper run's Figs. 3-7 get the bands over seeds of the study that ran the
+    """the paper run's Figs. 3-7 get the bands over seeds of the study that ran the
     same setup (here sweep1's setting 0: same config for C1, the seed apart), linked into its report."""
     _root, out, _summary = results
     text = (out / "paper" / "report.md").read_text(encoding="utf-8")

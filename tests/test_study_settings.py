@@ -1,4 +1,4 @@
-"""Explicit settings lists in study files (``[[study.settings]]``, issue 11 section 3): parsing, every
+"""Explicit settings lists in study files (``[[study.settings]]``): parsing, every
 fault class, the tidy table, the store (resume, stale), export and the study report."""
 
 from __future__ import annotations

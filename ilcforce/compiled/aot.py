@@ -1,6 +1,6 @@
 """Ahead-of-time compiled kernels: a cold command runs the compiled loop without importing numba.
 
-numba's import and its cache loads are about a third of a cold ``ilcforce simulate`` (issue 12).
+numba's import and its cache loads are about a third of a cold ``ilcforce simulate``.
 ``make install`` therefore also compiles, once, every built-in law on every built-in plant, the
 plants' kernels and the reference's inverse dynamics into one extension module beside this file
 (``ilcforce/_kernels_aot*.so``, by :mod:`ilcforce.compiled.build` with numba's own compiler, numba.pycc),

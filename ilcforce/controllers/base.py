@@ -318,7 +318,7 @@ class MemoryController:
     def begin_iteration(self, iteration: int) -> tuple[np.ndarray, np.ndarray]:
         # a fresh buffer for every iteration: the memory a finished iteration wrote is never written
         # again, so learned_state() hands it out without a copy (1.4 MB and 0.3 ms between two
-        # iterations of the paper's C3; issue 12). NaN marks a sample the law never reached.
+        # iterations of the paper's C3). NaN marks a sample the law never reached.
         self._new = np.full(self._prev.shape, np.nan)
         return self._prev, self._new
 

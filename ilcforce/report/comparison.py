@@ -7,7 +7,7 @@ iteration Table 3 reads. :func:`comparison_rows` is the method comparison (``ilc
 prints it; :func:`ilcforce.report.tables.comparison_frame` is the same rows as a DataFrame).
 
 No pandas here: ``ilcforce compare`` prints its table from the stores' metrics rows (about 0.2 s
-of CPU less than importing pandas beside the workers, issue 12). ``tests/test_comparison.py``
+of CPU less than importing pandas beside the workers). ``tests/test_comparison.py``
 checks every answer against a plain reading of the same metrics.
 """
 

@@ -1,4 +1,4 @@
-"""Figs. 5-7 over seeds (issue 11, section 4): bands over the seeds of a study.
+"""Figs. 5-7 over seeds: bands over the seeds of a study.
 
 Figs. 5-7 of a single run draw time signals: Fig. 5 the position error X and force error Y against
 t at j = 0, 5, 10, 15; Figs. 6/7 the control input and Delta tau = tau_d - tau against t at j = 19.

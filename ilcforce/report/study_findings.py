@@ -1,4 +1,4 @@
-"""Findings of a study (issue 11, section 3): per setting, the claims part by part over seeds, the
+"""Findings of a study: per setting, the claims part by part over seeds, the
 learning-stability flags, the first diverged iteration, and the key numbers with intervals; for a
 one-key sweep, the stability boundary as a figure.
 

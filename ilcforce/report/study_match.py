@@ -1,5 +1,5 @@
 """Which study, if any, ran the same setup as a single-run experiment: its bands go beside the run's
-figures (issue 11, section 4: "bands over seeds where a study exists").
+figures ("bands over seeds where a study exists").
 
 A study setting matches an experiment when, for every method the two share (at least one), the
 configuration the method's results depend on (:func:`ilcforce.samerun.differences`) and the number

@@ -34,7 +34,7 @@ from ilcforce.store.safeio import StoreError, StoreExistsError, StoreLockedError
 from ilcforce.store.schema import ITERATION_ATTRS, ROOT_ATTRS, RUN_STATES, SCHEMA_NAME, SCHEMA_VERSION
 
 #: the names that need h5py, imported on first use: the errors above cost no h5py import (a
-#: command's error handling imports them before anything else; issue 12)
+#: command's error handling imports them before anything else)
 _LAZY = {
     **dict.fromkeys(("find_stores", "iterations", "read_control_time", "read_iteration", "read_memory",
                      "read_memory_info", "read_memory_units", "read_metrics", "read_metrics_rows", "read_provenance",

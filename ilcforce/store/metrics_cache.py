@@ -8,7 +8,7 @@ recompute the rows from the logs when it differs, or when rows are missing).
 Rows are appended through h5py's low-level API (H5Dset_extent, a hyperslab, H5Dwrite): about a
 quarter of the cost of ``Dataset.resize`` and ``dataset[n:] = values`` (1.8 against 7 ms for the 24
 columns, measured), and it is paid in the run's last commit, after the last iteration has simulated
-(issue 12). The stored values are those of the high-level calls (the tests read them back).
+The stored values are those of the high-level calls (the tests read them back).
 """
 
 from __future__ import annotations

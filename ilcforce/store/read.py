@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import h5py
 import numpy as np
 
-if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports none (issue 12)
+if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports none
     import pandas as pd
 
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics

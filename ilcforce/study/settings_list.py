@@ -1,4 +1,4 @@
-"""``[[study.settings]]``: an explicit list of named settings (issue 11, section 3).
+"""``[[study.settings]]``: an explicit list of named settings.
 
 A full factorial ``[study.sweep]`` cannot express "none, the disturbance alone, each sensor noise
 alone, all": six settings out of the sixteen on/off combinations. A settings list names exactly the
