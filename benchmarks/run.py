@@ -82,14 +82,17 @@ def _iteration_runner_chunked(config, controller, chunk_steps):
 def per_step_figures(repeat: int) -> None:
     """us per control step for each plant (ilcforce.plants.MODELS) and each registered method.
 
-    A run that diverges (on the 2R arm with the paper's gains C2 and C3 lose the wall in j = 0, and
-    a zero torque lets the arm fall) is timed over the steps it simulated, and marked.
+    Each robot runs its own experiment file (experiments/<model>.toml, the gains fitted to it; the
+    paper's setup for the five-bar). A run that diverges (a zero torque lets the 2R arm fall) is
+    timed over the steps it simulated, and marked.
     """
     from ilcforce.config_load import load_config
     from ilcforce.plants import MODELS
 
+    experiments = Path(__file__).resolve().parents[1] / "experiments"
     for model in MODELS:
-        config = load_config(None, {"plant.model": model})
+        own = experiments / f"{model}.toml"
+        config = load_config(own, {}) if own.is_file() else load_config(None, {"plant.model": model})
         print(f"  plant {model}:")
         rows = [("RK4 control step, zero-torque controller", ZeroController(config.n_control))]
         for method in REGISTRY:  # every registered method
