@@ -87,6 +87,7 @@ def test_sigterm_stops_compare_like_ctrl_c_and_says_so(tmp_path):
         assert store.read_provenance(path)["run_state"] == "partial"
 
 
+@pytest.mark.slow  # among the slowest of the suite (8-28 s); `make test-slow` runs it
 def test_ctrl_c_leaves_every_store_partial_and_valid_then_compare_resumes(tmp_path):
     results = tmp_path / "results"
     proc = _compare(results, LONG)
@@ -152,6 +153,7 @@ def _alive(pid: int) -> bool:
         return False
 
 
+@pytest.mark.slow  # among the slowest of the suite (8-28 s); `make test-slow` runs it
 def test_workers_stop_when_compare_is_killed_and_a_rerun_continues(tmp_path):
     """kill -9 of `compare` left its workers running, orphaned, holding their stores' locks: a rerun
     was refused ("being written by another ilcforce process") until they finished every iteration

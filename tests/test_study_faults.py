@@ -195,6 +195,7 @@ def freezing_cell(marker_dir: str):
     return cell
 
 
+@pytest.mark.slow  # among the slowest of the suite (8-28 s); `make test-slow` runs it
 def test_a_frozen_worker_is_restarted_and_its_cell_retried(tmp_path, monkeypatch):
     """A worker that stops answering (kill -STOP, a hung machine) stalled the study for 10 minutes,
     Dask's default heartbeat timeout checked at that period. The local scheduler now has the nanny

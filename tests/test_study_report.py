@@ -112,6 +112,7 @@ def test_study_findings_and_boundary_figure(results):
     assert list(div["iterations"]) == [3, 2]
 
 
+@pytest.mark.slow  # among the slowest of the suite (8-28 s); `make test-slow` runs it
 def test_report_on_two_processes_is_the_same_files_with_progress(results, tmp_path):
     """Experiments, study reports and findings pages run as pool tasks: the files are byte for byte
     those of the one-process report, and the workers' progress lines reach the caller."""

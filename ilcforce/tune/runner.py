@@ -360,9 +360,12 @@ def tuned_experiment(tuning: Tuning, best: dict[str, dict], baseline: dict[str, 
     overrides = {**tuning.fixed, "experiment.name": name or f"{tuning.name}-tuned",
                  "experiment.description": f"{tuning.base.experiment.description}; gains tuned by ilcforce tune "
                                            f"({tuning.name})"}
-    for method, record in best.items():
-        overrides.update(record["gains"])
     config = load_config(tuning.experiment, overrides)
+    document = config.to_dict()
+    # each method's section as its trials ran it: its own best gains on the experiment (a method family
+    # shares keys, so one config holding every method's tuned gains would hand C3's to C3-leak)
+    for method, record in best.items():
+        document[method] = load_config(tuning.experiment, {**tuning.fixed, **record["gains"]}).to_dict()[method]
     source = tuning.path.name if tuning.path is not None else tuning.name
     lines = [f"Written by `ilcforce tune {source}`: the experiment {tuning.experiment.name} with [tune.set] "
              f"and each tuned method's best gains.",
@@ -376,4 +379,4 @@ def tuned_experiment(tuning: Tuning, best: dict[str, dict], baseline: dict[str, 
         was = ("failed" if first["value"] is None else f"{first['value']:.4g}") if first else "not run"
         lines.append(f"{method}: best trial {record['number']}, objective {record['value']:.4g} "
                      f"(trial 0, the experiment's gains: {was})")
-    return "\n".join(toml_comment(line) for line in lines) + "\n" + dump_toml(config.to_dict())
+    return "\n".join(toml_comment(line) for line in lines) + "\n" + dump_toml(document)
