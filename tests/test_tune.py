@@ -362,3 +362,23 @@ def test_gains_the_setting_refuses_fail_their_trial_with_the_reason(tmp_path):
     assert refused and all("Nyquist" in r["message"] and r["seeds"] == [] for r in refused)
     assert all(r["gains"]["pd-ilc.q_cutoff"] >= 5000.0 for r in refused)
     assert summary.best["pd-ilc"][1] == min(r["value"] for r in trials.values() if r["value"] is not None)
+
+
+def test_the_tuned_file_gives_each_method_the_gains_its_trials_ran():
+    """C3-leak's gains extend C3's (a key set in [c3] reaches C3-leak unless C3-leak sets it): the
+    tuned file must give C3-leak the Gamma its own trials ran with, not C3's tuned one."""
+    import tomllib
+
+    from ilcforce.tune.runner import tuned_experiment
+
+    data = tiny_table(methods=["c3", "c3-leak"], gains={"c3": {"eta": {"low": 1.0, "high": 9.0}},
+                                                        "c3-leak": {"eta": {"low": 1.0, "high": 9.0}}})
+    tuning = build_tuning(data)
+    tuned_gamma = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0]
+    best = {"c3": {"number": 1, "value": -5.0, "gains": {"c3.gamma": tuned_gamma, "c3.eta": 2.0}},
+            "c3-leak": {"number": 1, "value": -4.0, "gains": {"c3-leak.eta": 3.0}}}
+    document = tomllib.loads(tuned_experiment(tuning, best))
+    ran = load_config(EXPERIMENTS / "paper.toml", {"c3-leak.eta": 3.0}).gains["c3-leak"]
+    assert document["c3"]["gamma"] == tuned_gamma and document["c3"]["eta"] == 2.0
+    assert document["c3-leak"]["gamma"] == list(ran.gamma) != tuned_gamma
+    assert document["c3-leak"]["eta"] == 3.0
