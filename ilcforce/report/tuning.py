@@ -24,14 +24,16 @@ def plot_tuning_history(ax: Axes, frame: pd.DataFrame, method: str) -> list:
     artists = [ax.plot(done["trial"], done["objective"], "o", ms=3, color=color, alpha=0.6, label=f"{label}: trial")[0],
                ax.step(rows["trial"], rows["best_so_far"], where="post", color=color, label=f"{label}: best so far")[0]]
     failed = rows[rows["state"] != "complete"]
-    if len(failed):
-        bottom = np.nanmin(rows["objective"]) if done.size else 0.0
-        artists.append(ax.plot(failed["trial"], np.full(len(failed), bottom), "x", color="0.4",
-                               label="failed (diverged or invalid)")[0])
+    if len(failed):  # at the axes' foot (x in trials, y as a fraction of the axes): never on the step line
+        artists.append(ax.plot(failed["trial"], np.full(len(failed), 0.03), "x", color="0.4", clip_on=False,
+                               transform=ax.get_xaxis_transform(), label="failed (diverged or invalid)")[0])
     first = rows[(rows["trial"] == 0) & (rows["state"] == "complete")]
     if len(first):
         artists.append(ax.plot(first["trial"], first["objective"], "o", ms=8, mfc="none", color=color,
                                label="trial 0: the experiment's gains")[0])
+    if len(failed):  # a free band at the foot for the crosses, below every objective drawn
+        low, high = ax.get_ylim()
+        ax.set_ylim(low - 0.12 * (high - low), high)
     ax.set_xlabel("trial")
     ax.set_ylabel("objective (lower is better)")
     return artists
@@ -99,7 +101,12 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
     if len(table):
         files += write_table(table, target, "tuning")  # tuning.csv beside the page: the verdict as data
         text += [markdown_table(table), ""]
-        text += [f"![objective against trial](history.{formats[0]})", ""] if methods and formats else []
+        text += [f"![objective against trial](history.{formats[0]})", "",
+                 "One panel per method: a dot is a complete trial's objective, the step line the best so far, the "
+                 "ringed dot trial 0 (the experiment's own gains), a cross at the foot of the panel a failed trial "
+                 "(a seed diverged somewhere in the horizon, or gains the setting refuses). The objective is "
+                 "log10(e_P / 1 mm) + log10(e_F / 1 N) of the settled error norms (or one of the two terms), median "
+                 "over seeds: one unit lower is a tenfold smaller error.", ""] if methods and formats else []
     files.append(write_text_whole(target / "index.md", "\n".join(text)))
     line = f"- [tuning {name}](tuning/{name}/index.md): " + ", ".join(
         f"{row['method']} {row['trial 0 objective']:.3g} -> {row['best objective']:.3g}" for _, row in table.iterrows())
