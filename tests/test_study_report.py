@@ -220,7 +220,7 @@ def test_findings_judge_each_setting_with_its_own_perturbation_and_last_iteratio
         last = frame[(frame["method"] == "c3") & (frame["iteration"] == 3)]["force_error_2norm"]
         row = next(r for r in entry["rows"] if r["method"] == "c3")
         assert row["|e_F| 2-norm (N) at j = 3"] == format_interval(median_interval(last.to_numpy())) != "-"
-        assert f"Judged here at this setting's m3 change, j = {p}." in page, "claims 1 and 4 say where"
+        assert f"Judged here at this setting's change of the plant, j = {p}." in page, "claims 1 and 4 say where"
         said = expected.set_index("claim")["statement"]
         assert said[4].endswith(f"j = {p}.") and said[1].endswith(f"j = {p}.") and "Judged" not in said[5]
     paper_setup = claims.claim_summary(claims.judge_claims_over_seeds(frame, perturbation_iteration=10))

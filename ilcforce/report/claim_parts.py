@@ -98,7 +98,7 @@ CLAIMS: tuple[Claim, ...] = (
           "whole grid that one sample sets C3's H_y. "
           f"Secondary: magnitude, the settled ratio within a factor {RATIO_FACTOR:g} of the paper's 1.67 / 2.44. "
           "Shown: the ratio with H on the whole grid (docs/model.md#metrics) and without t = 0, the settled ratio at "
-          "j = p - 1 (before the m3 change), and our settled H / Table 3's H."),
+          "j = p - 1 (before the plant changes), and our settled H / Table 3's H."),
 )
 
 
@@ -106,7 +106,7 @@ def statement_at(claim: Claim, perturbation_iteration: int) -> str:
     """The claim as stated, plus where it is judged when a setting changes m3 at another iteration
     than the paper's j = 10 (claims 1 and 4 are about that change)."""
     if claim.number in (1, 4) and perturbation_iteration != paper.PERTURBATION_ITERATION:
-        where = f"{claim.statement} Judged here at this setting's m3 change, j = {perturbation_iteration}."
+        where = f"{claim.statement} Judged here at this setting's change of the plant, j = {perturbation_iteration}."
         if claim.number == 1 and perturbation_iteration <= 1:
             first = perturbation_iteration + RELEARN
             where += (f" The plant is changed from the start, so C1's nominal model is wrong in every iteration: "
@@ -422,7 +422,7 @@ def _claim5_parts() -> list[_Part]:
             parts.append(_Part(5, f"ratio{form or '_whole_grid'}_{axis}", f"H(C1) / H(C3) {what}, {axis.upper()}",
                                SHOWN, f"ratio of H {what}", lambda s, f=ratio, form=form: (f(s, form=form), None)))
         parts.append(_Part(5, f"before_perturbation_{axis}", f"H(C1) / H(C3) before the perturbation, {axis.upper()}",
-                           SHOWN, "ratio of settled H at j = p - 1 (the m3 change at p alters each law's chattering)",
+                           SHOWN, "ratio of settled H at j = p - 1 (the change of the plant at p alters each law's chattering)",
                            lambda s, a=axis: (_ratio(s.chattering_before("c1", f"chattering_task_{a}{JUDGED_H}"),
                                                      s.chattering_before("c3", f"chattering_task_{a}{JUDGED_H}")),
                                               None)))

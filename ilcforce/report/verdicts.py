@@ -119,7 +119,7 @@ def cause_lines(rows: pd.DataFrame) -> list[str]:
     said = []
     model = cause.get("cause_c1_model")
     if model is not None and math.isfinite(float(model.statistic)):
-        said.append("C1's nominal model is the true plant in the window judged (the m3 change comes after it)"
+        said.append("C1's nominal model is the true plant in the window judged (the plant changes only after it)"
                     if float(model.statistic) == 1.0 else
                     f"C1's nominal model is off by x{float(model.statistic):.3g} in the window judged")
     alpha = cause.get("cause_c1_alpha")
