@@ -394,9 +394,12 @@ def figure_input(
         ):
             # the data fill the lower part; the legend (left) and the note (right) share the band above
             note = _range_without_start(ax, series, headroom=HEADROOM)
-            ax.legend(loc="upper left", ncols=2)
-            if note:
-                ax.text(0.99, 0.97, note, transform=ax.transAxes, ha="right", va="top", fontsize="x-small")
+            handles, texts = ax.get_legend_handles_labels()
+            if note:  # one more line of the legend: a long method label can never cover it
+                from matplotlib.lines import Line2D
+
+                handles, texts = [*handles, Line2D([], [], linestyle="none")], [*texts, note.replace("\n", " ")]
+            ax.legend(handles, texts, loc="upper left", ncols=2 if not note else 1, fontsize="x-small")
         if k < n - 1:
             ax_input.set_xlabel("")
             ax_delta.set_xlabel("")
