@@ -53,20 +53,9 @@ def _plant_loop(p, n):
     return acc
 
 
-def _iteration_runner(config, controller):
-    draws = draw_iteration(config.experiment.seed, 0, config.n_control, config.noise)
-    inputs = IterationInputs(0, config.plant.links(), config.plant.links(), config.wall,
-                             config.reference_samples(), config.simulation, config.noise, draws,
-                             config.surface.selection)
-
-    def run():
-        mem_prev, mem_new = controller.begin_iteration(0)
-        run_iteration(inputs, controller, mem_prev, mem_new)
-
-    return run
-
-
-def _iteration_runner_chunked(config, controller, chunk_steps):
+def _iteration_runner(config, controller, chunk_steps=None):
+    """One iteration of ``controller`` on ``config`` (its inputs made once), run by calling the result;
+    ``chunk_steps`` as :func:`~ilcforce.simulate.run_iteration` takes it (None: its default)."""
     draws = draw_iteration(config.experiment.seed, 0, config.n_control, config.noise)
     inputs = IterationInputs(0, config.plant.links(), config.plant.links(), config.wall,
                              config.reference_samples(), config.simulation, config.noise, draws,
@@ -127,8 +116,8 @@ def chunking_figures(repeat: int) -> None:
 
     config = default_config()
     steps = config.n_control - 1
-    chunked = _iteration_runner_chunked(config, make_controller(config, "c3"), None)
-    whole = _iteration_runner_chunked(config, make_controller(config, "c3"), 10 ** 9)
+    chunked = _iteration_runner(config, make_controller(config, "c3"), None)
+    whole = _iteration_runner(config, make_controller(config, "c3"), 10 ** 9)
     chunked(), whole()
     times = {"chunked": [], "whole": []}
     for _ in range(repeat):  # alternate, so both see the same machine load; CPU time of this thread
@@ -141,7 +130,7 @@ def chunking_figures(repeat: int) -> None:
           f"(chunking costs {100 * (a / b - 1):+.2f}%)")
     slow = load_config(None, {"simulation.substeps": 1000, "reference.duration": 0.02})
     chunk = max(1, CHUNK_RK4_STEPS // 1000)
-    run = _iteration_runner_chunked(slow, make_controller(slow, "c3"), chunk)
+    run = _iteration_runner(slow, make_controller(slow, "c3"), chunk)
     run()
     t = _median_time(run, max(3, repeat // 2))
     n_chunks = -(-slow.n_control // chunk)
