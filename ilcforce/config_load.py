@@ -137,7 +137,9 @@ def inherited_gains(data: dict) -> dict[str, dict]:
     key (``[c3-leak]``), unless that method's own table sets it. Without the rule, a setting meant
     for the C3 law reached C3 alone and C3-leak silently kept the default (its measured-acceleration
     Psi diverged at j = 0 in an experiment written for the desired one). Returns method -> its table
-    with the inherited keys filled in (only methods that inherit something).
+    with the inherited keys filled in (only methods that inherit something). A gains class may name
+    keys it decides for itself (``own_keys``, e.g. C3-robust's ``psi_acceleration``): those are never
+    inherited.
     """
     out: dict[str, dict] = {}
     for method in REGISTRY:
@@ -147,7 +149,8 @@ def inherited_gains(data: dict) -> dict[str, dict]:
         own = data.get(method, {})
         if not isinstance(own, dict):
             continue  # not a table: the method's own build names the fault
-        names = {f.name for f in dataclasses.fields(REGISTRY[method].gains_class)}
+        gains_class = REGISTRY[method].gains_class
+        names = {f.name for f in dataclasses.fields(gains_class)} - set(getattr(gains_class, "own_keys", ()))
         shared = {k: v for k, v in data[parent].items() if k in names and k not in own}
         if shared:
             out[method] = {**shared, **own}

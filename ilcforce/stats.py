@@ -10,8 +10,9 @@ claims and the README state them the same way.
 * :func:`frequency_interval`: "holds in k of n seeds" with a 95% **Wilson score** interval of
   the proportion (well behaved at k = 0 and k = n, unlike the Wald interval).
 * :func:`growth_rate`: the geometric growth rate per iteration of a positive series (a fitted
-  slope of log(value) over the last iterations) with a 95% t interval of the slope. A rate whose
-  whole interval lies above 1 is growth that the noise cannot explain.
+  slope of log(value) over the last iterations, with a step where the plant changes) with a 95% t
+  interval of the slope. A rate whose whole interval lies above 1 is growth that the noise cannot
+  explain.
 
 Non-finite values (a diverged seed's NaN) are dropped and counted: each result carries ``n``,
 the number of values used.
@@ -83,29 +84,46 @@ def frequency_interval(successes: int, trials: int, level: float = LEVEL) -> Int
     return Interval(p, max(0.0, centre - half), min(1.0, centre + half), trials)
 
 
-def growth_rate(series, last: int | None = None, level: float = LEVEL) -> Interval:
+def growth_rate(series, last: int | None = None, level: float = LEVEL, *, iterations=None,
+                shift_at: int | None = None) -> Interval:
     """Geometric growth rate per iteration of a positive series, with a t interval.
 
-    Fits log(series[j]) = a + b j by least squares over the last ``last`` entries (all when
-    None) and returns exp(b) with the interval exp(b +- t s_b). Entries that are not finite and
-    positive are dropped; fewer than 3 left gives NaN. A rate above 1 whose interval lies above
-    1 means sustained growth.
+    Fits log(series[i]) = a + b j_i (+ c [j_i >= shift_at]) by least squares over the last ``last``
+    entries (all when None) and returns exp(b) with the interval exp(b +- t s_b), t from Student's t
+    with n - (number of coefficients) degrees of freedom. ``iterations`` gives each entry's
+    iteration j_i (0, 1, 2, ... when None; the window may have a gap). ``shift_at``: a change of the
+    plant at that iteration moves the level, not the trend, so the fit carries a step there (used
+    only when at least two entries lie on each side; otherwise the side with fewer is dropped).
+    Entries that are not finite and positive are dropped; fewer than 3 left (4 with the step) gives
+    NaN. A rate whose interval lies above 1 means sustained growth.
     """
     y = np.asarray(series, dtype=np.float64).ravel()
-    j = np.arange(y.size, dtype=np.float64)
+    j = np.arange(y.size, dtype=np.float64) if iterations is None else np.asarray(iterations, dtype=np.float64).ravel()
+    if j.shape != y.shape:
+        raise ValueError(f"iterations must have one entry per value, got {j.size} for {y.size}")
     if last is not None:
         y, j = y[-last:], j[-last:]
     keep = np.isfinite(y) & (y > 0)
     y, j = np.log(y[keep]), j[keep]
-    n = y.size
-    if n < 3:
+    columns = [np.ones_like(j), j - j.mean()]
+    if shift_at is not None:
+        after = j >= shift_at
+        if min(int(after.sum()), int((~after).sum())) >= 2:
+            columns.append(after.astype(np.float64))
+        elif after.sum() < (~after).sum():  # too few after the change to place the step: drop them
+            y, j, columns = y[~after], j[~after], [np.ones(int((~after).sum())), j[~after] - j[~after].mean()]
+        else:
+            y, j, columns = y[after], j[after], [np.ones(int(after.sum())), j[after] - j[after].mean()]
+    n, p = y.size, len(columns)
+    if n < p + 1:
         return Interval(math.nan, math.nan, math.nan, n)
-    jc = j - j.mean()
-    sxx = float(jc @ jc)
-    slope = float(jc @ (y - y.mean())) / sxx
-    resid = y - y.mean() - slope * jc
-    s_b = math.sqrt(float(resid @ resid) / (n - 2) / sxx)
-    t = _t_quantile(0.5 + level / 2.0, n - 2)
+    x = np.column_stack(columns)
+    coef, *_ = np.linalg.lstsq(x, y, rcond=None)
+    resid = y - x @ coef
+    cov = np.linalg.pinv(x.T @ x)
+    s_b = math.sqrt(max(float(resid @ resid), 0.0) / (n - p) * float(cov[1, 1]))
+    t = _t_quantile(0.5 + level / 2.0, n - p)
+    slope = float(coef[1])
     return Interval(math.exp(slope), math.exp(slope - t * s_b), math.exp(slope + t * s_b), n)
 
 

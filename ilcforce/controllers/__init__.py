@@ -91,6 +91,14 @@ _ENTRIES = (
     MethodSpec("sl-adapt", "SL-adapt: Slotine-Li adaptive control of the robot's constant physical parameters",
                "SL-adapt", "C7", "ilcforce.controllers.sl_adapt", "SlotineLiController", "SlotineLiGains",
                "within", True, False, "Slotine & Li (1987; 1991 sec. 9.2, eqs. 9.25-9.27)"),
+    MethodSpec("c2-robust", "C2-robust: C2 learning after the start transient, its memory Q-filtered",
+               "C2-robust", "#8B3A00", "ilcforce.controllers.c2_robust", "C2RobustController", "C2RobustGains",
+               "within", True, False, "the paper's eq. (27) with a learning window and a zero-phase Q filter "
+               "(Bristow, Tharayil & Alleyne 2006)"),
+    MethodSpec("c3-robust", "C3-robust: C3 learning after the start transient, its memory Q-filtered, "
+               "alpha_hat bounded", "C3-robust", "#00573F", "ilcforce.controllers.c3_robust",
+               "C3RobustController", "C3RobustGains", "within", True, False,
+               "the paper's eq. (14) with a learning window, a zero-phase Q filter and projection of alpha_hat"),
 )
 
 #: method name -> spec, in report order (the paper's three first).

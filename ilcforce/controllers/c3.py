@@ -90,7 +90,8 @@ def gamma_entry(gains, axis, r):
 @njit(inline="always", error_model="numpy")
 def _theta_terms(k, na, p1x, p1y, p2x, p2y, sx, sy, gains, mem_prev, mem_new, write, keep):
     """(Phi^T Theta_hat_j)_x, _y with Theta_hat_j = keep Theta_hat_{j-1} + Gamma Phi sigma (eq. 14):
-    rows 0..na-1 of the memory see Psi sigma_x, the next na Psi sigma_y."""
+    rows 0..na-1 of the memory see Psi sigma_x, the next na Psi sigma_y (``sx``, ``sy``: the
+    learning signal, sigma itself in the paper's law)."""
     mx = 0.0
     my = 0.0
     for r in range(4):  # the D and C blocks (a constant trip count, so it is unrolled)
@@ -115,24 +116,28 @@ def _theta_terms(k, na, p1x, p1y, p2x, p2y, sx, sy, gains, mem_prev, mem_new, wr
 
 
 @njit(inline="always", error_model="numpy")  # inlined into each law: a called c3_torque costs ~8% of a step
-def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_max):
-    """Eq. (14) at sample k, with the previous iteration's memory scaled by ``keep`` and alpha_hat_j
-    capped at ``alpha_max``. The paper's C3 is keep = 1, alpha_max = inf (both then exact no-ops);
-    C3-leak (``c3_leak``) uses keep = 1 - leakage and a finite bound."""
+def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_max, learn):
+    """Eq. (14) at sample k, with the previous iteration's memory scaled by ``keep``, alpha_hat_j
+    capped at ``alpha_max``, and Theta_hat and alpha_hat updated only where ``learn`` is True (their
+    learning signal is sigma there, 0 elsewhere). The paper's C3 is keep = 1, alpha_max = inf,
+    learn = True (all exact no-ops); C3-leak (``c3_leak``) uses keep = 1 - leakage and a finite bound;
+    C3-robust (``c3_robust``) a bound and a learning window."""
     psi_desired = gains[PSI_ACCELERATION_FLAG] > 0.5
     sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, psi_desired)
+    lx = sx if learn else 0.0  # sigma as the updates of eq. (14) see it
+    ly = sy if learn else 0.0
     w = gains[GAIN_FEEDFORWARD_SIGN]
     # Psi's length na is 4 (G = 0) or 6 (the G block), read from the memory width 2 na + 1; each
     # branch inlines _theta_terms with a constant na, so the five-bar's rows use constant offsets
     if mem_prev.shape[1] == 9:
         na = 4
-        mx, my = _theta_terms(k, 4, p1x, p1y, p2x, p2y, sx, sy, gains, mem_prev, mem_new, write, keep)
+        mx, my = _theta_terms(k, 4, p1x, p1y, p2x, p2y, lx, ly, gains, mem_prev, mem_new, write, keep)
     else:
         na = 6
-        mx, my = _theta_terms(k, 6, p1x, p1y, p2x, p2y, sx, sy, gains, mem_prev, mem_new, write, keep)
+        mx, my = _theta_terms(k, 6, p1x, p1y, p2x, p2y, lx, ly, gains, mem_prev, mem_new, write, keep)
     sgx = sgn(sx)
     sgy = sgn(sy)
-    alpha = keep * mem_prev[k, 2 * na] + gains[ETA] * (sx * sgx + sy * sgy)  # eq. (14), alpha update
+    alpha = keep * mem_prev[k, 2 * na] + gains[ETA] * (lx * sgn(lx) + ly * sgn(ly))  # eq. (14), alpha update
     if alpha > alpha_max:  # (a NaN stays NaN, so the watchdog still sees a divergence)
         alpha = alpha_max
     if write:
@@ -147,7 +152,7 @@ def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_m
 
 
 def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0, np.inf)
+    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0, np.inf, True)
 
 
 class C3Controller(MemoryController):

@@ -62,7 +62,7 @@ assert tuple(_SHARED) == _C3_INDICES, "C3-leak packs C3's gains at C3's indices 
 
 def c3_leak_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     # eq. (14) with (1 - lambda) on the previous iteration's memory and alpha_hat <= alpha_max
-    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0 - gains[LEAKAGE], gains[ALPHA_MAX])
+    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0 - gains[LEAKAGE], gains[ALPHA_MAX], True)
 
 
 class C3LeakController(C3Controller):

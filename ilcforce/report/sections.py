@@ -159,10 +159,11 @@ def stability_markdown(growth: pd.DataFrame, flags: Mapping[str, str]) -> list[s
         "window": growth["window"],
         "rate per iteration [95%]": [f"{r.rate:.4g} [{r.rate_low:.4g}, {r.rate_high:.4g}]"
                                      for r in growth.itertuples(index=False)],
+        "10x in (iterations)": [f"{n:.0f}" if math.isfinite(n) else "-" for n in growth["iterations_to_10x"]],
         "value at the window's end": [f"{v:.3g}" for v in growth["value_end"]],
-        "floor": [f"{f:g}" if f else "-" for f in growth["floor"]],
         "seeds growing": [f"{r.growing} of {r.fitted}" if r.judged else "-" for r in growth.itertuples(index=False)],
-        "grows": ["yes" if g else "no" if j else "-" for g, j in zip(growth["grows"], growth["judged"], strict=True)],
+        "grows": ["yes" if g else ("inconclusive" if i else "no") if j else "-"
+                  for g, i, j in zip(growth["grows"], growth["inconclusive"], growth["judged"], strict=True)],
     })
     lines.append(markdown_table(table))
     if flags:

@@ -24,7 +24,8 @@ CLAIM_COLUMNS = ["source", "name", "setting", "claim", "part", "role", "verdict"
                  "statistic", "statistic_low", "statistic_high", "threshold", "evaluation", "part_text",
                  "statistic_name", "note"]
 STABILITY_COLUMNS = ["source", "name", "setting", "method", "quantity", "judged", "window", "rate_per_iteration",
-                     "rate_low", "rate_high", "seeds_growing", "seeds_fitted", "value_end", "floor", "flagged"]
+                     "rate_low", "rate_high", "seeds_growing", "seeds_fitted", "value_end", "iterations_to_10x",
+                     "inconclusive", "flagged"]
 
 
 def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> pd.DataFrame:
@@ -61,7 +62,8 @@ def stability_rows(growth: pd.DataFrame, *, source: str, name: str, setting: str
     rows = [{"source": source, "name": name, "setting": setting, "method": r.method, "quantity": r.quantity,
              "judged": bool(r.judged), "window": r.window, "rate_per_iteration": r.rate, "rate_low": r.rate_low,
              "rate_high": r.rate_high, "seeds_growing": int(r.growing), "seeds_fitted": int(r.fitted),
-             "value_end": r.value_end, "floor": r.floor, "flagged": bool(r.grows)}
+             "value_end": r.value_end, "iterations_to_10x": r.iterations_to_10x,
+             "inconclusive": bool(r.inconclusive), "flagged": bool(r.grows)}
             for r in growth.itertuples(index=False)]
     return pd.DataFrame(rows, columns=STABILITY_COLUMNS)
 
@@ -145,12 +147,22 @@ def flag_lines(rows: pd.DataFrame) -> list[str]:
     lines = []
     for method, mine in rows[rows["flagged"]].groupby("method", sort=False):
         mine = mine.sort_values("rate_per_iteration", ascending=False)
-        parts = ", ".join(f"{stability.short_name(r.quantity)} x{r.rate_per_iteration:.3g}/iteration over "
-                          f"{r.window} ({r.seeds_growing} of {r.seeds_fitted} seeds)" for r in mine.itertuples())
+        parts = ", ".join(
+            f"{stability.short_name(r.quantity)} grows x{r.rate_per_iteration:.3g} per iteration "
+            f"[{r.rate_low:.3g}, {r.rate_high:.3g}] over {r.window}"
+            + (f", 10x in {float(r.iterations_to_10x):.0f} iterations" if math.isfinite(float(r.iterations_to_10x))
+               else "") + f" ({r.seeds_growing} of {r.seeds_fitted} seeds)" for r in mine.itertuples())
         lines.append(f"* Unstable learning, {method}: {parts}.")
+    unsure = rows[rows["inconclusive"].astype(bool) & ~rows["flagged"].astype(bool)] if "inconclusive" in rows else rows[:0]
+    for method, mine in unsure.groupby("method", sort=False):
+        if method in set(rows.loc[rows["flagged"].astype(bool), "method"]):
+            continue
+        parts = ", ".join(f"{stability.short_name(r.quantity)} x{r.rate_per_iteration:.3g} "
+                          f"[{r.rate_low:.3g}, {r.rate_high:.3g}]" for r in mine.itertuples())
+        lines.append(f"* Learning stability of {method} not evaluable: too noisy to tell whether {parts} grows.")
     if not lines:
-        lines.append("* Learning stability: no method grows over the trajectory in the late iterations ("
-                     + ", ".join(sorted(set(rows["window"]))) + ").")
+        lines.append("* Learning stability: nothing a method learns, and no settled output, grows over the "
+                     "late iterations (" + ", ".join(sorted(set(rows["window"]))) + ").")
     return lines
 
 

@@ -1,0 +1,88 @@
+"""C2-robust: the traditional ILC of eq. (27) made to stay bounded over long runs (docs/model.md#long-run).
+
+Under the paper's setup C2's learned torque grows without bound: at the first samples linearly (the same
+start mismatch every iteration) and over the trajectory geometrically (the noise it integrates), so its
+chattering grows about 3% per iteration. C2-robust is eq. (27) with the two tools of
+``ilcforce.controllers.robust`` aimed at those two causes:
+
+sigma_L(t) = sigma(t) for t >= t_L, 0 before                            (learning window)
+v_j(t)     = v_{j-1}(t) + J_j^T k sigma_L(t)                              (eq. 27, learning update)
+tau_j      = v_j + J^T k (sigma_j - sigma_L) + w J^T F_j                  (eq. 27 + the feedback the update skips)
+after iteration j: v_j <- Q v_j                                           (zero-phase Q filter)
+
+In eq. (27) the current-iteration update J^T k sigma_j is also the law's only feedback. Where the window
+withholds sigma from the memory, the same J^T k sigma still acts as feedback in this iteration (the middle
+term), so C2-robust's feedback is C2's everywhere; only what is remembered differs.
+
+Default options: C3-robust's learning window and Q filter, from the same rules (``ilcforce.controllers.c3_robust``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar
+
+from ilcforce.controllers.base import (
+    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, compiled_law, gain_indices, joint_torque, nominal_gravity,
+    surface_terms,
+)
+from ilcforce.controllers.c2 import C2Controller, C2Gains
+from ilcforce.controllers.robust import QFilter, check_robust_gains
+
+
+@dataclass(frozen=True)
+class C2RobustGains(C2Gains):
+    """C2's gains (eq. 27) plus the learning window and the Q filter."""
+
+    section: ClassVar[str] = "c2-robust"
+    units: ClassVar[dict[str, str]] = {**C2Gains.units, "learn_from": "s", "q_cutoff": "Hz", "q_order": "1"}
+    learn_from: float = 0.02  # t_L: no learning before this time in each iteration, s
+    q_cutoff: float = 20.0  # Q filter cutoff, Hz (0: no filter)
+    q_order: int = 2  # Butterworth order of Q (run forwards and backwards)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_robust_gains(self.section, self.learn_from, self.q_cutoff, self.q_order)
+
+
+K, GRAVITY_FEEDFORWARD, LEARN_FROM, Q_CUTOFF, Q_ORDER = gain_indices(
+    C2RobustGains, "k", "gravity_feedforward", "learn_from", "q_cutoff", "q_order")
+
+
+def c2_robust_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+    sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)  # eq. (8)
+    learn = t >= gains[LEARN_FROM]
+    lx = sx if learn else 0.0  # sigma as the update of eq. (27) sees it
+    ly = sy if learn else 0.0
+    w = gains[GAIN_FEEDFORWARD_SIGN]
+    l1, l2 = joint_torque(meas, gains[K] * lx, gains[K + 1] * ly)
+    v1 = mem_prev[k, 0] + l1  # eq. (27), v_j = v_{j-1} + J^T k sigma_L
+    v2 = mem_prev[k, 1] + l2
+    if write:
+        mem_new[k, 0] = v1
+        mem_new[k, 1] = v2
+    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])
+    # the feedback the update withheld from the memory (sigma - sigma_L), the feed-forward +w F (erratum 1)
+    fx, fy = joint_torque(meas, gains[K] * (sx - lx) + w * meas[MEAS_FORCE] + gx,
+                          gains[K + 1] * (sy - ly) + w * meas[MEAS_FORCE + 1] + gy)
+    diag[DIAG_SIGMA] = sx
+    diag[DIAG_SIGMA + 1] = sy
+    return v1 + fx, v2 + fy  # eq. (27), tau_j = v_j + w J^T F_j (+ the withheld feedback)
+
+
+class C2RobustController(C2Controller):
+    """C2's controller (memory layout, gain packing) with the robust law and Q on the memory."""
+
+    name = "c2-robust"
+    law = compiled_law(c2_robust_law)
+
+    def __init__(self, n_control: int, surface, wall_sign: float, gains: C2RobustGains, *, gravity: bool = False,
+                 sample_time: float = float("nan")):
+        super().__init__(n_control, surface, wall_sign, gains, gravity=gravity, sample_time=sample_time)
+        self._q = QFilter(gains.section, gains.q_cutoff, gains.q_order, self.sample_time)
+
+    def end_iteration(self, record) -> None:
+        """The finished iteration's memory through Q (zero phase), then kept for iteration j + 1."""
+        if not record.diverged:
+            self._new = self._q.apply(self._new)
+        super().end_iteration(record)
