@@ -90,6 +90,16 @@ reproduce: $(STAMP) aot ## run every experiment (every registered method, in par
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
 	@echo "report: $(RESULTS)/report/index.md"
 
+# The long runs (experiments/long/): every method over 1,000 iterations on 10 held-out seeds and the growth
+# test checked against 300-iteration truth. Not part of `make reproduce` (about 30 minutes on 2 cores); its
+# summary page is committed as docs/long-run/long-run.md (dated, with the commit) and the findings cite it.
+# `ilcforce report` adds the same page to the report when these stores are in $(RESULTS)/studies/.
+LONG_STUDIES := $(sort $(wildcard experiments/long/*.toml))
+
+long: $(STAMP) aot ## run the long studies (1,000 iterations; the growth test's validation) and write docs/long-run/
+	$(VENV)/bin/ilcforce study $(LONG_STUDIES) --results $(RESULTS) --replace-stale
+	$(PY) -m ilcforce.report.long_run --results $(RESULTS) --out docs/long-run
+
 findings: $(STAMP) ## copy the report's generated findings (results/report/findings.md) into docs/findings.md
 	$(PY) -m ilcforce.report.readme update docs/findings.md $(RESULTS)/report/findings.md
 
@@ -109,4 +119,4 @@ clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info ilcforce/_kernels_aot*
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
-.PHONY: help aot install test test-slow bench stores studies reproduce findings check-findings readme-findings check-readme tune clean
+.PHONY: help aot install test test-slow bench stores studies reproduce long findings check-findings readme-findings check-readme tune clean

@@ -4,7 +4,7 @@ Each case is a constructed metrics frame where the right verdict is known: growt
 trajectory, growth of the memory at t = 0 (the start drift that ends in divergence) and growth of a
 quantity still small must be flagged; bounded re-learning after the perturbation, a memory that
 saturates while it learns and a flat series must not be. How well the test predicts what long runs
-do is measured on real runs by the growth-validation study (docs/stability.md), not here.
+do is measured on real runs by the growth-validation study (docs/long-run/long-run.md), not here.
 """
 
 import re

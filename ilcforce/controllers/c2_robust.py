@@ -14,7 +14,9 @@ In eq. (27) the current-iteration update J^T k sigma_j is also the law's only fe
 withholds sigma from the memory, the same J^T k sigma still acts as feedback in this iteration (the middle
 term), so C2-robust's feedback is C2's everywhere; only what is remembered differs.
 
-Default options: C3-robust's learning window and Q filter, from the same rules (``ilcforce.controllers.c3_robust``).
+Default options: C3-robust's learning window (5 ms) and Q filter (50 Hz), chosen the same way
+(``ilcforce.controllers.c3_robust``); on the tuning seed C2-robust's force error over j = 15..19 was
+1.78 N against plain C2's 1.62 N, its position error equal.
 """
 
 from __future__ import annotations
@@ -36,8 +38,8 @@ class C2RobustGains(C2Gains):
 
     section: ClassVar[str] = "c2-robust"
     units: ClassVar[dict[str, str]] = {**C2Gains.units, "learn_from": "s", "q_cutoff": "Hz", "q_order": "1"}
-    learn_from: float = 0.02  # t_L: no learning before this time in each iteration, s
-    q_cutoff: float = 20.0  # Q filter cutoff, Hz (0: no filter)
+    learn_from: float = 0.005  # t_L: no learning before this time in each iteration, s
+    q_cutoff: float = 50.0  # Q filter cutoff, Hz (0: no filter)
     q_order: int = 2  # Butterworth order of Q (run forwards and backwards)
 
     def __post_init__(self) -> None:

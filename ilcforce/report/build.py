@@ -33,7 +33,7 @@ import pandas as pd
 
 from ilcforce import store
 from ilcforce.report import claims as claims_module
-from ilcforce.report import paper, pool, readme, sections, stability, table_write, tables, tasks
+from ilcforce.report import long_run, paper, pool, readme, sections, stability, table_write, tables, tasks
 from ilcforce.report import verdicts as verdict_rows
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.study import count_text
@@ -205,7 +205,7 @@ def _write_experiment(
     deterministic = claims_module.is_deterministic(experiment.config())
     claims = claims_module.judge_claims_over_seeds(tidy, perturbation_iteration=p, deterministic=deterministic,
                                                    config=experiment.config("c1") or experiment.config())
-    growth = stability.learning_growth(tidy, perturbation_iteration=p)
+    growth = stability.learning_growth(tidy, perturbation_iteration=p, config=experiment.config())
     flags = stability.unstable_methods(growth)
     summary = claims_module.claim_summary(claims)
     claim_rows = verdict_rows.claim_rows(claims, source=verdict_rows.EXPERIMENT, name=experiment.name,
@@ -368,6 +368,11 @@ def write_report(
     tuning_lines = _tuning_pages(results_dir, out_dir, tuple(formats), written, warnings)
     if tuning_lines:  # `ilcforce tune`'s stores: per method the objective against the trial and the chosen gains
         study_section = [*study_section, "## Tuning", "", *tuning_lines, ""]
+    long_files = long_run.write_page(results_dir, out_dir / "long-run")  # `make long`'s studies, when stored
+    if long_files:
+        written += long_files
+        study_section = [*study_section, "## Long runs", "", "[Does learning stay bounded over 1,000 iterations, "
+                         "and does the growth test see it coming?](long-run/long-run.md) (`make long`)", ""]
     reported = tuple(r.name for r in study_reports if r.index_lines)
     if not verdicts and not reported and not studies:  # every store was unusable: an existing report stays
         return ReportSummary(out_dir=out_dir, experiments=(), files=tuple(written), warnings=tuple(warnings))
@@ -384,7 +389,7 @@ def write_report(
                                for f in verdicts.values()]
                               + [pd.DataFrame(s.get("stability_rows", {}), columns=verdict_rows.STABILITY_COLUMNS)
                                  for s in studies.values()], ignore_index=True)
-    for column in ("judged", "flagged"):  # concatenating an empty frame leaves them float
+    for column in ("judged", "inconclusive", "flagged"):  # concatenating an empty frame leaves them float
         all_stability[column] = all_stability[column].astype(bool)
     written.append(table_write.write_csv(all_claims, out_dir / "claims.csv"))
     written.append(table_write.write_csv(all_stability, out_dir / "stability.csv"))

@@ -4,7 +4,7 @@ A method can track well and never diverge within the iterations run while its le
 chattering H or its error grows from iteration to iteration; such growth ends in divergence later.
 This module states one test and applies it the same way to a single run (one seed) and to a study
 (many seeds). How well it predicts what long runs do is measured, not assumed: the growth-validation
-study (``make long``; docs/stability.md) applies it to the first 20 and the first 40 iterations of runs
+study (``make long``; docs/long-run/long-run.md) applies it to the first 20 and the first 40 iterations of runs
 of 300 and more and counts what it misses and what it flags falsely.
 
 The test
@@ -22,7 +22,9 @@ The test
   a quantity, not its trend, so the fit carries a step there when the window spans it (a
   20-iteration run is fitted over j = 5..9 and 15..19). Fewer than MIN_WINDOW: not evaluable.
 * Per seed and quantity: :func:`ilcforce.stats.growth_rate` over the window (a geometric rate per
-  iteration with a 95% t interval). The quantity **grows** in that seed when the whole interval lies
+  iteration with a 95% t interval). A memory the law projects onto a bound (alpha_hat <= alpha_max of
+  C3-leak and C3-robust) is shown, not judged: its growth is bounded by construction. The quantity
+  **grows** in that seed when the whole interval lies
   above MIN_RATE (1% per iteration: 10x in 230 iterations). No floor silences it: a quantity too small
   to matter today reaches any size at a steady geometric rate (noise-free C3's settled H_x, 0.003 N at
   j = 19, grows 3.7% per iteration and the run diverges at j = 99). It is **inconclusive** when the
@@ -36,6 +38,7 @@ The test
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 import pandas as pd
@@ -110,11 +113,22 @@ def window_text(window: list[int]) -> str:
     return "j = " + ", ".join(runs)
 
 
-def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd.DataFrame:
+def capped(config: Mapping[str, object] | None, method: str) -> dict[str, float]:
+    """The memories a method's law projects onto a bound (name -> bound): alpha_hat <= alpha_max of
+    C3-leak and C3-robust (a finite ``alpha_max`` in the method's section of the resolved ``config``).
+    Their growth is bounded by construction, so the test shows it and does not judge it."""
+    section = (config or {}).get(method, {})
+    bound = section.get("alpha_max") if isinstance(section, Mapping) else None
+    return {"alpha_hat": float(bound)} if isinstance(bound, (int, float)) and math.isfinite(bound) else {}
+
+
+def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
+                    config: Mapping[str, object] | None = None) -> pd.DataFrame:
     """Growth rates per method and quantity over the seeds of ONE setting.
 
     ``metrics``: tidy frame (``seed``, ``method``, ``iteration``, metric columns, and optionally
-    ``memory_settled_*``, ``memory_norm_*``, ``memory_start_*`` columns).
+    ``memory_settled_*``, ``memory_norm_*``, ``memory_start_*`` columns). ``config``: the setting's
+    resolved configuration as a dict, to find the memories a law caps (:func:`capped`: shown, not judged).
 
     Returns one row per (method, quantity) with a fittable rate: ``method``, ``quantity``,
     ``judged`` (False: shown only), ``window`` (e.g. "j = 5..9, 15..19"), ``rate`` (median over seeds
@@ -138,7 +152,10 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int) -> pd
             seed = per_seed[method]
             window = growth_window(seed.complete_iterations, p)
             windows.append((window, {c: seed.columns[c][[seed.position[j] for j in window]] for c, _ in columns}))
+        caps = capped(config, str(method))
         for column, judged in columns:
+            judged = judged and not any(column.startswith(prefix) and column.removeprefix(prefix) in caps
+                                        for prefix in MEMORY_PREFIXES)
             rates, grown, ends, seen, fits = [], [], [], set(), []
             for window, values_by_column in windows:
                 values = np.asarray(values_by_column[column], dtype=float) if window else np.array([])

@@ -235,7 +235,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         lines += ["### Key numbers (median [95% interval] over seeds)", "", table_write.markdown_table(numbers), ""]
         deterministic = claims_module.is_deterministic(_config(setting.config_json))
         judged = claims_module.first_seed_only(mine) if deterministic else mine  # one evaluation
-        growth = stability.learning_growth(judged, perturbation_iteration=p)
+        growth = stability.learning_growth(judged, perturbation_iteration=p, config=_config(setting.config_json))
         flags = stability.unstable_methods(growth)
         parts = claims_module.judge_claims_over_seeds(judged, perturbation_iteration=p, deterministic=deterministic,
                                                       config=_config(setting.config_json))

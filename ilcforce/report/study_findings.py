@@ -68,7 +68,7 @@ def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int, iterations
         frame = claims_module.first_seed_only(frame)
     parts = claims_module.judge_claims_over_seeds(frame, perturbation_iteration=perturbation_iteration,
                                                   deterministic=deterministic, config=config)
-    growth = stability.learning_growth(frame, perturbation_iteration=perturbation_iteration)
+    growth = stability.learning_growth(frame, perturbation_iteration=perturbation_iteration, config=config)
     flags = stability.unstable_methods(growth)
     fitted = set(growth["method"].astype(str))
     divergence = first_divergence(frame)
@@ -183,7 +183,8 @@ def figure_boundary(results) -> Figure | None:
             else:
                 ax_div.plot([xm], [div["iterations"].max()], marker="^", markerfacecolor="none", color=color)
             p = setting_perturbation(str(results.settings.loc[setting, "config_json"]))
-            growth = stability.learning_growth(frame, perturbation_iteration=p)
+            growth = stability.learning_growth(frame, perturbation_iteration=p, config=json.loads(
+                str(results.settings.loc[setting, "config_json"])))
             hx = growth[growth["quantity"] == "chattering_task_x_settled"]
             if len(hx):
                 r = hx.iloc[0]

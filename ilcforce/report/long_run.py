@@ -1,0 +1,416 @@
+"""Long runs: what learning does past the paper's 20 iterations, and how well the growth test foretells it.
+
+Two kinds of study feed this page (``make long``; their files are in ``experiments/long/``):
+
+* **growth validation** (``growth-validation*``): runs of 300 iterations. Each run (setting x seed x
+  method) is one *case*. Its **truth** is what the whole run shows: *unbounded* when it diverged, or when a
+  settled quantity (settled H on either task axis, or a learned memory's settled norm) grew more than
+  TRUTH_GROWTH = 10x between j = TRUTH_FROM = 20 and its last iteration; *bounded* otherwise. The growth
+  test (:mod:`ilcforce.report.stability`) is then applied to the case's first 20 and first 40 iterations
+  alone, as a user who ran only those would see it: *flagged* (it diverged within them, or a judged
+  quantity grows), *not flagged* ("no growth") or *not evaluable* (inconclusive, or too few iterations).
+  The confusion matrix counts the cases in each (truth, verdict) pair: a *miss* is an unbounded case not
+  flagged, a *false alarm* a bounded case flagged.
+* **cause** (``long-run-cause``): C2 and C3 with one candidate cause of the divergence changed at a time
+  (each noise source alone, the sample time, the initial velocity, C3's regressor acceleration): when and
+  where in the iteration each run diverged, and how its memory grew, at t = 0 and settled.
+* **long run** (``long-run-1000``): every method over 1,000 iterations on held-out seeds: H and the error
+  norms against the iteration (median and band over seeds), the divergence iterations, the growth rate
+  over the late half, and the test's verdict at j = 20 and 40 beside what the 1,000 iterations show.
+
+``python -m ilcforce.report.long_run --results results --out docs/long-run`` writes ``long-run.md``, the
+CSV tables and the figures; ``ilcforce report`` writes the same into its output when the stores exist.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ilcforce.report import stability, table_write, tables
+from ilcforce.stats import growth_rate
+
+#: A settled quantity grown more than this between TRUTH_FROM and the run's end makes the truth "unbounded".
+TRUTH_GROWTH = 10.0
+#: The iteration the truth's growth is measured from (the end of the paper's run).
+TRUTH_FROM = 20
+#: The horizons the growth test is judged at: the first 20 (the paper's run) and the first 40 iterations.
+JUDGED_AT = (20, 40)
+#: Settled quantities whose growth defines the truth (memory columns are added when present).
+TRUTH_QUANTITIES = ("chattering_task_x_settled", "chattering_task_y_settled")
+#: Study names (prefixes) this page reads from results/studies/.
+VALIDATION_PREFIX = "growth-validation"
+LONG_RUN = "long-run-1000"
+CAUSE = "long-run-cause"
+#: Verdict classes of the confusion matrix.
+FLAGGED, NOT_FLAGGED, NOT_EVALUABLE = "flagged", "not flagged", "not evaluable"
+#: The iterations at which the long-run table reports settled H.
+H_AT = (19, 99, 499, 999)
+
+
+def _diverged_at(frame: pd.DataFrame) -> float:
+    """The first iteration that did not complete (NaN when every one did)."""
+    bad = frame.loc[frame["status"] != "complete", "iteration"]
+    return float(bad.min()) if len(bad) else math.nan
+
+
+def truth_of(frame: pd.DataFrame) -> tuple[str, str, float]:
+    """("unbounded" / "bounded", the reason, the largest settled growth factor) of one run (one seed, one
+    method, sorted by iteration) from all its iterations."""
+    diverged = _diverged_at(frame)
+    complete = frame[frame["status"] == "complete"]
+    columns = [c for c in TRUTH_QUANTITIES if c in frame] + sorted(c for c in frame if c.startswith("memory_settled_"))
+    start = complete[complete["iteration"] == TRUTH_FROM]
+    worst, what = math.nan, ""
+    if len(start) and len(complete):
+        end = complete.iloc[-1]
+        for column in columns:
+            a, b = float(start.iloc[0][column]), float(end[column])
+            if a > 0 and math.isfinite(a) and math.isfinite(b):
+                factor = b / a
+                if not math.isfinite(worst) or factor > worst:
+                    worst, what = factor, f"{stability.short_name(column)} x{factor:.3g} from j = {TRUTH_FROM} to " \
+                                          f"{int(end['iteration'])}"
+    if math.isfinite(diverged):
+        return "unbounded", f"diverged at j = {int(diverged)}", worst
+    if math.isfinite(worst) and worst > TRUTH_GROWTH:
+        return "unbounded", what, worst
+    return "bounded", what or "no settled quantity to compare", worst
+
+
+def verdict_of(frame: pd.DataFrame, method: str, horizon: int, perturbation_iteration: int,
+               config: dict | None = None) -> tuple[str, str]:
+    """(class, text) of the growth test on the first ``horizon`` iterations of one run."""
+    first = frame[frame["iteration"] < horizon]
+    diverged = _diverged_at(first)
+    if math.isfinite(diverged):
+        return FLAGGED, f"diverged at j = {int(diverged)}"
+    growth = stability.learning_growth(first, perturbation_iteration=perturbation_iteration, config=config)
+    said = stability.verdict(growth, method)
+    if said == "grows":
+        fastest = growth[growth["grows"]].sort_values("rate", ascending=False).iloc[0]
+        return FLAGGED, stability.growth_text(fastest)
+    if said == "no growth":
+        return NOT_FLAGGED, "no growth"
+    if said == "inconclusive":
+        unsure = growth[growth["inconclusive"]].sort_values("rate", ascending=False).iloc[0]
+        return NOT_EVALUABLE, (f"inconclusive: {stability.short_name(unsure.quantity)} x{unsure.rate:.3g} "
+                               f"[{unsure.rate_low:.3g}, {unsure.rate_high:.3g}]")
+    return NOT_EVALUABLE, stability.NOT_FITTED
+
+
+def _settings(results):
+    from ilcforce.report.study import setting_perturbation
+
+    for setting in results.settings.itertuples(index=False):
+        yield int(setting.setting), str(setting.label or ""), setting_perturbation(setting.config_json)
+
+
+def _setting_config(results, k: int) -> dict:
+    return json.loads(str(results.settings.set_index("setting").loc[k, "config_json"]))
+
+
+def validation_cases(studies: dict[str, object]) -> pd.DataFrame:
+    """One row per run of the given study results (name -> ``read_study`` result): the truth from the
+    whole run and the test's verdict at each horizon of JUDGED_AT."""
+    rows = []
+    for name, results in studies.items():
+        for k, label, p in _settings(results):
+            metrics = results.setting_metrics(k)
+            config = _setting_config(results, k)
+            for (seed, method), frame in metrics.groupby(["seed", "method"], sort=True):
+                frame = frame.sort_values("iteration")
+                truth, reason, factor = truth_of(frame)
+                row = {"study": name, "setting": label or "-", "seed": int(seed), "method": str(method),
+                       "iterations_run": int(frame["iteration"].max()) + 1, "diverged_at": _diverged_at(frame),
+                       "truth": truth, "truth_reason": reason, "settled_growth": factor}
+                for horizon in JUDGED_AT:
+                    row[f"verdict_{horizon}"], row[f"test_{horizon}"] = verdict_of(frame, str(method), horizon, p, config)
+                rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def confusion(cases: pd.DataFrame, horizon: int) -> pd.DataFrame:
+    """Counts of cases per truth (rows: unbounded, bounded) and verdict at ``horizon`` (columns)."""
+    table = pd.crosstab(cases["truth"], cases[f"verdict_{horizon}"]).reindex(
+        index=["unbounded", "bounded"], columns=[FLAGGED, NOT_FLAGGED, NOT_EVALUABLE], fill_value=0)
+    table.index.name, table.columns.name = "truth", f"test on the first {horizon} iterations"
+    return table
+
+
+def confusion_text(cases: pd.DataFrame, horizon: int) -> str:
+    """"2 of 31 unbounded cases missed (...); 1 of 40 bounded cases falsely flagged (2.5%)"."""
+    unbounded = cases[cases["truth"] == "unbounded"]
+    bounded = cases[cases["truth"] == "bounded"]
+    verdict = f"verdict_{horizon}"
+    # a case that diverges within the horizon is flagged by construction: the goal is about the later ones
+    later = unbounded[~(unbounded["diverged_at"] < horizon)]
+    missed = later[later[verdict] != FLAGGED]
+    false = bounded[bounded[verdict] == FLAGGED]
+    unsure = cases[cases[verdict] == NOT_EVALUABLE]
+    share = f" ({100 * len(false) / len(bounded):.0f}%)" if len(bounded) else ""
+    names = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}: {r.truth_reason}" for r in missed.itertuples())
+    return (f"{len(missed)} of the {len(later)} unbounded cases that had not diverged by j = {horizon} missed"
+            + (f" ({names})" if names else "") + f"; {len(false)} of {len(bounded)} bounded cases flagged{share}; "
+            f"{len(unsure)} not evaluable")
+
+
+# ---------------------------------------------------------------------------------------------
+# The long run
+# ---------------------------------------------------------------------------------------------
+
+
+def long_run_table(results) -> pd.DataFrame:
+    """Per method over the long-run study: divergences, settled H at H_AT, the late growth, the test's verdicts."""
+    metrics = results.metrics
+    rows = []
+    p = next(iter(_settings(results)))[2]
+    for method in tables.ordered_methods(metrics["method"].unique().tolist()):
+        mine = metrics[metrics["method"] == method]
+        per_seed = {int(s): f.sort_values("iteration") for s, f in mine.groupby("seed")}
+        diverged = sorted(_diverged_at(f) for f in per_seed.values() if math.isfinite(_diverged_at(f)))
+        n = len(per_seed)
+        row = {"method": method, "seeds": n, "diverged": len(diverged),
+               "diverged_at (median)": float(np.median(diverged)) if diverged else math.nan,
+               "diverged_at (first)": diverged[0] if diverged else math.nan}
+        for j in H_AT:
+            for axis in ("x", "y"):
+                values = [float(f.loc[f["iteration"] == j, f"chattering_task_{axis}_settled"].iloc[0])
+                          for f in per_seed.values() if (f["iteration"] == j).any()
+                          and (f.loc[f["iteration"] == j, "status"] == "complete").all()]
+                row[f"H_{axis} settled j={j}"] = float(np.median(values)) if values else math.nan
+        window = mine[(mine["iteration"] >= 15) & (mine["iteration"] <= 19)]
+        row["e_P j=15..19"] = float(window["position_error_2norm"].median())
+        row["e_F j=15..19"] = float(window["force_error_2norm"].median())
+        growth = stability.learning_growth(mine, perturbation_iteration=p, config=_setting_config(results, 0))
+        judged = growth[growth["judged"] & growth["quantity"].str.startswith("chattering_task_")]
+        fastest = judged.sort_values("rate", ascending=False).iloc[0] if len(judged) else None
+        row["settled H growth (late half)"] = (f"x{fastest.rate:.4g} [{fastest.rate_low:.4g}, {fastest.rate_high:.4g}] "
+                                               f"({stability.short_name(fastest.quantity)}, {fastest.window})"
+                                               if fastest is not None else "-")
+        row["late verdict"] = stability.verdict(growth, method)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _band(ax, frame: pd.DataFrame, column: str, method: str) -> None:
+    from ilcforce.report.figures import _color, _label
+
+    # a diverged iteration's value is not data
+    wide = frame[frame["status"] == "complete"].pivot_table(index="iteration", columns="seed", values=column)
+    values = wide.to_numpy(dtype=float)
+    alive = np.isfinite(values).sum(axis=1)
+    keep = alive > 0
+    with np.errstate(all="ignore"):
+        median = np.nanmedian(values[keep], axis=1)
+        low, high = np.nanpercentile(values[keep], 5, axis=1), np.nanpercentile(values[keep], 95, axis=1)
+    j = wide.index.to_numpy()[keep]
+    color = _color(method)
+    ax.fill_between(j, low, high, color=color, alpha=0.15, linewidth=0)
+    ax.plot(j, median, color=color, lw=1.2, label=_label(method))
+    for seed in wide.columns:
+        ended = frame[(frame["seed"] == seed) & (frame["status"] != "complete")]
+        if len(ended):
+            jj = int(ended["iteration"].min())
+            before = wide.loc[:jj - 1, seed].dropna()
+            if len(before):
+                ax.plot([jj - 1], [before.iloc[-1]], marker="x", color=color, ms=5, mew=1.2, ls="none")
+
+
+def long_run_figure(results, out: Path) -> Path:
+    """Settled H (X, Y) and the error 2-norms against the iteration: median line, 5-95% band over seeds,
+    a cross where a seed diverged (at its last complete iteration)."""
+    from matplotlib.figure import Figure
+
+    from ilcforce.report.figure_files import save_figure
+
+    metrics = results.metrics
+    methods = tables.ordered_methods(metrics["method"].unique().tolist())
+    fig = Figure(figsize=(12, 8))
+    axes = fig.subplots(2, 2, sharex=True)
+    panels = (("chattering_task_x_settled", "settled H_x (N)"), ("chattering_task_y_settled", "settled H_y (N)"),
+              ("position_error_2norm", "|e_P| 2-norm (m)"), ("force_error_2norm", "|e_F| 2-norm (N)"))
+    p = next(iter(_settings(results)))[2]
+    for ax, (column, title) in zip(axes.ravel(), panels, strict=True):
+        for method in methods:
+            _band(ax, metrics[metrics["method"] == method], column, method)
+        ax.set_yscale("log")
+        ax.set_ylabel(title)
+        ax.axvline(p, color="0.5", ls="-.", lw=0.8)
+        ax.axvline(19, color="0.7", ls=":", lw=0.8)
+    for ax in axes[1]:
+        ax.set_xlabel("iteration j")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="upper center", ncol=min(len(labels), 5), frameon=False)
+    fig.suptitle("")
+    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    return save_figure(fig, out.parent, out.stem, ("png",))[0]
+
+
+def _memory_column(frame: pd.DataFrame, kind: str) -> str | None:
+    """The first learned memory's ``memory_<kind>_<name>`` column (theta_hat for C3, v for C2)."""
+    found = sorted(c for c in frame if c.startswith(f"memory_{kind}_") and frame[c].notna().any())
+    return found[-1] if found else None
+
+
+def cause_table(results) -> pd.DataFrame:
+    """Per setting and method of the cause study: where the run diverged, and how its memory grew."""
+    rows = []
+    for k, label, _p in _settings(results):
+        metrics = results.setting_metrics(k)
+        for method, frame in metrics.groupby("method", sort=False):
+            frame = frame.sort_values("iteration")
+            complete = frame[frame["status"] == "complete"]
+            diverged = _diverged_at(frame)
+            settled, start = _memory_column(complete, "settled"), _memory_column(complete, "start")
+            late = complete[complete["iteration"] >= TRUTH_FROM]
+            rate = (growth_rate(late[settled], iterations=late["iteration"])
+                    if settled is not None and len(late) >= 3 else None)
+            first, last = (complete.iloc[0], complete.iloc[-1]) if len(complete) else (None, None)
+            rows.append({
+                "setting": label, "method": str(method),
+                "diverged at j": int(diverged) if math.isfinite(diverged) else "-",
+                "at t (s)": (f"{float(frame.loc[frame['iteration'] == diverged, 'diverged_time'].iloc[0]):.3g}"
+                             if math.isfinite(diverged) else "-"),
+                "settled memory growth from j = 20": (f"x{rate.estimate:.4g} [{rate.low:.4g}, {rate.high:.4g}]"
+                                                      if rate is not None and math.isfinite(rate.estimate) else "-"),
+                "t = 0 memory per iteration": (f"+{(float(last[start]) - float(first[start])) / max(1, int(last['iteration']) - int(first['iteration'])):.3g}"
+                                               if start is not None and first is not None else "-"),
+                "settled H_x last": float(last["chattering_task_x_settled"]) if last is not None else math.nan,
+                "last complete j": int(last["iteration"]) if last is not None else -1})
+    return pd.DataFrame(rows)
+
+
+def cause_figure(results, out: Path) -> Path:
+    """The settled memory and the memory at t = 0 against the iteration, per setting, for each method."""
+    from matplotlib.figure import Figure
+
+    from ilcforce.report.figure_files import save_figure
+
+    methods = tables.ordered_methods(results.metrics["method"].unique().tolist())
+    fig = Figure(figsize=(12, 4 * len(methods)))
+    axes = fig.subplots(len(methods), 2, squeeze=False)
+    styles = ["-", "--", ":", "-.", (0, (5, 1)), (0, (3, 1, 1, 1)), (0, (1, 2)), (0, (6, 2, 1, 2))]
+    for k, label, _p in _settings(results):
+        metrics = results.setting_metrics(k)
+        for row, method in enumerate(methods):
+            frame = metrics[(metrics["method"] == method) & (metrics["status"] == "complete")].sort_values("iteration")
+            for col, kind in enumerate(("settled", "start")):
+                column = _memory_column(frame, kind)
+                if column is None:
+                    continue
+                ax = axes[row, col]
+                ax.plot(frame["iteration"], frame[column], ls=styles[k % len(styles)], color=f"C{k % 8}", lw=1.1,
+                        label=label)
+                ax.set_yscale("log")
+                ax.set_title(f"{method}: {stability.short_name(column)}")
+                ax.set_xlabel("iteration j")
+    axes[0, 0].legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    return save_figure(fig, out.parent, out.stem, ("png",))[0]
+
+
+def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
+    """Write ``long-run.md`` with its tables and figure into ``out_dir`` from the long-run and
+    growth-validation studies under ``results_dir/studies``; nothing when none of them is stored."""
+    from ilcforce.study import StudyStoreError, read_study
+
+    study_dir = Path(results_dir) / "studies"
+    found: dict[str, object] = {}
+    for path in sorted(study_dir.glob("*.h5")) if study_dir.is_dir() else []:
+        if path.stem.startswith(VALIDATION_PREFIX) or path.stem in (LONG_RUN, CAUSE):
+            try:
+                found[path.stem] = read_study(path)
+            except (StudyStoreError, OSError, KeyError, ValueError, TypeError):
+                continue
+    if not found:
+        return []
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    provenance = _provenance(found)
+    lines = ["# Long runs: does learning stay bounded, and does the growth test see it coming?", "",
+             f"Generated by `make long` ({provenance}). " + __doc__.split("\n\n", 1)[1].split("``python -m")[0].strip(),
+             ""]
+    cases = validation_cases(found)
+    if len(cases):
+        written += table_write.write_table(cases, out_dir, "growth_validation")
+        lines += ["## The growth test against the truth", "",
+                  f"{len(cases)} cases ({', '.join(sorted(set(cases['study'])))}): "
+                  f"{int((cases['truth'] == 'unbounded').sum())} unbounded, {int((cases['truth'] == 'bounded').sum())} "
+                  "bounded.", ""]
+        for horizon in JUDGED_AT:
+            table = confusion(cases, horizon).reset_index()
+            written += table_write.write_table(table, out_dir, f"confusion_{horizon}")
+            lines += [f"### The test on the first {horizon} iterations", "", table_write.markdown_table(table), "",
+                      confusion_text(cases, horizon) + ".", ""]
+        lines += ["### Every case", "", table_write.markdown_table(cases[[
+            "study", "setting", "seed", "method", "iterations_run", "truth", "truth_reason", "test_20", "test_40"]]), ""]
+    if LONG_RUN in found:
+        results = found[LONG_RUN]
+        table = long_run_table(results)
+        written += table_write.write_table(table, out_dir, "long_run")
+        figure = long_run_figure(results, out_dir / "long_run.png")
+        written.append(figure)
+        lines += ["## Every method over 1,000 iterations", "", str(getattr(results, "description", "")), "",
+                  table_write.markdown_table(table), "",
+                  f"![settled H and error norms against the iteration]({figure.name})", "",
+                  "Line: median over the seeds still running; band: 5-95% of them; x: a seed's last complete "
+                  "iteration before it diverged; dash-dotted: the plant's change; dotted: j = 19, the paper's last "
+                  "iteration.", ""]
+    if CAUSE in found:
+        results = found[CAUSE]
+        table = cause_table(results)
+        written += table_write.write_table(table, out_dir, "cause")
+        figure = cause_figure(results, out_dir / "cause.png")
+        written.append(figure)
+        lines += ["## Why the paper's laws diverge: one candidate cause at a time", "",
+                  str(getattr(results, "description", "")) + " (the account: docs/model.md#long-run).", "",
+                  table_write.markdown_table(table), "", f"![memory growth per setting]({figure.name})", ""]
+    page = out_dir / "long-run.md"
+    page.write_text("\n".join(lines), encoding="utf-8")
+    written.append(page)
+    return written
+
+
+def _provenance(found: dict[str, object]) -> str:
+    sessions = []
+    for results in found.values():
+        frame = getattr(results, "sessions", None)
+        if frame is not None and len(frame):
+            sessions.append(frame)
+    commits, dates = set(), []
+    for frame in sessions:
+        for column in ("git_commit", "commit"):
+            if column in frame:
+                commits |= {str(c)[:12] for c in frame[column] if str(c)}
+        for column in ("finished_utc", "started_utc", "time_utc"):
+            if column in frame:
+                dates += [str(d)[:10] for d in frame[column] if str(d)]
+    when = max(dates) if dates else datetime.now(timezone.utc).strftime("%Y-%m-%d")
+    return f"studies run on {when}" + (f" at commit {', '.join(sorted(commits))}" if commits else "")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ilcforce.report.long_run", description=__doc__.split("\n")[0])
+    parser.add_argument("--results", type=Path, default=Path("results"))
+    parser.add_argument("--out", type=Path, default=Path("docs/long-run"))
+    args = parser.parse_args(argv)
+    written = write_page(args.results, args.out)
+    if not written:
+        print(f"error: no long-run or growth-validation study in {args.results / 'studies'} (run make long)",
+              file=sys.stderr)
+        return 2
+    print(f"wrote {written[-1]}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,82 @@
+"""The long-run page (ilcforce.report.long_run): the truth of a run, the test's verdict on its first 20
+and 40 iterations, and the confusion matrix, on constructed runs whose answers are known. The page's
+numbers for the shipped studies come from `make long` (docs/long-run/long-run.md)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from ilcforce.report import long_run
+
+
+class _Study:
+    """What ``read_study`` returns, as far as the page reads it: settings and per-setting metrics."""
+
+    def __init__(self, frames: dict[str, pd.DataFrame], config: dict | None = None):
+        config = config or {"plant": {"perturbation": {"from_iteration": 10}}}
+        self._frames = list(frames.values())
+        self.settings = pd.DataFrame({"setting": range(len(frames)), "label": list(frames),
+                                      "config_json": [json.dumps(config)] * len(frames)})
+        self.metrics = pd.concat(self._frames, ignore_index=True)
+        self.description = "constructed"
+
+    def setting_metrics(self, k: int) -> pd.DataFrame:
+        return self._frames[k]
+
+
+def _run(method: str, seed: int, n: int, hx, *, diverge_at: int | None = None, memory=None, noise=0.01):
+    rng = np.random.default_rng(seed)
+    rows = []
+    for j in range(n):
+        done = diverge_at is None or j < diverge_at
+        row = {"seed": seed, "method": method, "iteration": j, "status": "complete" if done else "diverged",
+               "diverged_time": np.nan if done else 0.5,
+               "chattering_task_x_settled": hx(j) * np.exp(rng.normal(0, noise)) if done else np.nan,
+               "chattering_task_y_settled": 0.03 * np.exp(rng.normal(0, noise)) if done else np.nan,
+               "position_error_2norm": 1e-4 * np.exp(rng.normal(0, noise)) if done else np.nan,
+               "force_error_2norm": 1.0 * np.exp(rng.normal(0, noise)) if done else np.nan}
+        if memory is not None:
+            row["memory_settled_v"] = memory(j) if done else np.nan
+        rows.append(row)
+        if not done:
+            break
+    return pd.DataFrame(rows)
+
+
+def test_truth_and_verdicts_of_constructed_runs():
+    runs = pd.concat([
+        _run("grows", 0, 300, lambda j: 0.02 * 1.03 ** j),                     # unbounded, flagged at 20 and 40
+        _run("flat", 0, 300, lambda j: 0.02),                                  # bounded, not flagged
+        _run("late", 0, 300, lambda j: 0.02, diverge_at=250),                  # unbounded, not seen at 20 or 40
+        _run("early", 0, 300, lambda j: 0.02, diverge_at=30),                  # flagged at 40 by its divergence
+        _run("drift", 0, 300, lambda j: 0.02, memory=lambda j: 0.5 + 0.01 * j),  # memory x1.4: bounded truth
+    ], ignore_index=True)
+    cases = long_run.validation_cases({"constructed": _Study({"s": runs})}).set_index("method")
+    assert cases.loc["grows", "truth"] == "unbounded" and cases.loc["grows", "verdict_20"] == long_run.FLAGGED
+    assert "reaches 10x in" in cases.loc["grows", "test_40"]
+    assert cases.loc["flat", "truth"] == "bounded" and cases.loc["flat", "verdict_40"] == long_run.NOT_FLAGGED
+    assert cases.loc["late", "truth_reason"] == "diverged at j = 250"
+    assert cases.loc["late", "verdict_40"] == long_run.NOT_FLAGGED
+    assert cases.loc["early", "test_40"] == "diverged at j = 30" and cases.loc["early", "verdict_20"] == long_run.NOT_FLAGGED
+    assert cases.loc["drift", "truth"] == "bounded"
+    table = long_run.confusion(cases.reset_index(), 40)
+    assert table.loc["unbounded", long_run.FLAGGED] == 2 and table.loc["unbounded", long_run.NOT_FLAGGED] == 1
+    assert int(table.to_numpy().sum()) == 5
+    text = long_run.confusion_text(cases.reset_index(), 40)
+    assert text.startswith("1 of the 2 unbounded cases that had not diverged by j = 40 missed (late, s, seed 0: "
+                           "diverged at j = 250)"), text
+
+
+def test_a_capped_memory_is_not_judged():
+    """alpha_hat growing towards its projection bound (C3-robust's alpha_max) is growth bounded by
+    construction: shown, not flagged."""
+    run = _run("c3-robust", 0, 40, lambda j: 0.02)
+    run["memory_settled_alpha_hat"] = [0.005 + 1e-4 * j for j in range(40)]
+    config = {"plant": {"perturbation": {"from_iteration": 10}}, "c3-robust": {"alpha_max": 0.03}}
+    cases = long_run.validation_cases({"c": _Study({"s": run}, config)})
+    assert cases.loc[0, "verdict_40"] == long_run.NOT_FLAGGED
+    unbounded = long_run.validation_cases({"c": _Study({"s": run}, {**config, "c3-robust": {}})})
+    assert unbounded.loc[0, "verdict_40"] == long_run.FLAGGED
