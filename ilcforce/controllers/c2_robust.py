@@ -29,7 +29,7 @@ from ilcforce.controllers.base import (
     surface_terms,
 )
 from ilcforce.controllers.c2 import C2Controller, C2Gains
-from ilcforce.controllers.robust import QFilter, check_robust_gains
+from ilcforce.controllers.robust import QFiltered, check_robust_gains
 
 
 @dataclass(frozen=True)
@@ -72,7 +72,7 @@ def c2_robust_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     return v1 + fx, v2 + fy  # eq. (27), tau_j = v_j + w J^T F_j (+ the withheld feedback)
 
 
-class C2RobustController(C2Controller):
+class C2RobustController(QFiltered, C2Controller):
     """C2's controller (memory layout, gain packing) with the robust law and Q on the memory."""
 
     name = "c2-robust"
@@ -81,10 +81,4 @@ class C2RobustController(C2Controller):
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C2RobustGains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
         super().__init__(n_control, surface, wall_sign, gains, gravity=gravity, sample_time=sample_time)
-        self._q = QFilter(gains.section, gains.q_cutoff, gains.q_order, self.sample_time)
-
-    def end_iteration(self, record) -> None:
-        """The finished iteration's memory through Q (zero phase), then kept for iteration j + 1."""
-        if not record.diverged:
-            self._new = self._q.apply(self._new)
-        super().end_iteration(record)
+        self._design_q(gains)

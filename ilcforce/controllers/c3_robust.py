@@ -42,7 +42,7 @@ from ilcforce.controllers.base import compiled_law, gain_indices
 from ilcforce.controllers.c3 import (
     ETA, GAMMA, GAMMA_GRAVITY, GRAVITY_FEEDFORWARD, K, PSI_ACCELERATION_FLAG, C3Controller, C3Gains, c3_torque,
 )
-from ilcforce.controllers.robust import QFilter, check_robust_gains
+from ilcforce.controllers.robust import QFiltered, check_robust_gains
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ def c3_robust_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
                      t >= gains[LEARN_FROM])
 
 
-class C3RobustController(C3Controller):
+class C3RobustController(QFiltered, C3Controller):
     """C3's controller (memory layout, gain packing) with the robust law and Q on the memory."""
 
     name = "c3-robust"
@@ -89,10 +89,4 @@ class C3RobustController(C3Controller):
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C3RobustGains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
         super().__init__(n_control, surface, wall_sign, gains, gravity=gravity, sample_time=sample_time)
-        self._q = QFilter(gains.section, gains.q_cutoff, gains.q_order, self.sample_time)
-
-    def end_iteration(self, record) -> None:
-        """The finished iteration's memory through Q (zero phase), then kept for iteration j + 1."""
-        if not record.diverged:
-            self._new = self._q.apply(self._new)
-        super().end_iteration(record)
+        self._design_q(gains)

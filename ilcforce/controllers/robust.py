@@ -69,3 +69,18 @@ class QFilter:
 
         # Bristow et al. (2006) eq. 13, zero phase; C order, as the compiled loop takes its memory
         return np.ascontiguousarray(sosfiltfilt(self.sos, memory, axis=0))
+
+
+class QFiltered:
+    """For a :class:`~ilcforce.controllers.base.MemoryController` whose gains carry ``q_cutoff`` and
+    ``q_order``: the memory a finished iteration wrote passes through Q before iteration j + 1 reads it
+    (a diverged iteration hands on nothing, as in the base class). Put it first among the bases."""
+
+    def _design_q(self, gains) -> None:
+        self._q = QFilter(gains.section, gains.q_cutoff, gains.q_order, self.sample_time)
+
+    def end_iteration(self, record) -> None:
+        """The finished iteration's memory through Q (zero phase), then kept for iteration j + 1."""
+        if not record.diverged:
+            self._new = self._q.apply(self._new)
+        super().end_iteration(record)
