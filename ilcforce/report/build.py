@@ -389,7 +389,7 @@ def write_report(
                                for f in verdicts.values()]
                               + [pd.DataFrame(s.get("stability_rows", {}), columns=verdict_rows.STABILITY_COLUMNS)
                                  for s in studies.values()], ignore_index=True)
-    for column in ("judged", "inconclusive", "flagged"):  # concatenating an empty frame leaves them float
+    for column in ("judged", "saturating", "inconclusive", "flagged"):  # concatenating an empty frame leaves them float
         all_stability[column] = all_stability[column].astype(bool)
     written.append(table_write.write_csv(all_claims, out_dir / "claims.csv"))
     written.append(table_write.write_csv(all_stability, out_dir / "stability.csv"))

@@ -162,8 +162,9 @@ def stability_markdown(growth: pd.DataFrame, flags: Mapping[str, str]) -> list[s
         "10x in (iterations)": [f"{n:.0f}" if math.isfinite(n) else "-" for n in growth["iterations_to_10x"]],
         "value at the window's end": [f"{v:.3g}" for v in growth["value_end"]],
         "seeds growing": [f"{r.growing} of {r.fitted}" if r.judged else "-" for r in growth.itertuples(index=False)],
-        "grows": ["yes" if g else ("inconclusive" if i else "no") if j else "-"
-                  for g, i, j in zip(growth["grows"], growth["inconclusive"], growth["judged"], strict=True)],
+        "grows": ["yes" if g else ("saturating" if sat else "inconclusive" if i else "no") if j else "-"
+                  for g, sat, i, j in zip(growth["grows"], growth["saturating"], growth["inconclusive"],
+                                          growth["judged"], strict=True)],
     })
     lines.append(markdown_table(table))
     if flags:

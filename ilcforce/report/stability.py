@@ -33,7 +33,12 @@ The test
   above MIN_RATE (1% per iteration: 10x in 230 iterations). No floor silences it: a quantity too small
   to matter today reaches any size at a steady geometric rate (noise-free C3's settled H_x, 0.003 N at
   j = 19, grows 3.7% per iteration and the run diverges at j = 99). It is **inconclusive** when the
-  rate's estimate is above MIN_RATE but its interval reaches below 1 (too noisy to tell).
+  rate's estimate is above MIN_RATE but its interval reaches below 1 (too noisy to tell). Growth towards
+  a limit is not growth without bound: a quantity whose increments from one iteration to the next shrink
+  geometrically (:func:`saturates`: their rate's interval below SATURATION = 0.98) is **saturating**, shown
+  and not flagged. A memory filling as it learns, or the part of a Q-filtered memory the learning window
+  does not update, rises this way; a steady drift (the t = 0 memory of C2 and C3, +0.24 and +0.77 per
+  iteration) and geometric growth do not.
 * Over seeds: a quantity grows when it grows in a strict majority of the seeds where the rate
   could be fitted. A method with at least one growing judged quantity is flagged **"unstable
   learning"**, whether or not it diverged; its verdict says how fast ("H_x settled grows x1.04 per
@@ -75,9 +80,15 @@ MEMORY_PREFIXES = ("memory_settled_", "memory_norm_", "memory_start_")
 #: Short names for the quantities, for flags and tables.
 SHORT = {"chattering_task_x": "H_x", "chattering_task_y": "H_y", "chattering_task_x_settled": "H_x settled",
          "chattering_task_y_settled": "H_y settled", "position_error_2norm": "|e_P|", "force_error_2norm": "|e_F|"}
+#: Growth towards a limit: the increments from one iteration to the next shrink by at least this factor per
+#: iteration (the whole 95% interval of their rate below it), so what is left to grow is at most 1 / (1 -
+#: 0.98) = 50 of the latest increments. A quantity growing this way is not flagged.
+SATURATION = 0.98
+#: The fewest consecutive increments, 80% of them positive, the saturation fit needs.
+MIN_INCREMENTS = 6
 #: The columns of :func:`learning_growth`'s frame.
 GROWTH_COLUMNS = ["method", "quantity", "judged", "window", "rate", "rate_low", "rate_high", "growing", "fitted",
-                  "grows", "inconclusive", "value_end", "iterations_to_10x"]
+                  "grows", "saturating", "inconclusive", "value_end", "iterations_to_10x"]
 
 
 def short_name(column: str) -> str:
@@ -120,6 +131,20 @@ def window_text(window: list[int]) -> str:
             runs.append(f"{start}..{a}")
             start = b
     return "j = " + ", ".join(runs)
+
+
+def saturates(values, iterations) -> bool:
+    """True when a growing series grows towards a limit: its increments between consecutive iterations
+    (none across a gap in ``iterations``), at least MIN_INCREMENTS of them and 80% positive, shrink
+    geometrically with their rate's whole 95% interval below SATURATION. A steady (linear) drift has
+    increments that do not shrink, geometric growth increments that grow: neither saturates."""
+    y, j = np.asarray(values, dtype=float), np.asarray(iterations, dtype=float)
+    consecutive = np.diff(j) == 1
+    steps, at = np.diff(y)[consecutive], j[1:][consecutive]
+    if steps.size < MIN_INCREMENTS or np.mean(steps > 0) < 0.8:
+        return False
+    fitted = growth_rate(steps[steps > 0], iterations=at[steps > 0])
+    return bool(math.isfinite(fitted.high) and fitted.high < SATURATION)
 
 
 def capped(config: Mapping[str, object] | None, method: str) -> dict[str, float]:
@@ -165,7 +190,7 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
         for column, judged in columns:
             judged = judged and not any(column.startswith(prefix) and column.removeprefix(prefix) in caps
                                         for prefix in MEMORY_PREFIXES)
-            rates, grown, ends, seen, fits = [], [], [], set(), []
+            rates, grown, ends, seen, fits, saturated = [], [], [], set(), [], []
             for window, values_by_column in windows:
                 values = np.asarray(values_by_column[column], dtype=float) if window else np.array([])
                 if values.size < 3 or not np.all(np.isfinite(values)):
@@ -176,7 +201,10 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
                 rates.append(fitted.estimate)
                 fits.append(fitted)
                 ends.append(float(values[-1]))
-                grown.append(bool(fitted.low > MIN_RATE))
+                rising = bool(fitted.low > MIN_RATE)
+                levelling = rising and saturates(values, window)
+                grown.append(rising and not levelling)
+                saturated.append(levelling)
                 seen.add(window_text(window))
             if not rates:
                 continue
@@ -187,6 +215,7 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
             rows.append({"method": str(method), "quantity": column, "judged": judged,
                          "window": "; ".join(sorted(seen)), "rate": median.estimate, "rate_low": median.low,
                          "rate_high": median.high, "growing": growing, "fitted": len(rates), "grows": grows,
+                         "saturating": bool(not grows and 2 * sum(saturated) > len(rates)),
                          "inconclusive": bool(judged and not grows and median.estimate > MIN_RATE
                                               and median.low < 1.0),
                          "value_end": float(np.median(ends)), "iterations_to_10x": iterations_to_10x(median.estimate)})

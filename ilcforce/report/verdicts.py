@@ -25,7 +25,7 @@ CLAIM_COLUMNS = ["source", "name", "setting", "claim", "part", "role", "verdict"
                  "statistic_name", "note"]
 STABILITY_COLUMNS = ["source", "name", "setting", "method", "quantity", "judged", "window", "rate_per_iteration",
                      "rate_low", "rate_high", "seeds_growing", "seeds_fitted", "value_end", "iterations_to_10x",
-                     "inconclusive", "flagged"]
+                     "saturating", "inconclusive", "flagged"]
 
 
 def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> pd.DataFrame:
@@ -63,7 +63,7 @@ def stability_rows(growth: pd.DataFrame, *, source: str, name: str, setting: str
              "judged": bool(r.judged), "window": r.window, "rate_per_iteration": r.rate, "rate_low": r.rate_low,
              "rate_high": r.rate_high, "seeds_growing": int(r.growing), "seeds_fitted": int(r.fitted),
              "value_end": r.value_end, "iterations_to_10x": r.iterations_to_10x,
-             "inconclusive": bool(r.inconclusive), "flagged": bool(r.grows)}
+             "saturating": bool(r.saturating), "inconclusive": bool(r.inconclusive), "flagged": bool(r.grows)}
             for r in growth.itertuples(index=False)]
     return pd.DataFrame(rows, columns=STABILITY_COLUMNS)
 
