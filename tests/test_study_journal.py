@@ -94,7 +94,7 @@ def _study_file(tmp_path: Path) -> Path:
 def _reseal(record: Path, change) -> None:
     """Change a record and give it a valid checksum again: only the checks against the study can
     refuse it."""
-    from ilcforce.store.study_journal import _checksum
+    from ilcforce.store.records import checksum as _checksum
 
     def both(data):
         change(data)

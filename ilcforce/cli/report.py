@@ -59,7 +59,8 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run, study or tun
     from ilcforce.store.safeio import companion_of
     from ilcforce.store.study_read import DAMAGED_RECORD, StudyStoreError, check_study_store, is_study_store
 
-    from ilcforce.tune.store import TuningStoreError, is_tuning_store, validate_tuning
+    from ilcforce.store.tuning import TuningStoreError, is_tuning_store
+    from ilcforce.tune.runner import validate_tuning
 
     invalid = 0
     for path in paths:

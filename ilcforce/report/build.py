@@ -411,7 +411,7 @@ def _tuning_pages(results_dir: Path, out_dir: Path, formats: tuple[str, ...], wr
     index lines. A store that is not valid is a warning line, never the end of the report."""
     from ilcforce.report.figures import report_style
     from ilcforce.report.tuning import write_tuning_report
-    from ilcforce.tune.store import TuningStoreError, is_tuning_store
+    from ilcforce.store.tuning import TuningStoreError, is_tuning_store
 
     folder = results_dir / "tuning"
     lines: list[str] = []

@@ -87,6 +87,15 @@ def dead_writers_copies(path: Path) -> list[Path]:
     return found
 
 
+def dead_copies_in(folder: Path) -> list[Path]:
+    """Every temporary copy (``.<name>.tmp-<pid>``, a regular file) in ``folder`` whose writer is gone."""
+    try:
+        names = sorted(set(m.group(1) for m in map(_TEMPORARY.fullmatch, os.listdir(folder)) if m))
+    except OSError:
+        return []
+    return [item for name in names for item in dead_writers_copies(Path(folder) / name)]
+
+
 def companion_of(path: Path) -> str | None:
     """What ``path`` is if it is a file ilcforce keeps beside a store (its writers' lock file, a
     study's journal folder), else None."""
@@ -103,46 +112,70 @@ def companion_of(path: Path) -> str | None:
 # the writer's lock file
 
 
-def acquire_writer_lock(path: Path) -> int:
-    """Take ``<real path>.lock`` exclusively (:func:`file_identity`: every name of the file
-    reaches one lock); the fd (closing it releases the lock).
+def acquire_writer_lock(path: Path, busy: str = "") -> int:
+    """Lock the store at ``path`` for its one writer; the fd (closing it releases the lock). The one
+    writer's lock of every store: ``busy`` is the refusal's text (StoreLockedError).
 
-    Never follows a symlink, never truncates: the PID is written only into a file this call
-    created. StoreLockedError if another writer holds it.
+    A store that is a folder (a tuning) is locked itself, by identity: every name, link or mount
+    of it reaches one lock, and no lock file exists to be deleted. A store file is locked through
+    ``<real path>.lock`` (:func:`file_identity`): the store file's own flock is the commit lock
+    that readers share, so it cannot also be held for a whole run. The lock file is never followed
+    through a symlink, never truncated (the PID is written only into a file this call created),
+    and after locking it is checked to still be the file of its name (one deleted meanwhile is
+    made again). Deleting it while a writer holds it lets a second writer in: the first notices
+    at its next commit (:func:`check_writer_lock`) and stops.
     """
-    lock = writers_lock(path)
-    flags = os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC
-    created = False
-    try:
-        fd = os.open(lock, flags | os.O_CREAT | os.O_EXCL, 0o644)
-        created = True
-    except FileExistsError:
+    busy = busy or (f"{path} is being written by another ilcforce process; wait for it to finish "
+                    "or choose another --out")
+    folder = os.path.isdir(path) and not os.path.islink(path)
+    lock = Path(path) if folder else writers_lock(path)
+    flags = os.O_RDONLY | os.O_DIRECTORY if folder else os.O_RDWR | os.O_NOFOLLOW
+    for _attempt in range(100):
+        created = False
         try:
-            fd = os.open(lock, flags)
+            fd = os.open(lock, flags | os.O_CLOEXEC | (0 if folder else os.O_CREAT | os.O_EXCL), 0o644)
+            created = not folder
+        except FileExistsError:
+            try:
+                fd = os.open(lock, flags | os.O_CLOEXEC)
+            except OSError as error:
+                if error.errno == errno.ELOOP:
+                    raise StoreError(f"{path}: lock file {lock} is a symbolic link; refusing to use it") from None
+                raise StoreError(f"{path}: cannot open lock file {lock} ({os_reason(error)})") from None
         except OSError as error:
-            if error.errno == errno.ELOOP:
-                raise StoreError(f"{path}: lock file {lock} is a symbolic link; refusing to use it") from None
-            raise StoreError(f"{path}: cannot open lock file {lock} ({os_reason(error)})") from None
-    except OSError as error:
-        raise StoreError(f"{path}: cannot create lock file {lock} ({os_reason(error)})") from None
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise StoreError(f"{path}: lock file {lock} is not a regular file; refusing to use it")
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError as error:
-        os.close(fd)
-        if error.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
-            raise StoreLockedError(
-                f"{path} is being written by another ilcforce process; wait for it to finish or choose another --out"
-            ) from None
-        raise StoreError(f"{path}: cannot lock {lock} ({os_reason(error)})") from None
+            raise StoreError(f"{path}: cannot create lock file {lock} ({os_reason(error)})") from None
+        if not folder and not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise StoreError(f"{path}: lock file {lock} is not a regular file; refusing to use it")
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as error:
+            os.close(fd)
+            if error.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                raise StoreLockedError(busy) from None
+            raise StoreError(f"{path}: cannot lock {lock} ({os_reason(error)})") from None
+        if folder or check_writer_lock(fd, path):
+            break
+        os.close(fd)  # deleted or replaced between open and flock: lock the file of the name now
+    else:
+        raise StoreError(f"{path}: its lock file {lock} keeps being replaced; refusing to write")
     if created:  # for humans looking at a stuck lock; only in a file we created
         try:
             os.write(fd, f"{os.getpid()}\n".encode())
         except OSError:
             pass
     return fd
+
+
+def check_writer_lock(fd: int, path: Path) -> bool:
+    """Whether the writer's lock ``fd`` of ``path`` still locks what a second writer would lock
+    (a lock file deleted or replaced by another: False)."""
+    try:
+        here, named = os.fstat(fd), os.stat(path if stat.S_ISDIR(os.fstat(fd).st_mode) else writers_lock(path),
+                                                follow_symlinks=False)
+    except OSError:
+        return False
+    return (here.st_dev, here.st_ino) == (named.st_dev, named.st_ino)
 
 
 def writer_active(path: str | os.PathLike[str]) -> bool:

@@ -34,7 +34,6 @@ Layout (schema ``ilcforce.study`` 1.1; 1.0 lacks study_id and the seals)::
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import math
 import os
@@ -46,10 +45,11 @@ import h5py
 import numpy as np
 
 from ilcforce import stops
-from ilcforce.store import study_journal
+from ilcforce.store import records, study_journal
 from ilcforce.store.seal import STRINGS_SEAL, seal_attrs, strings_checksum
-from ilcforce.store.filecheck import writers_lock
-from ilcforce.store.safeio import dead_writers_copies, is_hdf5_file, is_temporary_name, one_line
+from ilcforce.store.filecheck import StoreError, writers_lock
+from ilcforce.store.safeio import (acquire_writer_lock, check_writer_lock, dead_copies_in, dead_writers_copies, is_hdf5_file,
+                                  one_line)
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
     _keys, _table, is_study_store, journal_dir, read_header, read_tables, scan_journal, study_facts,
@@ -134,17 +134,11 @@ def _fsync(path: Path) -> None:
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     text = json.dumps(data)
     _ensure_room(path.parent, 2 * len(text))
     try:
-        with open(tmp, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
+        records.atomic_write(path, text.encode())
     except OSError as exc:
-        _remove(tmp)
         raise StudyStoreError(f"{path}: cannot commit the cell ({exc.strerror or exc}); every cell committed "
                               "before is kept, rerun to continue") from None
 
@@ -342,28 +336,18 @@ class StudyStore:
     # -- setup --------------------------------------------------------------------------------
 
     def _lock(self) -> int:
-        lock = writers_lock(self.path)
         try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
-        except OSError as exc:
-            raise StudyStoreError(f"{lock}: cannot open the study's lock file ({exc.strerror})") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            raise StudyStoreError(f"{self.path}: another ilcforce study is writing this store") from None
-        return fd
+            return acquire_writer_lock(self.path, f"{self.path}: another ilcforce study is writing this store")
+        except StoreError as exc:
+            raise StudyStoreError(str(exc)) from None
 
     def _remove_dead_copies(self) -> None:
         """Remove what a killed driver of this study left half written: ``.<name>.h5.tmp-<pid>`` beside
         the store and ``.<record>.tmp-<pid>`` in its journal, of processes that are gone, each by its
         exact name (we hold the study's lock: no live driver of it is writing one)."""
         stale = dead_writers_copies(self.path)
-        folder = journal_dir(self.path)
-        if folder.is_dir() and not folder.is_symlink():
-            records = {item.name[1:].rsplit(".tmp-", 1)[0] for item in folder.iterdir() if is_temporary_name(item.name)}
-            for record in sorted(records):
-                stale += dead_writers_copies(folder / record)
+        if journal_dir(self.path).is_dir() and not journal_dir(self.path).is_symlink():
+            stale += dead_copies_in(journal_dir(self.path))
         for item in dict.fromkeys(stale):
             _remove(item)
 
@@ -403,6 +387,9 @@ class StudyStore:
         """Commit one cell's record (``setting``, ``seed``, ``method``, ``state``, ``attempts``,
         ``message``, ``elapsed``, ``worker``, ``rows``) to the journal; consolidate if due."""
         with stops.critical():  # a stop signal takes effect when the commit has ended
+            if not check_writer_lock(self._lock_fd, self.path):
+                raise StudyStoreError(f"{self.path}: its lock file was deleted or replaced while this study held it, "
+                                      "so another driver may be in; stopping (every committed cell is kept)")
             folder = journal_dir(self.path)
             folder.mkdir(exist_ok=True)
             target = folder / study_journal.record_name(record["setting"], record["seed"], record["method"])
@@ -493,6 +480,5 @@ class StudyStore:
 
     def close(self) -> None:
         if getattr(self, "_lock_fd", None) is not None:
-            fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
             os.close(self._lock_fd)
             self._lock_fd = None

@@ -30,14 +30,14 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import os
 import re
-import stat
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 from ilcforce.metrics import METRIC_COLUMNS, column_kind
+from ilcforce.store import records
+from ilcforce.store.records import RecordError  # noqa: F401 - the journal's name for it
 
 #: Version of a journal record's format (records without it are from before checksums).
 RECORD_FORMAT = 2
@@ -59,10 +59,6 @@ _INT64 = (-(1 << 63), (1 << 63) - 1)
 DONE, FAILED = "done", "failed"
 
 
-class RecordError(Exception):
-    """Why a journal record is refused (one short phrase, without the file name)."""
-
-
 def record_name(setting: int, seed: int, method: str) -> str:
     """The file name of the record of a cell."""
     return f"{setting}-{seed}-{method}.json"
@@ -73,20 +69,9 @@ def setting_digest(fingerprint: str, config_json: str) -> str:
     return hashlib.sha256(f"{fingerprint}\0{config_json}".encode()).hexdigest()
 
 
-def _canonical(body: dict) -> bytes:
-    return json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=True).encode()
-
-
-def _checksum(body: dict) -> str:
-    return hashlib.sha256(_canonical({k: v for k, v in body.items() if k != "checksum"})).hexdigest()
-
-
 def seal(record: dict, study_id: str, digest: str) -> dict:
-    """``record`` (a cell's fields) with its format, study identity, setting digest and checksum,
-    as plain JSON values (numpy scalars made Python numbers)."""
-    body = json.loads(json.dumps({**record, "format": RECORD_FORMAT, "study": study_id, "setting_digest": digest}))
-    body["checksum"] = _checksum(body)
-    return body
+    """``record`` (a cell's fields) with its format, study identity, setting digest and checksum."""
+    return records.seal({**record, "format": RECORD_FORMAT, "study": study_id, "setting_digest": digest})
 
 
 @dataclass(frozen=True)
@@ -148,32 +133,7 @@ def read_record(item: Path, facts_: StudyFacts) -> dict:
     match = _NAME.fullmatch(item.name)
     if match is None:
         raise RecordError("its name is not <setting>-<seed>-<method>.json")
-    try:
-        info = os.lstat(item)
-    except OSError as error:
-        raise RecordError(f"cannot be read ({error.strerror or error})") from None
-    if stat.S_ISLNK(info.st_mode):
-        raise RecordError("a symbolic link, not a record")
-    if not stat.S_ISREG(info.st_mode):
-        raise RecordError("not a regular file")
-    if info.st_size > MAX_RECORD_BYTES:
-        raise RecordError(f"{info.st_size} bytes, more than a record holds ({MAX_RECORD_BYTES})")
-    try:
-        fd = os.open(item, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-        try:
-            data = os.read(fd, MAX_RECORD_BYTES + 1)
-        finally:
-            os.close(fd)
-    except OSError as error:
-        raise RecordError(f"cannot be read ({error.strerror or error})") from None
-    try:
-        record = json.loads(data.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise RecordError("not UTF-8 text") from None
-    except RecursionError:
-        raise RecordError("JSON nested too deeply") from None
-    except ValueError as error:
-        raise RecordError(f"not JSON ({str(error).split(':')[0]})") from None
+    record = records.read_json(item, MAX_RECORD_BYTES)
     check(record, facts_, match.groups())
     return record
 
@@ -181,21 +141,14 @@ def read_record(item: Path, facts_: StudyFacts) -> dict:
 def check(record, facts_: StudyFacts, name_key: tuple[str, str, str] | None = None) -> None:
     """RecordError unless ``record`` is a sealed, whole record of a cell of the study ``facts_``
     (stored under the file name whose parts are ``name_key``)."""
-    if not isinstance(record, dict):
-        raise RecordError(f"a JSON {type(record).__name__}, not a record")
-    if "checksum" not in record or "format" not in record:
+    if isinstance(record, dict) and "format" not in record:
         raise RecordError("no checksum (written by an older ilcforce, or not a record)")
+    records.check_seal(record)
     if set(record) != RECORD_FIELDS:
         odd = sorted(set(record) ^ RECORD_FIELDS)
         raise RecordError(f"fields differ from a record's ({', '.join(map(str, odd))[:120]})")
     if record["format"] != RECORD_FORMAT:
         raise RecordError(f"record format {str(record['format'])[:20]!r}; this ilcforce reads {RECORD_FORMAT}")
-    try:
-        expected = _checksum(record)
-    except (ValueError, TypeError, RecursionError):
-        raise RecordError("cannot be checksummed") from None
-    if record["checksum"] != expected:
-        raise RecordError("its checksum does not match its content (changed after it was written)")
     if record["study"] != facts_.study_id or not facts_.study_id:
         raise RecordError("it belongs to another study (its study id is not this store's)")
     setting, seed, method = record["setting"], record["seed"], record["method"]
@@ -294,18 +247,5 @@ def scan(folder: Path, facts_: StudyFacts) -> Scan:
 
 
 def quarantine(item: Path) -> Path:
-    """Move the refused record ``item`` into its folder's quarantine (made if missing, never
-    through a symbolic link), under a name not taken yet; returns where it went."""
-    folder = item.parent / QUARANTINE
-    try:
-        os.mkdir(folder, 0o755)
-    except FileExistsError:
-        if folder.is_symlink() or not folder.is_dir():
-            raise OSError(f"{folder} is not a folder") from None
-    target = folder / item.name
-    n = 1
-    while os.path.lexists(target):
-        target = folder / f"{item.name}.{n}"
-        n += 1
-    os.rename(item, target)
-    return target
+    """Move the refused record ``item`` into its folder's quarantine; returns where it went."""
+    return records.quarantine(item, QUARANTINE)

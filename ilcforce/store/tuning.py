@@ -1,0 +1,353 @@
+"""The tuning store, ``results/tuning/<name>/``: one sealed JSON record per finished trial, written
+as it finishes, so a rerun after ``kill -9`` repeats none of them.
+
+Layout (schema ``ilcforce.tuning`` 2)::
+
+    <name>/tuning.json                 sealed header: schema, schema_version, name, description,
+                                       tuning_toml, definition_json, fingerprint, created, tuning_id
+                                       (random, made with the store), sessions (each run's command,
+                                       host, start time and budget ``trials``), checksum
+    <name>/trials/<method>-<n>.json    one finished trial (n zero-padded to 5 digits): RECORD_FIELDS
+    <name>/trials/.quarantine/         records a writer refused, moved aside with one line each
+    <name>/tuned.toml                  the best gains as an experiment file (written after each run)
+
+Durability is the study journal's, from the same code (:mod:`.records`): every file is written
+whole or not at all (temporary name, fsync, rename; a trial record by a hard link that never
+replaces a finished one), sealed by sha256 over its canonical JSON, and read in bounded time. The
+folder itself is the writer's lock (:func:`~.safeio.acquire_writer_lock`, by identity). A record
+is trusted only when it is sealed, carries this store's ``tuning_id`` and the digest of its
+search (definition and simulation code), names a method and a budget some run of the search
+asked for, has seeds that are the search's, a value that is the median of its seeds' values, and
+passes the search's own check (``check``, from :mod:`ilcforce.tune`: parameters in the search
+space, gains computed from them, each seed's value from its error norms). Readers skip any other
+record and name it; the writer moves it aside (its trial then runs again).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import re
+import shutil
+import statistics
+import uuid
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from ilcforce.store import records
+from ilcforce.store.records import RecordError
+from ilcforce.store.safeio import StoreError, acquire_writer_lock, check_writer_lock, dead_copies_in
+
+SCHEMA_NAME = "ilcforce.tuning"
+SCHEMA_VERSION = 2
+HEADER, TRIALS, TUNED = "tuning.json", "trials", "tuned.toml"
+HEADER_FIELDS = frozenset({"schema", "schema_version", "name", "description", "tuning_toml", "definition_json",
+                           "fingerprint", "created", "tuning_id", "sessions", "checksum"})
+#: A trial: which store and search it belongs to (tuning, search), what it is (method, number,
+#: params: the sampled values, Optuna's names, empty for trial 0, the experiment's gains), the gains
+#: it ran (dotted --set keys), state, value (the objective, null when failed), per seed the
+#: objective (null: diverged) and the RMS error norms per iteration run, message (why it failed),
+#: elapsed (s, its cells' wall time added up), in_sampler (whether the sampler learned from it).
+RECORD_FIELDS = frozenset({"tuning", "search", "method", "number", "params", "gains", "state", "value", "seeds",
+                           "message", "elapsed", "in_sampler", "checksum"})
+SEED_KEYS = ("seed", "value", "iterations_run", "diverged_iteration", "position_error_rms", "force_error_rms")
+COMPLETE, FAILED = "complete", "failed"
+MAX_BYTES = 16 << 20
+_TRIAL_FILE = re.compile(r"(?P<method>[a-z0-9][a-z0-9-]{0,63})-(?P<number>\d{5})\.json")
+
+
+class TuningStoreError(Exception):
+    """A tuning store that cannot be used or is not valid; one line."""
+
+
+def tuning_dir(results_dir: Path | str, name: str) -> Path:
+    return Path(results_dir) / "tuning" / name
+
+
+def is_tuning_store(path: Path | str) -> bool:
+    path = Path(path)
+    return path.is_dir() and not path.is_symlink() and (path / HEADER).is_file()
+
+
+@dataclass(frozen=True)
+class Search:
+    """What a record is checked against: the store's identity and the search it holds."""
+
+    tuning_id: str
+    digest: str  # sha256 of the simulation code's fingerprint and the search's definition
+    methods: tuple[str, ...]
+    seeds: tuple[int, ...]
+    most: int  # the largest budget a run of the search asked for
+
+
+def search_of(header: dict) -> Search:
+    definition = json.loads(header["definition_json"])
+    budgets = [s.get("trials") for s in header["sessions"] if isinstance(s, dict)]
+    return Search(header["tuning_id"], hashlib.sha256(f"{header['fingerprint']}\0{header['definition_json']}".encode())
+                  .hexdigest(), tuple(definition["methods"]), tuple(definition["seeds"]),
+                  max([b for b in budgets if _is_int(b)] or [0]))
+
+
+def read_header(path: Path | str) -> dict:
+    """The checked header of the tuning store ``path``; TuningStoreError (one line) naming what is wrong."""
+    path = Path(path)
+    try:
+        header = records.read_json(path / HEADER, MAX_BYTES)
+        records.check_seal(header)
+        if set(header) != HEADER_FIELDS:
+            raise RecordError(f"fields differ from a header's ({', '.join(sorted(set(header) ^ HEADER_FIELDS))[:120]})")
+        if header["schema"] != SCHEMA_NAME or header["schema_version"] != SCHEMA_VERSION:
+            raise RecordError(f"schema {header['schema']!s:.40} {header['schema_version']!s:.20}; this ilcforce "
+                              f"reads {SCHEMA_NAME} {SCHEMA_VERSION}")
+        if not all(isinstance(header[k], str) for k in HEADER_FIELDS - {"schema_version", "sessions"}):
+            raise RecordError("a text field is not text")
+        if not isinstance(header["sessions"], list):
+            raise RecordError("sessions is not a list")
+        definition = json.loads(header["definition_json"])
+        if not (isinstance(definition, dict) and isinstance(definition.get("methods"), list)
+                and all(isinstance(m, str) for m in definition["methods"])
+                and isinstance(definition.get("seeds"), list) and all(_is_int(s) for s in definition["seeds"])):
+            raise RecordError("definition_json lacks its methods or seeds")
+    except RecordError as error:
+        raise TuningStoreError(f"{path / HEADER}: not a valid tuning header ({error})") from None
+    except (ValueError, RecursionError):
+        raise TuningStoreError(f"{path / HEADER}: not a valid tuning header (definition_json is not JSON)") from None
+    return header
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_record(record, search: Search, name: tuple[str, str] | None = None,
+                 check: Callable[[dict], None] | None = None) -> None:
+    """RecordError unless ``record`` is a sealed, whole trial of ``search`` (stored under the file
+    name whose (method, number) is ``name``) that passes the search's own ``check``."""
+    records.check_seal(record)
+    if set(record) != RECORD_FIELDS:
+        raise RecordError(f"fields differ from a trial's ({', '.join(sorted(set(record) ^ RECORD_FIELDS))[:120]})")
+    if record["tuning"] != search.tuning_id:
+        raise RecordError("it belongs to another tuning store (its tuning id is not this store's)")
+    if record["search"] != search.digest:
+        raise RecordError("it was computed for another search or by other simulation code")
+    method, number = record["method"], record["number"]
+    if method not in search.methods or not _is_int(number):
+        raise RecordError(f"method {str(method)[:64]!r} is not one this tuning searches, or its number is no integer")
+    if name is not None and (method, number) != (name[0], int(name[1])):
+        raise RecordError(f"it holds {method} trial {number}, not the trial of its file name")
+    if not 0 <= number < search.most:
+        raise RecordError(f"trial {number} is beyond every budget a run of this tuning asked for ({search.most})")
+    seeds = record["seeds"]
+    if not isinstance(seeds, list) or [e.get("seed") if isinstance(e, dict) and _is_int(e.get("seed")) else None
+                                       for e in seeds] not in (list(search.seeds), [] if record["state"] == FAILED else 0):
+        raise RecordError(f"its seeds are not the tuning's {list(search.seeds)[:10]} (none: gains refused unrun)")
+    for entry in seeds:
+        if not set(SEED_KEYS) <= set(entry) <= {*SEED_KEYS, "message"}:
+            raise RecordError(f"seed {entry['seed']}: its fields are not {', '.join(SEED_KEYS)}")
+        if entry["value"] is not None and not _is_number(entry["value"]):
+            raise RecordError(f"seed {entry['seed']}: value {str(entry['value'])[:30]} is not a finite number")
+    values = [e["value"] for e in seeds]
+    if record["state"] == COMPLETE:
+        if not _is_number(record["value"]) or None in values or record["value"] != statistics.median(values):
+            raise RecordError(f"value {str(record['value'])[:30]} is not the median of its seeds' values")
+    elif record["state"] != FAILED or record["value"] is not None:
+        raise RecordError(f"state {str(record['state'])[:20]!r} with value {str(record['value'])[:30]}")
+    if not isinstance(record["params"], dict) or not all(_is_number(v) for v in record["params"].values()):
+        raise RecordError("params is not a table of finite numbers")
+    if (number == 0) != (record["params"] == {}):
+        raise RecordError("trial 0 (and only trial 0) runs the experiment's own gains, with no params")
+    if not isinstance(record["gains"], dict) or not isinstance(record["message"], str):
+        raise RecordError("gains is not a table or message not text")
+    if not _is_number(record["elapsed"]) or record["elapsed"] < 0 or not isinstance(record["in_sampler"], bool):
+        raise RecordError("elapsed is not a time in s or in_sampler not true/false")
+    if check is not None:
+        check(record)
+
+
+@dataclass(frozen=True)
+class Scan:
+    trials: dict  # method -> {number: record}, the records that passed
+    refused: list  # (Path, reason)
+
+
+def scan(path: Path, search: Search, check: Callable[[dict], None] | None = None) -> Scan:
+    """Check every record in ``<path>/trials/`` (hidden entries: records being written and the
+    quarantine, left out; files not named as a trial are not records and are never opened)."""
+    trials: dict[str, dict[int, dict]] = {}
+    refused = []
+    folder = Path(path) / TRIALS
+    if not folder.is_dir() or folder.is_symlink():
+        return Scan(trials, refused)
+    for item in sorted(folder.iterdir()):
+        match = _TRIAL_FILE.fullmatch(item.name)
+        if match is None:
+            continue
+        try:
+            record = records.read_json(item, MAX_BYTES)
+            check_record(record, search, (match["method"], match["number"]), check)
+        except RecordError as error:
+            refused.append((item, str(error)))
+            continue
+        trials.setdefault(record["method"], {})[record["number"]] = record
+    return Scan(trials, refused)
+
+
+def read_trials(path: Path | str, check: Callable[[dict], None] | None = None) -> dict[str, dict[int, dict]]:
+    """Every trial record that passes its checks: method -> {number: record}."""
+    return scan(Path(path), search_of(read_header(path)), check).trials
+
+
+def validate_tuning(path: Path | str, check: Callable[[dict], None] | None = None) -> dict:
+    """Check a tuning store; returns {name, methods: {method: (trials, failed, best value)}}.
+
+    Raises :class:`TuningStoreError` (one line) for a damaged header, any record refused (named,
+    with why), or a gap in a method's trial numbers (the next ``ilcforce tune`` runs it again)."""
+    path = Path(path)
+    header = read_header(path)
+    found = scan(path, search_of(header), check)
+    if found.refused:
+        item, why = found.refused[0]
+        more = f" (and {len(found.refused) - 1} more refused records)" if len(found.refused) > 1 else ""
+        raise TuningStoreError(f"{item}: refused ({why}){more}; the next `ilcforce tune` moves it aside and runs "
+                               "its trial again")
+    summary = {}
+    for method, trials in found.trials.items():
+        numbers = sorted(trials)
+        if numbers != list(range(len(numbers))):
+            gap = next(i for i, n in enumerate(numbers) if n != i)
+            raise TuningStoreError(f"{path}: {method}'s trial {gap} is missing (the next `ilcforce tune` runs it again)")
+        values = [r["value"] for r in trials.values() if r["state"] == COMPLETE]
+        summary[method] = (len(trials), sum(r["state"] == FAILED for r in trials.values()),
+                           min(values) if values else None)
+    return {"name": header["name"], "methods": summary}
+
+
+class TuningStore:
+    """The writer of one tuning store (the driver is the only writer). Opening it locks it, checks a
+    stored tuning against ``header`` (same definition and simulation code, unless ``overwrite``),
+    moves refused records aside (:attr:`quarantined`, one line each) and reads the trials that
+    passed (:attr:`trials`, per method a dict number -> record)."""
+
+    def __init__(self, path: Path, header: dict, session: dict, *, overwrite: bool = False,
+                 check: Callable[[dict], None] | None = None) -> None:
+        self.path, self.check, self._lock = Path(path), check, None
+        if self.path.is_symlink() or (self.path.exists() and not self.path.is_dir()):
+            raise TuningStoreError(f"{self.path}: exists and is not a directory; refusing to touch it")
+        if self.path.exists() and any(self.path.iterdir()) and not (self.path / HEADER).is_file():
+            raise TuningStoreError(f"{self.path}: exists and is not an ilcforce tuning store; move it away")
+        if (self.path / TRIALS).is_symlink() or (self.path / TRIALS).exists() and not (self.path / TRIALS).is_dir():
+            raise TuningStoreError(f"{self.path / TRIALS}: not a folder of this store (a link or a file); move it away")
+        self.created = not self.path.exists()
+        try:
+            self.path.mkdir(parents=True, exist_ok=True)
+            self._lock = acquire_writer_lock(self.path, f"{self.path}: another `ilcforce tune` is writing this tuning store")
+        except (OSError, StoreError) as exc:
+            raise TuningStoreError(f"{self.path}: cannot lock the tuning store ({getattr(exc, 'strerror', None) or exc})"
+                                   ) from None
+        try:
+            self._open(header, session, overwrite)
+        except OSError as exc:
+            self.close()
+            raise TuningStoreError(f"{self.path}: cannot open the tuning store ({exc.strerror or exc})") from None
+        except BaseException:
+            self.close()
+            raise
+
+    def _open(self, header: dict, session: dict, overwrite: bool) -> None:
+        stored = None
+        if (self.path / HEADER).exists():
+            try:
+                stored = read_header(self.path)
+            except TuningStoreError as error:
+                if not overwrite:
+                    raise TuningStoreError(f"{error}; pass --overwrite to start the tuning over") from None
+            reason = None
+            if stored is not None and stored["definition_json"] != header["definition_json"]:
+                reason = "its tuning file defines another search (experiment, methods, seeds, ranges or objective)"
+            elif stored is not None and stored["fingerprint"] != header["fingerprint"]:
+                reason = "its trials were computed by different simulation code"
+            if reason and not overwrite:
+                raise TuningStoreError(f"{self.path}: {reason}; pass --overwrite to start the tuning over")
+        for item in dead_copies_in(self.path) + dead_copies_in(self.path / TRIALS):
+            item.unlink(missing_ok=True)
+        if stored is None or overwrite:
+            if (self.path / TRIALS).exists():
+                shutil.rmtree(self.path / TRIALS)
+            (self.path / TUNED).unlink(missing_ok=True)
+            stored = {**header, "tuning_id": uuid.uuid4().hex, "sessions": []}
+        self.header = {**stored, "sessions": [*stored["sessions"], session]}
+        records.atomic_write(self.path / HEADER, json.dumps(records.seal(self.header)).encode())
+        self.header = read_header(self.path)
+        (self.path / TRIALS).mkdir(exist_ok=True)
+        self.search = search_of(self.header)
+        found = scan(self.path, self.search, self.check)
+        self.quarantined = []
+        for item, why in found.refused:
+            where = records.quarantine(item)
+            self.quarantined.append(f"{item}: refused ({why}); moved to {where}, its trial runs again")
+        self.trials = found.trials
+        self.committed = 0
+
+    def commit(self, record: dict) -> None:
+        """Store one finished trial (whole or not at all; never over a stored one)."""
+        record = records.seal({**record, "tuning": self.search.tuning_id, "search": self.search.digest})
+        target = self.path / TRIALS / f"{record['method']}-{record['number']:05d}.json"
+        try:  # never commit a record that a reader would refuse
+            check_record(record, self.search, None, self.check)
+        except RecordError as exc:
+            raise TuningStoreError(f"{target}: refusing to store the trial ({exc})") from None
+        if not check_writer_lock(self._lock, self.path):
+            raise TuningStoreError(f"{self.path}: no longer the folder this tuning locked; stopping")
+        try:
+            records.atomic_write(target, json.dumps(record).encode(), replace=False)
+        except FileExistsError:
+            raise TuningStoreError(f"{target}: a trial is already stored there; refusing to overwrite it") from None
+        except OSError as exc:
+            raise TuningStoreError(f"{target}: cannot write ({exc.strerror or exc}); every trial stored before "
+                                   "is kept") from None
+        self.committed += 1
+        self.trials.setdefault(record["method"], {})[record["number"]] = record
+
+    def write_tuned(self, text: str) -> Path:
+        records.atomic_write(self.path / TUNED, text.encode())
+        return self.path / TUNED
+
+    def discard_if_unused(self) -> None:
+        """Remove a store this run made and stored no trial in (e.g. the scheduler was unreachable)."""
+        if self.created and not self.committed and self._lock is not None:
+            shutil.rmtree(self.path, ignore_errors=True)
+        self.close()
+
+    def close(self) -> None:
+        if self._lock is not None:
+            os.close(self._lock)
+            self._lock = None
+
+
+def trials_frame(path: Path | str, check: Callable[[dict], None] | None = None):
+    """Every trial record that passes its checks as a tidy table (pandas DataFrame), one row per
+    (method, trial), in trial order: method, trial, state, objective (NaN when failed), best_so_far
+    (the method's best up to and including this trial, NaN before the first complete one),
+    message, elapsed (s), then one column per gain (dotted key; a vector gain holds a list)."""
+    import pandas as pd
+
+    rows = []
+    for method, trials in read_trials(path, check).items():
+        best = math.inf
+        for number in sorted(trials):
+            record = trials[number]
+            value = record["value"] if record["state"] == COMPLETE else math.nan
+            if value == value:
+                best = min(best, value)
+            rows.append({"method": method, "trial": number, "state": record["state"], "objective": value,
+                         "best_so_far": best if best < math.inf else math.nan, "message": record["message"],
+                         "elapsed": record["elapsed"], **record["gains"]})
+    return pd.DataFrame(rows, columns=None if rows else ["method", "trial", "state", "objective", "best_so_far",
+                                                          "message", "elapsed"])
