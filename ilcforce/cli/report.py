@@ -39,9 +39,10 @@ def report(
                            progress=None if quiet else lambda text: _say(f"report: {text}", stderr=True))
     for warning in summary.warnings:
         _say(f"warning: {warning}", stderr=True)
-    if not summary.experiments and not summary.studies:
+    if not summary.experiments and not summary.studies and not any(
+            Path(f).is_relative_to(Path(target) / "tuning") for f in summary.files):
         raise CliError(f"no usable ilcforce stores under {results}")
-    done = [*summary.experiments, *(f"study {name}" for name in summary.studies)]
+    done = [*summary.experiments, *(f"study {name}" for name in summary.studies)] or ["the tuning stores"]
     _say(f"report for {', '.join(done)} written to {target}/index.md")
 
 

@@ -327,7 +327,7 @@ def write_report(
     study_dir = results_dir / "studies"
     report_paths = find_study_stores(results_dir)
     findings_paths = sorted(study_dir.glob("*.h5")) if study_dir.is_dir() else []
-    if not found and not report_paths and not findings_paths:  # nothing to report: out_dir is left as it is
+    if not found and not report_paths and not findings_paths and not (results_dir / "tuning").is_dir():  # nothing to report: out_dir is left as it is
         return ReportSummary(out_dir=out_dir, experiments=(), files=(), warnings=tuple(warnings))
     out_dir.mkdir(parents=True, exist_ok=True)
     pieces = [pool.Task(f"experiment {name}", _report_experiment, (name, paths, out_dir, tuple(formats)),
@@ -370,6 +370,9 @@ def write_report(
         study_section = [*study_section, "## Tuning", "", *tuning_lines, ""]
     reported = tuple(r.name for r in study_reports if r.index_lines)
     if not verdicts and not reported and not studies:  # every store was unusable: an existing report stays
+        if tuning_lines:  # a results folder of tuning stores only: their pages, and an index linking them
+            write_text_whole(out_dir / "index.md", "\n".join(["# ilcforce reports", "", *study_section]))
+            written.append(out_dir / "index.md")
         return ReportSummary(out_dir=out_dir, experiments=(), files=tuple(written), warnings=tuple(warnings))
     index = out_dir / "index.md"
     title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)

@@ -1,7 +1,7 @@
 """Tuning figures: a method's objective against the trial number (``ilcforce tune``).
 
 Draws on the Axes it is given and returns the artists, as every report figure does; the input is
-:func:`ilcforce.store.tuning.trials_frame`.
+:func:`ilcforce.tune.runner.trials_frame`.
 """
 
 from __future__ import annotations
@@ -71,8 +71,8 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
 
     from ilcforce.report.figure_files import save_figure, write_text_whole
     from ilcforce.report.table_write import markdown_table, write_table
-    from ilcforce.store.tuning import read_header, trials_frame
-    from ilcforce.tune.runner import validate_tuning
+    from ilcforce.store.tuning import read_header
+    from ilcforce.tune.runner import trials_frame, validate_tuning
 
     path, out_dir = Path(path), Path(out_dir)
     summary = validate_tuning(path)

@@ -199,12 +199,13 @@ def scan(path: Path, search: Search, check: Callable[[dict], None] | None = None
     return Scan(trials, refused)
 
 
-def read_trials(path: Path | str, check: Callable[[dict], None] | None = None) -> dict[str, dict[int, dict]]:
-    """Every trial record that passes its checks: method -> {number: record}."""
+def read_trials(path: Path | str, check: Callable[[dict], None] | None) -> dict[str, dict[int, dict]]:
+    """Every trial record that passes its checks and the search's own ``check`` (None: the store's
+    checks alone; :func:`ilcforce.tune.runner.read_trials` gives the search's): method -> {number: record}."""
     return scan(Path(path), search_of(read_header(path)), check).trials
 
 
-def validate_tuning(path: Path | str, check: Callable[[dict], None] | None = None) -> dict:
+def validate_tuning(path: Path | str, check: Callable[[dict], None] | None) -> dict:
     """Check a tuning store; returns {name, methods: {method: (trials, failed, best value)}}.
 
     Raises :class:`TuningStoreError` (one line) for a damaged header, any record refused (named,
@@ -282,7 +283,8 @@ class TuningStore:
                 shutil.rmtree(self.path / TRIALS)
             (self.path / TUNED).unlink(missing_ok=True)
             stored = {**header, "tuning_id": uuid.uuid4().hex, "sessions": []}
-        self.header = {**stored, "sessions": [*stored["sessions"], session]}
+        # the tuning file as last run (a changed budget is the one change of it a stored search takes)
+        self.header = {**stored, "tuning_toml": header["tuning_toml"], "sessions": [*stored["sessions"], session]}
         records.atomic_write(self.path / HEADER, json.dumps(records.seal(self.header)).encode())
         self.header = read_header(self.path)
         (self.path / TRIALS).mkdir(exist_ok=True)
@@ -331,7 +333,7 @@ class TuningStore:
             self._lock = None
 
 
-def trials_frame(path: Path | str, check: Callable[[dict], None] | None = None):
+def trials_frame(path: Path | str, check: Callable[[dict], None] | None):
     """Every trial record that passes its checks as a tidy table (pandas DataFrame), one row per
     (method, trial), in trial order: method, trial, state, objective (NaN when failed), best_so_far
     (the method's best up to and including this trial, NaN before the first complete one),

@@ -134,15 +134,35 @@ def trial_check(definition: dict) -> Callable[[dict], None]:
     return check
 
 
-def validate_tuning(path: Path | str) -> dict:
-    """:func:`ilcforce.store.tuning.validate_tuning` with the stored search's own check of each trial."""
-    from ilcforce.store.tuning import read_header, validate_tuning as validate
+def stored_check(path: Path | str) -> Callable[[dict], None]:
+    """:func:`trial_check` of the search the tuning store ``path`` holds (from its checked header)."""
+    from ilcforce.store.tuning import read_header
 
     try:
-        check = trial_check(json.loads(read_header(path)["definition_json"]))
+        return trial_check(json.loads(read_header(path)["definition_json"]))
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
         raise TuningStoreError(f"{path}: its search definition cannot be read ({exc})") from None
-    return validate(path, check)
+
+
+def validate_tuning(path: Path | str) -> dict:
+    """Check a tuning store, every trial against its search too (:func:`ilcforce.store.tuning.validate_tuning`)."""
+    from ilcforce.store import tuning
+
+    return tuning.validate_tuning(path, stored_check(path))
+
+
+def read_trials(path: Path | str) -> dict[str, dict[int, dict]]:
+    """Every trial of the tuning store ``path`` that passes every check: method -> {number: record}."""
+    from ilcforce.store import tuning
+
+    return tuning.read_trials(path, stored_check(path))
+
+
+def trials_frame(path: Path | str):
+    """:func:`ilcforce.store.tuning.trials_frame` of the trials that pass every check."""
+    from ilcforce.store import tuning
+
+    return tuning.trials_frame(path, stored_check(path))
 
 
 def _is_count(value) -> bool:
@@ -490,10 +510,11 @@ def tuned_experiment(tuning: Tuning, best: dict[str, dict], baseline: dict[str, 
              f"{tuning.score_iterations - tuning.score_last}..{tuning.score_iterations - 1} of log10(e_P/1 mm) "
              f"and/or log10(e_F/1 N) (RMS norms); a divergence anywhere in the horizon fails the trial."]
     for method in tuning.methods:
-        first, record, count = (baseline or {}).get(method), best.get(method), (stored or {}).get(method)
+        first, record = (baseline or {}).get(method), best.get(method)
+        count = (stored or {}).get(method, "the")
         was = ("failed" if first["value"] is None else f"{first['value']:.4g}") if first else "not run"
-        of = f" of {count} stored" if count is not None else ""
-        lines.append(f"{method}: best trial {record['number']}{of}, objective {record['value']:.4g} "
+        lines.append(f"{method}: best trial {record['number']} of {count} stored, objective {record['value']:.4g} "
                      f"(trial 0, the experiment's gains: {was})" if record is not None else
-                     f"{method}: UNTUNED: every one of its{of} trials failed; its gains are the experiment's own")
+                     f"{method}: UNTUNED: every one of its {count} stored trials failed; its gains are the "
+                     "experiment's own")
     return "\n".join(toml_comment(line) for line in lines) + "\n" + dump_toml(document)
