@@ -13,12 +13,20 @@ as if it were written. So:
   values, each as its length (uint32 LE) and its UTF-8 bytes, continued value by value, so an
   append costs only the new values (:func:`strings_checksum`).
 
-CRC-32 detects every single-bit flip and every burst up to 32 bits; it is a check against
-damage, not against someone who rewrites the file on purpose.
+* every numeric column of a study store carries ``data_sha256``: sha256 over its path in the file
+  and its values' bytes (:func:`data_digest`). HDF5's Fletcher-32 guards the chunks, but anyone
+  who edits a value through h5py gets a recomputed Fletcher-32 for free; the digest is not
+  recomputed by such an edit, and as it names the column, a column hard-linked to another's
+  data does not match either.
+
+CRC-32 detects every single-bit flip and every burst up to 32 bits; sha256 any change. Neither
+is a signature: someone who rewrites the file on purpose, digests and seals included, is not
+caught (that would need a key the reader holds and the editor does not).
 """
 
 from __future__ import annotations
 
+import hashlib
 import struct
 import zlib
 from collections.abc import Iterable
@@ -30,6 +38,8 @@ import numpy as np
 ATTRS_SEAL = "attrs_crc32"
 #: The attribute that seals a variable-length string column.
 STRINGS_SEAL = "strings_crc32"
+#: The attribute that seals a numeric column's values.
+DATA_SEAL = "data_sha256"
 
 
 def _value_bytes(value: Any) -> bytes:
@@ -86,3 +96,9 @@ def strings_checksum(values: Iterable[str], start: int = 0) -> int:
         data = str(value).encode("utf-8", "surrogatepass")
         crc = zlib.crc32(struct.pack("<I", len(data)) + data, crc)
     return crc & 0xFFFFFFFF
+
+
+def data_digest(path: str, values: np.ndarray) -> str:
+    """sha256 (hex) over a numeric column's path in its file and its values (little-endian)."""
+    values = np.ascontiguousarray(values, dtype=values.dtype.newbyteorder("<"))
+    return hashlib.sha256(path.encode() + b"\0" + values.dtype.str.encode() + b"\0" + values.tobytes()).hexdigest()

@@ -18,12 +18,13 @@ truncated) refuses a second driver on the same study.
 Every record is sealed and checked against the store before it is used (:mod:`.study_journal`);
 every attribute and string column of the HDF5 file carries a checksum (:mod:`.seal`).
 
-Layout (schema ``ilcforce.study`` 1.1; 1.0 lacks study_id and the seals)::
+Layout (schema ``ilcforce.study`` 1.2; 1.0 lacks study_id and the seals, 1.1 the numeric columns' digests)::
 
     /             attrs: schema, schema_version, name, description, study_toml, definition_json,
                          fingerprint, created, sessions_json (each run's seeds and methods among
                          its fields), study_id (the identity the journal's records carry),
-                         attrs_crc32 (on every group and column too; strings_crc32 on string columns)
+                         attrs_crc32 (on every group and column too; strings_crc32 on string
+                         columns, data_sha256 on numeric ones)
     /settings     datasets (n_settings,): config_json, label, values_json (swept key -> value, JSON)
     /metrics      one dataset per column, (n_rows,): setting, seed, method, iteration, then the
                   metric columns of the cells' rows (status, ..., memory_norm_*)
@@ -46,7 +47,7 @@ import numpy as np
 
 from ilcforce import stops
 from ilcforce.store import records, study_journal
-from ilcforce.store.seal import STRINGS_SEAL, seal_attrs, strings_checksum
+from ilcforce.store.seal import DATA_SEAL, STRINGS_SEAL, data_digest, seal_attrs, strings_checksum
 from ilcforce.store.filecheck import StoreError, writers_lock
 from ilcforce.store.safeio import (acquire_writer_lock, check_writer_lock, dead_copies_in, dead_writers_copies, is_hdf5_file,
                                   one_line)
@@ -107,7 +108,9 @@ def _seal(handle: h5py.File) -> None:
         group = handle[group_name]
         for name in group:
             dataset = group[name]
-            if h5py.check_string_dtype(dataset.dtype) is not None and STRINGS_SEAL not in dataset.attrs:
+            if h5py.check_string_dtype(dataset.dtype) is None:
+                dataset.attrs[DATA_SEAL] = data_digest(f"/{group_name}/{name}", dataset[()])
+            elif STRINGS_SEAL not in dataset.attrs:
                 dataset.attrs[STRINGS_SEAL] = np.uint32(strings_checksum(dataset.asstr()[()]))
             seal_attrs(dataset)
         seal_attrs(group)

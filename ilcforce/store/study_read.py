@@ -13,17 +13,19 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.store import study_journal
-from ilcforce.store.seal import ATTRS_SEAL, STRINGS_SEAL, attrs_state, strings_checksum
+from ilcforce.store.seal import ATTRS_SEAL, DATA_SEAL, STRINGS_SEAL, attrs_state, data_digest, strings_checksum
 from ilcforce.store.filecheck import StoreError, check_regular_file, is_hdf5_file, probe, writers_lock
 from ilcforce.store.schema import STUDY_NAME, STUDY_SCHEMA_NAME
 
 SCHEMA_NAME = STUDY_SCHEMA_NAME
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"
 #: From this version on, the root, every group and every column carry attribute seals and every
 #: string column a checksum of its values (:mod:`.seal`). A 1.0 store has none: it is read and
 #: ``validate`` says its strings are unverified (accepted: its numbers are Fletcher-32 checked, and
 #: the driver seals it at its next consolidation).
 SEALED_FROM = (1, 1)
+#: The first study schema whose numeric columns carry their digest (seal.DATA_SEAL).
+DIGESTS_FROM = (1, 2)
 CELL_COLUMNS = ("setting", "seed", "method", "state", "attempts", "message", "elapsed", "worker")
 KEY_COLUMNS = ("setting", "seed", "method")
 DONE, FAILED = "done", "failed"
@@ -55,13 +57,14 @@ def is_study_store(path: Path) -> bool:
 # reading
 
 
-def is_sealed(handle: h5py.File) -> bool:
-    """Whether the study store open as ``handle`` is of a schema whose attributes and strings are sealed."""
+def is_sealed(handle: h5py.File, since: tuple[int, int] = SEALED_FROM) -> bool:
+    """Whether the study store open as ``handle`` is of a schema whose attributes and strings are
+    sealed (``since`` 1.1; its numeric columns: DIGESTS_FROM)."""
     try:
         major, minor = (int(x) for x in str(handle.attrs.get("schema_version", "")).split("."))
     except ValueError:
         return True
-    return (major, minor) >= SEALED_FROM
+    return (major, minor) >= since
 
 
 def _verify_attrs(obj, sealed: bool) -> None:
@@ -72,7 +75,7 @@ def _verify_attrs(obj, sealed: bool) -> None:
                               f"({ATTRS_SEAL}) or have none: damaged")
 
 
-def _column(dataset: h5py.Dataset, sealed: bool) -> np.ndarray:
+def _column(dataset: h5py.Dataset, sealed: bool, path: str) -> np.ndarray:
     _verify_attrs(dataset, sealed)
     if h5py.check_string_dtype(dataset.dtype) is not None:
         values = np.asarray(dataset.asstr()[()], dtype=object)
@@ -83,7 +86,12 @@ def _column(dataset: h5py.Dataset, sealed: bool) -> np.ndarray:
             raise StudyStoreError(f"{dataset.file.filename}: the strings of {dataset.name} do not match their "
                                   f"checksum ({STRINGS_SEAL}): damaged")
         return values
-    return dataset[()]
+    values = dataset[()]
+    if DATA_SEAL in dataset.attrs or is_sealed(dataset.file, DIGESTS_FROM):
+        if str(dataset.attrs.get(DATA_SEAL)) != data_digest(path, values):
+            raise StudyStoreError(f"{dataset.file.filename}: the values of {path} do not match their digest "
+                                  f"({DATA_SEAL}): changed after they were written")
+    return values
 
 
 def _table(group: h5py.Group) -> pd.DataFrame:
@@ -92,7 +100,7 @@ def _table(group: h5py.Group) -> pd.DataFrame:
     n = int(group.attrs.get("n_rows", 0))
     data = {}
     for name in json.loads(group.attrs.get("columns_json", "[]")):
-        values = _column(group[name], sealed)
+        values = _column(group[name], sealed, f"{group.name}/{name}")
         if values.shape != (n,):
             raise StudyStoreError(f"{group.file.filename}: /{group.name.strip('/')}/{name} has {values.shape[0]} "
                                   f"rows, expected {n}")
