@@ -302,7 +302,7 @@ def test_trials_frame_and_its_figure(tmp_path):
     from matplotlib.figure import Figure
 
     from ilcforce.report.tuning import plot_tuning_history
-    from ilcforce.tune.runner import trials_frame
+    from ilcforce.report.tuning import trials_frame
 
     path = tiny_file(tmp_path, TINY.replace("trials = 2", "trials = 4"))
     summary = run_tuning(load_tuning(path), tmp_path / "r", workers=1, cell_function=fake_cell)

@@ -1,7 +1,7 @@
 """Tuning figures: a method's objective against the trial number (``ilcforce tune``).
 
 Draws on the Axes it is given and returns the artists, as every report figure does; the input is
-:func:`ilcforce.tune.runner.trials_frame`.
+:func:`trials_frame`.
 """
 
 from __future__ import annotations
@@ -11,6 +11,30 @@ import pandas as pd
 from matplotlib.axes import Axes
 
 from ilcforce.controllers import REGISTRY
+
+
+def trials_frame(path) -> pd.DataFrame:
+    """Every trial of the tuning store ``path`` that passes every check
+    (:func:`ilcforce.tune.runner.read_trials`) as a tidy table, one row per (method, trial), in trial
+    order: method, trial, state, objective (NaN when failed), best_so_far (the method's best up to
+    and including this trial, NaN before the first complete one), message, elapsed (s), then one
+    column per gain (dotted key; a vector gain holds a list)."""
+    import math
+
+    from ilcforce.tune.runner import read_trials
+
+    rows = []
+    for method, trials in read_trials(path).items():
+        best = math.inf
+        for number in sorted(trials):
+            record = trials[number]
+            value = record["value"] if record["state"] == "complete" else math.nan
+            best = min(best, value) if value == value else best
+            rows.append({"method": method, "trial": number, "state": record["state"], "objective": value,
+                         "best_so_far": best if best < math.inf else math.nan, "message": record["message"],
+                         "elapsed": record["elapsed"], **record["gains"]})
+    return pd.DataFrame(rows, columns=None if rows else ["method", "trial", "state", "objective", "best_so_far",
+                                                          "message", "elapsed"])
 
 
 def plot_tuning_history(ax: Axes, frame: pd.DataFrame, method: str) -> list:
@@ -72,7 +96,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
     from ilcforce.report.figure_files import save_figure, write_text_whole
     from ilcforce.report.table_write import markdown_table, write_table
     from ilcforce.store.tuning import read_header
-    from ilcforce.tune.runner import trials_frame, validate_tuning
+    from ilcforce.tune.runner import validate_tuning
 
     path, out_dir = Path(path), Path(out_dir)
     summary = validate_tuning(path)

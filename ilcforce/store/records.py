@@ -56,6 +56,13 @@ def check_seal(record) -> None:
         raise RecordError("its checksum does not match its content (changed after it was written)")
 
 
+def check_fields(record, fields: frozenset, what: str) -> None:
+    """RecordError unless ``record`` is sealed (:func:`check_seal`) and has exactly ``fields``."""
+    check_seal(record)
+    if set(record) != fields:
+        raise RecordError(f"fields differ from {what}'s ({', '.join(map(str, sorted(set(record) ^ fields)))[:120]})")
+
+
 def read_json(item: Path, limit: int):
     """The JSON value in the regular file ``item`` (at most ``limit`` bytes); RecordError saying why not."""
     try:

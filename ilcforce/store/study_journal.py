@@ -143,10 +143,7 @@ def check(record, facts_: StudyFacts, name_key: tuple[str, str, str] | None = No
     (stored under the file name whose parts are ``name_key``)."""
     if isinstance(record, dict) and "format" not in record:
         raise RecordError("no checksum (written by an older ilcforce, or not a record)")
-    records.check_seal(record)
-    if set(record) != RECORD_FIELDS:
-        odd = sorted(set(record) ^ RECORD_FIELDS)
-        raise RecordError(f"fields differ from a record's ({', '.join(map(str, odd))[:120]})")
+    records.check_fields(record, RECORD_FIELDS, "a record")
     if record["format"] != RECORD_FORMAT:
         raise RecordError(f"record format {str(record['format'])[:20]!r}; this ilcforce reads {RECORD_FORMAT}")
     if record["study"] != facts_.study_id or not facts_.study_id:

@@ -1,26 +1,15 @@
-"""The tuning store, ``results/tuning/<name>/``: one sealed JSON record per finished trial, written
-as it finishes, so a rerun after ``kill -9`` repeats none of them.
+"""The tuning store, ``results/tuning/<name>/`` (layout: docs/store-format.md): a sealed header
+``tuning.json`` and one sealed JSON record per finished trial in ``trials/``, written as it finishes,
+so a rerun after ``kill -9`` repeats none of them.
 
-Layout (schema ``ilcforce.tuning`` 2)::
-
-    <name>/tuning.json                 sealed header: schema, schema_version, name, description,
-                                       tuning_toml, definition_json, fingerprint, created, tuning_id
-                                       (random, made with the store), sessions (each run's command,
-                                       host, start time and budget ``trials``), checksum
-    <name>/trials/<method>-<n>.json    one finished trial (n zero-padded to 5 digits): RECORD_FIELDS
-    <name>/trials/.quarantine/         records a writer refused, moved aside with one line each
-    <name>/tuned.toml                  the best gains as an experiment file (written after each run)
-
-Durability is the study journal's, from the same code (:mod:`.records`): every file is written
-whole or not at all (temporary name, fsync, rename; a trial record by a hard link that never
-replaces a finished one), sealed by sha256 over its canonical JSON, and read in bounded time. The
-folder itself is the writer's lock (:func:`~.safeio.acquire_writer_lock`, by identity). A record
-is trusted only when it is sealed, carries this store's ``tuning_id`` and the digest of its
-search (definition and simulation code), names a method and a budget some run of the search
-asked for, has seeds that are the search's, a value that is the median of its seeds' values, and
-passes the search's own check (``check``, from :mod:`ilcforce.tune`: parameters in the search
-space, gains computed from them, each seed's value from its error norms). Readers skip any other
-record and name it; the writer moves it aside (its trial then runs again).
+Durability is the study journal's, from the same code (:mod:`.records`): whole-or-absent writes (a
+trial by a hard link that never replaces a finished one), sha256 seals, reads in bounded time. The
+folder is the writer's lock (:func:`~.safeio.acquire_writer_lock`). A record is trusted only when it
+is sealed, carries this store's ``tuning_id`` and its search's digest (definition and simulation
+code), names a method and a budget some run of the search asked for, has the search's seeds, a value
+that is the median of theirs, and passes the search's own ``check`` (:mod:`ilcforce.tune.runner`:
+params in the space, gains from the params, seed values from the error norms). Readers skip any
+other record and name it; the writer moves it aside into ``trials/.quarantine/`` (its trial runs again).
 """
 
 from __future__ import annotations
@@ -46,17 +35,14 @@ SCHEMA_VERSION = 2
 HEADER, TRIALS, TUNED = "tuning.json", "trials", "tuned.toml"
 HEADER_FIELDS = frozenset({"schema", "schema_version", "name", "description", "tuning_toml", "definition_json",
                            "fingerprint", "created", "tuning_id", "sessions", "checksum"})
-#: A trial: which store and search it belongs to (tuning, search), what it is (method, number,
-#: params: the sampled values, Optuna's names, empty for trial 0, the experiment's gains), the gains
-#: it ran (dotted --set keys), state, value (the objective, null when failed), per seed the
-#: objective (null: diverged) and the RMS error norms per iteration run, message (why it failed),
-#: elapsed (s, its cells' wall time added up), in_sampler (whether the sampler learned from it).
+#: A trial's fields (docs/store-format.md says what each holds).
 RECORD_FIELDS = frozenset({"tuning", "search", "method", "number", "params", "gains", "state", "value", "seeds",
                            "message", "elapsed", "in_sampler", "checksum"})
 SEED_KEYS = ("seed", "value", "iterations_run", "diverged_iteration", "position_error_rms", "force_error_rms")
 COMPLETE, FAILED = "complete", "failed"
 MAX_BYTES = 16 << 20
 _TRIAL_FILE = re.compile(r"(?P<method>[a-z0-9][a-z0-9-]{0,63})-(?P<number>\d{5})\.json")
+Check = Callable[[dict], None]
 
 
 class TuningStoreError(Exception):
@@ -93,28 +79,18 @@ def search_of(header: dict) -> Search:
 
 def read_header(path: Path | str) -> dict:
     """The checked header of the tuning store ``path``; TuningStoreError (one line) naming what is wrong."""
-    path = Path(path)
     try:
-        header = records.read_json(path / HEADER, MAX_BYTES)
-        records.check_seal(header)
-        if set(header) != HEADER_FIELDS:
-            raise RecordError(f"fields differ from a header's ({', '.join(sorted(set(header) ^ HEADER_FIELDS))[:120]})")
-        if header["schema"] != SCHEMA_NAME or header["schema_version"] != SCHEMA_VERSION:
+        header = records.read_json(Path(path) / HEADER, MAX_BYTES)
+        records.check_fields(header, HEADER_FIELDS, "a tuning header")
+        if (header["schema"], header["schema_version"]) != (SCHEMA_NAME, SCHEMA_VERSION):
             raise RecordError(f"schema {header['schema']!s:.40} {header['schema_version']!s:.20}; this ilcforce "
                               f"reads {SCHEMA_NAME} {SCHEMA_VERSION}")
-        if not all(isinstance(header[k], str) for k in HEADER_FIELDS - {"schema_version", "sessions"}):
-            raise RecordError("a text field is not text")
-        if not isinstance(header["sessions"], list):
-            raise RecordError("sessions is not a list")
         definition = json.loads(header["definition_json"])
-        if not (isinstance(definition, dict) and isinstance(definition.get("methods"), list)
-                and all(isinstance(m, str) for m in definition["methods"])
-                and isinstance(definition.get("seeds"), list) and all(_is_int(s) for s in definition["seeds"])):
-            raise RecordError("definition_json lacks its methods or seeds")
-    except RecordError as error:
-        raise TuningStoreError(f"{path / HEADER}: not a valid tuning header ({error})") from None
-    except (ValueError, RecursionError):
-        raise TuningStoreError(f"{path / HEADER}: not a valid tuning header (definition_json is not JSON)") from None
+        if not (isinstance(header["sessions"], list) and isinstance(header["fingerprint"], str) and
+                all(isinstance(m, str) for m in definition["methods"]) and all(map(_is_int, definition["seeds"]))):
+            raise RecordError("its sessions, fingerprint or the search's methods or seeds are not what they must be")
+    except (RecordError, ValueError, RecursionError, TypeError, KeyError) as error:
+        raise TuningStoreError(f"{Path(path) / HEADER}: not a valid tuning header ({error})") from None
     return header
 
 
@@ -126,13 +102,10 @@ def _is_number(value) -> bool:
     return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
-def check_record(record, search: Search, name: tuple[str, str] | None = None,
-                 check: Callable[[dict], None] | None = None) -> None:
+def check_record(record, search: Search, name: tuple[str, str] | None = None, check: Check | None = None) -> None:
     """RecordError unless ``record`` is a sealed, whole trial of ``search`` (stored under the file
     name whose (method, number) is ``name``) that passes the search's own ``check``."""
-    records.check_seal(record)
-    if set(record) != RECORD_FIELDS:
-        raise RecordError(f"fields differ from a trial's ({', '.join(sorted(set(record) ^ RECORD_FIELDS))[:120]})")
+    records.check_fields(record, RECORD_FIELDS, "a trial")
     if record["tuning"] != search.tuning_id:
         raise RecordError("it belongs to another tuning store (its tuning id is not this store's)")
     if record["search"] != search.digest:
@@ -159,74 +132,60 @@ def check_record(record, search: Search, name: tuple[str, str] | None = None,
             raise RecordError(f"value {str(record['value'])[:30]} is not the median of its seeds' values")
     elif record["state"] != FAILED or record["value"] is not None:
         raise RecordError(f"state {str(record['state'])[:20]!r} with value {str(record['value'])[:30]}")
-    if not isinstance(record["params"], dict) or not all(_is_number(v) for v in record["params"].values()):
-        raise RecordError("params is not a table of finite numbers")
-    if (number == 0) != (record["params"] == {}):
-        raise RecordError("trial 0 (and only trial 0) runs the experiment's own gains, with no params")
-    if not isinstance(record["gains"], dict) or not isinstance(record["message"], str):
-        raise RecordError("gains is not a table or message not text")
-    if not _is_number(record["elapsed"]) or record["elapsed"] < 0 or not isinstance(record["in_sampler"], bool):
-        raise RecordError("elapsed is not a time in s or in_sampler not true/false")
+    params = record["params"]
+    if not isinstance(params, dict) or not all(map(_is_number, params.values())) or (number == 0) != (params == {}):
+        raise RecordError("params is not a table of finite numbers (empty for trial 0 alone, the experiment's gains)")
+    if not (isinstance(record["gains"], dict) and isinstance(record["message"], str) and
+            _is_number(record["elapsed"]) and record["elapsed"] >= 0 and isinstance(record["in_sampler"], bool)):
+        raise RecordError("gains, message, elapsed or in_sampler is not of its kind")
     if check is not None:
         check(record)
 
 
-@dataclass(frozen=True)
-class Scan:
-    trials: dict  # method -> {number: record}, the records that passed
-    refused: list  # (Path, reason)
-
-
-def scan(path: Path, search: Search, check: Callable[[dict], None] | None = None) -> Scan:
-    """Check every record in ``<path>/trials/`` (hidden entries: records being written and the
-    quarantine, left out; files not named as a trial are not records and are never opened)."""
+def scan(path: Path, search: Search, check: Check | None = None) -> tuple[dict, list]:
+    """(method -> {number: record} of the records that pass, [(file, why)] of those refused) in
+    ``<path>/trials/``: files not named as a trial (hidden ones included) are never opened."""
     trials: dict[str, dict[int, dict]] = {}
     refused = []
     folder = Path(path) / TRIALS
-    if not folder.is_dir() or folder.is_symlink():
-        return Scan(trials, refused)
-    for item in sorted(folder.iterdir()):
-        match = _TRIAL_FILE.fullmatch(item.name)
-        if match is None:
-            continue
-        try:
-            record = records.read_json(item, MAX_BYTES)
-            check_record(record, search, (match["method"], match["number"]), check)
-        except RecordError as error:
-            refused.append((item, str(error)))
-            continue
-        trials.setdefault(record["method"], {})[record["number"]] = record
-    return Scan(trials, refused)
+    for item in sorted(folder.iterdir()) if folder.is_dir() and not folder.is_symlink() else []:
+        if (match := _TRIAL_FILE.fullmatch(item.name)) is not None:
+            try:
+                record = records.read_json(item, MAX_BYTES)
+                check_record(record, search, (match["method"], match["number"]), check)
+                trials.setdefault(record["method"], {})[record["number"]] = record
+            except RecordError as error:
+                refused.append((item, str(error)))
+    return trials, refused
 
 
-def read_trials(path: Path | str, check: Callable[[dict], None] | None) -> dict[str, dict[int, dict]]:
+def read_trials(path: Path | str, check: Check | None) -> dict[str, dict[int, dict]]:
     """Every trial record that passes its checks and the search's own ``check`` (None: the store's
     checks alone; :func:`ilcforce.tune.runner.read_trials` gives the search's): method -> {number: record}."""
-    return scan(Path(path), search_of(read_header(path)), check).trials
+    return scan(Path(path), search_of(read_header(path)), check)[0]
 
 
-def validate_tuning(path: Path | str, check: Callable[[dict], None] | None) -> dict:
+def validate_tuning(path: Path | str, check: Check | None) -> dict:
     """Check a tuning store; returns {name, methods: {method: (trials, failed, best value)}}.
 
     Raises :class:`TuningStoreError` (one line) for a damaged header, any record refused (named,
     with why), or a gap in a method's trial numbers (the next ``ilcforce tune`` runs it again)."""
     path = Path(path)
     header = read_header(path)
-    found = scan(path, search_of(header), check)
-    if found.refused:
-        item, why = found.refused[0]
-        more = f" (and {len(found.refused) - 1} more refused records)" if len(found.refused) > 1 else ""
+    trials, refused = scan(path, search_of(header), check)
+    if refused:
+        item, why = refused[0]
+        more = f" (and {len(refused) - 1} more refused records)" if len(refused) > 1 else ""
         raise TuningStoreError(f"{item}: refused ({why}){more}; the next `ilcforce tune` moves it aside and runs "
                                "its trial again")
     summary = {}
-    for method, trials in found.trials.items():
-        numbers = sorted(trials)
+    for method, stored in trials.items():
+        numbers = sorted(stored)
         if numbers != list(range(len(numbers))):
             gap = next(i for i, n in enumerate(numbers) if n != i)
             raise TuningStoreError(f"{path}: {method}'s trial {gap} is missing (the next `ilcforce tune` runs it again)")
-        values = [r["value"] for r in trials.values() if r["state"] == COMPLETE]
-        summary[method] = (len(trials), sum(r["state"] == FAILED for r in trials.values()),
-                           min(values) if values else None)
+        values = [r["value"] for r in stored.values() if r["state"] == COMPLETE]
+        summary[method] = (len(stored), sum(r["state"] == FAILED for r in stored.values()), min(values, default=None))
     return {"name": header["name"], "methods": summary}
 
 
@@ -237,7 +196,7 @@ class TuningStore:
     passed (:attr:`trials`, per method a dict number -> record)."""
 
     def __init__(self, path: Path, header: dict, session: dict, *, overwrite: bool = False,
-                 check: Callable[[dict], None] | None = None) -> None:
+                 check: Check | None = None) -> None:
         self.path, self.check, self._lock = Path(path), check, None
         if self.path.is_symlink() or (self.path.exists() and not self.path.is_dir()):
             raise TuningStoreError(f"{self.path}: exists and is not a directory; refusing to touch it")
@@ -269,13 +228,11 @@ class TuningStore:
             except TuningStoreError as error:
                 if not overwrite:
                     raise TuningStoreError(f"{error}; pass --overwrite to start the tuning over") from None
-            reason = None
-            if stored is not None and stored["definition_json"] != header["definition_json"]:
-                reason = "its tuning file defines another search (experiment, methods, seeds, ranges or objective)"
-            elif stored is not None and stored["fingerprint"] != header["fingerprint"]:
-                reason = "its trials were computed by different simulation code"
-            if reason and not overwrite:
-                raise TuningStoreError(f"{self.path}: {reason}; pass --overwrite to start the tuning over")
+            for key, why in (("definition_json", "its tuning file defines another search (experiment, methods, seeds, "
+                                                 "ranges or objective)"),
+                             ("fingerprint", "its trials were computed by different simulation code")):
+                if stored is not None and stored[key] != header[key] and not overwrite:
+                    raise TuningStoreError(f"{self.path}: {why}; pass --overwrite to start the tuning over")
         for item in dead_copies_in(self.path) + dead_copies_in(self.path / TRIALS):
             item.unlink(missing_ok=True)
         if stored is None or overwrite:
@@ -289,12 +246,9 @@ class TuningStore:
         self.header = read_header(self.path)
         (self.path / TRIALS).mkdir(exist_ok=True)
         self.search = search_of(self.header)
-        found = scan(self.path, self.search, self.check)
-        self.quarantined = []
-        for item, why in found.refused:
-            where = records.quarantine(item)
-            self.quarantined.append(f"{item}: refused ({why}); moved to {where}, its trial runs again")
-        self.trials = found.trials
+        self.trials, refused = scan(self.path, self.search, self.check)
+        self.quarantined = [f"{item}: refused ({why}); moved to {records.quarantine(item)}, its trial runs again"
+                            for item, why in refused]
         self.committed = 0
 
     def commit(self, record: dict) -> None:
@@ -331,25 +285,3 @@ class TuningStore:
         if self._lock is not None:
             os.close(self._lock)
             self._lock = None
-
-
-def trials_frame(path: Path | str, check: Callable[[dict], None] | None):
-    """Every trial record that passes its checks as a tidy table (pandas DataFrame), one row per
-    (method, trial), in trial order: method, trial, state, objective (NaN when failed), best_so_far
-    (the method's best up to and including this trial, NaN before the first complete one),
-    message, elapsed (s), then one column per gain (dotted key; a vector gain holds a list)."""
-    import pandas as pd
-
-    rows = []
-    for method, trials in read_trials(path, check).items():
-        best = math.inf
-        for number in sorted(trials):
-            record = trials[number]
-            value = record["value"] if record["state"] == COMPLETE else math.nan
-            if value == value:
-                best = min(best, value)
-            rows.append({"method": method, "trial": number, "state": record["state"], "objective": value,
-                         "best_so_far": best if best < math.inf else math.nan, "message": record["message"],
-                         "elapsed": record["elapsed"], **record["gains"]})
-    return pd.DataFrame(rows, columns=None if rows else ["method", "trial", "state", "objective", "best_so_far",
-                                                          "message", "elapsed"])

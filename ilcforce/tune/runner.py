@@ -158,13 +158,6 @@ def read_trials(path: Path | str) -> dict[str, dict[int, dict]]:
     return tuning.read_trials(path, stored_check(path))
 
 
-def trials_frame(path: Path | str):
-    """:func:`ilcforce.store.tuning.trials_frame` of the trials that pass every check."""
-    from ilcforce.store import tuning
-
-    return tuning.trials_frame(path, stored_check(path))
-
-
 def _is_count(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
 
