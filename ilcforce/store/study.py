@@ -12,24 +12,11 @@ Only the driver writes it. Durability without ever writing an HDF5 file in place
 3. Readers take the HDF5 file plus the journal records not yet in it.
 
 So ``kill -9`` of the driver loses only the cells in flight; a rerun skips every committed cell.
-A lock (``flock`` on ``<real path of the store>.lock``, opened without following links and never
-truncated) refuses a second driver on the same study.
+The writers' lock (:func:`~.safeio.acquire_writer_lock`) refuses a second driver on the same study.
 
 Every record is sealed and checked against the store before it is used (:mod:`.study_journal`);
-every attribute and string column of the HDF5 file carries a checksum (:mod:`.seal`).
-
-Layout (schema ``ilcforce.study`` 1.2; 1.0 lacks study_id and the seals, 1.1 the numeric columns' digests)::
-
-    /             attrs: schema, schema_version, name, description, study_toml, definition_json,
-                         fingerprint, created, sessions_json (each run's seeds and methods among
-                         its fields), study_id (the identity the journal's records carry),
-                         attrs_crc32 (on every group and column too; strings_crc32 on string
-                         columns, data_sha256 on numeric ones)
-    /settings     datasets (n_settings,): config_json, label, values_json (swept key -> value, JSON)
-    /metrics      one dataset per column, (n_rows,): setting, seed, method, iteration, then the
-                  metric columns of the cells' rows (status, ..., memory_norm_*)
-    /cells        one dataset per column, (n_records,): setting, seed, method, state ('done' or
-                  'failed'), attempts, message, elapsed, worker; a later record of a cell wins
+every attribute and column of the HDF5 file carries a checksum (:mod:`.seal`). The layout (schema
+``ilcforce.study`` 1.2): docs/store-format.md.
 """
 
 from __future__ import annotations
@@ -38,7 +25,6 @@ import contextlib
 import json
 import math
 import os
-import shutil
 import uuid
 from pathlib import Path
 
@@ -46,7 +32,7 @@ import h5py
 import numpy as np
 
 from ilcforce import stops
-from ilcforce.store import records, study_journal
+from ilcforce.store import commit, records, study_journal
 from ilcforce.store.seal import DATA_SEAL, STRINGS_SEAL, data_digest, seal_attrs, strings_checksum
 from ilcforce.store.filecheck import StoreError, writers_lock
 from ilcforce.store.safeio import (acquire_writer_lock, check_writer_lock, dead_copies_in, dead_writers_copies, is_hdf5_file,
@@ -126,14 +112,6 @@ def _make_folders(folder: Path) -> list[Path]:
     for item in reversed(missing):
         item.mkdir(exist_ok=True)
     return list(reversed(missing))
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:
@@ -368,21 +346,22 @@ class StudyStore:
                     item.unlink()
 
     def _create(self) -> None:
-        tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
         _ensure_room(self.path.parent, 512 * 1024 + 2 * len(json.dumps(self._header["settings"])))
-        with h5py.File(tmp, "w") as handle:
-            handle.attrs["schema"] = SCHEMA_NAME
-            handle.attrs["schema_version"] = SCHEMA_VERSION
-            for key in ("name", "description", "study_toml", "definition_json", "fingerprint", "created"):
-                handle.attrs[key] = str(self._header.get(key, ""))
-            handle.attrs["study_id"] = uuid.uuid4().hex
-            handle.attrs["sessions_json"] = json.dumps([self._session])
+
+        def build(handle: h5py.File) -> None:
+            handle.attrs.update({"schema": SCHEMA_NAME, "schema_version": SCHEMA_VERSION, "study_id": uuid.uuid4().hex,
+                                 "sessions_json": json.dumps([self._session]),
+                                 **{key: str(self._header.get(key, "")) for key in (
+                                     "name", "description", "study_toml", "definition_json", "fingerprint", "created")}})
             _append(handle.create_group("settings"), list(self._header["settings"]))
             handle.create_group("metrics").attrs["n_rows"] = 0
             handle.create_group("cells").attrs["n_rows"] = 0
             _seal(handle)
-        _fsync(tmp)
-        os.replace(tmp, self.path)
+
+        try:
+            commit.create(self.path, build)
+        except StoreError as exc:
+            raise StudyStoreError(str(exc)) from None
 
     # -- committing ---------------------------------------------------------------------------
 
@@ -436,26 +415,24 @@ class StudyStore:
             sessions.append(self._session)
         else:
             sessions[-1] = self._session
-        tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
         # the copy, what is appended (8 bytes a value, doubled for strings) and new chunks (8 kB a column)
         _ensure_room(self.path.parent, 2 * self.path.stat().st_size + 16 * sum(len(r) for r in rows)
                      + 4096 * len(cells) + 8192 * 64)
+
+        def change(handle: h5py.File) -> None:
+            _append(handle["cells"], cells)
+            _append(handle["metrics"], rows)
+            handle.attrs["sessions_json"] = json.dumps(sessions)
+            handle.attrs["study_id"] = self._study_id
+            _seal(handle)
+
         try:
-            shutil.copyfile(self.path, tmp)
-            with h5py.File(tmp, "a") as handle:
-                _append(handle["cells"], cells)
-                _append(handle["metrics"], rows)
-                handle.attrs["sessions_json"] = json.dumps(sessions)
-                handle.attrs["study_id"] = self._study_id
-                _seal(handle)
-            _fsync(tmp)
-            os.replace(tmp, self.path)
-            self._in_file |= added
-            self._sessions = sessions
-        except (OSError, RuntimeError, ValueError) as exc:
-            _remove(tmp)
-            raise StudyStoreError(f"{self.path}: cannot consolidate the study store ({' '.join(str(exc).split())}); "
-                                  "every committed cell is kept in its journal, rerun to continue") from None
+            commit.replace(self.path, change)
+        except StoreError as exc:
+            raise StudyStoreError(f"{self.path}: cannot consolidate the study store ({exc}); every committed cell "
+                                  "is kept in its journal, rerun to continue") from None
+        self._in_file |= added
+        self._sessions = sessions
         for record in self._pending:
             try:
                 record["_file"].unlink()

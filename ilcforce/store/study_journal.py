@@ -1,28 +1,15 @@
 """A study's journal records: sealed when written, checked against their study before anyone uses them.
 
 A finished cell lives as one JSON record in ``<store>.h5.journal/<setting>-<seed>-<method>.json``
-until the driver folds it into the checksummed HDF5 file. Until then nothing but this module
-stands between the record's bytes and the study's table, so each record is checked here before
-it is read, folded or exported:
-
-* its ``checksum`` (sha256 over its canonical JSON, every field but the checksum itself) matches:
-  a changed digit after a kill -9 is caught;
-* its ``study`` is the identity (``study_id``, a random id the store gets when it is made) of the
-  store it sits beside: a journal folder copied from another study is refused record by record;
-* its ``setting_digest`` is sha256 of the study's simulation fingerprint and of the stored
-  setting's ``config_json``: a record computed with other settings or other code is refused;
-* its key is a cell the study has (a setting it stores, a seed and a method that one of its runs
-  planned: ``seeds`` and ``methods`` of a session) and its file name is that key, so a key cannot
-  appear twice under two names;
-* every field has its type, size and range, and the metric rows have the study's columns, one per
-  iteration ``0 .. n - 1`` with ``n`` at most the setting's ``experiment.iterations``.
-
-A record that fails is never used: readers skip it and name it (:func:`scan`); the driver moves it
-aside into ``<store>.h5.journal/.quarantine/`` (:func:`quarantine`) so it is kept for a human and
-its cell runs again. Records of an older ilcforce (no checksum) fail like damaged ones: their cell
-runs again, nothing computed is trusted unchecked.
-
-Only the format of a record lives here; the study store's reader and writer use it.
+until the driver folds it into the HDF5 file; nothing else stands between its bytes and the
+study's table, so a record is used only when its seal matches (:mod:`.records`), its ``study`` is
+the ``study_id`` of the store beside it (a journal copied from another study is refused record by
+record), its ``setting_digest`` is sha256 of the study's simulation fingerprint and the stored
+setting's ``config_json``, its key is a cell some run of the study planned and is its file name,
+and every field has its type, size and range (metric rows: the study's columns, one per
+iteration ``0 .. n - 1``, ``n`` at most the setting's ``experiment.iterations``). Readers skip a
+refused record and name it (:func:`scan`); the driver moves it aside into ``.quarantine/`` and its
+cell runs again. Records of an older ilcforce (no checksum) are refused like damaged ones.
 """
 
 from __future__ import annotations
