@@ -1,16 +1,9 @@
-"""Sealed JSON records, the one implementation every store uses for what is not HDF5: a study's
-journal records (:mod:`.study_journal`), a tuning's header and trials (:mod:`.tuning`), and any
-small file ilcforce writes whole (a tuned experiment file).
-
-* :func:`atomic_write`: a temporary name, fsync, rename (or, with ``replace=False``, a hard link
-  that fails when the name is taken: never overwrites), fsync of the folder. Whole or absent.
-* :func:`seal` / :func:`checksum`: sha256 over the record's canonical JSON, every field but
-  ``checksum``. It catches any change of a stored byte; it is no signature: whoever rewrites a
-  record on purpose can recompute it, which is why each store also checks what a record claims
-  (its store's random identity, its search or setting) against the store it sits in.
-* :func:`read_json`: at most ``limit`` bytes, never through a symbolic link, never blocking on a
-  FIFO, deep nesting refused: a hostile file costs bounded time.
-* :func:`quarantine`: a refused record moved aside, kept for a human, never deleted.
+"""Sealed JSON records, the one implementation every store uses for what is not HDF5 (a study's
+journal records, a tuning's header and trials) and for any small file written whole:
+:func:`atomic_write` (whole or absent; never over a finished record with ``replace=False``),
+:func:`seal` and :func:`check_fields` (sha256 over the canonical JSON: any changed byte; no
+signature, hence each store's checks of what a record claims), :func:`read_json` (bounded time on
+hostile files: size, links, FIFOs, deep nesting) and :func:`quarantine` (a refused record kept aside).
 """
 
 from __future__ import annotations

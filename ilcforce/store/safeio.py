@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fcntl
 import os
@@ -113,18 +114,10 @@ def companion_of(path: Path) -> str | None:
 
 
 def acquire_writer_lock(path: Path, busy: str = "") -> int:
-    """Lock the store at ``path`` for its one writer; the fd (closing it releases the lock). The one
-    writer's lock of every store: ``busy`` is the refusal's text (StoreLockedError).
-
-    A store that is a folder (a tuning) is locked itself, by identity: every name, link or mount
-    of it reaches one lock, and no lock file exists to be deleted. A store file is locked through
-    ``<real path>.lock`` (:func:`file_identity`): the store file's own flock is the commit lock
-    that readers share, so it cannot also be held for a whole run. The lock file is never followed
-    through a symlink, never truncated (the PID is written only into a file this call created),
-    and after locking it is checked to still be the file of its name (one deleted meanwhile is
-    made again). Deleting it while a writer holds it lets a second writer in: the first notices
-    at its next commit (:func:`check_writer_lock`) and stops.
-    """
+    """Lock the store at ``path`` for its one writer (StoreLockedError saying ``busy`` if taken); the
+    fd, whose closing releases it. A folder (a tuning) is locked itself; a file through ``<real
+    path>.lock``, never followed through a link, never truncated, checked after locking to still be
+    the file of its name (docs/store-format.md: why, and what a deleted lock file does)."""
     busy = busy or (f"{path} is being written by another ilcforce process; wait for it to finish "
                     "or choose another --out")
     folder = os.path.isdir(path) and not os.path.islink(path)
@@ -154,8 +147,9 @@ def acquire_writer_lock(path: Path, busy: str = "") -> int:
             if error.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
                 raise StoreLockedError(busy) from None
             raise StoreError(f"{path}: cannot lock {lock} ({os_reason(error)})") from None
-        if folder or check_writer_lock(fd, path):
-            break
+        with contextlib.suppress(FileNotFoundError):
+            if os.path.samestat(os.fstat(fd), os.stat(lock, follow_symlinks=False)):
+                break
         os.close(fd)  # deleted or replaced between open and flock: lock the file of the name now
     else:
         raise StoreError(f"{path}: its lock file {lock} keeps being replaced; refusing to write")
@@ -167,15 +161,10 @@ def acquire_writer_lock(path: Path, busy: str = "") -> int:
     return fd
 
 
-def check_writer_lock(fd: int, path: Path) -> bool:
-    """Whether the writer's lock ``fd`` of ``path`` still locks what a second writer would lock
-    (a lock file deleted or replaced by another: False)."""
-    try:
-        here, named = os.fstat(fd), os.stat(path if stat.S_ISDIR(os.fstat(fd).st_mode) else writers_lock(path),
-                                                follow_symlinks=False)
-    except OSError:
-        return False
-    return (here.st_dev, here.st_ino) == (named.st_dev, named.st_ino)
+def check_writer_lock(fd: int) -> bool:
+    """Whether the writer's lock ``fd`` still has a name (False: its lock file was deleted or
+    replaced, so a second writer may be in)."""
+    return os.fstat(fd).st_nlink > 0
 
 
 def writer_active(path: str | os.PathLike[str]) -> bool:

@@ -39,7 +39,7 @@ from ilcforce.store.safeio import (acquire_writer_lock, check_writer_lock, dead_
                                   one_line)
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
-    _keys, _table, is_study_store, journal_dir, read_header, read_tables, scan_journal, study_facts,
+    _keys, _table, fold, is_study_store, journal_dir, read_header, read_tables, scan_journal, study_facts,
 )
 
 
@@ -146,13 +146,6 @@ def _ensure_room(folder: Path, needed: int) -> None:
     if limit != resource.RLIM_INFINITY and limit < needed:
         raise StudyStoreError(f"{folder}: the file size limit (ulimit -f: {limit} bytes) is below the "
                               f"{needed} bytes the study store needs; every cell committed before is kept")
-
-
-def _remove(path: Path) -> None:
-    try:
-        path.unlink()
-    except OSError:
-        pass
 
 
 def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_stale: bool = False,
@@ -330,7 +323,8 @@ class StudyStore:
         if journal_dir(self.path).is_dir() and not journal_dir(self.path).is_symlink():
             stale += dead_copies_in(journal_dir(self.path))
         for item in dict.fromkeys(stale):
-            _remove(item)
+            with contextlib.suppress(OSError):
+                item.unlink()
 
     def _prepare(self, overwrite: bool, replace_stale: bool, require_existing: bool) -> None:
         if check_usable(self.path, self._header, overwrite=overwrite, replace_stale=replace_stale,
@@ -369,7 +363,7 @@ class StudyStore:
         """Commit one cell's record (``setting``, ``seed``, ``method``, ``state``, ``attempts``,
         ``message``, ``elapsed``, ``worker``, ``rows``) to the journal; consolidate if due."""
         with stops.critical():  # a stop signal takes effect when the commit has ended
-            if not check_writer_lock(self._lock_fd, self.path):
+            if not check_writer_lock(self._lock_fd):
                 raise StudyStoreError(f"{self.path}: its lock file was deleted or replaced while this study held it, "
                                       "so another driver may be in; stopping (every committed cell is kept)")
             folder = journal_dir(self.path)
@@ -401,15 +395,7 @@ class StudyStore:
 
     def _consolidate(self, now: float = 0.0) -> None:
         self._last = now
-        cells, rows, added = [], [], set()
-        for record in self._pending:
-            key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
-            if record["state"] == DONE and (key in self._in_file or key in added):
-                continue  # already in the file (killed between its rename and the journal cleanup)
-            cells.append({c: record.get(c) for c in CELL_COLUMNS})
-            if record["state"] == DONE:
-                added.add(key)
-                rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
+        cells, rows, added = fold(self._pending, self._in_file)
         sessions = list(self._sessions)
         if not sessions or sessions[-1].get("id") != self._session.get("id"):
             sessions.append(self._session)

@@ -142,8 +142,19 @@ def scan_journal(path: Path, header: dict) -> study_journal.Scan:
     return study_journal.scan(_journal_folder(path), study_facts(header))
 
 
-def _journal_records(path: Path, header: dict) -> list[dict]:
-    return scan_journal(path, header).records
+def fold(records: list[dict], in_file: set) -> tuple[list, list, set]:
+    """(cells, metric rows, keys added) of the journal ``records`` whose cell is not done in the file
+    yet (``in_file``: (setting, seed, method) keys; one consolidated before a kill -9 removed its record)."""
+    cells, rows, added = [], [], set()
+    for record in records:
+        key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
+        if record["state"] == DONE and (key in in_file or key in added):
+            continue
+        cells.append({c: record.get(c) for c in CELL_COLUMNS})
+        if record["state"] == DONE:
+            added.add(key)
+            rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
+    return cells, rows, added
 
 
 def ignored_journal_entries(path: Path, header: dict | None = None) -> list[str]:
@@ -230,14 +241,7 @@ def read_tables(path: Path, *, check: bool = True) -> tuple[dict, pd.DataFrame, 
     except (OSError, KeyError, ValueError, TypeError) as exc:
         raise StudyStoreError(f"{path}: damaged study store ({' '.join(str(exc).split())})") from None
     done = set(_keys(cells[cells["state"] == DONE])) if len(cells) else set()
-    extra_rows, extra_cells = [], []
-    for record in _journal_records(path, header):
-        key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
-        if record["state"] == DONE and key in done:
-            continue  # consolidated already (killed between the rename and the journal cleanup)
-        extra_cells.append({c: record.get(c) for c in CELL_COLUMNS})
-        if record["state"] == DONE:
-            extra_rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
+    extra_cells, extra_rows, _ = fold(scan_journal(path, header).records, done)
     if extra_cells:
         cells = pd.concat([cells, pd.DataFrame(extra_cells)], ignore_index=True)
     if extra_rows:

@@ -259,7 +259,7 @@ class TuningStore:
             check_record(record, self.search, None, self.check)
         except RecordError as exc:
             raise TuningStoreError(f"{target}: refusing to store the trial ({exc})") from None
-        if not check_writer_lock(self._lock, self.path):
+        if not check_writer_lock(self._lock):
             raise TuningStoreError(f"{self.path}: no longer the folder this tuning locked; stopping")
         try:
             records.atomic_write(target, json.dumps(record).encode(), replace=False)

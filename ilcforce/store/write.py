@@ -279,7 +279,7 @@ class StoreWriter:
     def _require_open(self) -> None:
         if not self._entered:
             raise RuntimeError("StoreWriter must be used as a context manager ('with StoreWriter(...) as writer')")
-        if self._lock_fd is not None and not check_writer_lock(self._lock_fd, self._path):
+        if self._lock_fd is not None and not check_writer_lock(self._lock_fd):
             raise StoreLockedError(f"{self._path}: its lock file was deleted or replaced while this run held it, so "
                                    "another writer may be in; stopping before the next commit (every finished "
                                    "iteration is kept)")
