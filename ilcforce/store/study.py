@@ -190,19 +190,11 @@ def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_s
     return False
 
 
-def _flat(node: dict, prefix: str = "") -> dict:
-    out = {}
-    for key, value in node.items():
-        if isinstance(value, dict):
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
-
-
 def settings_difference(stored: str, new: str) -> str:
     """The first difference between two studies' definitions (JSON), stored -> new, for the refusal:
     e.g. "setting 1: c3.eta 2.0 -> 3.0"; '' when it cannot be told."""
+    from ilcforce.config_load import _flat as flat  # the config's own dotted keys
+
     try:
         was, now = json.loads(stored), json.loads(new)
         if was.get("sweep_keys") != now.get("sweep_keys"):
@@ -212,7 +204,7 @@ def settings_difference(stored: str, new: str) -> str:
         if was.get("labels") != now.get("labels"):
             return f"setting labels {was.get('labels')} -> {now.get('labels')}"
         for k, (a, b) in enumerate(zip(was["settings"], now["settings"])):
-            a, b = _flat(json.loads(a)), _flat(json.loads(b))
+            a, b = flat(json.loads(a)), flat(json.loads(b))
             keys = sorted(key for key in a.keys() | b.keys() if a.get(key) != b.get(key))
             if keys:
                 more = f" and {len(keys) - 1} more key(s)" if len(keys) > 1 else ""
@@ -280,7 +272,7 @@ class StudyStore:
         found = scan_journal(self.path, current)
         for item, why in found.refused:
             try:
-                where = study_journal.quarantine(item)
+                where = records.quarantine(item, study_journal.QUARANTINE)
             except OSError as exc:
                 raise StudyStoreError(f"{item}: a refused journal record ({why}) cannot be moved aside "
                                       f"({exc.strerror or exc})") from None

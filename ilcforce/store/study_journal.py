@@ -228,8 +228,3 @@ def scan(folder: Path, facts_: StudyFacts) -> Scan:
     if moved.is_dir() and not moved.is_symlink():
         count = sum(1 for _ in moved.iterdir())
     return Scan(records, refused, other, count)
-
-
-def quarantine(item: Path) -> Path:
-    """Move the refused record ``item`` into its folder's quarantine; returns where it went."""
-    return records.quarantine(item, QUARANTINE)
