@@ -26,7 +26,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ilcforce.store import journal
-from ilcforce.store.filecheck import file_identity, lock_path, writers_lock  # noqa: F401 - the store's names for them
+from ilcforce.store.filecheck import file_identity, writers_lock  # noqa: F401 - the store's names for them
 from ilcforce.store.filecheck import (  # noqa: F401 - re-exported: the store's modules import them from here
     HDF5_SIGNATURE, PROBE_TIMEOUT, StoreError, StoreExistsError, StoreLockedError, check_regular_file, file_key,
     is_hdf5_file, mark_walked, one_line, os_reason, probe, superblock_version,
@@ -64,37 +64,26 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def dead_writers_copies(path: Path) -> list[Path]:
-    """The temporary copies of the store at ``path`` (exactly ``.<name>.tmp-<pid>``, regular files)
-    whose writer process is gone: left by a kill -9. The caller holds the store's writer lock, so
-    no live writer of this store is making one; a copy of a live process is never listed."""
+def dead_copies_in(folder: Path, name: str | None = None) -> list[Path]:
+    """The temporary copies in ``folder`` (exactly ``.<name>.tmp-<pid>``, regular files; of the store
+    ``name`` only, if given) whose writer is gone: left by a kill -9. The caller holds the store's
+    writer lock, so no live writer of it is making one; a copy of a live process is never listed."""
     try:
-        names = os.listdir(path.parent)
+        matches = [m for m in map(_TEMPORARY.fullmatch, sorted(os.listdir(folder))) if m]
     except OSError:
         return []
     found = []
-    for name in names:
-        match = _TEMPORARY.fullmatch(name)
-        if match is None or match.group(1) != path.name:
-            continue
-        pid = int(match.group(2))
-        if pid == os.getpid() or _alive(pid):
-            continue
-        try:
-            if stat.S_ISREG(os.lstat(path.parent / name).st_mode):
-                found.append(path.parent / name)
-        except OSError:
-            pass
+    for match in matches:
+        pid, item = int(match.group(2)), Path(folder) / match.group(0)
+        if (name is None or match.group(1) == name) and pid != os.getpid() and not _alive(pid):
+            with contextlib.suppress(OSError):
+                found += [item] if stat.S_ISREG(os.lstat(item).st_mode) else []
     return found
 
 
-def dead_copies_in(folder: Path) -> list[Path]:
-    """Every temporary copy (``.<name>.tmp-<pid>``, a regular file) in ``folder`` whose writer is gone."""
-    try:
-        names = sorted(set(m.group(1) for m in map(_TEMPORARY.fullmatch, os.listdir(folder)) if m))
-    except OSError:
-        return []
-    return [item for name in names for item in dead_writers_copies(Path(folder) / name)]
+def dead_writers_copies(path: Path) -> list[Path]:
+    """:func:`dead_copies_in` of the store at ``path``."""
+    return dead_copies_in(path.parent, path.name)
 
 
 def companion_of(path: Path) -> str | None:

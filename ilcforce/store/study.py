@@ -1,22 +1,13 @@
-"""The study store, ``results/studies/<name>.h5`` (part of the store package, the only one touching h5py).
-Readers (header, tables, journal records) are in :mod:`.study_read`; this module is the writer.
+"""The study store's writer, ``results/studies/<name>.h5`` (readers: :mod:`.study_read`; layout,
+schema ``ilcforce.study`` 1.2, and what protects each byte: docs/store-format.md).
 
-Only the driver writes it. Durability without ever writing an HDF5 file in place:
-
-1. A finished (or failed) cell is committed at once as one small JSON record in the journal
-   ``<name>.h5.journal/<setting>-<seed>-<method>.json`` (written to a temporary name, fsynced,
-   renamed: a record is whole or absent).
-2. Every few seconds, and at the end, the journal is **consolidated** into ``<name>.h5``: the file
-   is copied, the new rows appended to the copy, the copy fsynced and renamed over the original.
-   The HDF5 file is therefore always a complete older or newer version, never half written.
-3. Readers take the HDF5 file plus the journal records not yet in it.
-
-So ``kill -9`` of the driver loses only the cells in flight; a rerun skips every committed cell.
-The writers' lock (:func:`~.safeio.acquire_writer_lock`) refuses a second driver on the same study.
-
-Every record is sealed and checked against the store before it is used (:mod:`.study_journal`);
-every attribute and column of the HDF5 file carries a checksum (:mod:`.seal`). The layout (schema
-``ilcforce.study`` 1.2): docs/store-format.md.
+Only the driver writes it, never an HDF5 file in place: a finished (or failed) cell is committed at
+once as one sealed JSON record in the journal ``<name>.h5.journal/`` (:mod:`.records`, checked by
+:mod:`.study_journal`); every few seconds, and at the end, the journal is **consolidated** into
+``<name>.h5`` by copy, append, fsync and rename (:func:`.commit.replace`), so the file is always a
+whole older or newer version. Readers take the file plus the journal records not yet in it. So
+``kill -9`` of the driver loses only the cells in flight; a rerun skips every committed cell. The
+writers' lock (:func:`~.safeio.acquire_writer_lock`) refuses a second driver on the same study.
 """
 
 from __future__ import annotations
@@ -112,16 +103,6 @@ def _make_folders(folder: Path) -> list[Path]:
     for item in reversed(missing):
         item.mkdir(exist_ok=True)
     return list(reversed(missing))
-
-
-def _write_json_atomic(path: Path, data: dict) -> None:
-    text = json.dumps(data)
-    _ensure_room(path.parent, 2 * len(text))
-    try:
-        records.atomic_write(path, text.encode())
-    except OSError as exc:
-        raise StudyStoreError(f"{path}: cannot commit the cell ({exc.strerror or exc}); every cell committed "
-                              "before is kept, rerun to continue") from None
 
 
 #: Room kept free beyond what a write needs, bytes.
@@ -366,7 +347,13 @@ class StudyStore:
                 study_journal.check(record, self._facts)
             except study_journal.RecordError as exc:
                 raise StudyStoreError(f"{target}: refusing to commit the cell ({exc})") from None
-            _write_json_atomic(target, record)
+            text = json.dumps(record)
+            _ensure_room(folder, 2 * len(text))
+            try:
+                records.atomic_write(target, text.encode())
+            except OSError as exc:
+                raise StudyStoreError(f"{target}: cannot commit the cell ({exc.strerror or exc}); every cell "
+                                      "committed before is kept, rerun to continue") from None
             self.committed += 1
             self._pending.append({**record, "_file": target})
             key = (int(record["setting"]), int(record["seed"]), str(record["method"]))

@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import re
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -217,14 +218,8 @@ def scan(folder: Path, facts_: StudyFacts) -> Scan:
             other.append((item, "not a .json record" if item.is_file() else "not a regular file"))
         else:
             try:
-                record = read_record(item, facts_)
+                records.append({**read_record(item, facts_), "_file": item})
             except RecordError as error:
                 refused.append((item, str(error)))
-                continue
-            record["_file"] = item
-            records.append(record)
     moved = folder / QUARANTINE
-    count = 0
-    if moved.is_dir() and not moved.is_symlink():
-        count = sum(1 for _ in moved.iterdir())
-    return Scan(records, refused, other, count)
+    return Scan(records, refused, other, len(os.listdir(moved)) if moved.is_dir() and not moved.is_symlink() else 0)

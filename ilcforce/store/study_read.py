@@ -108,7 +108,7 @@ def _table(group: h5py.Group) -> pd.DataFrame:
     return pd.DataFrame(data)
 
 
-#: How :func:`ignored_journal_entries` marks a .json record that readers refuse (its cell runs again).
+#: How :func:`check_study_store` marks a .json record that readers refuse (its cell runs again).
 DAMAGED_RECORD = "refused"
 
 
@@ -157,14 +157,9 @@ def fold(records: list[dict], in_file: set) -> tuple[list, list, set]:
     return cells, rows, added
 
 
-def ignored_journal_entries(path: Path, header: dict | None = None) -> list[str]:
-    """What the journal folder holds that readers skip, each as 'name: why': a refused record (its
-    cell runs again) with the reason, a folder, another file. Hidden files (a record being written,
-    the quarantine) are left out."""
-    return _entries(scan_journal(path, read_header(path) if header is None else header))
-
-
 def _entries(found: study_journal.Scan) -> list[str]:
+    """What the journal folder holds that readers skip, each as 'name: why': a refused record (its
+    cell runs again) with the reason, a folder, another file (hidden ones left out)."""
     entries = [(item.name, f"{DAMAGED_RECORD} ({why})") for item, why in found.refused]
     entries += [(item.name, what) for item, what in found.other]
     return [f"{name}: {why}" for name, why in sorted(entries)]

@@ -54,14 +54,11 @@ def tuning_dir(results_dir: Path | str, name: str) -> Path:
 
 
 def is_tuning_store(path: Path | str) -> bool:
-    path = Path(path)
-    return path.is_dir() and not path.is_symlink() and (path / HEADER).is_file()
+    return Path(path).is_dir() and not Path(path).is_symlink() and (Path(path) / HEADER).is_file()
 
 
 @dataclass(frozen=True)
-class Search:
-    """What a record is checked against: the store's identity and the search it holds."""
-
+class Search:  # what a record is checked against: the store's identity and the search it holds
     tuning_id: str
     digest: str  # sha256 of the simulation code's fingerprint and the search's definition
     methods: tuple[str, ...]
@@ -208,14 +205,11 @@ class TuningStore:
         try:
             self.path.mkdir(parents=True, exist_ok=True)
             self._lock = acquire_writer_lock(self.path, f"{self.path}: another `ilcforce tune` is writing this tuning store")
-        except (OSError, StoreError) as exc:
-            raise TuningStoreError(f"{self.path}: cannot lock the tuning store ({getattr(exc, 'strerror', None) or exc})"
-                                   ) from None
-        try:
             self._open(header, session, overwrite)
-        except OSError as exc:
+        except (OSError, StoreError) as exc:
             self.close()
-            raise TuningStoreError(f"{self.path}: cannot open the tuning store ({exc.strerror or exc})") from None
+            raise TuningStoreError(str(exc) if isinstance(exc, StoreError) else
+                                   f"{self.path}: cannot open the tuning store ({exc.strerror or exc})") from None
         except BaseException:
             self.close()
             raise
