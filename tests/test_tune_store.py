@@ -68,6 +68,8 @@ FORGERIES = {
     "a seed the tuning does not run": lambda r: r["seeds"][0].update(seed=7),
     "a seed true for 1": lambda r: r["seeds"][1].update(seed=True),
     "number beyond every budget": lambda r: r.update(number=40),
+    "error norms not a list": lambda r: r["seeds"][0].update(position_error_rms=5),
+    "a seed's entry without its fields": lambda r: r["seeds"][0].pop("iterations_run"),
 }
 
 

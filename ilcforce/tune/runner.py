@@ -106,6 +106,12 @@ def trial_check(definition: dict) -> Callable[[dict], None]:
                                                               "objective")})
 
     def check(record: dict) -> None:
+        try:
+            fits(record)
+        except (TypeError, KeyError, ValueError, AttributeError, IndexError) as error:  # a field of the wrong kind
+            raise RecordError(f"does not fit its search ({type(error).__name__}: {str(error)[:60]})") from None
+
+    def fits(record: dict) -> None:
         method, params = record["method"], record["params"]
         if params and set(params) != set(names[method]):
             raise RecordError(f"its params are not {method}'s searched gains {sorted(names[method])[:6]}")
