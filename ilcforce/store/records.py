@@ -35,8 +35,9 @@ def seal(body: dict) -> dict:
     return body
 
 
-def check_seal(record) -> None:
-    """RecordError unless ``record`` is a JSON object whose ``checksum`` matches its content."""
+def check_fields(record, fields: frozenset, what: str) -> None:
+    """RecordError unless ``record`` is a JSON object whose ``checksum`` matches its content and whose
+    fields are exactly ``fields``."""
     if not isinstance(record, dict):
         raise RecordError(f"a JSON {type(record).__name__}, not a record")
     if "checksum" not in record:
@@ -47,11 +48,6 @@ def check_seal(record) -> None:
         raise RecordError("cannot be checksummed") from None
     if record["checksum"] != expected:
         raise RecordError("its checksum does not match its content (changed after it was written)")
-
-
-def check_fields(record, fields: frozenset, what: str) -> None:
-    """RecordError unless ``record`` is sealed (:func:`check_seal`) and has exactly ``fields``."""
-    check_seal(record)
     if set(record) != fields:
         raise RecordError(f"fields differ from {what}'s ({', '.join(map(str, sorted(set(record) ^ fields)))[:120]})")
 

@@ -4,6 +4,7 @@ tables (:func:`read_tables`), and what identifies a study store. The writer is :
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -126,12 +127,15 @@ def study_facts(header: dict) -> study_journal.StudyFacts:
 
 
 def _journal_folder(path: Path) -> Path:
-    """The journal folder of the study store at ``path``; StudyStoreError if it is a symbolic link
-    (another study's journal, whose cells this study would take as its own)."""
+    """The journal folder of the study store at ``path``; StudyStoreError if it is a symbolic link or a
+    mount point (a bind mount: another study's journal, whose records each would quarantine)."""
     folder = journal_dir(path)
-    if folder.is_symlink():
-        raise StudyStoreError(f"{folder}: the journal folder is a symbolic link (to {os.readlink(folder)}); a "
-                              "study's journal is its own folder, refusing it")
+    mounted = os.path.ismount(folder)
+    with contextlib.suppress(OSError), open("/proc/self/mountinfo", encoding="utf-8") as table:  # Linux: and
+        mounted |= os.path.realpath(folder) in {line.split()[4] for line in table}  # a bind mount on one fs
+    if folder.is_symlink() or mounted:
+        how = f"symbolic link (to {os.readlink(folder)})" if folder.is_symlink() else "mount point (a bind mount?)"
+        raise StudyStoreError(f"{folder}: the journal folder is a {how}; a study's journal is its own folder, refusing it")
     if os.path.lexists(folder) and not folder.is_dir():
         raise StudyStoreError(f"{folder}: not a folder; a study's journal is a folder")
     return folder
