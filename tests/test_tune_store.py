@@ -413,3 +413,20 @@ def test_a_study_driver_whose_lock_file_was_deleted_stops_before_its_next_commit
                           "message": "x", "elapsed": 0.1, "worker": "w", "rows": []}, now=0.0)
     finally:
         first.close()
+
+
+def test_renamed_copies_of_a_study_store_get_their_own_report_pages(tmp_path):
+    from test_study import small_study
+
+    from ilcforce.report.build import write_report
+    from ilcforce.study import run_study
+
+    first = run_study(small_study(seeds="0-0", methods=("c1",)), tmp_path, workers=1).path
+    shutil.copy(first, first.with_name("tiny-copy.h5"))
+    summary = write_report(tmp_path, tmp_path / "report", jobs=1)
+    for name in ("tiny", "tiny-copy"):
+        assert (tmp_path / "report" / "studies" / name / "report.md").is_file(), summary.warnings
+        assert (tmp_path / "report" / "studies" / name / "findings.md").is_file(), summary.warnings
+    index = (tmp_path / "report" / "index.md").read_text()
+    for name in ("tiny", "tiny-copy"):
+        assert index.count(f"(studies/{name}/report.md)") == 1, index
