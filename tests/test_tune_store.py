@@ -96,7 +96,7 @@ def test_a_forged_record_is_named_skipped_quarantined_and_never_shipped(tmp_path
 
 def test_any_one_digit_change_in_any_file_of_a_tuning_store_is_refused(tmp_path):
     first = tuned(tmp_path, TINY)
-    files = [first.path / "tuning.json", *sorted((first.path / "trials").glob("*.json"))]
+    files = [first.path / "tuning.json", first.path / "tuned.toml", *sorted((first.path / "trials").glob("*.json"))]
     changed = 0
     for file in files:
         data = file.read_bytes()
@@ -144,6 +144,10 @@ def test_deep_json_is_refused_in_bounded_time(tmp_path, where):
 
 def test_a_fifo_in_the_store_never_hangs_a_reader(tmp_path):
     first = tuned(tmp_path, TINY)
+    (first.path / "tuned.toml").unlink()
+    os.mkfifo(first.path / "tuned.toml")
+    assert "tuned.toml: not the tuned file the last run wrote" in validate_cli(first.path)[1]
+    (first.path / "tuned.toml").unlink()
     (first.path / "trials" / "c2-00001.json").unlink()
     os.mkfifo(first.path / "trials" / "c2-00001.json")
     os.mkfifo(first.path / "trials" / "notes")  # not a record's name: never opened

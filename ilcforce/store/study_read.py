@@ -179,20 +179,18 @@ def latest_study_toml(sessions: list, first: str) -> str:
 def _probe(path: Path) -> None:
     """Bounded time on a damaged file: walk its structure in a forked child first (the run store's
     :func:`ilcforce.store.filecheck.probe`); StudyStoreError if that fails."""
+    fd = -1
     try:
         check_regular_file(Path(path))  # a FIFO would block the open below for ever
-    except StoreError as exc:
-        raise StudyStoreError(str(exc)) from None
-    try:
         fd = os.open(path, os.O_RDONLY)
-    except OSError as exc:
-        raise StudyStoreError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    try:
         probe(Path(path), fd)
     except StoreError as exc:
         raise StudyStoreError(str(exc)) from None
+    except OSError as exc:
+        raise StudyStoreError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     finally:
-        os.close(fd)
+        if fd >= 0:
+            os.close(fd)
 
 
 def read_header(path: Path, *, check: bool = True) -> dict:

@@ -29,6 +29,7 @@ from pathlib import Path
 from ilcforce.store import records
 from ilcforce.store.records import RecordError
 from ilcforce.store.safeio import StoreError, acquire_writer_lock, check_writer_lock, dead_copies_in
+from ilcforce.store.study_journal import _is_int  # an integer, not a bool
 
 SCHEMA_NAME = "ilcforce.tuning"
 SCHEMA_VERSION = 2
@@ -49,10 +50,6 @@ class TuningStoreError(Exception):
     """A tuning store that cannot be used or is not valid; one line."""
 
 
-def tuning_dir(results_dir: Path | str, name: str) -> Path:
-    return Path(results_dir) / "tuning" / name
-
-
 def is_tuning_store(path: Path | str) -> bool:
     return Path(path).is_dir() and not Path(path).is_symlink() and (Path(path) / HEADER).is_file()
 
@@ -68,10 +65,9 @@ class Search:  # what a record is checked against: the store's identity and the 
 
 def search_of(header: dict) -> Search:
     definition = json.loads(header["definition_json"])
-    budgets = [s.get("trials") for s in header["sessions"] if isinstance(s, dict)]
     return Search(header["tuning_id"], hashlib.sha256(f"{header['fingerprint']}\0{header['definition_json']}".encode())
                   .hexdigest(), tuple(definition["methods"]), tuple(definition["seeds"]),
-                  max([b for b in budgets if _is_int(b)] or [0]))
+                  max([s["trials"] for s in header["sessions"] if _is_int(s.get("trials"))] or [0]))
 
 
 def read_header(path: Path | str) -> dict:
@@ -83,16 +79,12 @@ def read_header(path: Path | str) -> dict:
             raise RecordError(f"schema {header['schema']!s:.40} {header['schema_version']!s:.20}; this ilcforce "
                               f"reads {SCHEMA_NAME} {SCHEMA_VERSION}")
         definition = json.loads(header["definition_json"])
-        if not (isinstance(header["sessions"], list) and isinstance(header["fingerprint"], str) and
+        if not (isinstance(header["sessions"], list) and all(isinstance(s, dict) for s in header["sessions"]) and
                 all(isinstance(m, str) for m in definition["methods"]) and all(map(_is_int, definition["seeds"]))):
-            raise RecordError("its sessions, fingerprint or the search's methods or seeds are not what they must be")
+            raise RecordError("its sessions or the search's methods or seeds are not what they must be")
     except (RecordError, ValueError, RecursionError, TypeError, KeyError) as error:
         raise TuningStoreError(f"{Path(path) / HEADER}: not a valid tuning header ({error})") from None
     return header
-
-
-def _is_int(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool)
 
 
 def _is_number(value) -> bool:
@@ -175,6 +167,11 @@ def validate_tuning(path: Path | str, check: Check | None) -> dict:
         more = f" (and {len(refused) - 1} more refused records)" if len(refused) > 1 else ""
         raise TuningStoreError(f"{item}: refused ({why}){more}; the next `ilcforce tune` moves it aside and runs "
                                "its trial again")
+    tuned, digests = path / TUNED, [s["tuned_sha256"] for s in header["sessions"] if "tuned_sha256" in s]
+    if os.path.lexists(tuned) and (tuned.is_symlink() or not tuned.is_file() or not digests
+                                   or hashlib.sha256(tuned.read_bytes()).hexdigest() != digests[-1]):
+        raise TuningStoreError(f"{tuned}: not the tuned file the last run wrote (its sha256 differs or it is not a "
+                               "plain file); rerun `ilcforce tune` to write it again")
     summary = {}
     for method, stored in trials.items():
         numbers = sorted(stored)
@@ -236,7 +233,7 @@ class TuningStore:
             stored = {**header, "tuning_id": uuid.uuid4().hex, "sessions": []}
         # the tuning file as last run (a changed budget is the one change of it a stored search takes)
         self.header = {**stored, "tuning_toml": header["tuning_toml"], "sessions": [*stored["sessions"], session]}
-        records.atomic_write(self.path / HEADER, json.dumps(records.seal(self.header)).encode())
+        self.save_header()
         self.header = read_header(self.path)
         (self.path / TRIALS).mkdir(exist_ok=True)
         self.search = search_of(self.header)
@@ -265,8 +262,14 @@ class TuningStore:
         self.committed += 1
         self.trials.setdefault(record["method"], {})[record["number"]] = record
 
+    def save_header(self) -> None:
+        records.atomic_write(self.path / HEADER, json.dumps(records.seal(self.header)).encode())
+
     def write_tuned(self, text: str) -> Path:
+        """Write ``tuned.toml`` and seal it: its sha256 goes into this run's session."""
         records.atomic_write(self.path / TUNED, text.encode())
+        self.header["sessions"][-1]["tuned_sha256"] = hashlib.sha256(text.encode()).hexdigest()
+        self.save_header()
         return self.path / TUNED
 
     def discard_if_unused(self) -> None:

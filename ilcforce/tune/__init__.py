@@ -12,9 +12,9 @@ trial, resumable, checked by :func:`~ilcforce.tune.runner.validate_tuning`); the
 :mod:`ilcforce.cli.tune`.
 """
 
-from ilcforce.tune.runner import TuneProgress, TuneSummary, run_tuning, validate_tuning
+from ilcforce.tune.runner import TuneProgress, TuneSummary, run_tuning, tuning_dir, validate_tuning
 from ilcforce.tune.spec import Tuning, TuneError, build_tuning, load_tuning
-from ilcforce.store.tuning import TuningStoreError, is_tuning_store, tuning_dir
+from ilcforce.store.tuning import TuningStoreError, is_tuning_store
 
 __all__ = ["TuneError", "TuneProgress", "TuneSummary", "Tuning", "TuningStoreError", "build_tuning",
            "is_tuning_store", "load_tuning", "run_tuning", "tuning_dir", "validate_tuning"]

@@ -38,8 +38,7 @@ from ilcforce.study.dask_run import CONNECT_TIMEOUT, IN_FLIGHT_PER_THREAD, dask_
 from ilcforce.study.runner import _ADDRESS, _run_in_process, fingerprint, max_local_workers
 from ilcforce.tune.spec import GainRange, SearchedGain, Tuning, TuneError, seed_score
 from ilcforce.store.records import RecordError
-from ilcforce.store.tuning import (COMPLETE, FAILED, SCHEMA_NAME, SCHEMA_VERSION, TuningStore, TuningStoreError,
-                                    tuning_dir)
+from ilcforce.store.tuning import COMPLETE, FAILED, SCHEMA_NAME, SCHEMA_VERSION, TuningStore, TuningStoreError
 
 
 @dataclass(frozen=True)
@@ -166,6 +165,11 @@ def read_trials(path: Path | str) -> dict[str, dict[int, dict]]:
 
 def _is_count(value) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def tuning_dir(results_dir: Path | str, name: str) -> Path:
+    """Where the tuning ``name`` is stored: ``<results>/tuning/<name>/``."""
+    return Path(results_dir) / "tuning" / name
 
 
 def _distributions(tuning: Tuning, method: str) -> dict:
