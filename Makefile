@@ -111,9 +111,14 @@ check-readme: check-findings
 
 # Tuning is not part of `make reproduce`: its results are committed as the experiment files
 # experiments/*-tuned.toml, each stating the tuning file and the budget that produced it.
+# `tune -o` never replaces a file unasked (and --overwrite would also discard the stored trials), so
+# each tuned file is written beside the results, then moved over the committed one on success.
 tune: $(STAMP) aot ## tune every method's gains with one budget on both robots; writes experiments/*-tuned.toml
-	$(VENV)/bin/ilcforce tune experiments/tuning/fivebar-tune.toml --results $(RESULTS) -o experiments/fivebar-tuned.toml
-	$(VENV)/bin/ilcforce tune experiments/tuning/serial2r-tune.toml --results $(RESULTS) -o experiments/serial2r-tuned.toml
+	@for robot in fivebar serial2r; do \
+	  rm -f $(RESULTS)/$$robot-tuned.toml && \
+	  $(VENV)/bin/ilcforce tune experiments/tuning/$$robot-tune.toml --results $(RESULTS) -o $(RESULTS)/$$robot-tuned.toml && \
+	  mv $(RESULTS)/$$robot-tuned.toml experiments/$$robot-tuned.toml || exit 1; \
+	done
 
 clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info ilcforce/_kernels_aot*

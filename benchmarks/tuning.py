@@ -28,7 +28,7 @@ def once(trials: int, seeds: int, iterations: int, workers: int) -> tuple[float,
     from ilcforce.study import run_study
     from ilcforce.study.spec import build_study
     from ilcforce.tune import build_tuning, run_tuning
-    from ilcforce.tune.store import read_trials, tuning_dir
+    from ilcforce.tune.runner import read_trials, tuning_dir
 
     with tempfile.TemporaryDirectory() as tmp:
         tuning = build_tuning(tuning_file(trials, seeds, iterations))

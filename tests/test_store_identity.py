@@ -93,16 +93,15 @@ def test_a_study_driver_killed_while_making_its_store_leaves_nothing_a_rerun_kee
     script = (
         "import os, signal, sys\n"
         f"sys.path.insert(0, {str(Path(__file__).parent)!r})\n"
-        "import h5py\n"
+        "from ilcforce.store import commit\n"
         "from ilcforce.study import run_study\n"
         "from test_study import small_study\n"
-        "real = h5py.File\n"
-        "def stop(*args, **kwargs):\n"
-        "    handle = real(*args, **kwargs)\n"
-        "    if '.tmp-' in str(args[0]):\n"
-        "        handle.flush(); print('made', flush=True); os.kill(os.getpid(), signal.SIGSTOP)\n"
-        "    return handle\n"
-        "h5py.File = stop\n"
+        "real = commit._open_tmp\n"
+        "def stop(tmp):\n"
+        "    fd = real(tmp)\n"
+        "    print('made', flush=True); os.kill(os.getpid(), signal.SIGSTOP)\n"
+        "    return fd\n"
+        "commit._open_tmp = stop\n"
         f"run_study(small_study(seeds='0-0', methods=('c1',)), {str(results)!r}, workers=1)\n"
     )
     child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,

@@ -183,9 +183,36 @@ def test_a_study_store_without_seals_is_read(tmp_path):
 
     run_study(small_study(seeds="0-1"), tmp_path, workers=1)  # one more seed: consolidates
     with h5py.File(path, "r") as handle:
-        assert handle.attrs["schema_version"] == "1.1" and STRINGS_SEAL in handle["metrics/method"].attrs
+        assert handle.attrs["schema_version"] == "1.2" and STRINGS_SEAL in handle["metrics/method"].attrs
+        assert "data_sha256" in handle["metrics/force_error_rms"].attrs
     after = read_tables(path)[1]
     assert len(after) == 2 * len(before)
+
+
+def _halve(handle, name):
+    handle[name][0] = handle[name][0] / 2
+
+
+def _seed_changed(handle, name):
+    handle["cells/seed"][0] = 7
+
+
+def _hard_link(handle, name):
+    del handle["metrics/position_error_rms"]
+    handle["metrics/position_error_rms"] = handle["metrics/force_error_rms"]
+
+
+@pytest.mark.parametrize("edit", [_halve, _seed_changed, _hard_link])
+def test_numeric_columns_edited_through_h5py_are_refused(tmp_path, edit):
+    """An edit through h5py gets a recomputed Fletcher-32 for free, and may even keep the attribute
+    seals right (an edit of data leaves attributes alone); the columns' digests refuse it."""
+    path = run_small(tmp_path)
+    with h5py.File(path, "a") as handle:
+        edit(handle, "metrics/force_error_rms")
+    for command in (["validate", str(path)], ["export", str(path), "--out", str(tmp_path / "t.csv")]):
+        result = CliRunner().invoke(app, command)
+        assert result.exit_code == 2 and "do not match their digest" in result.output, result.output
+    assert not (tmp_path / "t.csv").exists()
 
 
 def run_small(tmp_path: Path) -> Path:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import subprocess
 from pathlib import Path
 
 import pandas as pd
@@ -94,7 +95,7 @@ def _study_file(tmp_path: Path) -> Path:
 def _reseal(record: Path, change) -> None:
     """Change a record and give it a valid checksum again: only the checks against the study can
     refuse it."""
-    from ilcforce.store.study_journal import _checksum
+    from ilcforce.store.records import checksum as _checksum
 
     def both(data):
         change(data)
@@ -198,6 +199,31 @@ def test_a_symlinked_journal_of_another_study_is_refused(tmp_path, monkeypatch):
     assert rerun.exit_code == 2 and "journal folder is a symbolic link" in rerun.output, rerun.output
     assert sorted(p.name for p in a_journal.iterdir()) == before, "A's journal is untouched"
     assert _invoke("validate", first).output.count("refused") == 0
+
+
+def test_a_bind_mounted_journal_of_another_study_is_refused(tmp_path, monkeypatch):
+    """Study B's journal folder a bind mount of study A's (the symlink form is refused above): each
+    driver quarantined the other's valid records. Both refuse it in one line; A keeps every cell."""
+    first = _journal_only(tmp_path, monkeypatch, name="tiny")
+    a_journal = first.parent / "tiny.h5.journal"
+    before = sorted(p.name for p in a_journal.iterdir())
+    second = run_study(small_study(name="other", seeds="0-0", methods=("c1",)), tmp_path, workers=1).path
+    b_journal = second.parent / "other.h5.journal"
+    b_journal.mkdir(exist_ok=True)
+    if subprocess.run(["mount", "--bind", str(a_journal), str(b_journal)], capture_output=True).returncode != 0:
+        pytest.skip("bind mounts need CAP_SYS_ADMIN here")
+    try:
+        for args in (["validate", second], ["export", second, "--out", tmp_path / "b.csv"]):
+            result = _invoke(*args)
+            assert result.exit_code == 2 and "journal folder is a mount point" in result.output, result.output
+        study = tmp_path / "other.toml"
+        study.write_text('[study]\nname = "other"\nmethods = ["c1"]\nseeds = "0-1"\n[study.set]\n'
+                         '"experiment.iterations" = 3\n"reference.duration" = 0.2\n', encoding="utf-8")
+        rerun = _invoke("study", study, "--results", tmp_path, "--workers", "1", "--quiet")
+        assert rerun.exit_code == 2 and "journal folder is a mount point" in rerun.output, rerun.output
+        assert sorted(p.name for p in a_journal.iterdir()) == before, "A's journal is untouched"
+    finally:
+        subprocess.run(["umount", str(b_journal)], check=True)
 
 
 def test_a_copied_journal_of_another_study_is_refused_record_by_record(tmp_path, monkeypatch):

@@ -39,9 +39,10 @@ def report(
                            progress=None if quiet else lambda text: _say(f"report: {text}", stderr=True))
     for warning in summary.warnings:
         _say(f"warning: {warning}", stderr=True)
-    if not summary.experiments and not summary.studies:
+    if not summary.experiments and not summary.studies and not any(
+            Path(f).is_relative_to(Path(target) / "tuning") for f in summary.files):
         raise CliError(f"no usable ilcforce stores under {results}")
-    done = [*summary.experiments, *(f"study {name}" for name in summary.studies)]
+    done = [*summary.experiments, *(f"study {name}" for name in summary.studies)] or ["the tuning stores"]
     _say(f"report for {', '.join(done)} written to {target}/index.md")
 
 
@@ -59,7 +60,8 @@ def validate(paths: Annotated[list[Path], typer.Argument(help="run, study or tun
     from ilcforce.store.safeio import companion_of
     from ilcforce.store.study_read import DAMAGED_RECORD, StudyStoreError, check_study_store, is_study_store
 
-    from ilcforce.tune.store import TuningStoreError, is_tuning_store, validate_tuning
+    from ilcforce.store.tuning import TuningStoreError, is_tuning_store
+    from ilcforce.tune.runner import validate_tuning
 
     invalid = 0
     for path in paths:

@@ -37,11 +37,13 @@ def progress_line(name: str, p) -> str:
 def tune_command(file: Path | str, *, scheduler: str | None = None, workers: int | None = None,
                  results: Path | str = "results", overwrite: bool = False, output: Path | str | None = None,
                  quiet: bool = False, timeout: float = 10.0, command: str = "") -> int:
-    """Run the tuning file ``file``; returns the exit code (0, 2 for any error, 130 when interrupted)."""
+    """Run the tuning file ``file``; returns the exit code (0; 1 when no method could be tuned; 2 for
+    any error; 130 or 143 when a stop signal ends it)."""
+    from ilcforce.stops import announce, stop_code
     from ilcforce.study.dask_run import StudyRunError
     from ilcforce.tune.runner import run_tuning
     from ilcforce.tune.spec import TuneError, load_tuning
-    from ilcforce.tune.store import TuningStoreError
+    from ilcforce.store.tuning import TuningStoreError
 
     try:
         tuning = load_tuning(file)
@@ -55,29 +57,35 @@ def tune_command(file: Path | str, *, scheduler: str | None = None, workers: int
         _line(f"error: {exc.filename or results}: {exc.strerror or exc}", stderr=True)
         return 2
     except KeyboardInterrupt:
-        _line("interrupted: every finished trial is stored; rerun the same command to continue", stderr=True)
-        return 130
+        _line(announce("every finished trial is stored; rerun the same command to continue"), stderr=True)
+        return stop_code()
+    for line in summary.quarantined:
+        _line(f"warning: {line}", stderr=True)
     for method, best in summary.best.items():
+        stored = f"{summary.stored[method]} stored (budget {tuning.trials})"
         if best is None:
-            _line(f"{tuning.name}: {method}: every trial failed (no gains chosen)")
+            _line(f"{tuning.name}: {method}: every one of its {stored} trials failed: left untuned")
         else:
-            _line(f"{tuning.name}: {method}: best trial {best[0]} of {tuning.trials}, objective {best[1]:.4g}")
+            _line(f"{tuning.name}: {method}: best trial {best[0]} of {stored}, objective {best[1]:.4g}")
     if not quiet:
         _line(f"{tuning.name}: {summary.ran} trials run, {summary.skipped} already stored, in "
               f"{summary.wall_time:.1f} s on {summary.scheduler} -> {summary.path}")
-    if summary.tuned is not None:
-        _line(f"{tuning.name}: tuned experiment file {summary.tuned} (run it with `ilcforce simulate -c {summary.tuned}`)")
+    if summary.tuned is None:
+        _line(f"error: {tuning.name}: no method could be tuned (every trial failed); no tuned experiment file "
+              "written", stderr=True)
+        return 1
+    _line(f"{tuning.name}: tuned experiment file {summary.tuned} (run it with `ilcforce simulate -c {summary.tuned}`)")
     return 0
 
 
 @app.command()
 def tune(
     ctx: typer.Context,
-    file: Annotated[Path, typer.Argument(help="tuning file: TOML with a [tune] table (experiment, methods, gain ranges, seeds, objective, trials)")],
+    file: Annotated[Path, typer.Argument(help="tuning file: TOML with a \\[tune] table (experiment, methods, gain ranges, seeds, objective, trials)")],
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://HOST:8786")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", help="local worker processes (default: one per core; 1 runs in this process)")] = None,
     results: Annotated[Path, typer.Option("--results", help="results folder; the tuning store is <results>/tuning/<name>/")] = Path("results"),
-    overwrite: Annotated[bool, typer.Option("--overwrite", help="discard the stored trials and start over")] = False,
+    overwrite: Annotated[bool, typer.Option("--overwrite", help="discard the stored trials and start over; also replace an existing --output file")] = False,
     output: Annotated[Optional[Path], typer.Option("--output", "-o", help="also write the tuned experiment file here")] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress lines")] = False,
     timeout: Annotated[float, typer.Option("--timeout", help="seconds allowed to reach --scheduler")] = 10.0,

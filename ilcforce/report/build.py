@@ -327,7 +327,7 @@ def write_report(
     study_dir = results_dir / "studies"
     report_paths = find_study_stores(results_dir)
     findings_paths = sorted(study_dir.glob("*.h5")) if study_dir.is_dir() else []
-    if not found and not report_paths and not findings_paths:  # nothing to report: out_dir is left as it is
+    if not found and not report_paths and not findings_paths and not (results_dir / "tuning").is_dir():  # nothing to report: out_dir is left as it is
         return ReportSummary(out_dir=out_dir, experiments=(), files=(), warnings=tuple(warnings))
     out_dir.mkdir(parents=True, exist_ok=True)
     pieces = [pool.Task(f"experiment {name}", _report_experiment, (name, paths, out_dir, tuple(formats)),
@@ -375,6 +375,9 @@ def write_report(
                          "and does the growth test see it coming?](long-run/long-run.md) (`make long`)", ""]
     reported = tuple(r.name for r in study_reports if r.index_lines)
     if not verdicts and not reported and not studies:  # every store was unusable: an existing report stays
+        if tuning_lines:  # a results folder of tuning stores only: their pages, and an index linking them
+            write_text_whole(out_dir / "index.md", "\n".join(["# ilcforce reports", "", *study_section]))
+            written.append(out_dir / "index.md")
         return ReportSummary(out_dir=out_dir, experiments=(), files=tuple(written), warnings=tuple(warnings))
     index = out_dir / "index.md"
     title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
@@ -416,7 +419,7 @@ def _tuning_pages(results_dir: Path, out_dir: Path, formats: tuple[str, ...], wr
     index lines. A store that is not valid is a warning line, never the end of the report."""
     from ilcforce.report.figures import report_style
     from ilcforce.report.tuning import write_tuning_report
-    from ilcforce.tune.store import TuningStoreError, is_tuning_store
+    from ilcforce.store.tuning import TuningStoreError, is_tuning_store
 
     folder = results_dir / "tuning"
     lines: list[str] = []

@@ -191,7 +191,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
     except (StudyStoreError, OSError, KeyError, ValueError, TypeError) as exc:
         report.warnings.append(f"study {Path(path).name}: skipped ({' '.join(str(exc).split())})")
         return report
-    name = results.name or Path(path).stem
+    name = Path(path).stem  # the file's own name: a renamed copy of a store is a page of its own
     report.name = name
     directory = Path(out_dir) / name
     directory.mkdir(parents=True, exist_ok=True)

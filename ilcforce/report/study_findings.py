@@ -219,7 +219,8 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
     from ilcforce.study.tidy import read_study
 
     results = read_study(study_store)
-    directory = Path(out_dir) / results.name
+    name = Path(study_store).stem  # the file's own name: a renamed copy of a store is a page of its own
+    directory = Path(out_dir) / name
     directory.mkdir(parents=True, exist_ok=True)
     text, summary, claims_frame, stability_frame = study_markdown(results)
     written = [write_csv(claims_frame, directory / "claims.csv"), write_csv(stability_frame, directory / "stability.csv")]
@@ -231,7 +232,7 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
             text += f"\n![stability boundary]({path.name})\n"
     write_text_whole(directory / "findings.md", text)
     written.append(directory / "findings.md")
-    return written, results.name, {"description": results.description, "settings": summary,
+    return written, name, {"description": results.description, "settings": summary,
                                    "incomplete": incomplete_text(results),
                                    "labelled": bool(getattr(results, "labelled", False)),
                                    "claim_rows": claims_frame.to_dict("list"),

@@ -110,7 +110,7 @@ def find_study(results_dir: Path, configs: dict[str, dict]) -> StudyMatch | None
                 continue
             if all(_same(setting, configs[m], m) for m in shared):
                 run_seed = configs[shared[0]].get("experiment", {}).get("seed")
-                best = StudyMatch(str(header.get("name") or path.stem), k, n_seeds, tuple(shared),
+                best = StudyMatch(path.stem, k, n_seeds, tuple(shared),
                                   seeds[0] if seeds else None, run_seed)
                 break
     return best

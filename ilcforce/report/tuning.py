@@ -1,7 +1,7 @@
 """Tuning figures: a method's objective against the trial number (``ilcforce tune``).
 
 Draws on the Axes it is given and returns the artists, as every report figure does; the input is
-:func:`ilcforce.tune.store.trials_frame`.
+:func:`trials_frame`.
 """
 
 from __future__ import annotations
@@ -11,6 +11,30 @@ import pandas as pd
 from matplotlib.axes import Axes
 
 from ilcforce.controllers import REGISTRY
+
+
+def trials_frame(path) -> pd.DataFrame:
+    """Every trial of the tuning store ``path`` that passes every check
+    (:func:`ilcforce.tune.runner.read_trials`) as a tidy table, one row per (method, trial), in trial
+    order: method, trial, state, objective (NaN when failed), best_so_far (the method's best up to
+    and including this trial, NaN before the first complete one), message, elapsed (s), then one
+    column per gain (dotted key; a vector gain holds a list)."""
+    import math
+
+    from ilcforce.tune.runner import read_trials
+
+    rows = []
+    for method, trials in read_trials(path).items():
+        best = math.inf
+        for number in sorted(trials):
+            record = trials[number]
+            value = record["value"] if record["state"] == "complete" else math.nan
+            best = min(best, value) if value == value else best
+            rows.append({"method": method, "trial": number, "state": record["state"], "objective": value,
+                         "best_so_far": best if best < math.inf else math.nan, "message": record["message"],
+                         "elapsed": record["elapsed"], **record["gains"]})
+    return pd.DataFrame(rows, columns=None if rows else ["method", "trial", "state", "objective", "best_so_far",
+                                                          "message", "elapsed"])
 
 
 def plot_tuning_history(ax: Axes, frame: pd.DataFrame, method: str) -> list:
@@ -71,7 +95,8 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
 
     from ilcforce.report.figure_files import save_figure, write_text_whole
     from ilcforce.report.table_write import markdown_table, write_table
-    from ilcforce.tune.store import read_header, trials_frame, validate_tuning
+    from ilcforce.store.tuning import read_header
+    from ilcforce.tune.runner import validate_tuning
 
     path, out_dir = Path(path), Path(out_dir)
     summary = validate_tuning(path)
@@ -79,7 +104,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
     definition = json.loads(header["definition_json"])
     frame = trials_frame(path)
     name = summary["name"]
-    target = out_dir / name
+    target = out_dir / path.name  # a renamed copy of a store is its own page, not the original's
     target.mkdir(parents=True, exist_ok=True)
     files = []
     budget = _budget(header["tuning_toml"])
@@ -93,7 +118,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
         files += save_figure(fig, target, "history", formats)
     table = tuning_table(frame, budget) if len(frame) else pd.DataFrame()
     description = header.get("description", "")
-    text = [f"# Tuning {name}", "", *([description, ""] if description else []),
+    text = [f"# Tuning {name}" + (f" (the store {path.name})" if path.name != name else ""), "", *([description, ""] if description else []),
             f"Budget per method: {budget} trials (trial 0 = the experiment's gains) x {len(definition['seeds'])} "
             f"seeds x {definition['iterations']} iterations; objective {definition['objective']!r} over iterations "
             f"{definition['score_iterations'] - definition['score_last']}..{definition['score_iterations'] - 1} "
@@ -108,7 +133,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
                  "log10(e_P / 1 mm) + log10(e_F / 1 N) of the settled error norms (or one of the two terms), median "
                  "over seeds: one unit lower is a tenfold smaller error.", ""] if methods and formats else []
     files.append(write_text_whole(target / "index.md", "\n".join(text)))
-    line = f"- [tuning {name}](tuning/{name}/index.md): " + ", ".join(
+    line = f"- [tuning {path.name}](tuning/{path.name}/index.md): " + ", ".join(
         f"{row['method']} {row['trial 0 objective']:.3g} -> {row['best objective']:.3g}" for _, row in table.iterrows())
     return files, [line]
 

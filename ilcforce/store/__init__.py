@@ -1,31 +1,19 @@
-"""The HDF5 results store: one self-describing file per (experiment, method).
+"""The results stores: runs, studies and tunings, one durability model (docs/store-format.md has
+each layout and what protects each byte).
 
-The only package that imports h5py. One file per run: ``results/<experiment>/<method>.h5``.
-Modules, one job each: :mod:`.filecheck` (errors, what a path is, opening damaged files in
-bounded time), :mod:`.safeio` (locks, interrupted commits), :mod:`.seal` (checksums over
-attributes and strings), :mod:`.schema` (the layout as data, versioned), :mod:`.journal` and
-:mod:`.commit` (atomic commits), :mod:`.read` and :mod:`.access` (reading and validation),
-:mod:`.write` (the writer) and :mod:`.prepare` (its checks of the path before the first commit),
-:mod:`.run` (the ``ilcforce.open`` run object); the study store: :mod:`.study_read`,
-:mod:`.study` (its writer) and :mod:`.study_journal` (its journal's records, checked).
+The only package that imports h5py. Modules, one job each: :mod:`.filecheck` (errors, what a path
+is, opening damaged files in bounded time), :mod:`.safeio` (the writers' lock of every store,
+interrupted commits), :mod:`.seal` (checksums over attributes, strings and numeric columns),
+:mod:`.records` (sealed JSON records: whole-or-absent writes, bounded reads, quarantine),
+:mod:`.schema` (the run layout as data, versioned), :mod:`.journal` and :mod:`.commit` (a run's
+atomic commits), :mod:`.read` and :mod:`.access` (reading and validation), :mod:`.write` (the run
+writer) and :mod:`.prepare` (its checks of the path before the first commit), :mod:`.run` (the
+``ilcforce.open`` run object); the study store: :mod:`.study_read`, :mod:`.study` (its writer) and
+:mod:`.study_journal` (its journal's records, checked); the tuning store: :mod:`.tuning`.
 
-Layout (schema ``ilcforce.store`` 2.1; every dataset float64 unless stated, Fletcher-32
-checksummed, with ``units`` and ``description`` attributes; every object's attributes sealed by
-``attrs_crc32``, :mod:`.seal`)::
-
-    /                       root attrs: schema.ROOT_ATTRIBUTES (provenance, config, run_state)
-    /reference/<signal>     records.REFERENCE_SIGNALS on the log grid, attr axes
-    /control_time           the control grid (s), the time axis of the learned memory
-    /iterations/<jjjj>/     attrs: schema.ITERATION_ATTRIBUTES ("complete" written last)
-        log/<signal>        records.LOG_SIGNALS on the log grid, (n_log,) or (n_log, 2), attr axes
-        memory/<name>       learned memory after iteration j, (n_control,) or (n_control, width),
-                            attr columns (e.g. Theta_hat's D11 D12 C11 C12 ...)
-    /metrics/<column>       cache of metrics.iteration_metrics, one row per committed iteration,
-                            group attr metrics_version; recomputed from the logs when stale
-
-Crash safety: each iteration is one atomic commit (:mod:`.commit`): kill -9, Ctrl-C, a full disk
-leave the store with every finished iteration. A second writer is refused. Errors are
-:class:`StoreError`, one line naming the file and the problem.
+Crash safety: each run iteration, study cell and tuning trial is one atomic commit: kill -9,
+Ctrl-C, a full disk leave every finished one. A second writer is refused. Errors are one line
+naming the file and the problem.
 """
 
 import importlib

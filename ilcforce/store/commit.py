@@ -1,7 +1,7 @@
 """Atomic commits of one store file.
 
-* A new file (a fresh run, or ``--overwrite``) is written beside the store as ``<store>.tmp``
-  and renamed over it: until that rename the old file stays as it was.
+* A new file (a fresh run or study, or ``--overwrite``) is written beside the store as
+  ``<store>.tmp``, fsynced and renamed over it: until that rename the old file stays as it was.
 * Every later commit changes the store in place under an undo journal
   (:mod:`ilcforce.store.journal`), holding the store's exclusive lock (readers hold it shared).
   Its cost is what the commit writes, independent of the file's size, in every
@@ -10,7 +10,8 @@
   (``st_nlink == 1``). A store reached through a symbolic link, or with other hard links (a
   ``cp -al`` backup), is copied once to ``<store>.tmp``, changed there and renamed over the name
   the writer was given: the other names keep the old data. The same happens when a reader keeps
-  the file locked for longer than :data:`INPLACE_LOCK_WAIT` (it keeps its own unchanged file).
+  the file locked for longer than :data:`INPLACE_LOCK_WAIT` (it keeps its own unchanged file),
+  and for every commit to a study store (:func:`replace`).
 """
 
 from __future__ import annotations
@@ -93,6 +94,7 @@ def _create(path: Path, build: Change) -> None:
         fd = _open_tmp(tmp)
         stream = journal.JournaledFile(fd, None, 0)
         _apply(stream, "w", build)
+        os.fsync(fd)
         os.replace(tmp, path)
     except BaseException as error:
         _abandon(path, tmp, stream, error)
@@ -110,6 +112,13 @@ def update(path: Path, change: Change) -> None:
     handlers would raise wait until the commit has ended (:mod:`ilcforce.stops`)."""
     with stops.critical():
         _update(path, change)
+
+
+def replace(path: Path, change: Change) -> None:
+    """Apply ``change`` to a copy of the store at ``path`` and rename it over ``path`` (never in
+    place: a study store, whose ``<store>.journal`` is its folder of cell records)."""
+    with stops.critical():
+        _copy_update(path, change)
 
 
 def _update(path: Path, change: Change) -> None:
@@ -185,6 +194,7 @@ def _copy_update(path: Path, change: Change) -> None:
             copied += n
         stream = journal.JournaledFile(fd, None, size)
         _apply(stream, "r+", change)
+        os.fsync(fd)
         os.replace(tmp, path)
     except StoreError:
         _remove_tmp(tmp)

@@ -201,11 +201,6 @@ def file_identity(path: Path) -> Path:
     return Path(os.path.realpath(path))
 
 
-def lock_path(path: Path) -> Path:
-    """The lock file beside ``path`` (by name)."""
-    return path.with_name(path.name + ".lock")
-
-
 def writers_lock(path: Path) -> Path:
-    """The lock every writer of ``path``, under any of its names, takes: beside its real path."""
-    return lock_path(file_identity(Path(path)))
+    """The lock file every writer of ``path``, under any of its names, takes: beside its real path."""
+    return file_identity(Path(path)).with_name(file_identity(Path(path)).name + ".lock")

@@ -27,7 +27,7 @@ from ilcforce.records import IterationRecord
 from ilcforce.store import schema
 from ilcforce.store.seal import ATTRS_SEAL, attrs_state
 from ilcforce.store.template import verify
-from ilcforce.store.safeio import (IS_A_STUDY_STORE, StoreError, check_regular_file, one_line, probe,
+from ilcforce.store.safeio import (IS_A_STUDY_STORE, StoreError, one_line, probe,
                                    read_locked, superblock_version, writer_active)
 
 _H5_ERRORS = (OSError, KeyError, ValueError, TypeError, RuntimeError, AttributeError, IndexError)
@@ -387,9 +387,3 @@ def provenance_of(handle: h5py.File, path: Path) -> dict[str, Any]:
     if out.get("run_state") == "running" and not writer_active(path):
         out["run_state"] = "partial"  # the writer was killed (kill -9, power loss) mid-run
     return out
-
-
-def check_regular(path: str | os.PathLike[str]) -> Path:
-    """``path`` as a Path after checking it is a non-empty regular file."""
-    check_regular_file(Path(path))
-    return Path(path)

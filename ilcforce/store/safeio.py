@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import fcntl
 import os
@@ -25,7 +26,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from ilcforce.store import journal
-from ilcforce.store.filecheck import file_identity, lock_path, writers_lock  # noqa: F401 - the store's names for them
+from ilcforce.store.filecheck import file_identity, writers_lock  # noqa: F401 - the store's names for them
 from ilcforce.store.filecheck import (  # noqa: F401 - re-exported: the store's modules import them from here
     HDF5_SIGNATURE, PROBE_TIMEOUT, StoreError, StoreExistsError, StoreLockedError, check_regular_file, file_key,
     is_hdf5_file, mark_walked, one_line, os_reason, probe, superblock_version,
@@ -63,28 +64,26 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def dead_writers_copies(path: Path) -> list[Path]:
-    """The temporary copies of the store at ``path`` (exactly ``.<name>.tmp-<pid>``, regular files)
-    whose writer process is gone: left by a kill -9. The caller holds the store's writer lock, so
-    no live writer of this store is making one; a copy of a live process is never listed."""
+def dead_copies_in(folder: Path, name: str | None = None) -> list[Path]:
+    """The temporary copies in ``folder`` (exactly ``.<name>.tmp-<pid>``, regular files; of the store
+    ``name`` only, if given) whose writer is gone: left by a kill -9. The caller holds the store's
+    writer lock, so no live writer of it is making one; a copy of a live process is never listed."""
     try:
-        names = os.listdir(path.parent)
+        matches = [m for m in map(_TEMPORARY.fullmatch, sorted(os.listdir(folder))) if m]
     except OSError:
         return []
     found = []
-    for name in names:
-        match = _TEMPORARY.fullmatch(name)
-        if match is None or match.group(1) != path.name:
-            continue
-        pid = int(match.group(2))
-        if pid == os.getpid() or _alive(pid):
-            continue
-        try:
-            if stat.S_ISREG(os.lstat(path.parent / name).st_mode):
-                found.append(path.parent / name)
-        except OSError:
-            pass
+    for match in matches:
+        pid, item = int(match.group(2)), Path(folder) / match.group(0)
+        if (name is None or match.group(1) == name) and pid != os.getpid() and not _alive(pid):
+            with contextlib.suppress(OSError):
+                found += [item] if stat.S_ISREG(os.lstat(item).st_mode) else []
     return found
+
+
+def dead_writers_copies(path: Path) -> list[Path]:
+    """:func:`dead_copies_in` of the store at ``path``."""
+    return dead_copies_in(path.parent, path.name)
 
 
 def companion_of(path: Path) -> str | None:
@@ -103,46 +102,58 @@ def companion_of(path: Path) -> str | None:
 # the writer's lock file
 
 
-def acquire_writer_lock(path: Path) -> int:
-    """Take ``<real path>.lock`` exclusively (:func:`file_identity`: every name of the file
-    reaches one lock); the fd (closing it releases the lock).
-
-    Never follows a symlink, never truncates: the PID is written only into a file this call
-    created. StoreLockedError if another writer holds it.
-    """
-    lock = writers_lock(path)
-    flags = os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC
-    created = False
-    try:
-        fd = os.open(lock, flags | os.O_CREAT | os.O_EXCL, 0o644)
-        created = True
-    except FileExistsError:
+def acquire_writer_lock(path: Path, busy: str = "") -> int:
+    """Lock the store at ``path`` for its one writer (StoreLockedError saying ``busy`` if taken); the
+    fd, whose closing releases it. A folder (a tuning) is locked itself; a file through ``<real
+    path>.lock``, never followed through a link, never truncated, checked after locking to still be
+    the file of its name (docs/store-format.md: why, and what a deleted lock file does)."""
+    busy = busy or (f"{path} is being written by another ilcforce process; wait for it to finish "
+                    "or choose another --out")
+    folder = os.path.isdir(path) and not os.path.islink(path)
+    lock = Path(path) if folder else writers_lock(path)
+    flags = os.O_RDONLY | os.O_DIRECTORY if folder else os.O_RDWR | os.O_NOFOLLOW
+    for _attempt in range(100):
+        created = False
         try:
-            fd = os.open(lock, flags)
+            fd = os.open(lock, flags | os.O_CLOEXEC | (0 if folder else os.O_CREAT | os.O_EXCL), 0o644)
+            created = not folder
+        except FileExistsError:
+            try:
+                fd = os.open(lock, flags | os.O_CLOEXEC)
+            except OSError as error:
+                if error.errno == errno.ELOOP:
+                    raise StoreError(f"{path}: lock file {lock} is a symbolic link; refusing to use it") from None
+                raise StoreError(f"{path}: cannot open lock file {lock} ({os_reason(error)})") from None
         except OSError as error:
-            if error.errno == errno.ELOOP:
-                raise StoreError(f"{path}: lock file {lock} is a symbolic link; refusing to use it") from None
-            raise StoreError(f"{path}: cannot open lock file {lock} ({os_reason(error)})") from None
-    except OSError as error:
-        raise StoreError(f"{path}: cannot create lock file {lock} ({os_reason(error)})") from None
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise StoreError(f"{path}: lock file {lock} is not a regular file; refusing to use it")
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError as error:
-        os.close(fd)
-        if error.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
-            raise StoreLockedError(
-                f"{path} is being written by another ilcforce process; wait for it to finish or choose another --out"
-            ) from None
-        raise StoreError(f"{path}: cannot lock {lock} ({os_reason(error)})") from None
+            raise StoreError(f"{path}: cannot create lock file {lock} ({os_reason(error)})") from None
+        if not folder and not stat.S_ISREG(os.fstat(fd).st_mode):
+            os.close(fd)
+            raise StoreError(f"{path}: lock file {lock} is not a regular file; refusing to use it")
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as error:
+            os.close(fd)
+            if error.errno in (errno.EAGAIN, errno.EACCES, errno.EWOULDBLOCK):
+                raise StoreLockedError(busy) from None
+            raise StoreError(f"{path}: cannot lock {lock} ({os_reason(error)})") from None
+        with contextlib.suppress(FileNotFoundError):
+            if os.path.samestat(os.fstat(fd), os.stat(lock, follow_symlinks=False)):
+                break
+        os.close(fd)  # deleted or replaced between open and flock: lock the file of the name now
+    else:
+        raise StoreError(f"{path}: its lock file {lock} keeps being replaced; refusing to write")
     if created:  # for humans looking at a stuck lock; only in a file we created
         try:
             os.write(fd, f"{os.getpid()}\n".encode())
         except OSError:
             pass
     return fd
+
+
+def check_writer_lock(fd: int) -> bool:
+    """Whether the writer's lock ``fd`` still has a name (False: its lock file was deleted or
+    replaced, so a second writer may be in)."""
+    return os.fstat(fd).st_nlink > 0
 
 
 def writer_active(path: str | os.PathLike[str]) -> bool:

@@ -1,24 +1,20 @@
-"""Checksums over what HDF5 does not checksum: attributes and variable-length string columns.
+"""Checksums over what HDF5 does not checksum, or recomputes for whoever edits (the table in
+docs/store-format.md says what each catches and what none of them does: a deliberate rewrite):
 
-HDF5 checksums its metadata blocks and (with Fletcher-32) fixed-size data, but an attribute's
-value and a variable-length string dataset's heap carry none: a flipped bit in ``config_json``
-(``c3.eta`` 5.0 -> 4.0), in a unit, in a Theta column label or in a study's method name was read
-as if it were written. So:
-
-* every object (the root, a group, a dataset) of a sealed store carries ``attrs_crc32``: CRC-32
-  over its other attributes, names sorted, each as its name, its kind and its value's bytes
-  (:func:`attrs_checksum`); the writer seals an object after its last attribute change in a
-  commit (:func:`seal_attrs`) and readers verify it (:func:`verify_attrs`);
-* every variable-length string column of a study store carries ``strings_crc32``: CRC-32 over its
-  values, each as its length (uint32 LE) and its UTF-8 bytes, continued value by value, so an
-  append costs only the new values (:func:`strings_checksum`).
-
-CRC-32 detects every single-bit flip and every burst up to 32 bits; it is a check against
-damage, not against someone who rewrites the file on purpose.
+* ``attrs_crc32`` on every object (root, group, dataset) of a sealed store: CRC-32 over its other
+  attributes, names sorted, each as its name, kind and value's bytes (:func:`attrs_checksum`),
+  written after the object's last attribute change in a commit (:func:`seal_attrs`). HDF5 keeps
+  no checksum of an attribute's value: a flipped bit in ``config_json`` was read as written.
+* ``strings_crc32`` on every string column of a study store: CRC-32 over its values, each as its
+  length (uint32 LE) and UTF-8 bytes, continued value by value (an append costs the new values).
+* ``data_sha256`` on every numeric column of a study store: sha256 over its path and its values
+  (:func:`data_digest`). An edit through h5py recomputes Fletcher-32 for free, not this; as it
+  names the path, a column hard-linked to another's data fails it too.
 """
 
 from __future__ import annotations
 
+import hashlib
 import struct
 import zlib
 from collections.abc import Iterable
@@ -30,6 +26,8 @@ import numpy as np
 ATTRS_SEAL = "attrs_crc32"
 #: The attribute that seals a variable-length string column.
 STRINGS_SEAL = "strings_crc32"
+#: The attribute that seals a numeric column's values.
+DATA_SEAL = "data_sha256"
 
 
 def _value_bytes(value: Any) -> bytes:
@@ -86,3 +84,9 @@ def strings_checksum(values: Iterable[str], start: int = 0) -> int:
         data = str(value).encode("utf-8", "surrogatepass")
         crc = zlib.crc32(struct.pack("<I", len(data)) + data, crc)
     return crc & 0xFFFFFFFF
+
+
+def data_digest(path: str, values: np.ndarray) -> str:
+    """sha256 (hex) over a numeric column's path in its file and its values (little-endian)."""
+    values = np.ascontiguousarray(values, dtype=values.dtype.newbyteorder("<"))
+    return hashlib.sha256(path.encode() + b"\0" + values.dtype.str.encode() + b"\0" + values.tobytes()).hexdigest()

@@ -1,44 +1,21 @@
-"""The study store, ``results/studies/<name>.h5`` (part of the store package, the only one touching h5py).
-Readers (header, tables, journal records) are in :mod:`.study_read`; this module is the writer.
+"""The study store's writer, ``results/studies/<name>.h5`` (readers: :mod:`.study_read`; layout,
+schema ``ilcforce.study`` 1.2, and what protects each byte: docs/store-format.md).
 
-Only the driver writes it. Durability without ever writing an HDF5 file in place:
-
-1. A finished (or failed) cell is committed at once as one small JSON record in the journal
-   ``<name>.h5.journal/<setting>-<seed>-<method>.json`` (written to a temporary name, fsynced,
-   renamed: a record is whole or absent).
-2. Every few seconds, and at the end, the journal is **consolidated** into ``<name>.h5``: the file
-   is copied, the new rows appended to the copy, the copy fsynced and renamed over the original.
-   The HDF5 file is therefore always a complete older or newer version, never half written.
-3. Readers take the HDF5 file plus the journal records not yet in it.
-
-So ``kill -9`` of the driver loses only the cells in flight; a rerun skips every committed cell.
-A lock (``flock`` on ``<real path of the store>.lock``, opened without following links and never
-truncated) refuses a second driver on the same study.
-
-Every record is sealed and checked against the store before it is used (:mod:`.study_journal`);
-every attribute and string column of the HDF5 file carries a checksum (:mod:`.seal`).
-
-Layout (schema ``ilcforce.study`` 1.1; 1.0 lacks study_id and the seals)::
-
-    /             attrs: schema, schema_version, name, description, study_toml, definition_json,
-                         fingerprint, created, sessions_json (each run's seeds and methods among
-                         its fields), study_id (the identity the journal's records carry),
-                         attrs_crc32 (on every group and column too; strings_crc32 on string columns)
-    /settings     datasets (n_settings,): config_json, label, values_json (swept key -> value, JSON)
-    /metrics      one dataset per column, (n_rows,): setting, seed, method, iteration, then the
-                  metric columns of the cells' rows (status, ..., memory_norm_*)
-    /cells        one dataset per column, (n_records,): setting, seed, method, state ('done' or
-                  'failed'), attempts, message, elapsed, worker; a later record of a cell wins
+Only the driver writes it, never an HDF5 file in place: a finished (or failed) cell is committed at
+once as one sealed JSON record in the journal ``<name>.h5.journal/`` (:mod:`.records`, checked by
+:mod:`.study_journal`); every few seconds, and at the end, the journal is **consolidated** into
+``<name>.h5`` by copy, append, fsync and rename (:func:`.commit.replace`), so the file is always a
+whole older or newer version. Readers take the file plus the journal records not yet in it. So
+``kill -9`` of the driver loses only the cells in flight; a rerun skips every committed cell. The
+writers' lock (:func:`~.safeio.acquire_writer_lock`) refuses a second driver on the same study.
 """
 
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import math
 import os
-import shutil
 import uuid
 from pathlib import Path
 
@@ -46,13 +23,14 @@ import h5py
 import numpy as np
 
 from ilcforce import stops
-from ilcforce.store import study_journal
-from ilcforce.store.seal import STRINGS_SEAL, seal_attrs, strings_checksum
-from ilcforce.store.filecheck import writers_lock
-from ilcforce.store.safeio import dead_writers_copies, is_hdf5_file, is_temporary_name, one_line
+from ilcforce.store import commit, records, study_journal
+from ilcforce.store.seal import DATA_SEAL, STRINGS_SEAL, data_digest, seal_attrs, strings_checksum
+from ilcforce.store.filecheck import StoreError, writers_lock
+from ilcforce.store.safeio import (acquire_writer_lock, check_writer_lock, dead_copies_in, dead_writers_copies, is_hdf5_file,
+                                  one_line)
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
-    _keys, _table, is_study_store, journal_dir, read_header, read_tables, scan_journal, study_facts,
+    _keys, _table, fold, is_study_store, journal_dir, read_header, read_tables, scan_journal, study_facts,
 )
 
 
@@ -107,7 +85,9 @@ def _seal(handle: h5py.File) -> None:
         group = handle[group_name]
         for name in group:
             dataset = group[name]
-            if h5py.check_string_dtype(dataset.dtype) is not None and STRINGS_SEAL not in dataset.attrs:
+            if h5py.check_string_dtype(dataset.dtype) is None:
+                dataset.attrs[DATA_SEAL] = data_digest(f"/{group_name}/{name}", dataset[()])
+            elif STRINGS_SEAL not in dataset.attrs:
                 dataset.attrs[STRINGS_SEAL] = np.uint32(strings_checksum(dataset.asstr()[()]))
             seal_attrs(dataset)
         seal_attrs(group)
@@ -123,30 +103,6 @@ def _make_folders(folder: Path) -> list[Path]:
     for item in reversed(missing):
         item.mkdir(exist_ok=True)
     return list(reversed(missing))
-
-
-def _fsync(path: Path) -> None:
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _write_json_atomic(path: Path, data: dict) -> None:
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    text = json.dumps(data)
-    _ensure_room(path.parent, 2 * len(text))
-    try:
-        with open(tmp, "w", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        _remove(tmp)
-        raise StudyStoreError(f"{path}: cannot commit the cell ({exc.strerror or exc}); every cell committed "
-                              "before is kept, rerun to continue") from None
 
 
 #: Room kept free beyond what a write needs, bytes.
@@ -171,13 +127,6 @@ def _ensure_room(folder: Path, needed: int) -> None:
     if limit != resource.RLIM_INFINITY and limit < needed:
         raise StudyStoreError(f"{folder}: the file size limit (ulimit -f: {limit} bytes) is below the "
                               f"{needed} bytes the study store needs; every cell committed before is kept")
-
-
-def _remove(path: Path) -> None:
-    try:
-        path.unlink()
-    except OSError:
-        pass
 
 
 def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_stale: bool = False,
@@ -222,19 +171,11 @@ def check_usable(path: Path, header: dict, *, overwrite: bool = False, replace_s
     return False
 
 
-def _flat(node: dict, prefix: str = "") -> dict:
-    out = {}
-    for key, value in node.items():
-        if isinstance(value, dict):
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
-
-
 def settings_difference(stored: str, new: str) -> str:
     """The first difference between two studies' definitions (JSON), stored -> new, for the refusal:
     e.g. "setting 1: c3.eta 2.0 -> 3.0"; '' when it cannot be told."""
+    from ilcforce.config_load import _flat as flat  # the config's own dotted keys
+
     try:
         was, now = json.loads(stored), json.loads(new)
         if was.get("sweep_keys") != now.get("sweep_keys"):
@@ -244,7 +185,7 @@ def settings_difference(stored: str, new: str) -> str:
         if was.get("labels") != now.get("labels"):
             return f"setting labels {was.get('labels')} -> {now.get('labels')}"
         for k, (a, b) in enumerate(zip(was["settings"], now["settings"])):
-            a, b = _flat(json.loads(a)), _flat(json.loads(b))
+            a, b = flat(json.loads(a)), flat(json.loads(b))
             keys = sorted(key for key in a.keys() | b.keys() if a.get(key) != b.get(key))
             if keys:
                 more = f" and {len(keys) - 1} more key(s)" if len(keys) > 1 else ""
@@ -312,7 +253,7 @@ class StudyStore:
         found = scan_journal(self.path, current)
         for item, why in found.refused:
             try:
-                where = study_journal.quarantine(item)
+                where = records.quarantine(item, study_journal.QUARANTINE)
             except OSError as exc:
                 raise StudyStoreError(f"{item}: a refused journal record ({why}) cannot be moved aside "
                                       f"({exc.strerror or exc})") from None
@@ -342,30 +283,21 @@ class StudyStore:
     # -- setup --------------------------------------------------------------------------------
 
     def _lock(self) -> int:
-        lock = writers_lock(self.path)
         try:
-            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
-        except OSError as exc:
-            raise StudyStoreError(f"{lock}: cannot open the study's lock file ({exc.strerror})") from None
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            raise StudyStoreError(f"{self.path}: another ilcforce study is writing this store") from None
-        return fd
+            return acquire_writer_lock(self.path, f"{self.path}: another ilcforce study is writing this store")
+        except StoreError as exc:
+            raise StudyStoreError(str(exc)) from None
 
     def _remove_dead_copies(self) -> None:
         """Remove what a killed driver of this study left half written: ``.<name>.h5.tmp-<pid>`` beside
         the store and ``.<record>.tmp-<pid>`` in its journal, of processes that are gone, each by its
         exact name (we hold the study's lock: no live driver of it is writing one)."""
         stale = dead_writers_copies(self.path)
-        folder = journal_dir(self.path)
-        if folder.is_dir() and not folder.is_symlink():
-            records = {item.name[1:].rsplit(".tmp-", 1)[0] for item in folder.iterdir() if is_temporary_name(item.name)}
-            for record in sorted(records):
-                stale += dead_writers_copies(folder / record)
+        if journal_dir(self.path).is_dir() and not journal_dir(self.path).is_symlink():
+            stale += dead_copies_in(journal_dir(self.path))
         for item in dict.fromkeys(stale):
-            _remove(item)
+            with contextlib.suppress(OSError):
+                item.unlink()
 
     def _prepare(self, overwrite: bool, replace_stale: bool, require_existing: bool) -> None:
         if check_usable(self.path, self._header, overwrite=overwrite, replace_stale=replace_stale,
@@ -381,21 +313,22 @@ class StudyStore:
                     item.unlink()
 
     def _create(self) -> None:
-        tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
         _ensure_room(self.path.parent, 512 * 1024 + 2 * len(json.dumps(self._header["settings"])))
-        with h5py.File(tmp, "w") as handle:
-            handle.attrs["schema"] = SCHEMA_NAME
-            handle.attrs["schema_version"] = SCHEMA_VERSION
-            for key in ("name", "description", "study_toml", "definition_json", "fingerprint", "created"):
-                handle.attrs[key] = str(self._header.get(key, ""))
-            handle.attrs["study_id"] = uuid.uuid4().hex
-            handle.attrs["sessions_json"] = json.dumps([self._session])
+
+        def build(handle: h5py.File) -> None:
+            handle.attrs.update({"schema": SCHEMA_NAME, "schema_version": SCHEMA_VERSION, "study_id": uuid.uuid4().hex,
+                                 "sessions_json": json.dumps([self._session]),
+                                 **{key: str(self._header.get(key, "")) for key in (
+                                     "name", "description", "study_toml", "definition_json", "fingerprint", "created")}})
             _append(handle.create_group("settings"), list(self._header["settings"]))
             handle.create_group("metrics").attrs["n_rows"] = 0
             handle.create_group("cells").attrs["n_rows"] = 0
             _seal(handle)
-        _fsync(tmp)
-        os.replace(tmp, self.path)
+
+        try:
+            commit.create(self.path, build)
+        except StoreError as exc:
+            raise StudyStoreError(str(exc)) from None
 
     # -- committing ---------------------------------------------------------------------------
 
@@ -403,6 +336,9 @@ class StudyStore:
         """Commit one cell's record (``setting``, ``seed``, ``method``, ``state``, ``attempts``,
         ``message``, ``elapsed``, ``worker``, ``rows``) to the journal; consolidate if due."""
         with stops.critical():  # a stop signal takes effect when the commit has ended
+            if not check_writer_lock(self._lock_fd):
+                raise StudyStoreError(f"{self.path}: its lock file was deleted or replaced while this study held it, "
+                                      "so another driver may be in; stopping (every committed cell is kept)")
             folder = journal_dir(self.path)
             folder.mkdir(exist_ok=True)
             target = folder / study_journal.record_name(record["setting"], record["seed"], record["method"])
@@ -411,7 +347,13 @@ class StudyStore:
                 study_journal.check(record, self._facts)
             except study_journal.RecordError as exc:
                 raise StudyStoreError(f"{target}: refusing to commit the cell ({exc})") from None
-            _write_json_atomic(target, record)
+            text = json.dumps(record)
+            _ensure_room(folder, 2 * len(text))
+            try:
+                records.atomic_write(target, text.encode())
+            except OSError as exc:
+                raise StudyStoreError(f"{target}: cannot commit the cell ({exc.strerror or exc}); every cell "
+                                      "committed before is kept, rerun to continue") from None
             self.committed += 1
             self._pending.append({**record, "_file": target})
             key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
@@ -432,40 +374,30 @@ class StudyStore:
 
     def _consolidate(self, now: float = 0.0) -> None:
         self._last = now
-        cells, rows, added = [], [], set()
-        for record in self._pending:
-            key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
-            if record["state"] == DONE and (key in self._in_file or key in added):
-                continue  # already in the file (killed between its rename and the journal cleanup)
-            cells.append({c: record.get(c) for c in CELL_COLUMNS})
-            if record["state"] == DONE:
-                added.add(key)
-                rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
+        cells, rows, added = fold(self._pending, self._in_file)
         sessions = list(self._sessions)
         if not sessions or sessions[-1].get("id") != self._session.get("id"):
             sessions.append(self._session)
         else:
             sessions[-1] = self._session
-        tmp = self.path.with_name(f".{self.path.name}.tmp-{os.getpid()}")
         # the copy, what is appended (8 bytes a value, doubled for strings) and new chunks (8 kB a column)
         _ensure_room(self.path.parent, 2 * self.path.stat().st_size + 16 * sum(len(r) for r in rows)
                      + 4096 * len(cells) + 8192 * 64)
+
+        def change(handle: h5py.File) -> None:
+            _append(handle["cells"], cells)
+            _append(handle["metrics"], rows)
+            handle.attrs["sessions_json"] = json.dumps(sessions)
+            handle.attrs["study_id"] = self._study_id
+            _seal(handle)
+
         try:
-            shutil.copyfile(self.path, tmp)
-            with h5py.File(tmp, "a") as handle:
-                _append(handle["cells"], cells)
-                _append(handle["metrics"], rows)
-                handle.attrs["sessions_json"] = json.dumps(sessions)
-                handle.attrs["study_id"] = self._study_id
-                _seal(handle)
-            _fsync(tmp)
-            os.replace(tmp, self.path)
-            self._in_file |= added
-            self._sessions = sessions
-        except (OSError, RuntimeError, ValueError) as exc:
-            _remove(tmp)
-            raise StudyStoreError(f"{self.path}: cannot consolidate the study store ({' '.join(str(exc).split())}); "
-                                  "every committed cell is kept in its journal, rerun to continue") from None
+            commit.replace(self.path, change)
+        except StoreError as exc:
+            raise StudyStoreError(f"{self.path}: cannot consolidate the study store ({exc}); every committed cell "
+                                  "is kept in its journal, rerun to continue") from None
+        self._in_file |= added
+        self._sessions = sessions
         for record in self._pending:
             try:
                 record["_file"].unlink()
@@ -493,6 +425,5 @@ class StudyStore:
 
     def close(self) -> None:
         if getattr(self, "_lock_fd", None) is not None:
-            fcntl.flock(self._lock_fd, fcntl.LOCK_UN)
             os.close(self._lock_fd)
             self._lock_fd = None

@@ -1,28 +1,15 @@
 """A study's journal records: sealed when written, checked against their study before anyone uses them.
 
 A finished cell lives as one JSON record in ``<store>.h5.journal/<setting>-<seed>-<method>.json``
-until the driver folds it into the checksummed HDF5 file. Until then nothing but this module
-stands between the record's bytes and the study's table, so each record is checked here before
-it is read, folded or exported:
-
-* its ``checksum`` (sha256 over its canonical JSON, every field but the checksum itself) matches:
-  a changed digit after a kill -9 is caught;
-* its ``study`` is the identity (``study_id``, a random id the store gets when it is made) of the
-  store it sits beside: a journal folder copied from another study is refused record by record;
-* its ``setting_digest`` is sha256 of the study's simulation fingerprint and of the stored
-  setting's ``config_json``: a record computed with other settings or other code is refused;
-* its key is a cell the study has (a setting it stores, a seed and a method that one of its runs
-  planned: ``seeds`` and ``methods`` of a session) and its file name is that key, so a key cannot
-  appear twice under two names;
-* every field has its type, size and range, and the metric rows have the study's columns, one per
-  iteration ``0 .. n - 1`` with ``n`` at most the setting's ``experiment.iterations``.
-
-A record that fails is never used: readers skip it and name it (:func:`scan`); the driver moves it
-aside into ``<store>.h5.journal/.quarantine/`` (:func:`quarantine`) so it is kept for a human and
-its cell runs again. Records of an older ilcforce (no checksum) fail like damaged ones: their cell
-runs again, nothing computed is trusted unchecked.
-
-Only the format of a record lives here; the study store's reader and writer use it.
+until the driver folds it into the HDF5 file; nothing else stands between its bytes and the
+study's table, so a record is used only when its seal matches (:mod:`.records`), its ``study`` is
+the ``study_id`` of the store beside it (a journal copied from another study is refused record by
+record), its ``setting_digest`` is sha256 of the study's simulation fingerprint and the stored
+setting's ``config_json``, its key is a cell some run of the study planned and is its file name,
+and every field has its type, size and range (metric rows: the study's columns, one per
+iteration ``0 .. n - 1``, ``n`` at most the setting's ``experiment.iterations``). Readers skip a
+refused record and name it (:func:`scan`); the driver moves it aside into ``.quarantine/`` and its
+cell runs again. Records of an older ilcforce (no checksum) are refused like damaged ones.
 """
 
 from __future__ import annotations
@@ -32,12 +19,13 @@ import json
 import math
 import os
 import re
-import stat
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 from ilcforce.metrics import METRIC_COLUMNS, column_kind
+from ilcforce.store import records
+from ilcforce.store.records import RecordError  # noqa: F401 - the journal's name for it
 
 #: Version of a journal record's format (records without it are from before checksums).
 RECORD_FORMAT = 2
@@ -59,10 +47,6 @@ _INT64 = (-(1 << 63), (1 << 63) - 1)
 DONE, FAILED = "done", "failed"
 
 
-class RecordError(Exception):
-    """Why a journal record is refused (one short phrase, without the file name)."""
-
-
 def record_name(setting: int, seed: int, method: str) -> str:
     """The file name of the record of a cell."""
     return f"{setting}-{seed}-{method}.json"
@@ -73,20 +57,9 @@ def setting_digest(fingerprint: str, config_json: str) -> str:
     return hashlib.sha256(f"{fingerprint}\0{config_json}".encode()).hexdigest()
 
 
-def _canonical(body: dict) -> bytes:
-    return json.dumps(body, sort_keys=True, separators=(",", ":"), allow_nan=True).encode()
-
-
-def _checksum(body: dict) -> str:
-    return hashlib.sha256(_canonical({k: v for k, v in body.items() if k != "checksum"})).hexdigest()
-
-
 def seal(record: dict, study_id: str, digest: str) -> dict:
-    """``record`` (a cell's fields) with its format, study identity, setting digest and checksum,
-    as plain JSON values (numpy scalars made Python numbers)."""
-    body = json.loads(json.dumps({**record, "format": RECORD_FORMAT, "study": study_id, "setting_digest": digest}))
-    body["checksum"] = _checksum(body)
-    return body
+    """``record`` (a cell's fields) with its format, study identity, setting digest and checksum."""
+    return records.seal({**record, "format": RECORD_FORMAT, "study": study_id, "setting_digest": digest})
 
 
 @dataclass(frozen=True)
@@ -148,32 +121,7 @@ def read_record(item: Path, facts_: StudyFacts) -> dict:
     match = _NAME.fullmatch(item.name)
     if match is None:
         raise RecordError("its name is not <setting>-<seed>-<method>.json")
-    try:
-        info = os.lstat(item)
-    except OSError as error:
-        raise RecordError(f"cannot be read ({error.strerror or error})") from None
-    if stat.S_ISLNK(info.st_mode):
-        raise RecordError("a symbolic link, not a record")
-    if not stat.S_ISREG(info.st_mode):
-        raise RecordError("not a regular file")
-    if info.st_size > MAX_RECORD_BYTES:
-        raise RecordError(f"{info.st_size} bytes, more than a record holds ({MAX_RECORD_BYTES})")
-    try:
-        fd = os.open(item, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
-        try:
-            data = os.read(fd, MAX_RECORD_BYTES + 1)
-        finally:
-            os.close(fd)
-    except OSError as error:
-        raise RecordError(f"cannot be read ({error.strerror or error})") from None
-    try:
-        record = json.loads(data.decode("utf-8"))
-    except UnicodeDecodeError:
-        raise RecordError("not UTF-8 text") from None
-    except RecursionError:
-        raise RecordError("JSON nested too deeply") from None
-    except ValueError as error:
-        raise RecordError(f"not JSON ({str(error).split(':')[0]})") from None
+    record = records.read_json(item, MAX_RECORD_BYTES)
     check(record, facts_, match.groups())
     return record
 
@@ -181,21 +129,11 @@ def read_record(item: Path, facts_: StudyFacts) -> dict:
 def check(record, facts_: StudyFacts, name_key: tuple[str, str, str] | None = None) -> None:
     """RecordError unless ``record`` is a sealed, whole record of a cell of the study ``facts_``
     (stored under the file name whose parts are ``name_key``)."""
-    if not isinstance(record, dict):
-        raise RecordError(f"a JSON {type(record).__name__}, not a record")
-    if "checksum" not in record or "format" not in record:
+    if isinstance(record, dict) and "format" not in record:
         raise RecordError("no checksum (written by an older ilcforce, or not a record)")
-    if set(record) != RECORD_FIELDS:
-        odd = sorted(set(record) ^ RECORD_FIELDS)
-        raise RecordError(f"fields differ from a record's ({', '.join(map(str, odd))[:120]})")
+    records.check_fields(record, RECORD_FIELDS, "a record")
     if record["format"] != RECORD_FORMAT:
         raise RecordError(f"record format {str(record['format'])[:20]!r}; this ilcforce reads {RECORD_FORMAT}")
-    try:
-        expected = _checksum(record)
-    except (ValueError, TypeError, RecursionError):
-        raise RecordError("cannot be checksummed") from None
-    if record["checksum"] != expected:
-        raise RecordError("its checksum does not match its content (changed after it was written)")
     if record["study"] != facts_.study_id or not facts_.study_id:
         raise RecordError("it belongs to another study (its study id is not this store's)")
     setting, seed, method = record["setting"], record["seed"], record["method"]
@@ -280,32 +218,8 @@ def scan(folder: Path, facts_: StudyFacts) -> Scan:
             other.append((item, "not a .json record" if item.is_file() else "not a regular file"))
         else:
             try:
-                record = read_record(item, facts_)
+                records.append({**read_record(item, facts_), "_file": item})
             except RecordError as error:
                 refused.append((item, str(error)))
-                continue
-            record["_file"] = item
-            records.append(record)
     moved = folder / QUARANTINE
-    count = 0
-    if moved.is_dir() and not moved.is_symlink():
-        count = sum(1 for _ in moved.iterdir())
-    return Scan(records, refused, other, count)
-
-
-def quarantine(item: Path) -> Path:
-    """Move the refused record ``item`` into its folder's quarantine (made if missing, never
-    through a symbolic link), under a name not taken yet; returns where it went."""
-    folder = item.parent / QUARANTINE
-    try:
-        os.mkdir(folder, 0o755)
-    except FileExistsError:
-        if folder.is_symlink() or not folder.is_dir():
-            raise OSError(f"{folder} is not a folder") from None
-    target = folder / item.name
-    n = 1
-    while os.path.lexists(target):
-        target = folder / f"{item.name}.{n}"
-        n += 1
-    os.rename(item, target)
-    return target
+    return Scan(records, refused, other, len(os.listdir(moved)) if moved.is_dir() and not moved.is_symlink() else 0)

@@ -4,6 +4,7 @@ tables (:func:`read_tables`), and what identifies a study store. The writer is :
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 from pathlib import Path
@@ -13,17 +14,19 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.store import study_journal
-from ilcforce.store.seal import ATTRS_SEAL, STRINGS_SEAL, attrs_state, strings_checksum
+from ilcforce.store.seal import ATTRS_SEAL, DATA_SEAL, STRINGS_SEAL, attrs_state, data_digest, strings_checksum
 from ilcforce.store.filecheck import StoreError, check_regular_file, is_hdf5_file, probe, writers_lock
 from ilcforce.store.schema import STUDY_NAME, STUDY_SCHEMA_NAME
 
 SCHEMA_NAME = STUDY_SCHEMA_NAME
-SCHEMA_VERSION = "1.1"
+SCHEMA_VERSION = "1.2"
 #: From this version on, the root, every group and every column carry attribute seals and every
 #: string column a checksum of its values (:mod:`.seal`). A 1.0 store has none: it is read and
 #: ``validate`` says its strings are unverified (accepted: its numbers are Fletcher-32 checked, and
 #: the driver seals it at its next consolidation).
 SEALED_FROM = (1, 1)
+#: The first study schema whose numeric columns carry their digest (seal.DATA_SEAL).
+DIGESTS_FROM = (1, 2)
 CELL_COLUMNS = ("setting", "seed", "method", "state", "attempts", "message", "elapsed", "worker")
 KEY_COLUMNS = ("setting", "seed", "method")
 DONE, FAILED = "done", "failed"
@@ -55,13 +58,14 @@ def is_study_store(path: Path) -> bool:
 # reading
 
 
-def is_sealed(handle: h5py.File) -> bool:
-    """Whether the study store open as ``handle`` is of a schema whose attributes and strings are sealed."""
+def is_sealed(handle: h5py.File, since: tuple[int, int] = SEALED_FROM) -> bool:
+    """Whether the study store open as ``handle`` is of a schema whose attributes and strings are
+    sealed (``since`` 1.1; its numeric columns: DIGESTS_FROM)."""
     try:
         major, minor = (int(x) for x in str(handle.attrs.get("schema_version", "")).split("."))
     except ValueError:
         return True
-    return (major, minor) >= SEALED_FROM
+    return (major, minor) >= since
 
 
 def _verify_attrs(obj, sealed: bool) -> None:
@@ -72,7 +76,7 @@ def _verify_attrs(obj, sealed: bool) -> None:
                               f"({ATTRS_SEAL}) or have none: damaged")
 
 
-def _column(dataset: h5py.Dataset, sealed: bool) -> np.ndarray:
+def _column(dataset: h5py.Dataset, sealed: bool, path: str) -> np.ndarray:
     _verify_attrs(dataset, sealed)
     if h5py.check_string_dtype(dataset.dtype) is not None:
         values = np.asarray(dataset.asstr()[()], dtype=object)
@@ -83,7 +87,12 @@ def _column(dataset: h5py.Dataset, sealed: bool) -> np.ndarray:
             raise StudyStoreError(f"{dataset.file.filename}: the strings of {dataset.name} do not match their "
                                   f"checksum ({STRINGS_SEAL}): damaged")
         return values
-    return dataset[()]
+    values = dataset[()]
+    if DATA_SEAL in dataset.attrs or is_sealed(dataset.file, DIGESTS_FROM):
+        if str(dataset.attrs.get(DATA_SEAL)) != data_digest(path, values):
+            raise StudyStoreError(f"{dataset.file.filename}: the values of {path} do not match their digest "
+                                  f"({DATA_SEAL}): changed after they were written")
+    return values
 
 
 def _table(group: h5py.Group) -> pd.DataFrame:
@@ -92,7 +101,7 @@ def _table(group: h5py.Group) -> pd.DataFrame:
     n = int(group.attrs.get("n_rows", 0))
     data = {}
     for name in json.loads(group.attrs.get("columns_json", "[]")):
-        values = _column(group[name], sealed)
+        values = _column(group[name], sealed, f"{group.name}/{name}")
         if values.shape != (n,):
             raise StudyStoreError(f"{group.file.filename}: /{group.name.strip('/')}/{name} has {values.shape[0]} "
                                   f"rows, expected {n}")
@@ -100,7 +109,7 @@ def _table(group: h5py.Group) -> pd.DataFrame:
     return pd.DataFrame(data)
 
 
-#: How :func:`ignored_journal_entries` marks a .json record that readers refuse (its cell runs again).
+#: How :func:`check_study_store` marks a .json record that readers refuse (its cell runs again).
 DAMAGED_RECORD = "refused"
 
 
@@ -118,12 +127,15 @@ def study_facts(header: dict) -> study_journal.StudyFacts:
 
 
 def _journal_folder(path: Path) -> Path:
-    """The journal folder of the study store at ``path``; StudyStoreError if it is a symbolic link
-    (another study's journal, whose cells this study would take as its own)."""
+    """The journal folder of the study store at ``path``; StudyStoreError if it is a symbolic link or a
+    mount point (a bind mount: another study's journal, whose records each would quarantine)."""
     folder = journal_dir(path)
-    if folder.is_symlink():
-        raise StudyStoreError(f"{folder}: the journal folder is a symbolic link (to {os.readlink(folder)}); a "
-                              "study's journal is its own folder, refusing it")
+    mounted = os.path.ismount(folder)
+    with contextlib.suppress(OSError), open("/proc/self/mountinfo", encoding="utf-8") as table:  # Linux: and
+        mounted |= os.path.realpath(folder) in {line.split()[4] for line in table}  # a bind mount on one fs
+    if folder.is_symlink() or mounted:
+        how = f"symbolic link (to {os.readlink(folder)})" if folder.is_symlink() else "mount point (a bind mount?)"
+        raise StudyStoreError(f"{folder}: the journal folder is a {how}; a study's journal is its own folder, refusing it")
     if os.path.lexists(folder) and not folder.is_dir():
         raise StudyStoreError(f"{folder}: not a folder; a study's journal is a folder")
     return folder
@@ -134,18 +146,24 @@ def scan_journal(path: Path, header: dict) -> study_journal.Scan:
     return study_journal.scan(_journal_folder(path), study_facts(header))
 
 
-def _journal_records(path: Path, header: dict) -> list[dict]:
-    return scan_journal(path, header).records
-
-
-def ignored_journal_entries(path: Path, header: dict | None = None) -> list[str]:
-    """What the journal folder holds that readers skip, each as 'name: why': a refused record (its
-    cell runs again) with the reason, a folder, another file. Hidden files (a record being written,
-    the quarantine) are left out."""
-    return _entries(scan_journal(path, read_header(path) if header is None else header))
+def fold(records: list[dict], in_file: set) -> tuple[list, list, set]:
+    """(cells, metric rows, keys added) of the journal ``records`` whose cell is not done in the file
+    yet (``in_file``: (setting, seed, method) keys; one consolidated before a kill -9 removed its record)."""
+    cells, rows, added = [], [], set()
+    for record in records:
+        key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
+        if record["state"] == DONE and (key in in_file or key in added):
+            continue
+        cells.append({c: record.get(c) for c in CELL_COLUMNS})
+        if record["state"] == DONE:
+            added.add(key)
+            rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
+    return cells, rows, added
 
 
 def _entries(found: study_journal.Scan) -> list[str]:
+    """What the journal folder holds that readers skip, each as 'name: why': a refused record (its
+    cell runs again) with the reason, a folder, another file (hidden ones left out)."""
     entries = [(item.name, f"{DAMAGED_RECORD} ({why})") for item, why in found.refused]
     entries += [(item.name, what) for item, what in found.other]
     return [f"{name}: {why}" for name, why in sorted(entries)]
@@ -161,20 +179,18 @@ def latest_study_toml(sessions: list, first: str) -> str:
 def _probe(path: Path) -> None:
     """Bounded time on a damaged file: walk its structure in a forked child first (the run store's
     :func:`ilcforce.store.filecheck.probe`); StudyStoreError if that fails."""
+    fd = -1
     try:
         check_regular_file(Path(path))  # a FIFO would block the open below for ever
-    except StoreError as exc:
-        raise StudyStoreError(str(exc)) from None
-    try:
         fd = os.open(path, os.O_RDONLY)
-    except OSError as exc:
-        raise StudyStoreError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    try:
         probe(Path(path), fd)
     except StoreError as exc:
         raise StudyStoreError(str(exc)) from None
+    except OSError as exc:
+        raise StudyStoreError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     finally:
-        os.close(fd)
+        if fd >= 0:
+            os.close(fd)
 
 
 def read_header(path: Path, *, check: bool = True) -> dict:
@@ -222,14 +238,7 @@ def read_tables(path: Path, *, check: bool = True) -> tuple[dict, pd.DataFrame, 
     except (OSError, KeyError, ValueError, TypeError) as exc:
         raise StudyStoreError(f"{path}: damaged study store ({' '.join(str(exc).split())})") from None
     done = set(_keys(cells[cells["state"] == DONE])) if len(cells) else set()
-    extra_rows, extra_cells = [], []
-    for record in _journal_records(path, header):
-        key = (int(record["setting"]), int(record["seed"]), str(record["method"]))
-        if record["state"] == DONE and key in done:
-            continue  # consolidated already (killed between the rename and the journal cleanup)
-        extra_cells.append({c: record.get(c) for c in CELL_COLUMNS})
-        if record["state"] == DONE:
-            extra_rows += [{"setting": key[0], "seed": key[1], "method": key[2], **row} for row in record["rows"]]
+    extra_cells, extra_rows, _ = fold(scan_journal(path, header).records, done)
     if extra_cells:
         cells = pd.concat([cells, pd.DataFrame(extra_cells)], ignore_index=True)
     if extra_rows:

@@ -25,7 +25,8 @@ from ilcforce.store.prepare import (check_replaceable, check_resumable, clean_le
                                     refuse_foreign_target)
 from ilcforce.store.seal import seal_attrs
 from ilcforce.store.template import IterationTemplate
-from ilcforce.store.safeio import StoreError, StoreExistsError, acquire_writer_lock, one_line
+from ilcforce.store.safeio import (StoreError, StoreExistsError, StoreLockedError, acquire_writer_lock,
+                                  check_writer_lock, one_line)
 
 
 def _signal_array(arrays: Mapping[str, np.ndarray], argument: str, name: str,
@@ -278,6 +279,10 @@ class StoreWriter:
     def _require_open(self) -> None:
         if not self._entered:
             raise RuntimeError("StoreWriter must be used as a context manager ('with StoreWriter(...) as writer')")
+        if self._lock_fd is not None and not check_writer_lock(self._lock_fd):
+            raise StoreLockedError(f"{self._path}: its lock file was deleted or replaced while this run held it, so "
+                                   "another writer may be in; stopping before the next commit (every finished "
+                                   "iteration is kept)")
 
     def _release_lock(self) -> None:
         if self._lock_fd is not None:

@@ -7,14 +7,14 @@ Python API::
     summary = run_tuning(tuning, "results", workers=2)   # results/tuning/<name>/, tuned.toml
 
 Modules: :mod:`~ilcforce.tune.spec` (the tuning file and the objective), :mod:`~ilcforce.tune.runner`
-(Optuna ask-and-tell, cells on the study engine), :mod:`~ilcforce.tune.store` (one JSON record per
-trial, resumable, :func:`~ilcforce.tune.store.validate_tuning`); the ``ilcforce tune`` command is
+(Optuna ask-and-tell, cells on the study engine), :mod:`ilcforce.store.tuning` (one sealed JSON record per
+trial, resumable, checked by :func:`~ilcforce.tune.runner.validate_tuning`); the ``ilcforce tune`` command is
 :mod:`ilcforce.cli.tune`.
 """
 
-from ilcforce.tune.runner import TuneProgress, TuneSummary, run_tuning
+from ilcforce.tune.runner import TuneProgress, TuneSummary, run_tuning, tuning_dir, validate_tuning
 from ilcforce.tune.spec import Tuning, TuneError, build_tuning, load_tuning
-from ilcforce.tune.store import TuningStoreError, is_tuning_store, tuning_dir, validate_tuning
+from ilcforce.store.tuning import TuningStoreError, is_tuning_store
 
 __all__ = ["TuneError", "TuneProgress", "TuneSummary", "Tuning", "TuningStoreError", "build_tuning",
            "is_tuning_store", "load_tuning", "run_tuning", "tuning_dir", "validate_tuning"]

@@ -25,6 +25,7 @@ import hashlib
 import json
 import os
 import platform
+import stat
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -35,8 +36,9 @@ from ilcforce.config import ConfigError
 from ilcforce.study.cell import run_cell
 from ilcforce.study.dask_run import CONNECT_TIMEOUT, IN_FLIGHT_PER_THREAD, dask_client, run_on_dask
 from ilcforce.study.runner import _ADDRESS, _run_in_process, fingerprint, max_local_workers
-from ilcforce.tune.spec import GainRange, Tuning, TuneError, seed_score
-from ilcforce.tune.store import COMPLETE, FAILED, SCHEMA_NAME, SCHEMA_VERSION, TuningStore, tuning_dir
+from ilcforce.tune.spec import GainRange, SearchedGain, Tuning, TuneError, seed_score
+from ilcforce.store.records import RecordError
+from ilcforce.store.tuning import COMPLETE, FAILED, SCHEMA_NAME, SCHEMA_VERSION, TuningStore, TuningStoreError
 
 
 @dataclass(frozen=True)
@@ -72,10 +74,12 @@ class TuneSummary:
     ran: int  # trials run now
     skipped: int  # trials already stored
     best: dict  # method -> (number, value) or None
-    tuned: Path | None  # the experiment file with the best gains
+    stored: dict  # method -> trials stored (this run's and earlier runs', whatever their budget)
+    tuned: Path | None  # the experiment file with the best gains (None: no method could be tuned)
     wall_time: float
     workers: int
     scheduler: str
+    quarantined: tuple = ()  # one line per refused record moved aside
 
 
 def _header(tuning: Tuning) -> dict:
@@ -83,6 +87,89 @@ def _header(tuning: Tuning) -> dict:
             "description": tuning.description, "tuning_toml": tuning.source,
             "definition_json": json.dumps(tuning.definition(), sort_keys=True), "fingerprint": fingerprint(),
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+
+
+def trial_check(definition: dict) -> Callable[[dict], None]:
+    """The search's own check of a stored trial (:func:`ilcforce.store.tuning.check_record` runs it),
+    from the search's stored ``definition`` (:meth:`Tuning.definition`) alone: its params are a
+    point of the search space, its gains are computed from them (trial 0: the experiment's own), and
+    each seed's value is the score (:func:`seed_score`) of its stored error norms."""
+    from types import SimpleNamespace
+
+    gains = {m: [SearchedGain(g["field"], tuple(GainRange(**e) if isinstance(e, dict) else e for e in g["elements"]),
+                              g["vector"], g["integer"]) for g in gs] for m, gs in definition["gains"].items()}
+    names = {m: dict(p for g in gs for p in g.parameter_names()) for m, gs in gains.items()}
+    integer = {m: {n for g in gs if g.integer for n, _ in g.parameter_names()} for m, gs in gains.items()}
+    experiment = json.loads(definition["experiment"])
+    scoring = SimpleNamespace(**{k: definition[k] for k in ("iterations", "score_iterations", "score_last",
+                                                              "objective")})
+
+    def check(record: dict) -> None:
+        try:
+            fits(record)
+        except (TypeError, KeyError, ValueError, AttributeError, IndexError) as error:  # a field of the wrong kind
+            raise RecordError(f"does not fit its search ({type(error).__name__}: {str(error)[:60]})") from None
+
+    def fits(record: dict) -> None:
+        method, params = record["method"], record["params"]
+        if params and set(params) != set(names[method]):
+            raise RecordError(f"its params are not {method}'s searched gains {sorted(names[method])[:6]}")
+        for name, value in params.items():
+            if not names[method][name].contains(value) or (name in integer[method] and value != int(value)):
+                raise RecordError(f"param {name} = {value:.6g} is outside its range or not an integer")
+        ran = ({f"{method}.{g.field}": g.value(params) for g in gains[method]} if params else
+               {f"{method}.{g.field}": experiment[method][g.field] for g in gains[method]})
+        if json.loads(json.dumps(ran)) != record["gains"]:
+            raise RecordError("its gains are not the ones its params give")
+        for entry in record["seeds"]:
+            if "message" in entry:
+                continue
+            n, diverged = entry["iterations_run"], entry["diverged_iteration"]
+            if not _is_count(n) or diverged is not None and not _is_count(diverged):
+                raise RecordError(f"seed {entry['seed']}: iterations_run or diverged_iteration is no iteration count")
+            rows = [{"status": "complete" if diverged is None or j < diverged else "diverged",
+                     "position_error_rms": p, "force_error_rms": f}
+                    for j, (p, f) in enumerate(zip(entry["position_error_rms"], entry["force_error_rms"]))]
+            if len(rows) != n or any(not isinstance(r[k], (int, float)) for r in rows if r["status"] == "complete"
+                                     for k in ("position_error_rms", "force_error_rms")):
+                raise RecordError(f"seed {entry['seed']}: its error norms do not cover its {n} iterations")
+            if seed_score(rows, scoring) != entry["value"]:
+                raise RecordError(f"seed {entry['seed']}: value {entry['value']} is not the score of its error norms")
+
+    return check
+
+
+def stored_check(path: Path | str) -> Callable[[dict], None]:
+    """:func:`trial_check` of the search the tuning store ``path`` holds (from its checked header)."""
+    from ilcforce.store.tuning import read_header
+
+    try:
+        return trial_check(json.loads(read_header(path)["definition_json"]))
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise TuningStoreError(f"{path}: its search definition cannot be read ({exc})") from None
+
+
+def validate_tuning(path: Path | str) -> dict:
+    """Check a tuning store, every trial against its search too (:func:`ilcforce.store.tuning.validate_tuning`)."""
+    from ilcforce.store import tuning
+
+    return tuning.validate_tuning(path, stored_check(path))
+
+
+def read_trials(path: Path | str) -> dict[str, dict[int, dict]]:
+    """Every trial of the tuning store ``path`` that passes every check: method -> {number: record}."""
+    from ilcforce.store import tuning
+
+    return tuning.read_trials(path, stored_check(path))
+
+
+def _is_count(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def tuning_dir(results_dir: Path | str, name: str) -> Path:
+    """Where the tuning ``name`` is stored: ``<results>/tuning/<name>/``."""
+    return Path(results_dir) / "tuning" / name
 
 
 def _distributions(tuning: Tuning, method: str) -> dict:
@@ -117,7 +204,9 @@ class _MethodSearch:
             record = stored[number]
             if record["in_sampler"]:
                 self._replay(record)
-        self.next_number = len(stored)
+        # the trials still to run: every number below the budget not stored (a gap left by a record
+        # moved aside or lost is run again; a stored trial is never run, so never overwritten)
+        self.missing = [n for n in range(tuning.trials) if n not in stored]
 
     def _replay(self, record: dict) -> None:
         import optuna
@@ -131,8 +220,7 @@ class _MethodSearch:
         """(number, params, Optuna trial or None): trial 0 is the experiment's gains."""
         import optuna
 
-        number = self.next_number
-        self.next_number += 1
+        number = self.missing.pop(0)
         if number == 0:
             return 0, {}, None
         self.study.sampler = optuna.samplers.TPESampler(seed=_sampler_seed(self.tuning, self.method, number))
@@ -225,16 +313,18 @@ def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: 
         workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     start = time.perf_counter()
-    store = TuningStore(tuning_dir(results_dir, tuning.name), _header(tuning), overwrite=overwrite)
+    if output is not None:
+        check_output(Path(output), tuning, overwrite=overwrite)
+    where = scheduler or ("in-process" if workers == 1 else "LocalCluster")
+    session = {"started": datetime.now(timezone.utc).isoformat(timespec="seconds"), "command": command,
+               "host": platform.node(), "scheduler": where, "workers": workers, "trials": tuning.trials}
+    store = TuningStore(tuning_dir(results_dir, tuning.name), _header(tuning), session, overwrite=overwrite,
+                        check=trial_check(tuning.definition()))
     ran = 0
     try:
         skipped = sum(len(v) for v in store.trials.values())
         searches = {m: _MethodSearch(tuning, m, store.trials.get(m, {})) for m in tuning.methods}
-        where = scheduler or ("in-process" if workers == 1 else "LocalCluster")
-        store.start_session({"started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-                             "command": command, "host": platform.node(), "scheduler": where,
-                             "workers": workers})
-        if any(s.next_number < tuning.trials for s in searches.values()):
+        if any(s.missing for s in searches.values()):
             with contextlib.ExitStack() as stack:
                 if scheduler or workers > 1:
                     client = stack.enter_context(dask_client(workers or 0, scheduler, timeout))
@@ -256,24 +346,70 @@ def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: 
                         break
                     ran += _run_round(tuning, searches, batch, execute, store, progress)
         best = {m: s.best() for m, s in searches.items()}
+        stored = {m: len(store.trials.get(m, {})) for m in tuning.methods}
         tuned = None
         if any(b is not None for b in best.values()):
             # named after the output file when there is one: an experiments/<stem>.toml must be named <stem>
             name = Path(output).stem if output is not None else f"{tuning.name}-tuned"
             text = tuned_experiment(tuning, {m: store.trials[m][b[0]] for m, b in best.items() if b is not None},
                                     {m: store.trials[m][0] for m in tuning.methods if 0 in store.trials.get(m, {})},
-                                    name=name)
+                                    name=name, stored=stored)
             tuned = store.write_tuned(text)
             if output is not None:
-                Path(output).parent.mkdir(parents=True, exist_ok=True)
-                Path(output).write_text(text, encoding="utf-8")
-                tuned = Path(output)
-        return TuneSummary(store.path, ran, skipped, best, tuned, time.perf_counter() - start, workers or 0, where)
+                tuned = _write_output(Path(output), text, replace=overwrite)
+        else:  # nothing could be tuned: no tuned file, and none left from an earlier run to be taken for one
+            (store.path / "tuned.toml").unlink(missing_ok=True)
+        return TuneSummary(store.path, ran, skipped, best, stored, tuned, time.perf_counter() - start,
+                           workers or 0, where, tuple(store.quarantined))
     except BaseException:
         store.discard_if_unused()  # e.g. an unreachable scheduler: no empty store left behind
         raise
     finally:
         store.close()
+
+
+def check_output(output: Path, tuning: Tuning, *, overwrite: bool) -> None:
+    """TuneError (naming ``output``) unless the tuned experiment file may be written there: a new
+    file, or with ``overwrite`` an existing regular file that is no store, no tuning file and no part
+    of a tuning store; its name must make an experiment name. Checked before any trial runs."""
+    from ilcforce.store.filecheck import is_hdf5_file
+    from ilcforce.store.tuning import is_tuning_store
+
+    try:
+        info = os.lstat(output)
+    except FileNotFoundError:
+        info = None
+    except OSError as exc:
+        raise TuneError(f"-o {output}: cannot check the output file ({exc.strerror or exc})") from None
+    if info is not None:
+        why = ("is a folder" if stat.S_ISDIR(info.st_mode) else "is a symbolic link" if stat.S_ISLNK(info.st_mode)
+               else "is not a regular file (a FIFO, a socket or a device)" if not stat.S_ISREG(info.st_mode)
+               else "is an HDF5 store" if is_hdf5_file(output)
+               else "is the tuning file itself" if tuning.path is not None and os.path.samefile(output, tuning.path)
+               else "is a file of a tuning store" if any(is_tuning_store(p) for p in list(output.parents)[:2])
+               else None if overwrite else "exists; pass --overwrite to replace it (and start the tuning over)")
+        if why:
+            raise TuneError(f"-o {output}: {why}; refusing to write the tuned experiment file there")
+    if output.suffix != ".toml" or not output.stem or output.stem.startswith("."):
+        raise TuneError(f"-o {output}: the tuned experiment file must be named <name>.toml")
+    from ilcforce.config_load import load_config
+
+    try:
+        load_config(tuning.experiment, {**tuning.fixed, "experiment.name": output.stem})
+    except ConfigError as exc:
+        raise TuneError(f"-o {output}: its name cannot name an experiment ({exc})") from None
+
+
+def _write_output(output: Path, text: str, *, replace: bool) -> Path:
+    from ilcforce.store.records import atomic_write
+
+    try:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write(output, text.encode(), replace=replace)  # a file that appeared meanwhile is kept too
+    except OSError as exc:
+        raise TuneError(f"-o {output}: cannot write the tuned experiment file ({exc.strerror or exc}); every "
+                        "trial is stored, and a file that was there is unchanged") from None
+    return output
 
 
 def _warm_up(run, tuning: Tuning) -> None:
@@ -288,7 +424,7 @@ def _ask_round(tuning: Tuning, searches: dict) -> list[tuple[str, int, dict, obj
     error message if the gains are not a valid configuration)."""
     batch = []
     for method, search in searches.items():
-        if search.next_number >= tuning.trials:
+        if not search.missing:
             continue
         number, params, trial = search.ask()
         configs, message = {}, ""
@@ -350,7 +486,7 @@ def _run_round(tuning, searches, batch, execute, store, progress) -> int:
 
 
 def tuned_experiment(tuning: Tuning, best: dict[str, dict], baseline: dict[str, dict] | None = None, *,
-                     name: str | None = None) -> str:
+                     name: str | None = None, stored: dict[str, int] | None = None) -> str:
     """The experiment file of the tuning (its experiment with ``[tune.set]``, named ``name``) with
     each method's best trial's gains, headed by comments stating the tuning file and budget. The
     experiment keeps its own iteration count (the tuning's horizon only judged the gains)."""
@@ -370,13 +506,18 @@ def tuned_experiment(tuning: Tuning, best: dict[str, dict], baseline: dict[str, 
     lines = [f"Written by `ilcforce tune {source}`: the experiment {tuning.experiment.name} with [tune.set] "
              f"and each tuned method's best gains.",
              f"Budget per method: {tuning.trials} trials (trial 0 = the experiment's gains) x {len(tuning.seeds)} "
-             f"seeds x {tuning.iterations} iterations; sampler TPE, seed {tuning.sampler_seed}.",
+             f"seeds x {tuning.iterations} iterations; sampler TPE, seed {tuning.sampler_seed}"
+             + (" (this run's budget; the counts below include trials stored by runs with another)."
+                if any(c != tuning.trials for c in (stored or {}).values()) else "."),
              f"Objective ({tuning.objective}): median over seeds of the mean over iterations "
              f"{tuning.score_iterations - tuning.score_last}..{tuning.score_iterations - 1} of log10(e_P/1 mm) "
              f"and/or log10(e_F/1 N) (RMS norms); a divergence anywhere in the horizon fails the trial."]
-    for method, record in best.items():
-        first = (baseline or {}).get(method)
+    for method in tuning.methods:
+        first, record = (baseline or {}).get(method), best.get(method)
+        count = (stored or {}).get(method, "the")
         was = ("failed" if first["value"] is None else f"{first['value']:.4g}") if first else "not run"
-        lines.append(f"{method}: best trial {record['number']}, objective {record['value']:.4g} "
-                     f"(trial 0, the experiment's gains: {was})")
+        lines.append(f"{method}: best trial {record['number']} of {count} stored, objective {record['value']:.4g} "
+                     f"(trial 0, the experiment's gains: {was})" if record is not None else
+                     f"{method}: UNTUNED: every one of its {count} stored trials failed; its gains are the "
+                     "experiment's own")
     return "\n".join(toml_comment(line) for line in lines) + "\n" + dump_toml(document)

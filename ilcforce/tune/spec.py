@@ -250,6 +250,13 @@ def _searched_gains(method: str, table, base: Config) -> tuple[SearchedGain, ...
             elements, vector = (_range(f"{where}.{name}", spec),), False
         if not any(isinstance(e, GainRange) for e in elements):
             raise TuneError(f"{where}.{name} holds every element fixed: set it in [tune.set] instead")
+        if integer:  # Optuna's integer ranges: whole bounds, and a log range from 1 (it refuses less)
+            for e in elements:
+                bounds = (e.low, e.high) if isinstance(e, GainRange) else (e,)
+                if not all(float(b).is_integer() for b in bounds) or isinstance(e, GainRange) and e.log and e.low < 1:
+                    raise TuneError(f"{where}.{name} is an integer gain: its range needs whole numbers"
+                                    f"{' and low >= 1 (a log range)' if isinstance(e, GainRange) and e.log else ''},"
+                                    f" got {e if not isinstance(e, GainRange) else f'{e.low:g} .. {e.high:g}'}")
         out.append(SearchedGain(name, elements, vector, integer))
     return tuple(out)
 

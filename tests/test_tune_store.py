@@ -1,0 +1,436 @@
+"""The tuning store held to the run and study stores' standard: every defect an attack on the tuning
+store found, reproduced with real files and processes. Forged and damaged records are named by
+`validate`, skipped by readers, moved aside with one line by the next `tune`, never fed to the
+optimiser and never shipped; a resume never overwrites a finished trial and refills gaps; `tune -o`
+never overwrites unasked; outputs say what happened.
+
+The trials run a stand-in cell (arithmetic on the gains, :func:`test_tune.fake_cell`): these tests
+time files and processes, not physics.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from ilcforce.cli.main import app
+from ilcforce.store import records
+from ilcforce.store.tuning import TuningStore, TuningStoreError
+from ilcforce.tune.runner import read_trials
+from ilcforce.tune import TuneError, load_tuning, run_tuning, validate_tuning
+from test_tune import ROOT, TINY, fake_cell, tiny_file
+
+TRIALS = TINY.replace("trials = 2", "trials = 4")
+
+
+def tuned(tmp_path, text=TRIALS, results="r", **kwargs):
+    return run_tuning(load_tuning(tiny_file(tmp_path, text)), tmp_path / results, workers=1,
+                      cell_function=fake_cell, **kwargs)
+
+
+def reseal(path: Path, change) -> None:
+    """Change a stored record and seal it again: a forgery a checksum alone cannot catch."""
+    record = json.loads(path.read_text())
+    change(record)
+    record.pop("checksum")
+    path.write_text(json.dumps(records.seal(record)))
+
+
+def validate_cli(path) -> tuple[int, str]:
+    result = CliRunner().invoke(app, ["validate", str(path)])
+    return result.exit_code, result.output
+
+
+FORGERIES = {
+    "objective edited to -99": lambda r: r.update(value=-99.0),
+    "value disagrees with its seeds": lambda r: r["seeds"][0].update(value=r["seeds"][0]["value"] - 1.0),
+    "seed value and objective both edited": lambda r: (r["seeds"][0].update(value=-99.0),
+                                                       r["seeds"][1].update(value=-99.0), r.update(value=-99.0)),
+    "gains differ from its params": lambda r: r["gains"].update({"c2.k": [1e6, 1e6]}),
+    "param out of range": lambda r: r["params"].update({"k[0]": 1e6}),
+    "param missing": lambda r: r["params"].pop("k[0]"),
+    "param of the wrong type": lambda r: r["params"].update({"k[0]": "abc"}),
+    "gains not a table": lambda r: r.update(gains="abc"),
+    "value true": lambda r: r.update(value=True),
+    "value NaN": lambda r: r.update(value=float("nan")),
+    "value -Infinity": lambda r: r.update(value=float("-inf")),
+    "another search's id": lambda r: r.update(tuning="0" * 32),
+    "another search's digest": lambda r: r.update(search="0" * 64),
+    "a seed the tuning does not run": lambda r: r["seeds"][0].update(seed=7),
+    "a seed true for 1": lambda r: r["seeds"][1].update(seed=True),
+    "number beyond every budget": lambda r: r.update(number=40),
+    "error norms not a list": lambda r: r["seeds"][0].update(position_error_rms=5),
+    "a seed's entry without its fields": lambda r: r["seeds"][0].pop("iterations_run"),
+}
+
+
+@pytest.mark.parametrize("forgery", list(FORGERIES))
+def test_a_forged_record_is_named_skipped_quarantined_and_never_shipped(tmp_path, forgery):
+    first = tuned(tmp_path)
+    name = "c2-00002.json" if forgery != "number beyond every budget" else "c2-00040.json"
+    target = first.path / "trials" / name
+    if forgery == "number beyond every budget":
+        shutil.copy(first.path / "trials" / "c2-00002.json", target)
+    reseal(target, FORGERIES[forgery])
+    code, output = validate_cli(first.path)
+    assert code == 2 and f"{name}: refused (" in output and len(output.strip().splitlines()) == 1, output
+    assert 2 not in read_trials(first.path)["c2"] or forgery == "number beyond every budget"
+    assert 40 not in read_trials(first.path)["c2"]
+    again = tuned(tmp_path)  # the next writer moves it aside, says so, reruns its trial
+    assert len(again.quarantined) == 1 and name in again.quarantined[0], again.quarantined
+    assert (first.path / "trials" / ".quarantine" / name).is_file()
+    assert again.ran == (0 if forgery == "number beyond every budget" else 1)
+    assert validate_tuning(again.path)["methods"]["c2"][0] == 4
+    assert again.best == first.best  # the rerun trial is what it was: the forgery changed nothing
+    assert "1000000" not in again.tuned.read_text() and "-99" not in again.tuned.read_text()
+
+
+def test_any_one_digit_change_in_any_file_of_a_tuning_store_is_refused(tmp_path):
+    first = tuned(tmp_path, TINY)
+    files = [first.path / "tuning.json", first.path / "tuned.toml", *sorted((first.path / "trials").glob("*.json"))]
+    changed = 0
+    for file in files:
+        data = file.read_bytes()
+        for at in range(0, len(data), max(1, len(data) // 40)):  # about 40 places a file, every kind of field
+            if not chr(data[at]).isdigit():
+                continue
+            digit = b"7" if data[at:at + 1] != b"7" else b"3"
+            file.write_bytes(data[:at] + digit + data[at + 1:])
+            with pytest.raises(TuningStoreError):
+                validate_tuning(first.path)
+            changed += 1
+        file.write_bytes(data)
+    assert changed > 40
+    assert validate_tuning(first.path)["methods"]["c2"][0] == 2
+
+
+def test_hard_linked_and_symlinked_records_of_another_store_are_refused(tmp_path):
+    one, other = tuned(tmp_path, results="one"), tuned(tmp_path, results="two")
+    (one.path / "trials" / "c2-00003.json").unlink()
+    os.link(other.path / "trials" / "c2-00003.json", one.path / "trials" / "c2-00003.json")
+    assert "another tuning store" in validate_cli(one.path)[1]
+    (one.path / "trials" / "c2-00003.json").unlink()
+    (one.path / "trials" / "c2-00003.json").symlink_to(other.path / "trials" / "c2-00003.json")
+    assert "a symbolic link" in validate_cli(one.path)[1]
+
+
+@pytest.mark.parametrize("where", ["record", "header"])
+def test_deep_json_is_refused_in_bounded_time(tmp_path, where):
+    first = tuned(tmp_path, TINY)
+    target = first.path / ("trials/c3-00001.json" if where == "record" else "tuning.json")
+    target.write_text("[" * 100_000 + "]" * 100_000)
+    start = time.monotonic()
+    code, output = validate_cli(first.path)
+    assert code == 2 and "nested too deeply" in output and len(output.strip().splitlines()) == 1, output
+    result = subprocess.run([sys.executable, "-m", "ilcforce", "tune", str(tiny_file(tmp_path, TINY)), "--results",
+                             str(tmp_path / "r"), "--workers", "1", "-q"], capture_output=True, text=True,
+                            timeout=300, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    if where == "header":
+        assert result.returncode == 2 and "nested too deeply" in result.stderr, result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+    else:
+        assert result.returncode == 0 and "c3-00001.json: refused (JSON nested too deeply)" in result.stderr
+    assert "Traceback" not in result.stderr and time.monotonic() - start < 300
+
+
+def test_a_fifo_in_the_store_never_hangs_a_reader(tmp_path):
+    first = tuned(tmp_path, TINY)
+    (first.path / "tuned.toml").unlink()
+    os.mkfifo(first.path / "tuned.toml")
+    assert "tuned.toml: not the tuned file the last run wrote" in validate_cli(first.path)[1]
+    (first.path / "tuned.toml").unlink()
+    (first.path / "trials" / "c2-00001.json").unlink()
+    os.mkfifo(first.path / "trials" / "c2-00001.json")
+    os.mkfifo(first.path / "trials" / "notes")  # not a record's name: never opened
+    result = subprocess.run([sys.executable, "-m", "ilcforce", "validate", str(first.path)], capture_output=True,
+                            text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert result.returncode == 2 and "c2-00001.json: refused (not a regular file)" in result.stdout + result.stderr
+
+
+def test_a_gap_is_refilled_and_no_finished_trial_is_written_again(tmp_path):
+    first = tuned(tmp_path, TRIALS.replace("trials = 4", "trials = 6"))
+    trials = first.path / "trials"
+    kept = {f.name: (f.stat().st_ino, f.stat().st_mtime_ns) for f in trials.glob("c2-*.json") if f.name != "c2-00002.json"}
+    before = read_trials(first.path)["c2"]
+    (trials / "c2-00002.json").unlink()
+    again = tuned(tmp_path, TRIALS.replace("trials = 4", "trials = 6"))
+    assert again.ran == 1 and again.skipped == 11
+    after = {f.name: (f.stat().st_ino, f.stat().st_mtime_ns) for f in trials.glob("c2-*.json") if f.name != "c2-00002.json"}
+    assert after == kept  # in particular trial 5 (what the old resume overwrote) is untouched
+    assert read_trials(first.path)["c2"][5] == before[5]
+    assert validate_tuning(first.path)["methods"]["c2"][0] == 6
+
+
+def test_a_committed_trial_is_never_overwritten(tmp_path):
+    first = tuned(tmp_path, TINY)
+    record = {k: v for k, v in read_trials(first.path)["c2"][1].items() if k not in ("tuning", "search", "checksum")}
+    tuning = load_tuning(tiny_file(tmp_path, TINY))
+    from ilcforce.tune.runner import _header, trial_check
+
+    store = TuningStore(first.path, _header(tuning), {"trials": 2}, check=trial_check(tuning.definition()))
+    try:
+        with pytest.raises(TuningStoreError, match="already stored there; refusing to overwrite it"):
+            store.commit(record)
+        with pytest.raises(TuningStoreError, match="another `ilcforce tune` is writing"):
+            TuningStore(first.path, _header(tuning), {"trials": 2})
+        # the folder is the lock: no lock file to delete, in it or beside it
+        assert not [p for p in [*first.path.rglob("*"), *first.path.parent.iterdir()] if "lock" in p.name]
+    finally:
+        store.close()
+
+
+def test_overwrite_never_follows_a_symlinked_trials_folder(tmp_path):
+    one, other = tuned(tmp_path, TINY, results="one"), tuned(tmp_path, TINY, results="two")
+    shutil.rmtree(one.path / "trials")
+    (one.path / "trials").symlink_to(other.path / "trials")
+    with pytest.raises(TuningStoreError, match="not a folder of this store"):
+        tuned(tmp_path, TINY, results="one", overwrite=True)
+    assert len(list((other.path / "trials").glob("*.json"))) == 4
+
+
+def test_a_killed_writers_temporary_files_are_removed(tmp_path):
+    first = tuned(tmp_path, TINY)
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    pid = int(dead.stdout)
+    leftovers = [first.path / "trials" / f".c2-00001.json.tmp-{pid}", first.path / f".tuning.json.tmp-{pid}"]
+    for item in leftovers:
+        item.write_text("{")
+    tuned(tmp_path, TINY)
+    assert not any(item.exists() for item in leftovers)
+
+
+# ------------------------------------------------------------------------------------------------
+# tune -o
+
+
+def tune_cli(tmp_path, *args, text=TINY):
+    """`ilcforce tune` in a process of its own (real cells: a 0.2 s horizon)."""
+    return subprocess.run([sys.executable, "-m", "ilcforce", "tune", str(tiny_file(tmp_path, text)), "--results",
+                           str(tmp_path / "r"), "--workers", "1", "-q", *map(str, args)], capture_output=True,
+                          text=True, timeout=600, env={**os.environ, "PYTHONPATH": str(ROOT)})
+
+
+def test_tune_output_is_refused_where_it_would_destroy_something(tmp_path):
+    tuning = load_tuning(tiny_file(tmp_path, TINY))
+    existing = tmp_path / "mine.toml"
+    existing.write_text("# mine\n")
+    store = tmp_path / "c3.h5"
+    store.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(600))
+    os.mkfifo(tmp_path / "fifo.toml")
+    (tmp_path / "folder.toml").mkdir()
+    tuned(tmp_path, TINY)
+    header = tmp_path / "r" / "tuning" / "tiny" / "tuning.json"
+    cases = {existing: "exists; pass --overwrite", store: "is an HDF5 store", tmp_path / "fifo.toml": "is not a regular file",
+             tmp_path / "folder.toml": "is a folder", tmp_path / "tiny.toml": "is the tuning file itself",
+             header: "is a file of a tuning store", tmp_path / "on" / ".toml": "the tuned experiment file must be named <name>.toml"}
+    for output, why in cases.items():
+        for overwrite in (False, True):
+            if overwrite and why.startswith("exists"):
+                continue
+            with pytest.raises(TuneError, match=f"-o {output}: {why}"):
+                run_tuning(tuning, tmp_path / "r", workers=1, cell_function=fake_cell, output=output,
+                           overwrite=overwrite)
+    assert existing.read_text() == "# mine\n" and store.read_bytes()[:8] == b"\x89HDF\r\n\x1a\n"
+    result = tune_cli(tmp_path, "-o", tmp_path / "on" / ".toml")
+    assert result.returncode == 2 and result.stderr.startswith(f"error: -o {tmp_path / 'on' / '.toml'}: "), result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
+    summary = run_tuning(tuning, tmp_path / "r", workers=1, cell_function=fake_cell, output=existing, overwrite=True)
+    assert summary.tuned == existing and existing.read_text().startswith("# Written by `ilcforce tune")
+
+
+FULL_DISK = """
+import resource, signal, sys
+sys.path.insert(0, {tests!r})
+from pathlib import Path
+from ilcforce.tune.runner import _write_output
+from ilcforce.tune.spec import TuneError
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+try:
+    _write_output(Path({output!r}), "x = 1\\n" * 10000, replace=True)
+except TuneError as exc:
+    print(exc)
+"""
+
+
+def test_a_full_disk_leaves_an_existing_tuned_file_whole(tmp_path):
+    output = tmp_path / "fivebar-tuned.toml"
+    output.write_text("# the shipped file\n")
+    result = subprocess.run([sys.executable, "-c", FULL_DISK.format(tests=str(Path(__file__).parent), output=str(output))],
+                            capture_output=True, text=True, timeout=120, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert f"-o {output}: cannot write the tuned experiment file" in result.stdout, result.stdout + result.stderr
+    assert output.read_text() == "# the shipped file\n"
+    assert not list(tmp_path.glob(".*tmp-*"))
+
+
+# ------------------------------------------------------------------------------------------------
+# outputs that say what happened
+
+
+def test_a_changed_budget_gives_true_statements(tmp_path):
+    tuned(tmp_path, TINY.replace("trials = 2", "trials = 3"))
+    summary = tuned(tmp_path, TINY)
+    assert summary.ran == 0 and summary.stored == {"c2": 3, "c3": 3}
+    text = summary.tuned.read_text()
+    assert "best trial" in text and "of 3 stored" in text and "the counts below include trials stored by runs" in text
+    from ilcforce.cli.tune import tune_command
+
+    lines = []
+    import ilcforce.cli.tune as cli_tune
+
+    original = cli_tune._line
+    cli_tune._line = lambda text, stderr=False: lines.append(text)
+    try:
+        tune_command(tiny_file(tmp_path, TINY), results=tmp_path / "r", workers=1, quiet=True)
+    finally:
+        cli_tune._line = original
+    assert any(line.startswith("tiny: c2: best trial") and "of 3 stored (budget 2)" in line for line in lines), lines
+
+
+def failing_cell(config, method, keep_store=None):
+    """C3 diverges at iteration 1 whatever its gains; C2 as :func:`fake_cell`."""
+    result = fake_cell(config, method)
+    if method == "c3":
+        result["rows"][1]["status"] = "diverged"
+    return result
+
+
+def test_failed_methods_are_written_untuned_and_nothing_tuned_is_an_error(tmp_path):
+    path = tiny_file(tmp_path, TINY)
+    summary = run_tuning(load_tuning(path), tmp_path / "r", workers=1, cell_function=failing_cell)
+    assert summary.best["c3"] is None and summary.best["c2"] is not None
+    assert "# c3: UNTUNED: every one of its 2 stored trials failed" in summary.tuned.read_text()
+    only_c3 = TINY.replace('methods = ["c2", "c3"]', 'methods = ["c3"]')
+    only_c3 = only_c3[:only_c3.index("[tune.gains.c2]")] + only_c3[only_c3.index("[tune.gains.c3]"):]
+    stale = tmp_path / "r2" / "tuning" / "tiny" / "tuned.toml"
+    stale.parent.mkdir(parents=True)
+    nothing = run_tuning(load_tuning(tiny_file(tmp_path, only_c3, "c3.toml")), tmp_path / "r2", workers=1,
+                         cell_function=failing_cell)
+    assert nothing.tuned is None and not stale.exists()
+
+
+def test_nothing_tuned_exits_non_zero_with_one_line(tmp_path, monkeypatch, capsys):
+    from ilcforce.cli.tune import tune_command
+    from ilcforce.tune import runner
+
+    monkeypatch.setitem(runner.run_tuning.__kwdefaults__, "cell_function", failing_cell)
+    text = TINY.replace('methods = ["c2", "c3"]', 'methods = ["c3"]')
+    text = text[:text.index("[tune.gains.c2]")] + text[text.index("[tune.gains.c3]"):]
+    code = tune_command(tiny_file(tmp_path, text), results=tmp_path / "r", workers=1, quiet=True,
+                        output=tmp_path / "out.toml")
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1 and "no method could be tuned" in err, err
+    assert not (tmp_path / "out.toml").exists()
+
+
+@pytest.mark.parametrize("spec, message", [
+    ('q_order = { low = 0.5, high = 4.0, log = true }', "low >= 1"),
+    ('q_order = { low = 1.5, high = 3.7 }', "needs whole numbers"),
+])
+def test_integer_gain_ranges_are_checked(tmp_path, spec, message):
+    text = TINY.replace('methods = ["c2", "c3"]', 'methods = ["pd-ilc"]')
+    text = text[:text.index("[tune.gains.c2]")] + f"[tune.gains.pd-ilc]\n{spec}\n"
+    with pytest.raises(TuneError, match=message):
+        load_tuning(tiny_file(tmp_path, text))
+
+
+def test_tune_help_shows_the_tune_table():
+    result = CliRunner().invoke(app, ["tune", "--help"], env={"COLUMNS": "200"})
+    assert "[tune]" in result.output, result.output
+
+
+def test_sigterm_ends_tune_with_one_line(tmp_path):
+    text = TINY.replace("trials = 2", "trials = 50")
+    process = subprocess.Popen([sys.executable, "-m", "ilcforce", "tune", str(tiny_file(tmp_path, text)), "--results",
+                                str(tmp_path / "r"), "--workers", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    trials = tmp_path / "r" / "tuning" / "tiny" / "trials"
+    deadline = time.monotonic() + 240
+    while not (trials.is_dir() and list(trials.glob("*.json"))):
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()
+        time.sleep(0.05)
+    process.send_signal(signal.SIGTERM)
+    _out, err = process.communicate(timeout=120)
+    stops = [line for line in err.splitlines() if "SIGTERM" in line or "interrupted" in line]
+    assert process.returncode == 143 and len(stops) == 1 and stops[0].startswith("terminated (SIGTERM): "), err
+
+
+# ------------------------------------------------------------------------------------------------
+# the report
+
+
+def test_report_on_a_tuning_only_folder_and_renamed_copies(tmp_path):
+    first = tuned(tmp_path, TINY)
+    shutil.copytree(first.path, first.path.with_name("tiny-copy"))
+    result = CliRunner().invoke(app, ["report", "--results", str(tmp_path / "r"), "--out", str(tmp_path / "report"),
+                                      "-q"])
+    assert result.exit_code == 0, result.output
+    for name in ("tiny", "tiny-copy"):
+        assert (tmp_path / "report" / "tuning" / name / "index.md").is_file()
+    index = (tmp_path / "report" / "index.md").read_text()
+    assert index.count("(tuning/tiny/index.md)") == 1 and index.count("(tuning/tiny-copy/index.md)") == 1
+
+
+# ------------------------------------------------------------------------------------------------
+# the writers' lock of the file stores: a deleted lock file lets a second writer in, and the first
+# stops at its next commit instead of writing beside it
+
+
+def test_a_run_writer_whose_lock_file_was_deleted_stops_before_its_next_commit(tmp_path):
+    from storekit import make_record, writer
+
+    from ilcforce.store import StoreLockedError
+    from ilcforce.store.filecheck import writers_lock
+
+    path = tmp_path / "c3.h5"
+    with writer(path) as first:
+        first.append(make_record(0))
+        writers_lock(path).unlink()
+        with pytest.raises(StoreLockedError, match="lock file was deleted or replaced"):
+            first.append(make_record(1))
+
+
+def test_a_study_driver_whose_lock_file_was_deleted_stops_before_its_next_commit(tmp_path):
+    from test_study import small_study
+
+    from ilcforce.store.filecheck import writers_lock
+    from ilcforce.store.study import StudyStore, StudyStoreError
+    from ilcforce.study.runner import _header
+
+    study = small_study()
+    first = StudyStore(tmp_path / "s.h5", header=_header(study), session={"id": "a"})
+    try:
+        writers_lock(tmp_path / "s.h5").unlink()
+        second = StudyStore(tmp_path / "s.h5", header=_header(study), session={"id": "b"})  # let in
+        second.close()
+        with pytest.raises(StudyStoreError, match="lock file was deleted or replaced"):
+            first.commit({"setting": 0, "seed": 0, "method": "c1", "state": "failed", "attempts": 1,
+                          "message": "x", "elapsed": 0.1, "worker": "w", "rows": []}, now=0.0)
+    finally:
+        first.close()
+
+
+def test_renamed_copies_of_a_study_store_get_their_own_report_pages(tmp_path):
+    from test_study import small_study
+
+    from ilcforce.report.build import write_report
+    from ilcforce.study import run_study
+
+    first = run_study(small_study(seeds="0-0", methods=("c1",)), tmp_path, workers=1).path
+    shutil.copy(first, first.with_name("tiny-copy.h5"))
+    summary = write_report(tmp_path, tmp_path / "report", jobs=1)
+    for name in ("tiny", "tiny-copy"):
+        assert (tmp_path / "report" / "studies" / name / "report.md").is_file(), summary.warnings
+        assert (tmp_path / "report" / "studies" / name / "findings.md").is_file(), summary.warnings
+    index = (tmp_path / "report" / "index.md").read_text()
+    for name in ("tiny", "tiny-copy"):
+        assert index.count(f"(studies/{name}/report.md)") == 1, index
