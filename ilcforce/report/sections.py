@@ -138,10 +138,15 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
 
 _RULE_TEXT = (
     "A part passes or fails in each seed by its stated threshold (a part that needs a method which diverged "
-    "within the iterations it reads fails; a baseline that diverged counts as an infinite norm). Over seeds "
-    "a part holds when it passes in a strict majority of the seeds where it is evaluable. A claim fails when "
-    "any central part fails; otherwise it is not evaluable when a central part is; otherwise it holds when "
-    "every secondary part holds, and holds in part when a secondary part fails. Shown parts (and cause "
+    "within the iterations it reads fails; a baseline that diverged counts as an infinite norm); a part with "
+    "a weaker reading (claim 2: C3 below C2, by less than the paper's margin) meets it or not. Over seeds a "
+    "part holds when it passes in a strict majority of the seeds where it is evaluable, holds in part when "
+    "it passes or meets its weaker reading in a strict majority, and fails otherwise; it is not evaluable "
+    "without an evaluable seed or when the method it praises diverged in a majority of the seeds (the note "
+    "names where). A claim is not evaluable when a central part is; otherwise it holds when every judged "
+    "part holds, fails when no central part holds or holds in part, and holds in part otherwise. Each part's "
+    "median comes with the 95% bootstrap interval of the median, the 5-95% spread of the seeds and its "
+    "margin to the threshold (a fraction of the threshold, >= 0 passing). Shown parts (and cause "
     "parts, which name a modelling choice behind a verdict) are printed, never judged. The claim's frequency "
     "applies the same rule to each seed; a deterministic setting (no noise source active) is one evaluation."
 )

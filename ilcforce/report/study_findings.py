@@ -101,7 +101,7 @@ def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
     lines += [incomplete, ""] if incomplete else []
     lines += ["Every number is a median over seeds with its 95% percentile-bootstrap interval; divergence "
               "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
-              "(a claim fails when a central part fails); unstable learning follows the stated growth test.", ""]
+              "(a claim fails when no central part holds, and holds in part when some do); unstable learning follows the stated growth test.", ""]
     overview, summary, body = [], {}, []
     claim_tables, stability_tables = [], []
     for setting in results.settings.index:
