@@ -136,11 +136,13 @@ ONE_EVALUATION = "one evaluation (deterministic: no noise source active, every s
 
 def is_deterministic(config: Mapping) -> bool:
     """Whether a resolved configuration (the TOML layout as a dict) draws nothing random: the
-    disturbance and every sensor noise are 0 (docs/model.md#noise: 0 turns a source off), so every
+    disturbance and every sensor noise are 0, or noise.scale is (docs/model.md#noise: 0 turns a source off), so every
     seed gives the same run. A configuration without a ``noise`` table is the paper's: noisy."""
     noise = config.get("noise") if isinstance(config, Mapping) else None
     if not isinstance(noise, Mapping):
         return False
+    if noise.get("scale", 1.0) == 0:  # one factor on every source (docs/model.md#noise)
+        return True
     sources = ("disturbance_amplitude", "encoder", "joint_rate", "force_sensor")
     return all(isinstance(noise.get(k), (int, float)) and noise.get(k) == 0 for k in sources)
 

@@ -17,6 +17,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from ilcforce.records import STATUS_DIVERGED
+from ilcforce.report import calibration, claim_map, claim_parts
 from ilcforce.report import claims as claims_module
 from ilcforce.report import figures, paper, stability
 from ilcforce.report.figure_files import save_figure, write_text_whole
@@ -228,9 +229,29 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
             [path] = save_figure(fig, directory, "fig_stability_boundary", ("png",))
             written.append(path)
             text += f"\n![stability boundary]({path.name})\n"
+    extra: dict = {}
+    if claim_map.is_claim_map_study(results):
+        names = {}
+        for setting in results.settings.index:
+            values = {k: results.settings.loc[setting, k] for k in results.sweep_keys}
+            names[_setting_name(values)] = tuple(float(values[k]) for k in claim_map.KEYS)
+        seeds = {name: (1 if entry["deterministic"] else entry["seeds"]) for name, entry in summary.items()}
+        rows = claim_map.claim_map(claims_frame, {n: v for n, v in names.items() if n in summary}, seeds)
+        statements = {c.number: c.statement for c in claim_parts.CLAIMS}
+        files, lines = claim_map.write_claim_map(rows, directory, statements)
+        written += files
+        text += "\n" + "\n".join(lines)
+        extra["claim_map_sentence"] = claim_map.sentence(rows)
+        extra["claim_map_seeds"] = int(max(seeds.values(), default=0))
+    if calibration.is_calibration_study(results):
+        files, lines, found = calibration.write_calibration(results, directory)
+        written += files
+        text += "\n" + "\n".join(lines)
+        extra["calibration_text"] = found.text() if found is not None else ""
+        extra["calibration_scale"] = found.scale if found is not None else math.nan
     write_text_whole(directory / "findings.md", text)
     written.append(directory / "findings.md")
-    return written, results.name, {"description": results.description, "settings": summary,
+    return written, results.name, {**extra, "description": results.description, "settings": summary,
                                    "incomplete": incomplete_text(results),
                                    "labelled": bool(getattr(results, "labelled", False)),
                                    "claim_rows": claims_frame.to_dict("list"),
