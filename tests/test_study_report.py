@@ -101,7 +101,10 @@ def test_study_findings_and_boundary_figure(results):
     assert (out / "studies" / "sweep1" / "fig_stability_boundary.png").stat().st_size > 10_000
     assert not (out / "studies" / "sweep2" / "fig_stability_boundary.png").exists(), "two keys: no 1-D figure"
     findings = (out / "findings.md").read_text(encoding="utf-8")
-    assert "**Study `sweep1`**" in findings and findings.index("Study `sweep1`") < findings.index("`paper`")
+    # the findings link each study's page (its tables are there), after the summary, before the single runs
+    link = "[`sweep1`](studies/sweep1/findings.md)"
+    assert link in findings and findings.index(link) < findings.index("**`paper`**")
+    assert findings.index("## Summary") < findings.index("## Per study") < findings.index(link)
     # the first diverged iteration is the first iteration with status "diverged", per seed and method
     import pandas as pd
 
