@@ -3,15 +3,16 @@
 A study sweeping ``noise.scale`` and ``simulation.sample_time`` (both, nothing else) is judged
 setting by setting with the same rules as every report (:mod:`ilcforce.report.claims`); this module
 lays the verdicts out as a map. Per (noise_scale, sample_time, claim): the claim's verdict and its
-**binding** central part: the judged central part with the smallest margin to its threshold (the
-one nearest to failing, or failing worst), whose median over seeds and 95% bootstrap interval of
-the median are the cell's statistic. ``claim_map.csv`` holds the rows; one heat map per claim
+**binding** part: the judged part (central or secondary) with the smallest margin to its threshold
+(the one nearest to failing, or failing worst), whose median over seeds and 95% bootstrap interval
+of the median are the cell's statistic. ``claim_map.csv`` holds the rows; one heat map per claim
 colours each cell by verdict and writes the statistic in.
 """
 
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -46,7 +47,7 @@ def claim_map(claim_rows: pd.DataFrame, settings: Mapping[str, tuple[float, floa
         for claim, parts in mine.groupby("claim", sort=True):
             head = parts[parts["role"] == "claim"]
             verdict = str(head["verdict"].iloc[0]) if len(head) else NOT_EVALUABLE
-            central = parts[(parts["role"] == "central") & np.isfinite(parts["margin"].astype(float))]
+            central = parts[parts["role"].isin(["central", "secondary"]) & np.isfinite(parts["margin"].astype(float))]
             binding = central.loc[central["margin"].astype(float).idxmin()] if len(central) else None
             rows.append({"noise_scale": float(scale), "sample_time": float(sample_time), "claim": int(claim),
                          "verdict": verdict,
@@ -71,8 +72,9 @@ def heat_map(rows: pd.DataFrame, claim: int, statement: str = "") -> Figure:
     scales = sorted(mine["noise_scale"].unique())
     times = sorted(mine["sample_time"].unique())
     codes = np.full((len(scales), len(times)), VERDICTS.index(NOT_EVALUABLE), dtype=float)
-    fig = Figure(figsize=(1.9 * len(times) + 2.4, 0.62 * len(scales) + 1.9), layout="constrained")
+    fig = Figure(figsize=(1.5 * len(times) + 2.6, 0.5 * len(scales) + 1.8), layout="constrained")
     ax = fig.subplots()
+    ax.grid(False)
     for row in mine.itertuples(index=False):
         i, k = scales.index(row.noise_scale), times.index(row.sample_time)
         codes[i, k] = VERDICTS.index(row.verdict) if row.verdict in VERDICTS else VERDICTS.index(NOT_EVALUABLE)
@@ -89,7 +91,7 @@ def heat_map(rows: pd.DataFrame, claim: int, statement: str = "") -> Figure:
     ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="x-small", title="verdict",
               title_fontsize="x-small")
     title = f"Claim {claim}" + (f": {statement}" if statement else "")
-    ax.set_title(title if len(title) < 70 else title[:67] + "...", fontsize="small")
+    ax.set_title("\n".join(textwrap.wrap(title, 60)), fontsize="small")
     return fig
 
 
@@ -129,7 +131,7 @@ def write_claim_map(rows: pd.DataFrame, directory: Path, statements: Mapping[int
     written = [write_csv(rows, Path(directory) / "claim_map.csv")]
     lines = ["## Claim map", "", sentence(rows), "",
              "Each cell: the claim's verdict over the seeds of that setting (colour) and the median of its binding "
-             "central part (the one nearest to failing; its name below the number); `claim_map.csv` has the 95% "
+             "part (the judged part nearest to failing, or failing worst; its name below the number); `claim_map.csv` has the 95% "
              "bootstrap interval of each median. A noise.scale of 0 is deterministic: one evaluation.", ""]
     with figures.report_style():
         for claim in sorted(rows["claim"].unique()):

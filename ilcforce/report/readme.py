@@ -77,8 +77,8 @@ def _study_link(name: str) -> str:
 
 
 def _binding(rows: pd.DataFrame):
-    """The judged central part nearest to failing (smallest margin), or None."""
-    central = rows[rows["role"] == "central"]
+    """The judged part (central or secondary) nearest to failing, or failing worst (smallest margin), or None."""
+    central = rows[rows["role"].isin(["central", "secondary"])]
     margins = pd.to_numeric(central.get("margin", pd.Series(dtype=float)), errors="coerce")
     central = central[margins.notna()]
     if central.empty:
@@ -108,7 +108,7 @@ def _setting_claim(rows: pd.DataFrame, claim: int, label: str, with_spread: bool
     text = f"{label}: **{verdict}**"
     binding = _binding(mine)
     if binding is not None:
-        text += (f"; nearest to failing, {binding['part_text']}: {verdict_rows.statistic_text(binding)}"
+        text += (f"; binding part (nearest to failing), {binding['part_text']}: {verdict_rows.statistic_text(binding)}"
                  f"{_spread_text(binding) if with_spread else ''} ({binding['threshold']}"
                  f"{verdict_rows.margin_text(binding)})")
     weak = mine[mine["role"].isin(["central", "secondary"]) & (mine["verdict"] != "holds")]
