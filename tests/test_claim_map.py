@@ -140,3 +140,28 @@ def test_the_summary_names_what_is_missing() -> None:
     assert "Claim map: no claim-map study in these results." in text
     assert "Long runs: no long-run study in these results." in text
     assert "Calibrated ([`paper-calibrated-mc`](studies/paper-calibrated-mc/findings.md), not run): not run" in text
+
+
+def test_the_shipped_claim_map_and_calibration_studies() -> None:
+    """The reproduce map (5 seeds a cell) and make claim-map's (20) sweep the same grid: noise.scale 0
+    and log-spaced levels up to 1 (six or more), sample times 0.05, 0.1 and 0.25 ms; the calibration
+    sweeps noise.scale alone; the shipped calibrated setup is the paper's with only noise.scale changed."""
+    from ilcforce.config_load import load_config
+    from ilcforce.study import load_study
+
+    small, full = load_study("experiments/claim-map.toml"), load_study("experiments/full/claim-map-full.toml")
+    assert full.name == "claim-map-full" and len(small.seeds) == 5 and len(full.seeds) == 20
+    assert small.sweep == full.sweep and small.methods == full.methods == ("c1", "c2", "c3")
+    scales = small.sweep["noise.scale"]
+    assert scales[0] == 0 and scales[-1] == 1 and len(scales) >= 6
+    steps = np.diff(np.log(scales[1:]))
+    np.testing.assert_allclose(steps, steps[0], rtol=0.02, err_msg="log-spaced above 0")
+    assert set(small.sweep["simulation.sample_time"]) >= {5e-5, 1e-4, 2.5e-4}
+    assert claim_map.is_claim_map_study(type("R", (), {"sweep_keys": list(small.sweep), "labelled": False})())
+    calib = load_study("experiments/calibration.toml")
+    assert list(calib.sweep) == ["noise.scale"] and len(calib.seeds) >= 10
+    shipped, paper_setup = load_config("experiments/paper-calibrated.toml"), load_config("experiments/paper.toml")
+    assert 0 < shipped.noise.scale < 1
+    import dataclasses
+    assert dataclasses.replace(shipped.noise, scale=1.0) == paper_setup.noise
+    assert shipped.gains == paper_setup.gains and shipped.simulation == paper_setup.simulation
