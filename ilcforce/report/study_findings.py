@@ -100,7 +100,7 @@ def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
     lines = [f"# Study `{results.name}`", "", f"**{results.description or 'no description'}**", ""]
     incomplete = incomplete_text(results)
     lines += [incomplete, ""] if incomplete else []
-    lines += ["Every number is a median over seeds with its 95% percentile-bootstrap interval; divergence "
+    lines += ["Every number is a median over seeds with the 95% percentile-bootstrap interval of the median; divergence "
               "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
               "(a claim fails when no central part holds, and holds in part when some do); unstable learning follows the stated growth test.", ""]
     overview, summary, body = [], {}, []
