@@ -332,13 +332,16 @@ def test_the_findings_agree_with_claims_csv_row_for_row(results):
     judged = rows[(rows["name"] == "paper") & rows["role"].isin(["central", "secondary"])]
     for row in judged.itertuples(index=False):
         assert f"{row.part_text}: " in section and f"{row.threshold} {row.verdict}" in section, row
-    # the studies: each setting's line of the table carries that setting's claim verdicts from the rows
+    # the studies: each setting's line of the study page's overview carries that setting's claim
+    # verdicts from the rows (the findings link the page)
     for name in ("sweep1", "sweep2"):
         mine = heads[heads["name"] == name]
         own = pd.read_csv(out / "studies" / name / "claims.csv", keep_default_na=False, na_values=[""])
         assert len(own) == len(rows[rows["name"] == name]), "the study's claims.csv holds the same rows"
+        assert f"[`{name}`](studies/{name}/findings.md)" in findings
+        page = (out / "studies" / name / "findings.md").read_text(encoding="utf-8")
         for setting, verdicts_of in mine.groupby("setting"):
-            line = next(line for line in findings.splitlines() if line.startswith(f"| {setting} |"))
+            line = next(line for line in page.splitlines() if line.startswith(f"| {setting} |"))
             cells = [c.strip() for c in line.strip("|").split("|")]
             assert cells[2:2 + len(verdicts_of)] == list(verdicts_of.sort_values("claim")["verdict"]), (line, setting)
     stability = pd.read_csv(out / "stability.csv")

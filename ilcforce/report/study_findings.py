@@ -92,6 +92,36 @@ def _setting_name(values: dict) -> str:
     return ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in values.items()) or "-"
 
 
+#: The columns a breakdown over listed settings shows (labels of KEY_COLUMNS) and their
+#: short names: the error 2-norms, and H_y on the whole grid beside H_y settled (what the start
+#: mismatch does to H, the initial-velocity study's question).
+ERROR_LABELS = {"|e_P| 2-norm (m)": "|e_P|", "|e_F| 2-norm (N)": "|e_F|", "H_y (N)": "H_y",
+                "H_y settled (N)": "H_y settled"}
+
+
+def error_table(settings: dict) -> list[str]:
+    """For a study with a settings list (a breakdown, e.g. by noise source): each method's error
+    2-norms per setting, median [95% bootstrap interval of the median] over seeds, so the settings
+    can be compared."""
+    rows, ats = [], set()
+    for setting, entry in settings.items():
+        row: dict[str, object] = {"setting": setting}
+        for method_row in entry["rows"]:
+            for label, short in ERROR_LABELS.items():
+                key = next((k for k in method_row if k.startswith(label + " at j = ")), None)
+                if key is not None:
+                    ats.add(key.removeprefix(label + " at j = "))
+                    row[f"{method_row['method']} {short}"] = method_row[key]
+        rows.append(row)
+    if len(rows) < 2 or len(rows[0]) < 2:
+        return []
+    # key numbers are read at j = 19, or at a shorter setting's last iteration
+    at = f" at j = {ats.pop()}" if len(ats) == 1 else f" at j = {', '.join(sorted(ats, key=int))} (each setting's)"
+    return ["", f"Error 2-norms and H_y (whole grid and settled, t >= 20 ms){at} per setting (median [95% "
+            "bootstrap interval of the median] over seeds; |e_P| in m, |e_F| and H in N):", "",
+            markdown_table(pd.DataFrame(rows))]
+
+
 def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
     """The study's findings page, a summary for the README (setting -> per-method rows and seeds),
     and its verdicts as rows (``claims.csv``, ``stability.csv``: :mod:`ilcforce.report.verdicts`).
@@ -131,7 +161,13 @@ def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
         body += [f"## Setting: {name}", "", markdown_table(pd.DataFrame(rows))]
         body.append(markdown_table(verdicts[["claim", "verdict", "frequency", "parts", "statement"]]))
     if overview:
-        lines += ["## Overview", "", markdown_table(pd.DataFrame(overview))]
+        overview_frame = pd.DataFrame(overview)
+        seeds = {name: ("1 (deterministic)" if entry["deterministic"] else entry["seeds"])
+                 for name, entry in summary.items()}
+        overview_frame.insert(1, "seeds", overview_frame["setting"].map(seeds))
+        lines += ["## Overview", "", markdown_table(overview_frame)]
+    if getattr(results, "labelled", False):
+        lines += error_table(summary)
     lines += body
     claims_frame = (pd.concat(claim_tables, ignore_index=True) if claim_tables
                     else pd.DataFrame(columns=verdict_rows.CLAIM_COLUMNS))
