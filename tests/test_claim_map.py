@@ -165,3 +165,22 @@ def test_the_shipped_claim_map_and_calibration_studies() -> None:
     import dataclasses
     assert dataclasses.replace(shipped.noise, scale=1.0) == paper_setup.noise
     assert shipped.gains == paper_setup.gains and shipped.simulation == paper_setup.simulation
+
+
+def test_write_replaces_only_a_calibrated_file_and_an_unchanged_one_is_left(tmp_path, monkeypatch, capsys) -> None:
+    found = calibration.fit(_norms(0.04))
+    monkeypatch.setattr(calibration, "converged_norms", lambda results: _norms(0.04))
+    monkeypatch.setattr(calibration, "is_calibration_study", lambda results: True)
+    import ilcforce.study
+
+    monkeypatch.setattr(ilcforce.study, "read_study", lambda path: object())
+    other = tmp_path / "paper.toml"
+    other.write_text("[experiment]\nname = 'paper'\n")
+    assert calibration.main(["s.h5", "--write", str(other)]) == 2
+    assert other.read_text() == "[experiment]\nname = 'paper'\n", "a file of another kind is never replaced"
+    target = tmp_path / "paper-calibrated.toml"
+    assert calibration.main(["s.h5", "--write", str(target)]) == 0
+    assert target.read_text() == calibration.calibrated_toml(found, "s.h5")
+    before = target.stat().st_mtime_ns
+    assert calibration.main(["s.h5", "--write", str(target)]) == 0
+    assert "unchanged" in capsys.readouterr().out and target.stat().st_mtime_ns == before

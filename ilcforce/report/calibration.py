@@ -192,9 +192,13 @@ def figure(norms: pd.DataFrame, found: Calibration | None) -> Figure:
     return fig
 
 
+#: The first line of every calibrated experiment file; --write replaces only a file that starts so.
+HEADER = "# The paper's setup with the noise level calibrated to Table 2 (docs/model.md#calibration):"
+
+
 def calibrated_toml(found: Calibration, source: str) -> str:
     """The experiment file of the calibrated setup: the paper's setup with noise.scale = the level found."""
-    return (f"# The paper's setup with the noise level calibrated to Table 2 (docs/model.md#calibration):\n"
+    return (f"{HEADER}\n"
             f"# written by `make calibrate` (python -m ilcforce.report.calibration) from {source}.\n"
             f"# {found.text()}\n"
             "# Everything else is the paper's setup (experiments/paper.toml): only the noise level differs.\n"
@@ -257,7 +261,21 @@ def main(argv: Sequence[str]) -> int:
     if out is not None:
         from ilcforce.report.figure_files import write_text_whole
 
-        write_text_whole(out, calibrated_toml(found, path.as_posix()))
+        text = calibrated_toml(found, path.as_posix())
+        if out.exists():
+            try:
+                old = out.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:
+                print(f"{out}: cannot be read ({exc}); not overwritten", file=sys.stderr)
+                return 2
+            if not old.startswith(HEADER):
+                print(f"{out}: not a calibrated experiment file written by this command; not overwritten",
+                      file=sys.stderr)
+                return 2
+            if old == text:
+                print(f"{out} unchanged")
+                return 0
+        write_text_whole(out, text)
         print(f"wrote {out}")
     return 0
 
