@@ -288,16 +288,6 @@ class _Seed:
             raise _Stop(None, f"{method}: j̄ needs complete iterations 0..9")
         return found
 
-    def end(self) -> int:
-        """Claim 4's last iteration: 19, or the last one C2 and C3 (whose reconvergence is judged) both
-        completed; C1 neither takes part nor shortens it (a diverged or missing baseline)."""
-        self.need("c2", "c3")
-        ends = [max(self.metrics[m].complete_iterations, default=-1) for m in ("c2", "c3")]
-        end = min(paper.CHATTERING_ITERATION, *ends)
-        if end <= self.p:
-            raise _Stop(None, f"needs iterations up to at least {self.p + 1}; the runs stop at {end}")
-        return end
-
     def chattering_before(self, method: str, column: str) -> float:
         """H at j = p - 1, the last iteration before the perturbation (finite, or not evaluable)."""
         j = self.p - 1
