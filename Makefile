@@ -84,6 +84,16 @@ STUDY_FILES := $(filter experiments/paper-mc.toml,$(STUDY_FILES)) $(filter-out e
 studies: $(STAMP) aot ## run every study in experiments/ (on all cores, one after another, one cluster)
 	$(VENV)/bin/ilcforce study $(STUDY_FILES) --results $(RESULTS) --replace-stale
 
+calibrate: $(STAMP) aot ## fit noise.scale to Table 2 (experiments/calibration.toml) and write experiments/paper-calibrated.toml
+	$(VENV)/bin/ilcforce study experiments/calibration.toml --results $(RESULTS) --replace-stale
+	$(PY) -m ilcforce.report.calibration $(RESULTS)/studies/calibration.h5 --write experiments/paper-calibrated.toml
+
+# the claim map with 20 seeds a cell (make reproduce runs experiments/claim-map.toml, 5 seeds a cell);
+# the next `ilcforce report` reports it beside the 5-seed one
+claim-map: $(STAMP) aot ## the claim map over noise level x sample time with 20 seeds a cell (about 10 minutes on 2 cores)
+	$(VENV)/bin/ilcforce study experiments/full/claim-map-full.toml --results $(RESULTS) --replace-stale
+	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
+
 reproduce: $(STAMP) aot ## run every experiment (every registered method, in parallel) and every study in experiments/, then write the report
 	$(MAKE) --no-print-directory -j $(JOBS) -O stores
 	$(MAKE) --no-print-directory studies
@@ -124,4 +134,4 @@ clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info ilcforce/_kernels_aot*
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
-.PHONY: help aot install test test-slow bench stores studies reproduce long findings check-findings readme-findings check-readme tune clean
+.PHONY: help aot install test test-slow bench stores studies calibrate claim-map reproduce long findings check-findings readme-findings check-readme tune clean

@@ -16,7 +16,7 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
     [reference]   duration, x_amplitude, ...
     [simulation]  sample_time, substeps, log_every, acceleration, filter_hz, torque_bound, initial_position,
                   initial_velocity, implicit_fallback
-    [noise]       disturbance_amplitude, ..., encoder, joint_rate, force_sensor
+    [noise]       disturbance_amplitude, ..., encoder, joint_rate, force_sensor, scale
     [surface]     selection, lambda_p, lambda_f1, lambda_f2          (eq. 8, shared by all methods)
     [c1] [c2] [c3] [smc-bl] ... one per registered method            (each method's own gains)
 

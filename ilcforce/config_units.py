@@ -24,7 +24,7 @@ SECTION_UNITS: dict[str, str] = {
     "simulation.initial_position": "m", "simulation.initial_velocity": "", "simulation.implicit_fallback": "",
     "noise.disturbance_amplitude": "N", "noise.disturbance_min_frequency": "Hz",
     "noise.disturbance_max_frequency": "Hz", "noise.encoder": "rad", "noise.joint_rate": "rad/s",
-    "noise.force_sensor": "N",
+    "noise.force_sensor": "N", "noise.scale": "1",
     "surface.selection": "1", "surface.lambda_p": "1/s", "surface.lambda_f1": "m/(N s)", "surface.lambda_f2": "m/N",
 }
 

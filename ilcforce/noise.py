@@ -21,7 +21,12 @@ NOISE_WIDTH = 6
 
 @dataclass(frozen=True)
 class NoiseModel:
-    """Scales of the disturbance and of the uniform, bounded sensor noise. 0 turns a source off."""
+    """Scales of the disturbance and of the uniform, bounded sensor noise. 0 turns a source off.
+
+    ``scale`` multiplies every source at once (the disturbance's amplitude and the encoder, joint-rate
+    and force-sensor bounds; not the disturbance's frequencies): the paper gives no noise levels, so
+    one factor moves the whole noise level while keeping the sources' proportions (docs/model.md#noise).
+    """
 
     disturbance_amplitude: float = 0.02  # |F_v| per axis, N (must stay below C1's alpha = 0.1 N)
     disturbance_min_frequency: float = 0.5  # Hz
@@ -29,9 +34,10 @@ class NoiseModel:
     encoder: float = 1e-6  # joint angle noise bound, rad
     joint_rate: float = 1e-4  # joint rate noise bound, rad/s
     force_sensor: float = 0.01  # force noise bound on each axis, N
+    scale: float = 1.0  # one factor on every source above (1: as listed; 0: no disturbance, no noise)
 
     def __post_init__(self) -> None:
-        for name in ("disturbance_amplitude", "encoder", "joint_rate", "force_sensor",
+        for name in ("disturbance_amplitude", "encoder", "joint_rate", "force_sensor", "scale",
                      "disturbance_min_frequency", "disturbance_max_frequency"):
             v = getattr(self, name)
             if not math.isfinite(v) or v < 0:
@@ -66,12 +72,13 @@ def draw_iteration(seed: int, iteration: int, n_control: int, model: NoiseModel)
     phase = rng_d.uniform(0.0, 2.0 * math.pi, size=2)
     rng_n = np.random.default_rng([seed, iteration, _NOISE_STREAM])
     unit = rng_n.uniform(-1.0, 1.0, size=(n_control, NOISE_WIDTH))
-    scale = np.array([model.encoder, model.encoder, model.joint_rate, model.joint_rate,
-                      model.force_sensor, model.force_sensor])
-    return IterationDraws(frequency=frequency, phase=phase, sensor=unit * scale)
+    bounds = np.array([model.encoder, model.encoder, model.joint_rate, model.joint_rate,
+                       model.force_sensor, model.force_sensor]) * model.scale
+    return IterationDraws(frequency=frequency, phase=phase, sensor=unit * bounds)
 
 
 def disturbance(t: np.ndarray, draws: IterationDraws, model: NoiseModel) -> np.ndarray:
-    """F_v(t) = A [sin(2 pi f1 t + p1), sin(2 pi f2 t + p2)] (N), shape (n, 2) for t of shape (n,)."""
+    """F_v(t) = s A [sin(2 pi f1 t + p1), sin(2 pi f2 t + p2)] (N), shape (n, 2) for t of shape (n,);
+    s = ``model.scale``. Its norm is bounded by sqrt(2) s A: the bound eq. (2) states (by the norm)."""
     t = np.asarray(t, dtype=np.float64)[:, None]
-    return model.disturbance_amplitude * np.sin(2.0 * math.pi * draws.frequency[None, :] * t + draws.phase[None, :])
+    return model.disturbance_amplitude * model.scale * np.sin(2.0 * math.pi * draws.frequency[None, :] * t + draws.phase[None, :])

@@ -377,24 +377,32 @@ def test_all_claims_hold_on_the_good_case() -> None:
 @pytest.mark.parametrize(
     ("claim", "overrides", "expected"),
     [
-        # Claim 1: all four comparisons are central; C2 worse than C1 in position alone fails it.
-        (1, {"c2": metrics_frame([1.0] * 20, sequence(2, 0.1))}, "fails"),
+        # Claim 1: all four comparisons are central; C2 worse than C1 in position alone: in part
+        # (three of four hold); C1 ahead everywhere: fails.
+        (1, {"c2": metrics_frame([1.0] * 20, sequence(2, 0.1))}, "in part"),
         (1, {"c1": metrics_frame([1e-9] * 20, [1e-9] * 20)}, "fails"),
-        # Claim 2 with the paper's own Table 2: force 0.058 / 0.096 = 0.604 is not 40% below -> fails.
+        # Claim 2 with the paper's own Table 2: force 0.058 / 0.096 = 0.604, within the threshold the
+        # paper's printed numbers allow (0.613) -> holds; C3 30% below C2 in force only -> in part;
+        # C3 equal to C2 -> fails.
         (2, {"c2": metrics_frame(sequence(3, 7.6e-6), sequence(2, 0.096)),
-             "c3": metrics_frame(sequence(4, 4.3e-6), sequence(3, 0.058))}, "fails"),
+             "c3": metrics_frame(sequence(4, 4.3e-6), sequence(3, 0.058))}, "holds"),
+        (2, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.07))}, "in part"),
         (2, {"c3": metrics_frame(sequence(4, 1e-5), sequence(3, 0.1))}, "fails"),
-        # Claim 3: C3's j̄ off by 3 -> a central part fails.
-        (3, {"c3": metrics_frame(sequence(7, 5.5e-6), sequence(6, 0.055))}, "fails"),
-        # Claim 4: C1 degrades 3x (not 'slightly', a secondary part) -> in part; C2, C3 never
-        # converge again (central) -> fails.
+        # Claim 3: C3's j̄ off by 3 -> C3's parts fail, C2's hold: in part.
+        (3, {"c3": metrics_frame(sequence(7, 5.5e-6), sequence(6, 0.055))}, "in part"),
+        # Claim 4: C1 degrades 3x (not 'slightly', a secondary part) -> in part; C2, C3 degrade but
+        # never converge again (central) -> in part; they neither jump nor reconverge -> fails.
         (4, {"c1": metrics_frame([1e-3] * 10 + [3e-3] * 10, [10.0] * 10 + [30.0] * 10)}, "in part"),
         (4, {"c2": metrics_frame(sequence(3, 1e-5, settle=2.0), sequence(2, 0.1, settle=2.0)),
-             "c3": metrics_frame(sequence(4, 5.5e-6, settle=2.0), sequence(3, 0.055, settle=2.0))}, "fails"),
+             "c3": metrics_frame(sequence(4, 5.5e-6, settle=2.0), sequence(3, 0.055, settle=2.0))}, "in part"),
+        (4, {"c2": metrics_frame(sequence(3, 1e-5, jump=1.0, settle=2.0), sequence(2, 0.1, jump=1.0, settle=2.0)),
+             "c3": metrics_frame(sequence(4, 5.5e-6, jump=1.0, settle=2.0),
+                                 sequence(3, 0.055, jump=1.0, settle=2.0))}, "fails"),
         # Claim 5: direction right but the Y ratio 2.0 is not within x1.1 of 2.44 -> in part;
-        # C3 chatters more in X -> fails.
+        # C3 chatters more in X only -> in part; in X and Y -> fails.
         (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.0359, 0.025))}, "in part"),
-        (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.07, 0.0205))}, "fails"),
+        (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.07, 0.0205))}, "in part"),
+        (5, {"c3": metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.07, 0.06))}, "fails"),
     ],
 )
 def test_claim_verdict_rules(claim: int, overrides: dict[str, pd.DataFrame], expected: str) -> None:
@@ -402,17 +410,24 @@ def test_claim_verdict_rules(claim: int, overrides: dict[str, pd.DataFrame], exp
     assert verdicts(case)[claim] == expected, part_verdicts(case, claim)
 
 
-def test_in_part_never_when_a_central_part_fails() -> None:
-    """The issue's case: claim 4 with C1 degrading strongly and no reconvergence was 'in part'."""
+def test_in_part_when_some_central_parts_hold_fails_when_none_does() -> None:
+    """Three levels at claim level: claim 4 with C1 degrading strongly (secondary) and C2, C3 jumping
+    but never reconverging holds in part (the jumps hold); a claim fails only when no central part
+    holds (or holds in part)."""
     case = good_case(
         c1=metrics_frame([1e-3] * 10 + [9.3e-3] * 10, [10.0] * 10 + [30.0] * 10),
         c2=metrics_frame(sequence(3, 1e-5, settle=2.0), sequence(2, 0.1, settle=2.0)),
         c3=metrics_frame(sequence(4, 5.5e-6, settle=2.0), sequence(3, 0.055, settle=2.0)))
     parts = part_verdicts(case, 4)
     assert parts["c2_strong_position"] == "holds" and parts["c2_again_position"] == "fails"
-    assert verdicts(case)[4] == "fails"
-    assert claims.claim_verdict({"a": "holds", "b": "fails"}, {"a": "central", "b": "central"}) == "fails"
-    assert claims.claim_verdict({"a": "holds", "b": "fails"}, {"a": "central", "b": "secondary"}) == "in part"
+    assert verdicts(case)[4] == "in part"
+    roles = {"a": "central", "b": "central", "c": "secondary"}
+    assert claims.claim_verdict({"a": "holds", "b": "fails"}, roles) == "in part"
+    assert claims.claim_verdict({"a": "in part", "b": "fails"}, roles) == "in part"
+    assert claims.claim_verdict({"a": "fails", "b": "fails", "c": "holds"}, roles) == "fails"
+    assert claims.claim_verdict({"a": "holds", "b": "holds", "c": "fails"}, roles) == "in part"
+    assert claims.claim_verdict({"a": "holds", "b": "holds", "c": "holds"}, roles) == "holds"
+    assert claims.claim_verdict({"a": "holds", "b": "not evaluable"}, roles) == "not evaluable"
 
 
 def test_claim2_is_judged_on_converged_windows_with_the_value_at_jbar_shown() -> None:
@@ -435,13 +450,13 @@ def test_claim2_is_judged_on_converged_windows_with_the_value_at_jbar_shown() ->
         assert two.at[part, "part_verdict"] == "holds" and two.at[part, "role"] == "central"
     assert verdicts(case)[2] == "holds"
     # the windows are the last five before p (5..9) and p+5..p+9 (15..19): a C3 50% below C2 only
-    # from j = 15 on fails the part before the perturbation and so the claim
+    # from j = 15 on fails the part before the perturbation: the claim holds in part
     late = sequence(1, 1e-5)
     late[15:] = [5e-6] * 5
     case = good_case(c2=metrics_frame(sequence(1, 1e-5), sequence(1, 0.1)),
                      c3=metrics_frame(late, sequence(1, 0.05)))
     assert part_verdicts(case, 2)["position_before"] == "fails" and part_verdicts(case, 2)["position_after"] == "holds"
-    assert verdicts(case)[2] == "fails"
+    assert verdicts(case)[2] == "in part"
 
 
 def test_claim1_reads_the_late_window_before_the_perturbation() -> None:
@@ -471,21 +486,22 @@ def test_claim3_faster_than_the_paper_holds_and_slow_or_lagging_fails() -> None:
                         c3=metrics_frame(sequence(4, 5.5e-6), sequence(4, 0.055)))
     parts = part_verdicts(lagging, 3)
     assert parts["c3_position"] == "holds" and parts["c3_vs_c2_position"] == "fails"
-    assert verdicts(lagging)[3] == "fails"
+    assert verdicts(lagging)[3] == "in part"
 
 
 def test_claim_summary_keeps_every_part_verdict() -> None:
     """A claim that fails on one part of four says which: the summary lists every judged part."""
     case = good_case(c3=metrics_frame(sequence(4, 5.5e-6), [50.0] * 20, (0.0359, 0.0205)))
     summary = claims.claim_summary(claims.judge_claims(case)).set_index("claim")
-    assert summary.at[1, "verdict"] == "fails"
+    assert summary.at[1, "verdict"] == "in part"
     assert "C3 below C1, force: fails" in summary.at[1, "parts"]
     assert "C2 below C1, position: holds" in summary.at[1, "parts"]
 
 
 def test_a_failing_claim_1_names_its_causes_with_the_numbers() -> None:
     """C1 ahead of C3 before the m3 change: the findings say why, from claim 1's cause rows: C1's
-    model is the true plant there, its alpha is 5x the disturbance bound, C3's alpha_hat is small.
+    model is the true plant there, its alpha is 3.54x the bound of the disturbance's norm (eq. (2):
+    0.1 / (sqrt(2) 0.02), the disturbance acting on two axes), C3's alpha_hat is small.
     With the plant changed from j = 0 (C1's model wrong in every iteration) the window is j = 5..9."""
     from ilcforce.report import verdicts as verdict_rows
 
@@ -497,9 +513,10 @@ def test_a_failing_claim_1_names_its_causes_with_the_numbers() -> None:
         case = good_case(c3=c3)
         parts = claims.judge_claims(case, perturbation_iteration=p, config=config)
         rows = verdict_rows.claim_rows(parts, source="experiment", name="x", setting="x")
-        assert verdicts(case, perturbation_iteration=p)[1] == "fails"
+        assert verdicts(case, perturbation_iteration=p)[1] == "in part"
         [line] = verdict_rows.cause_lines(rows)
-        assert model_text in line and "alpha is 5x the non-repetitive disturbance's bound" in line, line
+        assert model_text in line and "alpha is 3.54x the non-repetitive disturbance's bound by the norm of eq. (2)" \
+            in line, line
         assert "alpha_hat is 0.005 N" in line and "C3 below C1, force" in line, line
         one = parts[parts["claim"] == 1].set_index("part")
         assert one.at["cause_c3_alpha_hat", "part_verdict"] == "-", "a cause is never judged"
@@ -537,25 +554,35 @@ def test_seeds_give_frequencies_and_intervals() -> None:
     assert row["part_verdict"] == "holds"
     assert row["median"] == pytest.approx(0.55) and row["low"] <= 0.55 <= row["high"]
     assert 0 < row["share_low"] < 2 / 3 < row["share_high"] <= 1
-    assert "holds in 2" in row["claim_frequency"] and "fails in 1" in row["claim_frequency"]
+    assert "holds in 2" in row["claim_frequency"] and "in part in 1" in row["claim_frequency"]
+    # the median's margin to the threshold, and the seeds' own 5-95% spread beside its interval
+    assert row["margin"] == pytest.approx((claim_parts.REDUCTION_RATIO - 0.55) / claim_parts.REDUCTION_RATIO)
+    assert row["spread_low"] < row["median"] < row["spread_high"] and row["spread_high"] > 1.5
     jbar_row = parts[(parts["claim"] == 3) & (parts["part"] == "c3_position")].iloc[0]
     assert jbar_row["distribution"] == "4: 3", "claim 3 reports the distribution of j̄ over seeds"
 
 
-def test_divergence_of_an_asserted_method_fails_only_the_claims_that_read_it() -> None:
+def test_divergence_of_an_asserted_method_leaves_only_the_claims_that_read_it_not_evaluable() -> None:
+    """C3 diverged (in the one seed) before the windows claims 2, 4 and 5 read: those claims are not
+    evaluable, with the divergence named; a C3 that diverged in a minority of seeds fails there."""
     case = good_case(c3=metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.0359, 0.0219), diverged_at=12))
     result = verdicts(case)
     assert [result[n] for n in (1, 3)] == ["holds"] * 2, "C3 ran cleanly up to j = 11"
-    assert result[2] == "fails", "claim 2's window after the perturbation (j = 15..19) needs C3"
-    assert result[4] == "fails" and result[5] == "fails"
+    assert result[2] == "not evaluable", "claim 2's window after the perturbation (j = 15..19) needs C3"
+    assert result[4] == "not evaluable" and result[5] == "not evaluable"
+    # one diverged seed of three: the part fails there and holds in the other two
+    seeds = [claims.tidy_from_methods(case if seed == 0 else good_case(), seed=seed) for seed in range(3)]
+    parts = claims.judge_claims_over_seeds(pd.concat(seeds, ignore_index=True)).set_index("part")
+    assert parts.at["position_after", "part_verdict"] == "holds" and parts.at["position_after", "passed"] == 2
+    assert "1 of 3 seeds diverged" in parts.at["position_after", "notes"]
     parts = claims.judge_claims(case)
     assert parts[parts["claim"] == 5]["notes"].str.contains("c3 diverged at iteration 12").any(), "named"
 
 
-def test_early_divergence_fails_the_early_claims() -> None:
+def test_early_divergence_leaves_the_early_claims_not_evaluable() -> None:
     case = good_case(c2=metrics_frame(sequence(3, 1e-5), sequence(2, 0.1), diverged_at=4))
     result = verdicts(case)
-    assert result[1] == "fails" and result[3] == "fails" and result[4] == "fails"
+    assert result[1] == "not evaluable" and result[3] == "not evaluable" and result[4] == "not evaluable"
     assert result[5] == "holds", "claim 5 does not read C2"
 
 
@@ -608,9 +635,10 @@ def test_claim5_shows_the_ratio_before_the_perturbation_beside_the_one_at_19() -
         assert five["notes"].str.contains("before it" if p == 0 else "c1 diverged at iteration 5").all()
 
 
-def test_claim4_reconvergence_is_read_at_19_whatever_the_baseline_did() -> None:
-    """C2 and C3 'converge again' is read at j = 19 (or the last iteration both completed): a C1 that
-    diverged at j = 12, or no C1 at all, neither shortens nor blocks it (C2 settles only by j = 16)."""
+def test_claim4_reconvergence_is_read_on_windows_whatever_the_baseline_did() -> None:
+    """C2 and C3 'converge again' is read on the window j = 15..19 against j = 5..9: a C1 that
+    diverged at j = 12, or no C1 at all, neither shortens nor blocks it (C2 settles only by j = 16:
+    the window's mean is (3 + 4 x 1) / 5 = 1.4 x the one before)."""
     slow = sequence(3, 1e-5)
     slow[11:16] = [3e-5] * 5
     c2 = metrics_frame(slow, sequence(2, 0.1), (0.05, 0.04))
@@ -618,12 +646,13 @@ def test_claim4_reconvergence_is_read_at_19_whatever_the_baseline_did() -> None:
     for case in (good_case(c2=c2, c1=diverged_c1), {k: v for k, v in good_case(c2=c2).items() if k != "c1"}):
         parts = claims.judge_claims(case)
         again = parts[parts["part"] == "c2_again_position"].iloc[0]
-        np.testing.assert_allclose(again["median"], 1.0, rtol=1e-12)
+        np.testing.assert_allclose(again["median"], 1.4, rtol=1e-12)
         assert again["part_verdict"] == "holds", again["notes"]
-    # C3 ending at j = 14 ends the reading there for both
+    # C3 diverging at j = 15 leaves C3's part not evaluable and C2's reading unchanged
     short_c3 = metrics_frame(sequence(4, 5.5e-6), sequence(3, 0.055), (0.0359, 0.0205), diverged_at=15)
     parts = claims.judge_claims(good_case(c2=c2, c3=short_c3)).set_index("part")
-    np.testing.assert_allclose(parts.at["c2_again_position", "median"], 3.0, rtol=1e-12)
+    np.testing.assert_allclose(parts.at["c2_again_position", "median"], 1.4, rtol=1e-12)
+    assert parts.at["c3_again_position", "part_verdict"] == "not evaluable"
 
 
 def test_perturbation_iteration_from_config() -> None:
@@ -638,12 +667,11 @@ def test_claims_on_the_synthetic_store(metrics_by_method: dict[str, pd.DataFrame
     """The store reproduces the paper's numbers, so its verdicts are the paper's own data's."""
     result = verdicts(metrics_by_method)
     # Claim 2 is read over converged windows, where the store holds the paper's own Table 2 norms:
-    # position 4.3e-6 / 7.6e-6 = 0.566 holds, force 0.058 / 0.096 = 0.604 is not 40% below (the
-    # paper's own numbers fail its force claim; at j̄ the store's 1.03x / 1.04x values made it 0.598).
-    assert result == {1: "holds", 2: "fails", 3: "holds", 4: "holds", 5: "holds"}
+    # position 4.3e-6 / 7.6e-6 = 0.566 and force 0.058 / 0.096 = 0.604 are both below the threshold
+    # derived from them (0.613: the paper's own numbers pass the paper's claims)
+    assert result == {1: "holds", 2: "holds", 3: "holds", 4: "holds", 5: "holds"}
     parts = part_verdicts(metrics_by_method, 2)
-    assert parts["position_before"] == parts["position_after"] == "holds"
-    assert parts["force_before"] == parts["force_after"] == "fails"
+    assert {parts[k] for k in ("position_before", "position_after", "force_before", "force_after")} == {"holds"}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -848,7 +876,7 @@ def test_write_report_end_to_end(report: ReportSummary) -> None:
     assert table2.at["c3", "position_error_2norm"] == pytest.approx(POSITION["c3"][4], rel=RTOL)
     claims_csv = pd.read_csv(directory / "claims.csv")
     head = claims_csv[claims_csv["role"] == "claim"]
-    assert list(head["verdict"]) == ["holds", "fails", "holds", "holds", "holds"], "the paper's force 0.604"
+    assert list(head["verdict"]) == ["holds"] * 5, "the paper's own numbers pass (force 0.604 < 0.613)"
     for column in ("source", "setting", "claim", "part", "role", "verdict", "seeds_evaluated", "seeds_passed",
                    "statistic", "statistic_low", "statistic_high", "threshold"):
         assert column in claims_csv.columns, column
@@ -917,10 +945,12 @@ def test_degraded_experiment_reports_what_it_can(tmp_path: Path) -> None:
     result = pd.read_csv(tmp_path / "out" / "degraded" / "claims.csv")
     result = result[result["role"] == "claim"].set_index("claim")
     assert result.at[1, "verdict"] == "not evaluable", "C1 missing"
-    assert result.at[2, "verdict"] == "fails", "C3 diverged at j = 12, before claim 2's window j = 15..19"
+    assert result.at[2, "verdict"] == "not evaluable", "C3 diverged at j = 12, before claim 2's window j = 15..19"
     assert result.at[3, "verdict"] == "holds"
-    assert result.at[4, "verdict"] == "fails", "C3 diverged: a divergence settles it although C1 is missing"
-    assert result.at[5, "verdict"] == "fails"
+    assert result.at[4, "verdict"] == "not evaluable", "C3 diverged before the window C3's reconvergence is read on"
+    notes = pd.read_csv(tmp_path / "out" / "degraded" / "claims.csv", keep_default_na=False)
+    assert notes.loc[notes["part"] == "c3_again_position", "note"].str.contains("c3 diverged at iteration 12").all()
+    assert result.at[5, "verdict"] == "not evaluable", "C3 diverged before j = 19, where H is read"
     # the README's findings name the method that diverged in this one seed, not the iteration: a run
     # near a stability limit diverges an iteration earlier or later on a host whose sin/cos differ in
     # the last bit, and the findings must read the same on any host (the report keeps the iteration)
@@ -1004,7 +1034,7 @@ def test_readme_findings_check(tmp_path: Path, results_dir: Path) -> None:
     write_report(results_dir, out, formats=())
     findings = out / "findings.md"
     text = findings.read_text(encoding="utf-8")
-    assert "**`synthetic`**" in text and "Claim 2 **fails**" in text, text
+    assert "**`synthetic`**" in text and "Claim 2 **holds**" in text, text
     target = tmp_path / "README.md"
     target.write_text(f"# x\n\n{readme.BEGIN}\nold numbers\n{readme.END}\n\nrest\n", encoding="utf-8")
     assert "differ" in readme.check(target, findings) or "lines" in readme.check(target, findings)

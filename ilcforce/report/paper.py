@@ -1,7 +1,8 @@
 """The paper's published numbers, as data, so that every report puts them beside ours.
 
-Nothing here is used to *judge* a claim: verdicts come from our measured numbers only
-(:mod:`ilcforce.report.claims`). These values are shown for comparison.
+Verdicts come from our measured numbers (:mod:`ilcforce.report.claims`); these values are shown
+beside them, and a few thresholds are derived from them (claim 2's ratio from Table 2, claim 3's j̄,
+claim 5's magnitude), as :mod:`ilcforce.report.claim_parts` states at each.
 
 Iterations are counted from 0 (j = 0 is the first trial), as everywhere in ilcforce. The paper's
 "iteration j = 20" of Table 3 is the 20th trial, i.e. our j = 19 (docs/model.md#sampling).

@@ -100,6 +100,18 @@ def _interval(row) -> str:
     return f"{row.median:.3g} [{row.low:.3g}, {row.high:.3g}]"
 
 
+def _spread(row) -> str:
+    low, high = getattr(row, "spread_low", math.nan), getattr(row, "spread_high", math.nan)
+    if not (math.isfinite(low) and math.isfinite(high)) or low == high:
+        return "–"
+    return f"{low:.3g} to {high:.3g}"
+
+
+def _margin(row) -> str:
+    margin = getattr(row, "margin", math.nan)
+    return f"{100 * margin:+.0f}%" if math.isfinite(margin) else "–"
+
+
 def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
     """The claims section: one summary table, then each claim's parts with frequencies and intervals."""
     summary = claims_module.claim_summary(parts)
@@ -108,9 +120,11 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
     if deterministic:
         lines = [f"Judged once: {claims_module.ONE_EVALUATION}.", ""]
     else:
-        lines = [f"Judged over {n} seed{'s' if n != 1 else ''}. Each number is the median over seeds with its "
-                 "95% percentile-bootstrap interval; each frequency counts the seeds where the part passes "
-                 "(95% Wilson interval in brackets). With one seed there is no interval.", ""]
+        lines = [f"Judged over {n} seed{'s' if n != 1 else ''}. Each number is the median over seeds with the "
+                 "95% percentile-bootstrap interval of the median (where the median lies; where a single seed "
+                 "falls is the seeds' 5-95% column); each frequency counts the seeds where the part passes "
+                 "(95% Wilson interval in brackets); the margin is the median's distance to the threshold as a "
+                 "fraction of it (>= 0 passes). With one seed there is no interval.", ""]
     lines.append(markdown_table(summary[["claim", "verdict", "frequency", "parts", "statement"]]))
     if flags:
         lines += ["Methods flagged for unstable learning (see Learning stability): "
@@ -125,7 +139,9 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
             judged = row.role not in claims_module.NOT_JUDGED
             rows.append({
                 "part": row.part_text, "role": row.role, "statistic": row.statistic,
-                "passes when": getattr(row, "threshold", "") or "–", "median [95%]": _interval(row), "over seeds": row.distribution,
+                "passes when": getattr(row, "threshold", "") or "–",
+                "median [95% CI of the median]": _interval(row), "seeds 5-95%": _spread(row),
+                "margin": _margin(row), "over seeds": row.distribution,
                 "passes": (f"{row.passed} of {row.evaluable} [{row.share_low:.2f}, {row.share_high:.2f}]"
                            if judged and row.evaluable else "–"),
                 "verdict": row.part_verdict, "note": row.notes,
@@ -138,10 +154,15 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
 
 _RULE_TEXT = (
     "A part passes or fails in each seed by its stated threshold (a part that needs a method which diverged "
-    "within the iterations it reads fails; a baseline that diverged counts as an infinite norm). Over seeds "
-    "a part holds when it passes in a strict majority of the seeds where it is evaluable. A claim fails when "
-    "any central part fails; otherwise it is not evaluable when a central part is; otherwise it holds when "
-    "every secondary part holds, and holds in part when a secondary part fails. Shown parts (and cause "
+    "within the iterations it reads fails; a baseline that diverged counts as an infinite norm); a part with "
+    "a weaker reading (claim 2: C3 below C2, by less than the paper's margin) meets it or not. Over seeds a "
+    "part holds when it passes in a strict majority of the seeds where it is evaluable, holds in part when "
+    "it passes or meets its weaker reading in a strict majority, and fails otherwise; it is not evaluable "
+    "without an evaluable seed or when the method it praises diverged in a majority of the seeds (the note "
+    "names where). A claim is not evaluable when a central part is; otherwise it holds when every judged "
+    "part holds, fails when no central part holds or holds in part, and holds in part otherwise. Each part's "
+    "median comes with the 95% bootstrap interval of the median, the 5-95% spread of the seeds and its "
+    "margin to the threshold (a fraction of the threshold, >= 0 passing). Shown parts (and cause "
     "parts, which name a modelling choice behind a verdict) are printed, never judged. The claim's frequency "
     "applies the same rule to each seed; a deterministic setting (no noise source active) is one evaluation."
 )

@@ -232,7 +232,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         lines += [f"## Setting {k}: {title}" if results.sweep_keys else "## Results", ""]
         numbers = key_numbers(mine, methods, iterations)
         report.files += table_write.write_table(numbers, directory, f"key_numbers_s{k}")
-        lines += ["### Key numbers (median [95% interval] over seeds)", "", table_write.markdown_table(numbers), ""]
+        lines += ["### Key numbers (median over seeds [95% bootstrap interval of the median])", "", table_write.markdown_table(numbers), ""]
         deterministic = claims_module.is_deterministic(_config(setting.config_json))
         judged = claims_module.first_seed_only(mine) if deterministic else mine  # one evaluation
         growth = stability.learning_growth(judged, perturbation_iteration=p, config=_config(setting.config_json))
@@ -333,7 +333,7 @@ def study_index_section(reports: list[StudyReport]) -> list[str]:
     if reports:
         section = ["## Studies (over seeds)", "",
                    "Each study runs its methods over many seeds (and settings); its numbers are medians with "
-                   "95% intervals and its verdicts are frequencies over seeds. Single-run reports follow below.",
+                   "95% bootstrap intervals of the median and its verdicts are frequencies over seeds. Single-run reports follow below.",
                    ""]
         for report in reports:
             section += report.index_lines or [f"### {report.name}", "", "No report (see warnings).", ""]

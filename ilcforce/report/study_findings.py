@@ -17,6 +17,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from ilcforce.records import STATUS_DIVERGED
+from ilcforce.report import calibration, claim_map, claim_parts
 from ilcforce.report import claims as claims_module
 from ilcforce.report import figures, paper, stability
 from ilcforce.report.figure_files import save_figure, write_text_whole
@@ -91,6 +92,36 @@ def _setting_name(values: dict) -> str:
     return ", ".join(f"{k} = {v:g}" if isinstance(v, float) else f"{k} = {v}" for k, v in values.items()) or "-"
 
 
+#: The columns a breakdown over listed settings shows (labels of KEY_COLUMNS) and their
+#: short names: the error 2-norms, and H_y on the whole grid beside H_y settled (what the start
+#: mismatch does to H, the initial-velocity study's question).
+ERROR_LABELS = {"|e_P| 2-norm (m)": "|e_P|", "|e_F| 2-norm (N)": "|e_F|", "H_y (N)": "H_y",
+                "H_y settled (N)": "H_y settled"}
+
+
+def error_table(settings: dict) -> list[str]:
+    """For a study with a settings list (a breakdown, e.g. by noise source): each method's error
+    2-norms per setting, median [95% bootstrap interval of the median] over seeds, so the settings
+    can be compared."""
+    rows, ats = [], set()
+    for setting, entry in settings.items():
+        row: dict[str, object] = {"setting": setting}
+        for method_row in entry["rows"]:
+            for label, short in ERROR_LABELS.items():
+                key = next((k for k in method_row if k.startswith(label + " at j = ")), None)
+                if key is not None:
+                    ats.add(key.removeprefix(label + " at j = "))
+                    row[f"{method_row['method']} {short}"] = method_row[key]
+        rows.append(row)
+    if len(rows) < 2 or len(rows[0]) < 2:
+        return []
+    # key numbers are read at j = 19, or at a shorter setting's last iteration
+    at = f" at j = {ats.pop()}" if len(ats) == 1 else f" at j = {', '.join(sorted(ats, key=int))} (each setting's)"
+    return ["", f"Error 2-norms and H_y (whole grid and settled, t >= 20 ms){at} per setting (median [95% "
+            "bootstrap interval of the median] over seeds; |e_P| in m, |e_F| and H in N):", "",
+            markdown_table(pd.DataFrame(rows))]
+
+
 def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
     """The study's findings page, a summary for the README (setting -> per-method rows and seeds),
     and its verdicts as rows (``claims.csv``, ``stability.csv``: :mod:`ilcforce.report.verdicts`).
@@ -99,9 +130,9 @@ def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
     lines = [f"# Study `{results.name}`", "", f"**{results.description or 'no description'}**", ""]
     incomplete = incomplete_text(results)
     lines += [incomplete, ""] if incomplete else []
-    lines += ["Every number is a median over seeds with its 95% percentile-bootstrap interval; divergence "
+    lines += ["Every number is a median over seeds with the 95% percentile-bootstrap interval of the median; divergence "
               "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
-              "(a claim fails when a central part fails); unstable learning follows the stated growth test.", ""]
+              "(a claim fails when no central part holds, and holds in part when some do); unstable learning follows the stated growth test.", ""]
     overview, summary, body = [], {}, []
     claim_tables, stability_tables = [], []
     for setting in results.settings.index:
@@ -130,7 +161,13 @@ def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
         body += [f"## Setting: {name}", "", markdown_table(pd.DataFrame(rows))]
         body.append(markdown_table(verdicts[["claim", "verdict", "frequency", "parts", "statement"]]))
     if overview:
-        lines += ["## Overview", "", markdown_table(pd.DataFrame(overview))]
+        overview_frame = pd.DataFrame(overview)
+        seeds = {name: ("1 (deterministic)" if entry["deterministic"] else entry["seeds"])
+                 for name, entry in summary.items()}
+        overview_frame.insert(1, "seeds", overview_frame["setting"].map(seeds))
+        lines += ["## Overview", "", markdown_table(overview_frame)]
+    if getattr(results, "labelled", False):
+        lines += error_table(summary)
     lines += body
     claims_frame = (pd.concat(claim_tables, ignore_index=True) if claim_tables
                     else pd.DataFrame(columns=verdict_rows.CLAIM_COLUMNS))
@@ -230,9 +267,29 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
             [path] = save_figure(fig, directory, "fig_stability_boundary", ("png",))
             written.append(path)
             text += f"\n![stability boundary]({path.name})\n"
+    extra: dict = {}
+    if claim_map.is_claim_map_study(results):
+        names = {}
+        for setting in results.settings.index:
+            values = {k: results.settings.loc[setting, k] for k in results.sweep_keys}
+            names[_setting_name(values)] = tuple(float(values[k]) for k in claim_map.KEYS)
+        seeds = {name: (1 if entry["deterministic"] else entry["seeds"]) for name, entry in summary.items()}
+        rows = claim_map.claim_map(claims_frame, {n: v for n, v in names.items() if n in summary}, seeds)
+        statements = {c.number: c.statement for c in claim_parts.CLAIMS}
+        files, lines = claim_map.write_claim_map(rows, directory, statements)
+        written += files
+        text += "\n" + "\n".join(lines)
+        extra["claim_map_sentence"] = claim_map.sentence(rows)
+        extra["claim_map_seeds"] = int(max(seeds.values(), default=0))
+    if calibration.is_calibration_study(results):
+        files, lines, found = calibration.write_calibration(results, directory)
+        written += files
+        text += "\n" + "\n".join(lines)
+        extra["calibration_text"] = found.text() if found is not None else ""
+        extra["calibration_scale"] = found.scale if found is not None else math.nan
     write_text_whole(directory / "findings.md", text)
     written.append(directory / "findings.md")
-    return written, name, {"description": results.description, "settings": summary,
+    return written, name, {**extra, "description": results.description, "settings": summary,
                                    "incomplete": incomplete_text(results),
                                    "labelled": bool(getattr(results, "labelled", False)),
                                    "claim_rows": claims_frame.to_dict("list"),

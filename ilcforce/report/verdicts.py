@@ -22,7 +22,7 @@ EXPERIMENT, STUDY = "experiment", "study"
 CLAIM_ROW = "claim"
 CLAIM_COLUMNS = ["source", "name", "setting", "claim", "part", "role", "verdict", "seeds_evaluated", "seeds_passed",
                  "statistic", "statistic_low", "statistic_high", "threshold", "evaluation", "part_text",
-                 "statistic_name", "note"]
+                 "statistic_name", "note", "margin", "spread_low", "spread_high", "partial"]
 STABILITY_COLUMNS = ["source", "name", "setting", "method", "quantity", "judged", "window", "rate_per_iteration",
                      "rate_low", "rate_high", "seeds_growing", "seeds_fitted", "value_end", "iterations_to_10x",
                      "saturating", "inconclusive", "flagged"]
@@ -41,7 +41,8 @@ def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> 
         rows.append({**base, "part": CLAIM_ROW, "role": CLAIM_ROW, "verdict": str(first["verdict"]),
                      "seeds_evaluated": n, "seeds_passed": int(first["claim_seeds_holding"]),
                      "statistic": math.nan, "statistic_low": math.nan, "statistic_high": math.nan,
-                     "threshold": "", "part_text": str(first["statement"]), "statistic_name": "", "note": ""})
+                     "threshold": "", "part_text": str(first["statement"]), "statistic_name": "", "note": "",
+                     "margin": math.nan, "spread_low": math.nan, "spread_high": math.nan, "partial": ""})
         for row in mine.itertuples(index=False):
             shown = row.role in claims_module.NOT_JUDGED
             rows.append({**base, "part": row.part, "role": row.role,
@@ -51,7 +52,9 @@ def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> 
                          "statistic": float(row.median), "statistic_low": float(row.low),
                          "statistic_high": float(row.high), "threshold": str(row.threshold or ""),
                          "part_text": str(row.part_text), "statistic_name": str(row.statistic),
-                         "note": str(row.notes or "")})
+                         "note": str(row.notes or ""), "margin": float(row.margin),
+                         "spread_low": float(row.spread_low), "spread_high": float(row.spread_high),
+                         "partial": str(row.partial or "")})
     frame = pd.DataFrame(rows, columns=CLAIM_COLUMNS)
     frame["seeds_passed"] = frame["seeds_passed"].astype("Int64")
     return frame
@@ -73,8 +76,14 @@ def stability_rows(growth: pd.DataFrame, *, source: str, name: str, setting: str
 # ---------------------------------------------------------------------------------------------
 
 
+#: What the bracket after a median is, said once wherever medians are printed.
+INTERVAL_NOTE = ("median over seeds [95% bootstrap interval of the median]; the spread of the seeds themselves "
+                 "(5-95%), where a single run falls, is given as 'seeds 5-95%'")
+
+
 def statistic_text(row) -> str:
-    """"0.56 [0.5, 0.6]" (median and 95% interval over seeds), "0.56" with one value, "n/a" without."""
+    """"0.56 [0.5, 0.6]" (median and the 95% bootstrap interval of the median, :data:`INTERVAL_NOTE`),
+    "0.56" with one value, "n/a" without."""
     value = row.statistic
     if value is None or not math.isfinite(float(value)):
         return "n/a"
@@ -89,7 +98,19 @@ def _passes(row) -> str:
         return str(row.role)
     if int(row.seeds_evaluated) == 0:
         return f"{row.verdict}"
-    return f"{row.verdict}; passes in {int(row.seeds_passed)} of {int(row.seeds_evaluated)}"
+    return f"{row.verdict}; passes in {int(row.seeds_passed)} of {int(row.seeds_evaluated)}{margin_text(row)}"
+
+
+def margin_text(row) -> str:
+    """"; margin -13% of the threshold" from a row's ``margin`` (empty without one)."""
+    margin = getattr(row, "margin", math.nan)
+    try:
+        margin = float(margin)
+    except (TypeError, ValueError):
+        return ""
+    if not math.isfinite(margin):
+        return ""
+    return f"; margin {100 * margin:+.0f}% of the threshold"
 
 
 def claim_lines(rows: pd.DataFrame) -> list[str]:
@@ -127,7 +148,7 @@ def cause_lines(rows: pd.DataFrame) -> list[str]:
     alpha = cause.get("cause_c1_alpha")
     if alpha is not None and math.isfinite(float(alpha.statistic)):
         said.append(f"its fixed switching gain alpha is {float(alpha.statistic):.3g}x the non-repetitive "
-                    "disturbance's bound, so it rejects that disturbance in every iteration")
+                    "disturbance's bound by the norm of eq. (2), so it rejects that disturbance in every iteration")
     elif alpha is not None and float(alpha.statistic) == math.inf:
         said.append("there is no disturbance for its alpha to reject")
     learned = cause.get("cause_c3_alpha_hat")
@@ -180,7 +201,7 @@ def claim_verdicts(rows: pd.DataFrame) -> dict[int, str]:
 def read_back(path) -> pd.DataFrame:
     """A ``claims.csv`` or ``stability.csv`` as written (empty strings stay empty strings)."""
     frame = pd.read_csv(path, keep_default_na=False, na_values=[""])
-    for column in ("threshold", "part_text", "note", "evaluation", "statistic_name", "window"):
+    for column in ("threshold", "part_text", "note", "evaluation", "statistic_name", "window", "partial"):
         if column in frame.columns:
             values = frame[column].astype(object)
             frame[column] = values.where(values.notna(), "").astype(str)
