@@ -134,11 +134,14 @@ def test_the_findings_lead_with_a_summary_of_at_most_12_kb() -> None:
     assert "| setting |" not in text
 
 
-def test_the_summary_names_what_is_missing() -> None:
+def test_the_summary_names_what_is_missing(monkeypatch) -> None:
+    from ilcforce.report import long_run
+
+    monkeypatch.setattr(long_run, "committed_summary", lambda directory=None: None)  # no make long page either
     text = readme.findings_markdown({}, {}, claims=pd.DataFrame(columns=verdicts.CLAIM_COLUMNS),
                                     stability=pd.DataFrame(columns=verdicts.STABILITY_COLUMNS))
     assert "Claim map: no claim-map study in these results." in text
-    assert "Long runs: no long-run study in these results." in text
+    assert "Long runs: no long-run study in these results, and no `make long` summary." in text
     assert "Calibrated ([`paper-calibrated-mc`](studies/paper-calibrated-mc/findings.md), not run): not run" in text
 
 

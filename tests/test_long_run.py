@@ -80,3 +80,19 @@ def test_a_capped_memory_is_not_judged():
     assert cases.loc[0, "verdict_40"] == long_run.NOT_FLAGGED
     unbounded = long_run.validation_cases({"c": _Study({"s": run}, {**config, "c3-robust": {}})})
     assert unbounded.loc[0, "verdict_40"] == long_run.FLAGGED
+
+
+def test_the_findings_cite_the_committed_summary_and_leave_make_longs_studies_out(tmp_path, monkeypatch):
+    """The findings of make reproduce are the same with or without make long's studies in the results:
+    those studies are left out, and the committed summary (date, commit, headline) is cited instead."""
+    from ilcforce.report import readme, verdicts
+
+    summary = {"provenance": "studies run on 2026-12-05 at commit abc", "headline": ["C3 diverges."]}
+    monkeypatch.setattr(long_run, "committed_summary", lambda directory=None: summary)
+    empty = dict(claims=pd.DataFrame(columns=verdicts.CLAIM_COLUMNS),
+                 stability=pd.DataFrame(columns=verdicts.STABILITY_COLUMNS))
+    long_study = {"description": "x", "settings": {}, "incomplete": "", "labelled": False}
+    with_long = readme.findings_markdown({}, {"long-run-1000": long_study, "growth-validation": long_study}, **empty)
+    assert with_long == readme.findings_markdown({}, {}, **empty)
+    assert "`make long`, studies run on 2026-12-05 at commit abc): C3 diverges." in with_long
+    assert long_run.is_long_study("growth-validation-serial2r") and not long_run.is_long_study("long-run-mc")
