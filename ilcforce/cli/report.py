@@ -42,7 +42,8 @@ def report(
     if not summary.experiments and not summary.studies:
         raise CliError(f"no usable ilcforce stores under {results}")
     done = [*summary.experiments, *(f"study {name}" for name in summary.studies)]
-    _say(f"report for {', '.join(done)} written to {target}/index.md")
+    page = f" and {summary.html.path.name} ({summary.html.size_text()})" if summary.html is not None else ""
+    _say(f"report for {', '.join(done)} written to {target}/index.md{page}")
 
 
 @app.command()

@@ -33,7 +33,7 @@ import pandas as pd
 
 from ilcforce import store
 from ilcforce.report import claims as claims_module
-from ilcforce.report import paper, pool, readme, sections, stability, table_write, tables, tasks
+from ilcforce.report import html, paper, pool, readme, sections, stability, table_write, tables, tasks
 from ilcforce.report import verdicts as verdict_rows
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.study import count_text
@@ -70,6 +70,7 @@ class ReportSummary:
     files: tuple[Path, ...]
     warnings: tuple[str, ...]
     studies: tuple[str, ...] = ()  # studies reported (ilcforce.report.study), the paper's Monte Carlo first
+    html: Any = None  # the one-page HTML report (ilcforce.report.html.HtmlReport), None when not written
 
     @property
     def index(self) -> Path:
@@ -396,12 +397,16 @@ def write_report(
         claims=verdict_rows.read_back(out_dir / "claims.csv"),
         stability=verdict_rows.read_back(out_dir / "stability.csv")))
     written.append(findings)
+    page = html.write_html(out_dir)  # last: it is made of the Markdown pages written above
+    if page is not None:
+        written.append(page.path)
     return ReportSummary(
         out_dir=out_dir,
         experiments=tuple(sorted(verdicts)),
         files=tuple(written),
         warnings=tuple(warnings),
         studies=reported,
+        html=page,
     )
 
 
