@@ -100,11 +100,6 @@ async def _visit(binary: str, url: str, expressions: dict[str, str], timeout: fl
             for domain in ("Page", "Runtime", "Log"):
                 await call(f"{domain}.enable", session)
             await call("Page.navigate", session, url=url)
-            loaded = False
-            while not loaded:
-                event = await asyncio.wait_for(events.get(), max(1.0, deadline - time.monotonic()))
-                loaded = event.get("method") == "Page.loadEventFired"
-                _note(visit, event)
 
             async def evaluate(expression: str):
                 result = await call("Runtime.evaluate", session, expression=expression, awaitPromise=True,
@@ -112,6 +107,12 @@ async def _visit(binary: str, url: str, expressions: dict[str, str], timeout: fl
                 if "exceptionDetails" in result:
                     raise RuntimeError(f"{expression[:60]}...: {result['exceptionDetails'].get('text')}")
                 return result["result"].get("value")
+
+            # loaded: this page (not the blank one it replaced), with its scripts run
+            while await evaluate("location.href + ' ' + document.readyState") != f"{url} complete":
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"{url} did not finish loading")
+                await asyncio.sleep(0.05)
 
             images = json.loads(await evaluate(_IMAGES))
             visit.images, visit.broken_images = images["count"], images["broken"]
@@ -121,10 +122,16 @@ async def _visit(binary: str, url: str, expressions: dict[str, str], timeout: fl
                            else "window.scrollTo(0, 0)")
             shot = await call("Page.captureScreenshot", session, format="png")
             visit.screenshot = base64.b64decode(shot["data"])
+            await asyncio.sleep(0.5)  # what the page logged last reaches us
             while not events.empty():
                 _note(visit, events.get_nowait())
-            task.cancel()
-            socket.close()
+            socket.close()  # the reader ends once the closing handshake is done: no socket left open
+            try:
+                await asyncio.wait_for(task, 10)
+            except (asyncio.TimeoutError, asyncio.CancelledError):
+                pass
+            if socket.protocol is not None and socket.protocol.stream is not None:
+                socket.protocol.stream.close()
         finally:
             process.kill()
             process.wait(timeout=30)
