@@ -1196,3 +1196,42 @@ def test_list_of_figures_headings_are_each_captions_first_sentence() -> None:
         assert not title.endswith(("Fig", "Figs")) and len(title) > 20, title
     assert _first_sentence("Fig. 7: the same as Fig. 6 along Y.") == ("Fig. 7: the same as Fig. 6 along Y", "")
     assert _first_sentence("Fig. 3: norms. A cross marks divergence.") == ("Fig. 3: norms", "A cross marks divergence")
+
+
+def _evaluation_counts(text: str) -> dict[str, int]:
+    """"holds in 2, fails in 1 of 3 seeds" -> {"holds": 2, "fails": 1}."""
+    import re
+
+    return {word: int(n) for word, n in re.findall(r"(holds|fails|not evaluable) in (\d+)", text)}
+
+
+def test_every_part_row_s_evaluation_is_its_own_and_agrees_with_its_verdict() -> None:
+    """claims.csv's part rows: the evaluation counts that part's seeds (not the claim's), and the
+    verdict is the majority of them. Three seeds, C3 40% below C2 in two: the part holds in 2 of 3
+    while claim 2 as a whole does not hold in every seed."""
+    from ilcforce.report import verdicts as verdict_rows
+
+    frames = []
+    for seed, c3_level in ((0, 5.5e-6), (1, 5.0e-6), (2, 2e-5)):
+        case = good_case(c3=metrics_frame(sequence(4, c3_level), sequence(3, 0.055), (0.0359, 0.0219)))
+        frames.append(claims.tidy_from_methods(case, seed=seed))
+    parts = claims.judge_claims_over_seeds(pd.concat(frames, ignore_index=True))
+    rows = verdict_rows.claim_rows(parts, source="experiment", name="x", setting="x")
+    part_rows = rows[rows["role"] != verdict_rows.CLAIM_ROW]
+    judged = part_rows[~part_rows["role"].isin(claims.NOT_JUDGED)]
+    assert len(judged) > 10
+    for row in judged.itertuples(index=False):
+        counts = _evaluation_counts(row.evaluation)
+        assert sum(counts.values()) == 3, row.evaluation
+        assert counts.get("holds", 0) == row.seeds_passed, (row.part, row.evaluation, row.seeds_passed)
+        n = counts.get("holds", 0) + counts.get("fails", 0)
+        expected = "not evaluable" if n == 0 else "holds" if 2 * counts.get("holds", 0) > n else "fails"
+        assert row.verdict == expected, (row.claim, row.part, row.verdict, row.evaluation)
+    mixed = judged[(judged["claim"] == 2) & (judged["part"] == "position_before")].iloc[0]
+    assert mixed["evaluation"] == "holds in 2, fails in 1 of 3 seeds" and mixed["verdict"] == "holds"
+    claim2 = judged[judged["claim"] == 2]
+    assert "holds in 3 of 3 seeds" in set(claim2["evaluation"]), "each part counts its own seeds"
+    head = rows[(rows["role"] == verdict_rows.CLAIM_ROW) & (rows["claim"] == 2)].iloc[0]
+    assert head["evaluation"] == parts.loc[parts["claim"] == 2, "claim_frequency"].iloc[0]
+    shown = part_rows[part_rows["role"].isin(claims.NOT_JUDGED)]
+    assert len(shown) and shown["evaluation"].str.startswith("shown, not judged").all()
