@@ -1235,3 +1235,19 @@ def test_every_part_row_s_evaluation_is_its_own_and_agrees_with_its_verdict() ->
     assert head["evaluation"] == parts.loc[parts["claim"] == 2, "claim_frequency"].iloc[0]
     shown = part_rows[part_rows["role"].isin(claims.NOT_JUDGED)]
     assert len(shown) and shown["evaluation"].str.startswith("shown, not judged").all()
+
+
+def test_the_plant_s_changed_parameter_is_read_from_the_plant() -> None:
+    """Claim 4 and the figures name the parameter the plant's change scales: the plant's own (m2 on
+    the 2R arm), the one the configuration names, the paper's m3 on the five-bar."""
+    from ilcforce.plants import changed_parameter
+    from ilcforce.report import sections
+
+    tidy = claims.tidy_from_methods(good_case())
+    for config, parameter in (({"plant": {"model": "serial2r"}}, "m2"), ({"plant": {"model": "fivebar"}}, "m3"),
+                              ({"plant": {"model": "fivebar", "perturbation": {"parameter": "m4"}}}, "m4"),
+                              ({}, "m3")):
+        assert changed_parameter(config) == parameter
+        statement = claims.judge_claims_over_seeds(tidy, config=config).query("claim == 4")["statement"].iloc[0]
+        assert statement.startswith(f"The {parameter} change at j = 10"), statement
+        assert sections.perturbation_label(config) == f"{parameter} x 1.4"

@@ -41,6 +41,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
+from ilcforce.plants import changed_parameter
 from ilcforce.report import paper
 from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY,  # noqa: F401 (re-exported)
                                          SHOWN, _Part, _Seed, _Stop, statement_at)
@@ -137,6 +138,7 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in PARTS}
     roles = {part.key: part.role for part in PARTS}
     rows, claim_rows = [], {}
+    parameter = changed_parameter(config or {})  # the plant's change, as claim 4 names it
     for claim in CLAIMS:
         mine = [part for part in PARTS if part.claim == claim.number]
         verdicts: dict[str, str] = {}
@@ -157,7 +159,7 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
                 verdicts[part.key] = NOT_EVALUABLE
             stat = median_interval(values)  # an infinite ratio (a diverged baseline) is dropped and counted in n
             notes = sorted({r[2] for r in results[part] if r[2]})
-            rows.append({"claim": claim.number, "statement": statement_at(claim, perturbation_iteration),
+            rows.append({"claim": claim.number, "statement": statement_at(claim, perturbation_iteration, parameter),
                          "part": part.key,
                          "part_text": part.text, "role": part.role, "statistic": part.statistic,
                          "median": stat.estimate, "low": stat.low, "high": stat.high,
