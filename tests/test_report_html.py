@@ -143,3 +143,15 @@ def test_the_browser_check_finds_what_it_looks_for(tmp_path: Path) -> None:
     assert any("nope.png" in e for e in visit.errors)
     assert any("boom" in e for e in visit.errors)
     assert any("undefinedThing" in e for e in visit.errors)
+
+
+def test_every_verdict_table_column_is_documented() -> None:
+    """docs/tables.md has a row (name, unit, meaning) for every column of claims.csv and stability.csv."""
+    from ilcforce.report import verdicts
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "tables.md").read_text()
+    claims_part, stability_part = text.split("## stability.csv")
+    for columns, part in ((verdicts.CLAIM_COLUMNS, claims_part), (verdicts.STABILITY_COLUMNS, stability_part)):
+        first_cells = re.findall(r"^\| ([^|]+) \|", part, re.M)
+        names = {name for cell in first_cells for name in re.findall(r"`([^`]+)`", cell)}
+        assert sorted(set(columns) - names) == [], "columns without a row in docs/tables.md"
