@@ -1053,9 +1053,10 @@ def test_index_names_the_methods_that_diverged(tmp_path: Path) -> None:
     write_store(root / "exp" / "c3.h5", "c3", experiment="exp", diverge_at=3)
     write_report(root, tmp_path / "out", formats=())
     index = (tmp_path / "out" / "index.md").read_text(encoding="utf-8")
-    assert "| unstable learning | diverged | warnings |" in index
+    assert "| unstable learning | diverged | fails the task | warnings |" in index
     row = next(line for line in index.splitlines() if line.startswith("| [exp]"))
-    assert row.rstrip(" |").split(" | ")[-2] == "c2 (j = 0), c3 (j = 3)", row
+    assert row.rstrip(" |").split(" | ")[-3] == "c2 (j = 0), c3 (j = 3)", row
+    assert row.rstrip(" |").split(" | ")[-2] == "none", "c1 completes and keeps its task"
 
 
 def test_h_form_match_names_the_closest_form_or_says_none_is_close():
@@ -1251,3 +1252,25 @@ def test_the_plant_s_changed_parameter_is_read_from_the_plant() -> None:
         statement = claims.judge_claims_over_seeds(tidy, config=config).query("claim == 4")["statement"].iloc[0]
         assert statement.startswith(f"The {parameter} change at j = 10"), statement
         assert sections.perturbation_label(config) == f"{parameter} x 1.4"
+
+
+def _frame(position: list[float], force: list[float]) -> pd.DataFrame:
+    frame = pd.DataFrame({"status": "complete", "position_error_2norm": position, "force_error_2norm": force},
+                         index=pd.Index(range(len(position)), name="iteration"))
+    return frame
+
+
+def test_a_method_that_completes_but_loses_the_task_is_said_to() -> None:
+    """After the plant's change at j = 10: re-learning (5x at the change, back by j = 19) does not
+    fail the task; an error that ends 300x its converged level does, and the line gives the numbers."""
+    relearns = _frame([1e-4] * 10 + [5e-4, 3e-4] + [1.2e-4] * 8, [0.1] * 20)
+    assert tables.task_loss(relearns, 10) is None
+    lost = _frame([3e-4] * 10 + [1e-2] * 9 + [0.091], [0.1] * 10 + [44.9] * 10)
+    text = tables.task_loss(lost, 10)
+    assert text.startswith("fails the task: e_P 0.091 m at j = 19, 303x its level before j = 10 (0.0003 m)")
+    assert "e_F 44.9 N at j = 19, 449x" in text
+    # exactly at the stated multiple is not a failure; above it is
+    edge = _frame([1.0] * 10 + [tables.TASK_LOSS_FACTOR] * 10, [1.0] * 20)
+    assert tables.task_loss(edge, 10) is None
+    assert tables.task_loss(_frame([1.0] * 10 + [tables.TASK_LOSS_FACTOR * 1.01] * 10, [1.0] * 20), 10)
+    assert tables.task_loss(_frame([1.0] * 8, [1.0] * 8), 10) is None, "no iteration after the change"

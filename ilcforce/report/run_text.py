@@ -80,12 +80,16 @@ def config_section(experiment) -> list[str]:
     return lines
 
 
-def divergence_lines(experiment, flags: Mapping[str, str]) -> list[str]:
+def divergence_lines(experiment, flags: Mapping[str, str], p: int | None = None) -> list[str]:
+    """One line per method: where it diverged, or that it did not; with the perturbation iteration
+    ``p``, a method that completes its iterations but loses the task says so (tables.task_loss)."""
     lines = []
     for name, method in experiment.methods.items():
         found = tables.divergence(method.metrics)
         if found is None:
             extra = f", but {flags[name]}" if name in flags else ""
+            lost = tables.task_loss(method.metrics, p) if p is not None else None
+            extra += f"; it {lost}" if lost else ""
             lines.append(f"* {name}: no divergence ({len(method.metrics.index)} iterations){extra}")
             continue
         j, time = found
@@ -235,7 +239,10 @@ def report_text(
     lines += ["## Learning stability", ""]
     lines += sections.stability_markdown(growth, flags)
     lines += ["## Divergence", ""]
-    lines += divergence_lines(experiment, flags) or ["No readable store."]
+    lines += [f"A method that completes its iterations {tables.FAILS_THE_TASK} when an error 2-norm at its last "
+              f"iteration after the plant's change is above {tables.TASK_LOSS_FACTOR:g}x its level over the "
+              f"{tables.TASK_LOSS_WINDOW} iterations before it.", ""]
+    lines += divergence_lines(experiment, flags, p) or ["No readable store."]
     lines += ["", "## Implicit-loop fallbacks", ""]
     lines += [
         "Control samples where the implicit acceleration scheme found no real solution and reused the "
