@@ -275,26 +275,48 @@ def plot_switching_gain(
     grid spanning [0, duration] s.
     """
     artists: list[Artist] = []
+    series = []
     for j, alpha in sorted(alpha_by_iteration.items()):
         alpha = np.asarray(alpha, dtype=float).reshape(-1)
-        artists += ax.plot(control_time(alpha.size, duration), alpha, label=f"j = {j}")
+        t = control_time(alpha.size, duration)
+        artists += ax.plot(t, alpha, label=f"j = {j}")
+        series.append((t, alpha))
     ax.set_xlabel("time (s)")
     ax.set_ylabel(rf"learned switching gain $\hat\alpha_j$ ({unit})")
+    # the y range from t >= RANGE_FROM: the spike at t = 0 (the start mismatch) no longer flattens
+    # the settled alpha_hat, the value the findings quote; it is named in the legend
+    note = _range_without_start(ax, series, headroom=0.35) if series else ""
     if artists:
-        ax.legend(ncols=2)
+        handles, texts = ax.get_legend_handles_labels()
+        if note:
+            from matplotlib.lines import Line2D
+
+            handles, texts = [*handles, Line2D([], [], linestyle="none")], [*texts, note.replace("\n", " ")]
+        ax.legend(handles, texts, ncols=3, fontsize="x-small", loc="upper left")
     return artists
 
 
 def plot_switching_gain_mean(
-    ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray], *, unit: str = "N"
+    ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray], *, unit: str = "N", duration: float | None = None,
+    perturbation_iteration: int | None = None, perturbation_label: str = "m3 x 1.4",
 ) -> list[Artist]:
-    """Mean over time and maximum over time of alpha_hat_j against iteration j."""
+    """Mean over time and maximum over time of alpha_hat_j against iteration j; with ``duration``
+    (the control grid's span, s), over t >= RANGE_FROM (settled: the t = 0 spike would be the maximum)."""
     js = sorted(alpha_by_iteration)
-    mean = [float(np.mean(alpha_by_iteration[j])) for j in js]
-    peak = [float(np.max(alpha_by_iteration[j])) for j in js]
+
+    def settled(alpha) -> np.ndarray:
+        alpha = np.asarray(alpha, dtype=float).reshape(-1)
+        return alpha if duration is None else alpha[control_time(alpha.size, duration) >= RANGE_FROM]
+
+    mean = [float(np.mean(settled(alpha_by_iteration[j]))) for j in js]
+    peak = [float(np.max(settled(alpha_by_iteration[j]))) for j in js]
+    over = "over t" if duration is None else f"over t >= {RANGE_FROM * 1e3:.0f} ms"
     artists: list[Artist] = []
-    artists += ax.plot(js, mean, marker="o", color=_color("c3"), label="mean over t")
-    artists += ax.plot(js, peak, marker="s", color=_color("c3"), linestyle=":", label="max over t")
+    artists += ax.plot(js, mean, marker="o", color=_color("c3"), label=f"mean {over}")
+    artists += ax.plot(js, peak, marker="s", color=_color("c3"), linestyle=":", label=f"max {over}")
+    if perturbation_iteration is not None and js and js[0] <= perturbation_iteration <= js[-1]:
+        artists.append(ax.axvline(perturbation_iteration, color="0.4", linestyle="--", linewidth=1.0,
+                                  label=f"{perturbation_label} from j = {perturbation_iteration}"))
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("iteration j")
     ax.set_ylabel(rf"$\hat\alpha_j$ ({unit})")
@@ -412,14 +434,16 @@ def figure_input(
 
 
 def figure_switching_gain(
-    alpha_by_iteration: Mapping[int, np.ndarray], duration: float, *, profiles: Sequence[int] = (), unit: str = "N"
+    alpha_by_iteration: Mapping[int, np.ndarray], duration: float, *, profiles: Sequence[int] = (), unit: str = "N",
+    perturbation_iteration: int | None = None, perturbation_label: str = "m3 x 1.4",
 ) -> Figure:
     """alpha_hat_j(t) for the iterations in ``profiles`` (all if empty), and its mean/max per j."""
-    fig = Figure(figsize=(6.4, 5.0))
+    fig = Figure(figsize=(6.4, 5.0), layout="constrained")
     ax_profiles, ax_mean = fig.subplots(2, 1)
     chosen = {j: a for j, a in alpha_by_iteration.items() if not profiles or j in profiles}
     plot_switching_gain(ax_profiles, chosen, duration, unit=unit)
-    plot_switching_gain_mean(ax_mean, alpha_by_iteration, unit=unit)
+    plot_switching_gain_mean(ax_mean, alpha_by_iteration, unit=unit, duration=duration,
+                             perturbation_iteration=perturbation_iteration, perturbation_label=perturbation_label)
     return fig
 
 

@@ -1,0 +1,100 @@
+"""Figures read right, checked on figures drawn from small real stores: no y range set by the
+samples at t = 0 alone (the start mismatch spikes there), a marker at the plant's change on every
+iteration axis, every iteration or method asked for drawn, and at most 2,000 px a side as saved."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.figure import Figure
+
+from ilcforce import store
+from ilcforce.experiment import run_method
+from ilcforce.report import figures, tables
+from ilcforce.report.figures import RANGE_FROM
+from ilcforce.report.gravity import gravity_figure
+from ilcforce.store.run import open_run
+
+#: The report saves at savefig.dpi (style.mplstyle): 200.
+SAVE_DPI = 200
+MAX_SIDE_PX = 2000
+P = 2  # the plant's change in the small runs
+
+
+def assert_small_enough(fig: Figure) -> None:
+    width, height = fig.get_size_inches() * SAVE_DPI
+    assert max(width, height) <= MAX_SIDE_PX, f"{width:.0f} x {height:.0f} px as saved"
+
+
+def assert_range_not_set_by_the_start(ax) -> None:
+    """Every line's samples at t >= RANGE_FROM lie in the y range, and the range is at most 1.6x
+    their spread (so a spike before RANGE_FROM did not set it; the rest is room for the legend)."""
+    settled = []
+    for line in ax.get_lines():
+        t, y = (np.asarray(a, dtype=float) for a in line.get_data())
+        if t.size < 10:  # a legend proxy or a marker line
+            continue
+        keep = (t >= RANGE_FROM) & np.isfinite(y)
+        settled.append(y[keep])
+    values = np.concatenate(settled)
+    low, high = ax.get_ylim()
+    assert low <= values.min() and values.max() <= high, "a settled sample is off scale"
+    assert high - low <= 1.6 * (values.max() - values.min()) + 1e-12, (
+        f"y range {low:.3g}..{high:.3g} for settled data {values.min():.3g}..{values.max():.3g}")
+
+
+@pytest.fixture(scope="module")
+def serial2r_c3(tmp_path_factory) -> Path:
+    """A short C3 run on the 2R arm (gravity: Theta has its G entries), the plant changed at j = 2."""
+    from ilcforce.config_load import load_config
+
+    config = load_config("serial2r", {"reference.duration": 0.3, "experiment.iterations": 4,
+                                      "plant.perturbation.from_iteration": P})
+    path = tmp_path_factory.mktemp("runs") / "c3.h5"
+    run_method(config, "c3", path)
+    return path
+
+
+def test_the_gravity_figure_answers_its_question_at_the_settled_scale(serial2r_c3: Path) -> None:
+    with figures.report_style():
+        fig = gravity_figure(serial2r_c3, open_run(serial2r_c3).config)
+    assert_small_enough(fig)
+    axes = fig.get_axes()
+    assert len(axes) == 2
+    for ax in axes:
+        assert_range_not_set_by_the_start(ax)
+        assert "% off J^-T G_q" in ax.get_title(), "the title answers 'does C3 learn gravity?'"
+        curves = [line for line in ax.get_lines() if line.get_label().startswith("learned")]
+        assert len(curves) == 3, "first, middle and last iteration drawn"
+        assert len({(line.get_linestyle(), line.get_linewidth()) for line in curves}) == 3, \
+            "each iteration drawn in its own style, so one lying on another stays visible"
+    # a sample before 20 ms off scale is named in the legend, and only then
+    notes = [text.get_text() for text in fig.legends[0].get_texts() if text.get_text().startswith("off scale")]
+    off = 0
+    for ax in axes:
+        low, high = ax.get_ylim()
+        for line in ax.get_lines():
+            t, y = (np.asarray(a, dtype=float) for a in line.get_data())
+            if t.size >= 10:
+                early = y[t < RANGE_FROM]
+                off += int(np.any((early < low) | (early > high)))
+    assert (off > 0) == (len(notes) > 0), (off, notes)
+
+
+def test_the_switching_gain_figure_shows_the_settled_alpha_hat(serial2r_c3: Path) -> None:
+    metrics = store.read_metrics(serial2r_c3)
+    alphas = {j: store.read_memory(serial2r_c3, j)["alpha_hat"] for j in tables.complete_iterations(metrics)}
+    duration = float(store.read_reference(serial2r_c3).index.to_numpy()[-1])
+    with figures.report_style():
+        fig = figures.figure_switching_gain(alphas, duration, perturbation_iteration=P, perturbation_label="m2 x 1.4")
+    assert_small_enough(fig)
+    profiles, mean = fig.get_axes()
+    assert_range_not_set_by_the_start(profiles)
+    assert len([line for line in profiles.get_lines() if line.get_label().startswith("j = ")]) == len(alphas)
+    marker = [line for line in mean.get_lines() if line.get_label() == f"m2 x 1.4 from j = {P}"]
+    assert len(marker) == 1 and list(marker[0].get_xdata()) == [P, P], "a marker at the plant's change"
+    settled_max = max(float(np.max(a[figures.control_time(a.size, duration) >= RANGE_FROM])) for a in alphas.values())
+    peak = [line for line in mean.get_lines() if line.get_label().startswith("max")][0]
+    assert max(peak.get_ydata()) == pytest.approx(settled_max), "the maximum over the settled samples"
