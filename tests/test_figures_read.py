@@ -98,3 +98,33 @@ def test_the_switching_gain_figure_shows_the_settled_alpha_hat(serial2r_c3: Path
     settled_max = max(float(np.max(a[figures.control_time(a.size, duration) >= RANGE_FROM])) for a in alphas.values())
     peak = [line for line in mean.get_lines() if line.get_label().startswith("max")][0]
     assert max(peak.get_ydata()) == pytest.approx(settled_max), "the maximum over the settled samples"
+
+
+def test_fig5_wraps_every_method_into_rows_with_one_number_format() -> None:
+    """Seven methods: four to a row (not one row 4,200 px wide), each drawn with its four
+    iterations in colours that are not the methods' own, and no axis with an additive offset."""
+    import pandas as pd
+    from matplotlib.colors import to_hex
+
+    from ilcforce.controllers import REGISTRY
+
+    t = np.linspace(0.0, 2.0, 201)
+    methods = list(REGISTRY)[:7]
+    assert len(methods) == 7
+    frames = {m: {j: pd.DataFrame({"position_error_x": (k + 1) * 1e-6 * np.sin(t * (j + 1)) + 3e-3,
+                                   "force_error_y": (k + 1) * 0.01 * np.cos(t)}, index=t)
+                  for j in figures.TRACKING_ITERATIONS} for k, m in enumerate(methods)}
+    with figures.report_style():
+        fig = figures.figure_tracking_error(frames)
+        fig.canvas.draw()
+    assert_small_enough(fig)
+    shown = [ax for ax in fig.get_axes() if ax.get_visible()]
+    assert len(shown) == 2 * 7
+    assert sorted(ax.get_title() for ax in shown if ax.get_title()) == sorted(figures.method_label(m) for m in methods)
+    method_colours = {to_hex(f"C{k}") for k in range(10)}
+    for ax in shown:
+        lines = ax.get_lines()
+        assert [line.get_label() for line in lines] == [f"j = {j}" for j in figures.TRACKING_ITERATIONS]
+        assert not {to_hex(line.get_color()) for line in lines} & method_colours
+        offset = ax.yaxis.get_offset_text().get_text()
+        assert "+" not in offset and "\u2212" not in offset.replace("1e\u2212", ""), offset

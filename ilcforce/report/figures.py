@@ -185,6 +185,22 @@ def plot_error_norms(
     return artists
 
 
+def iteration_colour(j: int):
+    """A colour of its own for each of Fig. 5's iterations (TRACKING_ITERATIONS), from a sequential map
+    (dark early, light late): the method colours (C0, C1, ...) stay the methods'."""
+    from matplotlib import colormaps
+
+    if j not in TRACKING_ITERATIONS:
+        return "0.5"
+    shades = colormaps["viridis"](np.linspace(0.0, 0.8, len(TRACKING_ITERATIONS)))
+    return shades[TRACKING_ITERATIONS.index(j)]
+
+
+#: Methods side by side in Fig. 5 before it wraps to another pair of rows (seven in one row made
+#: the figure 4,200 px wide).
+TRACKING_COLUMNS = 4
+
+
 def plot_tracking_error(
     ax: Axes,
     frames_by_iteration: Mapping[int, pd.DataFrame],
@@ -200,8 +216,9 @@ def plot_tracking_error(
     when the figure holds one legend for all its panels."""
     artists: list[Artist] = []
     for j, frame in sorted(frames_by_iteration.items()):
-        artists += ax.plot(_time(frame), frame[column], color=f"C{TRACKING_ITERATIONS.index(j)}"
-                           if j in TRACKING_ITERATIONS else None, label=f"j = {j}")
+        artists += ax.plot(_time(frame), frame[column], color=iteration_colour(j), label=f"j = {j}")
+    # one number format on every panel: a multiplier (x1e-4) where the values are small, never an offset
+    ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 3), useOffset=False)
     ax.set_xlabel("time (s)")
     ax.set_ylabel(column if ylabel is None else ylabel)
     if title:
@@ -367,14 +384,27 @@ def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]], *,
     """
     methods = list(frames)
     n = max(1, len(methods))
-    fig = Figure(figsize=(3.0 * n, 5.6), layout="constrained")
-    axes = np.atleast_2d(fig.subplots(2, n, sharex=True, squeeze=False))
+    columns = min(n, TRACKING_COLUMNS)
+    blocks = -(-n // columns)  # each block: a row of X panels over a row of Y panels
+    fig = Figure(figsize=(2.4 * columns + 0.4, 2.0 * 2 * blocks + 0.7), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(2 * blocks, columns, sharex=True, squeeze=False))
     for k, method in enumerate(methods):
-        plot_tracking_error(axes[0, k], frames[method], "position_error_x",
-                            ylabel="position error X (m)" if k == 0 else "", title=_label(method, labels), legend=False)
-        plot_tracking_error(axes[1, k], frames[method], "force_error_y", ylabel="force error Y (N)" if k == 0 else "",
+        block, column = divmod(k, columns)
+        ax_x, ax_y = axes[2 * block, column], axes[2 * block + 1, column]
+        plot_tracking_error(ax_x, frames[method], "position_error_x",
+                            ylabel="position error X (m)" if column == 0 else "", title=_label(method, labels),
                             legend=False)
-        axes[0, k].set_xlabel("")
+        plot_tracking_error(ax_y, frames[method], "force_error_y", ylabel="force error Y (N)" if column == 0 else "",
+                            legend=False)
+        ax_x.set_xlabel("")
+        if k + columns < n:  # another method below in this column: its time axis serves both
+            ax_y.set_xlabel("")
+        else:  # the lowest panel of its column: its time ticks shown (sharex hid them above the last row)
+            ax_y.xaxis.set_tick_params(labelbottom=True)
+    for k in range(n, blocks * columns):  # the empty places of the last block
+        block, column = divmod(k, columns)
+        axes[2 * block, column].set_visible(False)
+        axes[2 * block + 1, column].set_visible(False)
     handles = {}
     for ax in axes.ravel():
         for handle, label in zip(*ax.get_legend_handles_labels()):

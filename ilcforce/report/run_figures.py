@@ -25,9 +25,9 @@ FIGURES = {
                                 "diverged (it has no value from there on); the dashed line marks the true plant's "
                                 "change. Lower is better.",
     "fig4_force_error_norm": "Fig. 4: the same for the force error e_F (Y), in N.",
-    "fig5_tracking_error": "Fig. 5: the position error X (top row, m) and the force error Y (bottom row, N) "
-                           "against time at j = 0, 5, 10, 15, one column per method; every panel has its own y "
-                           "scale, so compare sizes on the axes.",
+    "fig5_tracking_error": "Fig. 5: the position error X (upper row, m) over the force error Y (lower row, N) "
+                           "against time at j = 0, 5, 10, 15 (dark to light), one column per method (four to a row); "
+                           "every panel has its own y scale, so compare sizes on the axes.",
     "fig6_input_x": "Fig. 6: C1 and C3 at j = 19 (or their last complete iteration): (a) the task-space control "
                     "input X against the desired input (dashed), (b) Delta tau = desired - applied input X, whose "
                     "standard deviation is H (Table 3). Samples before t = 20 ms may lie off scale (noted in "
