@@ -128,3 +128,38 @@ def test_fig5_wraps_every_method_into_rows_with_one_number_format() -> None:
         assert not {to_hex(line.get_color()) for line in lines} & method_colours
         offset = ax.yaxis.get_offset_text().get_text()
         assert "+" not in offset and "\u2212" not in offset.replace("1e\u2212", ""), offset
+
+
+def _tidy(methods=("c1", "c2", "c3"), seeds=3, iterations=8) -> "pd.DataFrame":
+    import pandas as pd
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for m, method in enumerate(methods):
+        for seed in range(seeds):
+            for j in range(iterations):
+                size = (m + 1) * 1e-4 * (1 + rng.random()) / (j + 1)
+                rows.append({"seed": seed, "method": method, "iteration": j, "status": "complete",
+                             "position_error_2norm": size, "force_error_2norm": 100 * size,
+                             "position_error_rms": size, "position_error_max": 3 * size,
+                             "force_error_rms": 100 * size, "force_error_max": 300 * size})
+    return pd.DataFrame(rows)
+
+
+def test_band_figures_mark_the_plant_s_change_and_draw_every_method() -> None:
+    from ilcforce.report import seed_bands, study_figures
+
+    frame = _tidy()
+    with figures.report_style():
+        norm = study_figures.norm_band_figure(frame, "position_error_2norm", "e_P (m)", "Fig. 3",
+                                              perturbation_iteration=4, perturbation_label="m2 x 1.4")
+        over_seeds = seed_bands.figure_fig5_over_seeds(frame, perturbation_iteration=4, perturbation_label="m2 x 1.4")
+    for fig in (norm, over_seeds):
+        assert_small_enough(fig)
+        for ax in fig.get_axes():
+            verticals = [line for line in ax.get_lines()
+                         if len(line.get_xdata()) == 2 and list(line.get_xdata()) == [4, 4]]
+            assert verticals, f"no marker at the plant's change in {ax.get_ylabel()!r}"
+    labels = [text.get_text() for text in norm.get_axes()[0].get_legend().get_texts()]
+    assert "m2 x 1.4 from j = 4" in labels
+    assert all(any(text.startswith(figures.method_label(m)) for text in labels) for m in ("c1", "c2", "c3"))

@@ -86,33 +86,48 @@ def _category_plot(ax, x, stats, method: str, label: str, offset: float) -> np.n
     return stats[:, :5]
 
 
-def norm_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: tuple[str, ...],
-                      flags: Mapping[str, str] | None = None) -> list[Path]:
-    """Figs. 3 and 4 of ONE setting: error 2-norm against iteration, median and bands per method."""
-    written = []
+def norm_band_figure(frame: pd.DataFrame, column: str, ylabel: str, title: str,
+                     flags: Mapping[str, str] | None = None, perturbation_iteration: int | None = None,
+                     perturbation_label: str = "m3 x 1.4") -> Figure:
+    """One error 2-norm of ONE setting against iteration: median and bands per method, and a
+    dashed line at the plant's change (``perturbation_iteration``, labelled ``perturbation_label``)."""
     methods = tables.ordered_methods(frame["method"].unique().tolist())
     n_seeds = frame["seed"].nunique()
+    fig = Figure(figsize=(8.8, 4.0))
+    ax = fig.add_subplot()
+    drawn = []
+    for method in methods:
+        wide = frame[frame["method"] == method].pivot(index="iteration", columns="seed", values=column)
+        wide = wide.sort_index()
+        stats = [_bands(wide.loc[j].to_numpy(dtype=float)) for j in wide.index]
+        n_end = stats[-1][5] if stats else 0
+        label = _label(method) + (" (unstable learning)" if flags and method in flags else "")
+        label += f", {n_end} of {n_seeds} seeds" if n_end != n_seeds else ""
+        drawn.append(_band_plot(ax, wide.index.to_numpy(), stats, method, label))
+    _log_scale(ax, drawn)
+    last = int(frame["iteration"].max()) if len(frame) else 0
+    if perturbation_iteration is not None and 0 < perturbation_iteration <= last:
+        ax.axvline(perturbation_iteration, color="0.4", linestyle="--", linewidth=1.0,
+                   label=f"{perturbation_label} from j = {perturbation_iteration}")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("iteration j")
+    ax.set_ylabel(ylabel)
+    ax.set_title(f"{title} over {n_seeds} seeds")
+    band_legend_entries(ax)
+    ax.legend(fontsize="small", title="line: median over seeds", title_fontsize="small", loc="upper left",
+              bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    return fig
+
+
+def norm_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: tuple[str, ...],
+                      flags: Mapping[str, str] | None = None, perturbation_iteration: int | None = None,
+                      perturbation_label: str = "m3 x 1.4") -> list[Path]:
+    """Figs. 3 and 4 of ONE setting (:func:`norm_band_figure`), saved."""
+    written = []
     for stem, column, ylabel in (("fig3_position_error_norm", "position_error_2norm", "position error 2-norm (m)"),
                                  ("fig4_force_error_norm", "force_error_2norm", "force error 2-norm (N)")):
-        fig = Figure(figsize=(8.8, 4.0))
-        ax = fig.add_subplot()
-        drawn = []
-        for method in methods:
-            wide = frame[frame["method"] == method].pivot(index="iteration", columns="seed", values=column)
-            wide = wide.sort_index()
-            stats = [_bands(wide.loc[j].to_numpy(dtype=float)) for j in wide.index]
-            n_end = stats[-1][5] if stats else 0
-            label = _label(method) + (" (unstable learning)" if flags and method in flags else "")
-            label += f", {n_end} of {n_seeds} seeds" if n_end != n_seeds else ""
-            drawn.append(_band_plot(ax, wide.index.to_numpy(), stats, method, label))
-        _log_scale(ax, drawn)
-        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-        ax.set_xlabel("iteration j")
-        ax.set_ylabel(ylabel)
-        ax.set_title(f"{'Fig. 3' if stem.startswith('fig3') else 'Fig. 4'} over {n_seeds} seeds")
-        band_legend_entries(ax)
-        ax.legend(fontsize="small", title="line: median over seeds", title_fontsize="small", loc="upper left",
-                  bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+        fig = norm_band_figure(frame, column, ylabel, "Fig. 3" if stem.startswith("fig3") else "Fig. 4", flags,
+                               perturbation_iteration, perturbation_label)
         written += save_figure(fig, directory, f"{stem}_{tag}", formats)
     return written
 
