@@ -163,3 +163,18 @@ def test_band_figures_mark_the_plant_s_change_and_draw_every_method() -> None:
     labels = [text.get_text() for text in norm.get_axes()[0].get_legend().get_texts()]
     assert "m2 x 1.4 from j = 4" in labels
     assert all(any(text.startswith(figures.method_label(m)) for text in labels) for m in ("c1", "c2", "c3"))
+
+
+def test_input_figures_leave_no_empty_band_and_keep_the_start_off_scale(serial2r_c3: Path) -> None:
+    """Figs. 6, 7: the free band above the data is as tall as the legend it holds (a fixed 45% left
+    panel (a) 40% empty), the range comes from t >= 20 ms, every method asked for has its row."""
+    last = tables.complete_iterations(store.read_metrics(serial2r_c3))[-1]
+    frame = store.read_iteration(serial2r_c3, last)
+    for axis in ("x", "y"):
+        with figures.report_style():
+            fig = figures.figure_input({"c3": frame, "c1": frame}, axis, iterations={"c3": last, "c1": last})
+        assert_small_enough(fig)
+        axes = fig.get_axes()
+        assert len(axes) == 4, "a row per method, (a) and (b)"
+        for ax in axes:
+            assert_range_not_set_by_the_start(ax)

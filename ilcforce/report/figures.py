@@ -60,6 +60,9 @@ RANGE_FROM = 0.02
 #: Free band above the data of an input panel, as a fraction of the data's range: the legend and the
 #: "off scale" note stand in it, so neither covers a sample (the signals fill their whole range).
 HEADROOM = 0.45
+#: The same band sized to the legend it holds: this much per legend row, plus HEADROOM_BASE (a fixed
+#: 0.45 left a panel 40% empty above a one-row legend; Fig. 7 (a) ran to 50 N for data under 32 N).
+HEADROOM_PER_ROW, HEADROOM_BASE = 0.1, 0.04
 
 
 def _range_without_start(ax: Axes, series: Sequence[tuple[np.ndarray, np.ndarray]], headroom: float = 0.0) -> str:
@@ -444,14 +447,18 @@ def figure_input(
             (ax_input, [(t, frame[f"task_input_{axis}"]), (t, frame[f"desired_task_input_{axis}"])]),
             (ax_delta, [(t, frame[f"desired_task_input_{axis}"] - frame[f"task_input_{axis}"])]),
         ):
-            # the data fill the lower part; the legend (left) and the note (right) share the band above
-            note = _range_without_start(ax, series, headroom=HEADROOM)
+            # the data fill the lower part; the legend, the note its last line, stands in the band above,
+            # which is as tall as the legend's rows
+            note = _range_without_start(ax, series)
             handles, texts = ax.get_legend_handles_labels()
             if note:  # one more line of the legend: a long method label can never cover it
                 from matplotlib.lines import Line2D
 
                 handles, texts = [*handles, Line2D([], [], linestyle="none")], [*texts, note.replace("\n", " ")]
-            ax.legend(handles, texts, loc="upper left", ncols=2 if not note else 1, fontsize="x-small")
+            columns = 2 if not note else 1
+            rows = -(-len(texts) // columns)
+            _range_without_start(ax, series, headroom=HEADROOM_BASE + HEADROOM_PER_ROW * rows)
+            ax.legend(handles, texts, loc="upper left", ncols=columns, fontsize="x-small")
         if k < n - 1:
             ax_input.set_xlabel("")
             ax_delta.set_xlabel("")
