@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
+from ilcforce.config_units import axis_label
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import claims as claims_module
 from ilcforce.report import figures, paper, stability
@@ -196,19 +198,25 @@ def figure_boundary(results) -> Figure | None:
     ax_div.set_ylabel("first diverged iteration j")
     ax_div.set_ylim(-0.5, top + 1)
     ax_div.legend(fontsize="small")
+    ax_div.yaxis.set_major_locator(MaxNLocator(integer=True))  # iterations: no tick at 2.5
     ax_rate.axhline(1.0, color="0.4", linestyle="--", linewidth=1.0)
     ax_rate.set_ylabel("growth rate of settled H_x per iteration")
-    if not rates_drawn:
-        ax_rate.text(0.5, 0.5, stability.NOT_FITTED, transform=ax_rate.transAxes, ha="center", va="center",
-                     fontsize="small", color="0.3")
-    ax_rate.set_xlabel(key)
+    if not rates_drawn:  # an empty panel says nothing: the figure is (a) alone, and its title says why
+        ax_rate.remove()
+        ax_rate = ax_div
+        ax_div.xaxis.set_tick_params(labelbottom=True)
+        ax_div.set_title(f"Stability boundary over {key}\n(growth rate of settled H_x: {stability.NOT_FITTED})",
+                         fontsize="medium")
+        fig.set_size_inches(7.0, 3.6)
+    ax_rate.set_xlabel(axis_label(key))  # with its unit
     if min(xs) > 0:
         ax_rate.set_xscale("log")
         ax_rate.set_xlim(min(xs) / 1.5, max(xs) * 1.5)
     else:
         span = max(xs) - min(xs) or 1.0
         ax_rate.set_xlim(min(xs) - 0.1 * span, max(xs) + 0.1 * span)
-    ax_div.set_title(f"Stability boundary over {key}")
+    if rates_drawn:
+        ax_div.set_title(f"Stability boundary over {key}")
     return fig
 
 
