@@ -204,3 +204,43 @@ def test_the_tuning_history_is_a_grid_and_its_gains_are_readable() -> None:
     assert sorted(ax.get_title() for ax in fig.get_axes() if ax.get_visible()) == sorted(methods)
     table = tuning.tuning_table(frame, 6)
     assert table.set_index("method").loc["c3", "chosen gains"] == "c3.eta = 16.31"
+
+
+def test_sweep_key_numbers_mark_a_setting_where_every_seed_diverged(monkeypatch, tmp_path: Path) -> None:
+    """C3 at Ts = 1 ms: every seed diverged, so it has no number there; a cross at the foot says so
+    (the line used to stop without a mark). H is the settled one, as the claims read it."""
+    import json
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from ilcforce.report import study_figures
+
+    frame = _tidy(methods=("c1", "c3"), seeds=2, iterations=4)
+    frame["chattering_task_y_settled"] = 0.05
+    frame["chattering_task_y"] = 0.5
+    frame["position_error_l2"] = frame["position_error_2norm"]
+    frame["force_error_l2"] = frame["force_error_2norm"]
+    frames = {0: frame.copy(), 1: frame.copy()}
+    lost = frames[1]["method"] == "c3"
+    frames[1].loc[lost, ["position_error_l2", "force_error_l2", "chattering_task_y_settled"]] = np.nan
+    frames[1].loc[lost & (frames[1]["iteration"] == 0), "status"] = "diverged"
+    frames[1] = frames[1][~lost | (frames[1]["iteration"] == 0)]
+    config = json.dumps({"experiment": {"iterations": 4}})
+    results = SimpleNamespace(
+        sweep_keys=["simulation.sample_time"], labelled=False,
+        metrics=pd.concat([f.assign(setting=k) for k, f in frames.items()], ignore_index=True),
+        settings=pd.DataFrame({"setting": [0, 1], "simulation.sample_time": [1e-4, 1e-3],
+                               "config_json": [config, config]}),
+        setting_metrics=lambda k: frames[k])
+    drawn = {}
+    monkeypatch.setattr(study_figures, "save_figure", lambda fig, d, stem, f: drawn.setdefault(stem, fig) and [])
+    with figures.report_style():
+        study_figures.sweep_figures(results, tmp_path, ("png",))
+    fig = drawn["sweep_key_numbers"]
+    assert_small_enough(fig)
+    for ax in fig.get_axes():
+        crosses = [line for line in ax.get_lines() if line.get_marker() == "x" and len(line.get_xdata())]
+        assert [list(line.get_xdata()) for line in crosses] == [[1e-3]], ax.get_ylabel()
+    assert "settled" in fig.get_axes()[-1].get_ylabel()
+    assert any("no seed has the number" in t.get_text() for t in fig.get_axes()[0].get_legend().get_texts())

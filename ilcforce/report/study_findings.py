@@ -203,6 +203,7 @@ def figure_boundary(results) -> Figure | None:
     ax_rate.set_ylabel("growth rate of settled H_x per iteration")
     if not rates_drawn:  # an empty panel says nothing: the figure is (a) alone, and its title says why
         ax_rate.remove()
+        ax_div.set_subplotspec(ax_div.get_subplotspec().get_gridspec()[:, 0])  # (a) takes the whole figure
         ax_rate = ax_div
         ax_div.xaxis.set_tick_params(labelbottom=True)
         ax_div.set_title(f"Stability boundary over {key}\n(growth rate of settled H_x: {stability.NOT_FITTED})",
