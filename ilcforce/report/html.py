@@ -265,7 +265,8 @@ def write_html(out_dir: Path) -> HtmlReport | None:
                      if (out_dir / p).is_file()]
     converter = _Converter(out_dir, pages)
     by_group: dict[str, list[tuple[str, str]]] = {key: [] for key, _ in GROUPS}
-    for page in pages:
+    folders = list(dict.fromkeys(posixpath.dirname(page) for page in pages))  # in the order first linked
+    for page in sorted(pages, key=lambda p: folders.index(posixpath.dirname(p))):  # a folder's pages together
         by_group[_group(page)].append((page, _anchor(page)))
     by_group["summary"] += [(page, _anchor(page, "summary")) for page in summary_extra]
     nav, body = [], []
