@@ -1276,3 +1276,13 @@ def test_a_method_that_completes_but_loses_the_task_is_said_to() -> None:
     assert tables.task_loss(edge, 10) is None
     assert tables.task_loss(_frame([1.0] * 10 + [tables.TASK_LOSS_FACTOR * 1.01] * 10, [1.0] * 20), 10)
     assert tables.task_loss(_frame([1.0] * 8, [1.0] * 8), 10) is None, "no iteration after the change"
+
+
+def test_a_study_row_says_how_many_seeds_fail_the_task() -> None:
+    from ilcforce.report.study_findings import _task_loss_text
+
+    lost = _frame([3e-4] * 10 + [1e-2] * 10, [0.1] * 20)
+    kept = _frame([3e-4] * 20, [0.1] * 20)
+    cells = [f.reset_index().assign(seed=s, method="c1") for s, f in enumerate((lost, lost, kept))]
+    assert _task_loss_text(pd.concat(cells, ignore_index=True), 10) == "; fails the task in 2 of 3"
+    assert _task_loss_text(cells[2], 10) == ""

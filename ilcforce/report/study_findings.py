@@ -60,6 +60,16 @@ def _divergence_text(div: pd.DataFrame) -> str:
     return f"j = {format_interval(median_interval(div['diverged_at']))} ({k} of {n} seeds)"
 
 
+def _task_loss_text(per_method: pd.DataFrame, perturbation_iteration: int) -> str:
+    """"; fails the task in k of n seeds" (seeds that completed but lost the task after the plant's
+    change, :func:`ilcforce.report.tables.task_loss`), or "" when none did."""
+    from ilcforce.report.tables import FAILS_THE_TASK, divergence, task_loss
+
+    seeds = [cell.set_index("iteration").sort_index() for _seed, cell in per_method.groupby("seed", sort=False)]
+    lost = sum(1 for cell in seeds if divergence(cell) is None and task_loss(cell, perturbation_iteration))
+    return f"; {FAILS_THE_TASK} in {lost} of {len(seeds)}" if lost else ""
+
+
 def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int, iterations: int,
                  deterministic: bool = False, config: dict | None = None
                  ) -> tuple[list[dict], pd.DataFrame, dict, pd.DataFrame]:
@@ -77,7 +87,8 @@ def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int, iterations
     j_key = min(paper.CHATTERING_ITERATION, iterations - 1)
     rows = []
     for method, per_method in frame.groupby("method", sort=False):
-        row = {"method": method, "divergence": _divergence_text(divergence[divergence["method"] == method]),
+        row = {"method": method, "divergence": _divergence_text(divergence[divergence["method"] == method])
+               + _task_loss_text(per_method, perturbation_iteration),
                "unstable learning": (flags.get(str(method), "no").split(": ", 1)[-1] if str(method) in fitted
                                      else stability.NOT_FITTED)}
         for column, label in KEY_COLUMNS:
