@@ -244,3 +244,19 @@ def test_sweep_key_numbers_mark_a_setting_where_every_seed_diverged(monkeypatch,
         assert [list(line.get_xdata()) for line in crosses] == [[1e-3]], ax.get_ylabel()
     assert "settled" in fig.get_axes()[-1].get_ylabel()
     assert any("no seed has the number" in t.get_text() for t in fig.get_axes()[0].get_legend().get_texts())
+
+
+def test_error_norms_that_coincide_both_show(serial2r_c3: Path) -> None:
+    """Two methods with the same numbers (C1 and SMC-BL after the 2R arm's change): the one drawn
+    later is narrower, so the earlier one's rim shows around it; every method is drawn."""
+    metrics = store.read_metrics(serial2r_c3)
+    with figures.report_style():
+        fig = figures.figure_error_norm({"c1": metrics, "smc-bl": metrics.copy()}, "position_error_2norm", "e_P (m)",
+                                        perturbation_iteration=P, perturbation_label="m2 x 1.4")
+    assert_small_enough(fig)
+    ax = fig.get_axes()[0]
+    first, second = [line for line in ax.get_lines() if line.get_marker() == "o"][:2]
+    assert np.array_equal(first.get_ydata(), second.get_ydata())
+    assert second.get_markersize() < first.get_markersize() and second.get_linewidth() < first.get_linewidth()
+    assert second.get_zorder() > first.get_zorder()
+    assert any(list(line.get_xdata()) == [P, P] for line in ax.get_lines()), "a marker at the plant's change"

@@ -23,7 +23,8 @@ FIGURES = {
     "fig3_position_error_norm": "Fig. 3: the paper's 2-norm of the position error e_P (X) at each iteration j, one "
                                 "line per method, log scale. A cross above the data marks where a method "
                                 "diverged (it has no value from there on); the dashed line marks the true plant's "
-                                "change. Lower is better.",
+                                "change. Each method is drawn a little narrower than the one before it, so where two coincide the "
+                                "earlier one shows as a rim. Lower is better.",
     "fig4_force_error_norm": "Fig. 4: the same for the force error e_F (Y), in N.",
     "fig5_tracking_error": "Fig. 5: the position error X (upper row, m) over the force error Y (lower row, N) "
                            "against time at j = 0, 5, 10, 15 (dark to light), one column per method (four to a row); "
