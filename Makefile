@@ -88,7 +88,7 @@ reproduce: $(STAMP) aot ## run every experiment (every registered method, in par
 	$(MAKE) --no-print-directory -j $(JOBS) -O stores
 	$(MAKE) --no-print-directory studies
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
-	@echo "report: $(RESULTS)/report/index.md"
+	@echo "report: $(RESULTS)/report/index.html (open it in a browser; the Markdown pages beside it: index.md)"
 
 findings: $(STAMP) ## copy the report's generated findings (results/report/findings.md) into docs/findings.md
 	$(PY) -m ilcforce.report.readme update docs/findings.md $(RESULTS)/report/findings.md
