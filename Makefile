@@ -98,7 +98,7 @@ reproduce: $(STAMP) aot ## run every experiment (every registered method, in par
 	$(MAKE) --no-print-directory -j $(JOBS) -O stores
 	$(MAKE) --no-print-directory studies
 	$(VENV)/bin/ilcforce report --results $(RESULTS) --out $(RESULTS)/report
-	@echo "report: $(RESULTS)/report/index.md"
+	@echo "report: $(RESULTS)/report/index.html (open it in a browser; the Markdown pages beside it: index.md)"
 
 # The long runs (experiments/long/): every method over 1,000 iterations on 10 held-out seeds and the growth
 # test checked against 300-iteration truth. Not part of `make reproduce` (about 30 minutes on 2 cores); its

@@ -28,7 +28,7 @@ _PUBLIC = {
     "ConfigError": ("ilcforce.config", "ConfigError"),
     "METHODS": ("ilcforce.controllers", "REGISTRY"),
     "PLANTS": ("ilcforce.plants", "MODELS"),
-    "run_method": ("ilcforce.experiment", "run_method"),
+    "run_method": ("ilcforce.experiment", "api_run_method"),  # refusals name overwrite=True, not --overwrite
     "simulate_iterations": ("ilcforce.experiment", "simulate_iterations"),
     "iteration_metrics": ("ilcforce.metrics", "iteration_metrics"),
     "Run": ("ilcforce.store.run", "Run"),

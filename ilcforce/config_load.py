@@ -25,7 +25,7 @@ from ilcforce.config import Config, ConfigError
 from ilcforce.config_ranges import MAX_RUN_BYTES, MAX_STEPS_PER_ITERATION, MAX_STRING, range_of
 from ilcforce.controllers import REGISTRY
 from ilcforce.plants import UnreachableError, make_plant
-from ilcforce.tomlfile import parse_toml, read_toml
+from ilcforce.tomlfile import parse_toml, read_toml, resolve_toml
 
 
 # ------------------------------------------------------------------------------------------------
@@ -360,7 +360,7 @@ def _flat(tree: dict, prefix: str = "") -> dict[str, object]:
 
 def load_config(path: Path | str | None = None, overrides: dict[str, object] | None = None, *,
                 note_overrides: bool = True) -> Config:
-    """Load ``path`` (None: the paper's setup), apply dotted ``overrides``, validate everything.
+    """Load ``path`` (None: the paper's setup; a bare name such as ``"serial2r"``: the shipped file), apply dotted ``overrides``, validate everything.
 
     With ``note_overrides`` (the default) the experiment's description also says what the overrides
     changed (``"The paper's setup (...), with c3.eta = 2 (was 5)"``), so a stored run says what it
@@ -370,7 +370,7 @@ def load_config(path: Path | str | None = None, overrides: dict[str, object] | N
     file_data: dict = {}
     overrides = overrides or {}
     if path is not None:
-        path = Path(path)
+        path = resolve_toml(path)  # a shipped experiment by its bare name: -c serial2r
         data, _ = read_toml(path, "config file", ConfigError)
         file_data = copy.deepcopy(data)
         _name_after_file(data, path)

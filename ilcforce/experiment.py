@@ -247,6 +247,27 @@ def _iterations(config: Config, controller, first: int, memory: dict | None,
                 return
 
 
+#: The command line's words in a store's refusal, and what a Python caller passes instead.
+_PYTHON_WORDS = (("--overwrite", "overwrite=True"), ("--resume", "resume=True"), ("--out", "out"))
+
+
+def api_run_method(config: Config, method: str, out: Path, **options) -> RunSummary:
+    """:func:`run_method` as ``ilcforce.run_method``: the same run, with a refusal that names the
+    keyword arguments a Python caller passes (``overwrite=True replaces it or resume=True continues
+    it``) instead of the command line's flags. Same exceptions, same classes."""
+    from ilcforce.store import StoreError
+
+    try:
+        return run_method(config, method, out, **options)
+    except StoreError as error:
+        text = str(error)
+        for flag, keyword in _PYTHON_WORDS:
+            text = text.replace(flag, keyword)
+        if text == str(error):
+            raise
+        raise type(error)(text) from None
+
+
 def run_method(config: Config, method: str, out: Path, *, overwrite: bool = False, resume: bool = False,
                command: str = "", progress: Callable[[IterationRecord, dict], None] | None = None,
                stop_requested: Callable[[], bool] | None = None, chunk_steps: int | None = None,

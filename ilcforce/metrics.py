@@ -10,7 +10,7 @@ setup) from ``record.log``:
   columns is the same as taking the selected axis only:
 
   - ``*_2norm``: the paper's "2-norm" ``sqrt(sum_k sum_i e_i(t_k)^2)``. It grows with the number
-    of samples; it is the definition whose magnitudes match Table 2 of the paper.
+    of samples; of these norms it is the one on the scale of the paper's Table 2.
   - ``*_l2``: the grid-independent L2 norm ``sqrt(dt * sum_k sum_i e_i(t_k)^2)``, ``dt`` the
     log spacing (s); units m s^1/2 or N s^1/2 (tabulated as the signal's unit).
   - ``*_rms``: ``sqrt(mean_k sum_i e_i(t_k)^2)``.

@@ -1,5 +1,6 @@
 """Reading a user's TOML file (an experiment or a study) with one clear line for every way it can fail;
-writing a configuration back as TOML (``ilcforce config``)."""
+finding a shipped experiment file by its name (``-c serial2r``); writing a configuration back as TOML
+(``ilcforce config``)."""
 
 from __future__ import annotations
 
@@ -15,6 +16,40 @@ MAX_TOML_BYTES = 4 * 1024 * 1024
 #: 500 tables deep parsed (tomllib builds it without recursion) and then broke every recursive walk
 #: of the result with a RecursionError traceback.
 MAX_TOML_DEPTH = 32
+
+
+def shipped_folder() -> Path | None:
+    """The folder of the shipped experiment files: inside the installed package (a wheel installs
+    them as ``ilcforce/experiments/``), else the source checkout's ``experiments/`` beside the
+    package (a clone, or an editable install); None when neither exists."""
+    package = Path(__file__).resolve().parent
+    for folder in (package / "experiments", package.parent / "experiments"):
+        if folder.is_dir():
+            return folder
+    return None
+
+
+def shipped_names() -> list[str]:
+    """The names of the shipped experiment and study files (``paper``, ``serial2r``, ...), sorted."""
+    folder = shipped_folder()
+    return sorted(p.stem for p in folder.glob("*.toml")) if folder is not None else []
+
+
+def resolve_toml(path: Path | str) -> Path:
+    """``path`` itself when it exists or names a folder; else, when it is a bare name (no folder)
+    of a shipped file (``serial2r`` or ``serial2r.toml``; ``serial2r-tune`` in ``tuning/``), that shipped file; else ``path``
+    unchanged, so the reader names what the user wrote."""
+    path = Path(path)
+    if path.exists() or path.is_symlink() or len(path.parts) != 1:
+        return path
+    folder = shipped_folder()
+    if folder is None:
+        return path
+    name = path.name if path.suffix == ".toml" else f"{path.name}.toml"
+    for candidate in (folder / name, folder / "tuning" / name):  # tuning files keep a folder of their own
+        if candidate.is_file():
+            return candidate
+    return path
 
 
 def _depth(node) -> int:
@@ -64,7 +99,9 @@ def read_toml(path: Path, what: str, error: type[Exception]) -> tuple[dict, str]
     if not path.exists():
         if path.is_symlink():
             raise error(f"{what} {path} is a symbolic link that leads nowhere (dangling or a loop)")
-        raise error(f"{what} {path} does not exist")
+        names = shipped_names() if len(path.parts) == 1 else []
+        hint = f" (shipped experiments, usable by name: {', '.join(names)})" if names else ""
+        raise error(f"{what} {path} does not exist{hint}")
     if path.is_dir():
         raise error(f"{what} {path} is a directory, not a TOML file")
     if not path.is_file():

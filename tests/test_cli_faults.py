@@ -175,7 +175,7 @@ def test_one_value_written_three_ways_is_one_variant():
     assert samerun.variant_folder("paper", {"wall.stiffness": 1e20}) == "paper--wall.stiffness=1e+20"
 
 
-# -- found by an attack on the ninth session's change ---------------------------------------------
+# -- found by attacking the CLI's fault handling ---------------------------------------------------
 
 
 def _entry(*args: str, **kwargs) -> subprocess.CompletedProcess:

@@ -4,7 +4,7 @@ What the parallel path must keep from the sequential one: a Ctrl-C (to the paren
 sends it) leaves every method's store valid with its finished iterations and exits 130 with one
 line; `compare` then resumes each store; a worker that dies is reported in one line, exit 2. That
 the stored numbers equal a sequential run's is pinned by tests/test_reference_run.py (the reference
-was written by the sequential compare of 0550c53).
+was written by the sequential compare of the code before it ran in parallel).
 """
 
 from __future__ import annotations

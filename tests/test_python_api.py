@@ -121,3 +121,19 @@ def test_notebook_spellings(tmp_path: Path):
         run[3]
     with pytest.raises(AttributeError, match="methods' gains: c1, c2, c3"):
         run.config.c9
+
+
+def test_a_python_caller_is_told_the_keyword_not_the_flag(tmp_path: Path, short_config):
+    """An existing store refused to ilcforce.run_method names overwrite=True and resume=True (the
+    command line's refusal names --overwrite and --resume)."""
+    import ilcforce
+    from ilcforce.store import StoreExistsError
+
+    config = short_config(**{"experiment.iterations": 1})
+    path = tmp_path / "c1.h5"
+    ilcforce.run_method(config, "c1", path)
+    with pytest.raises(StoreExistsError) as refused:
+        ilcforce.run_method(config, "c1", path)
+    message = str(refused.value)
+    assert "overwrite=True" in message and "resume=True" in message and "--" not in message, message
+    ilcforce.run_method(config, "c1", path, overwrite=True)  # and the keyword does what it says

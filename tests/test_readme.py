@@ -40,13 +40,26 @@ def _run_all(commands: list[str], cwd: Path) -> None:
         assert "Traceback" not in done.stderr, f"{command}\n{done.stderr}"
 
 
+def _docs_api_snippet() -> str:
+    text = (ROOT / "docs" / "api.md").read_text(encoding="utf-8")
+    match = re.search(r"```python\n(.*?)```", text, re.S)
+    assert match, "docs/api.md has no python example"
+    return match.group(1)
+
+
 def test_the_usage_examples_run_as_written_in_order(tmp_path):
+    """The README's usage block, then docs/api.md's example twice in the same folder (examples run
+    in any order and again): everything they write stays under results/mine/."""
     shutil.copytree(ROOT / "experiments", tmp_path / "experiments")
     commands = _commands(_block("readme-usage", "sh"))
     assert any(" simulate " in c for c in commands) and any(" report " in c for c in commands)
     _run_all(commands, tmp_path)
     assert (tmp_path / "results" / "mine" / "report" / "index.md").is_file()
-    assert not (tmp_path / "results" / "paper").exists()  # your own runs stay in results/mine
+    assert (tmp_path / "results" / "mine" / "report" / "index.html").is_file()
+    (tmp_path / "api_example.py").write_text(_docs_api_snippet(), encoding="utf-8")
+    _run_all([f"{sys.executable} api_example.py"] * 2, tmp_path)
+    assert (tmp_path / "results" / "mine" / "api-c3-eta2.h5").is_file()
+    assert sorted(p.name for p in (tmp_path / "results").iterdir()) == ["mine"]  # your own runs stay there
 
 
 def test_the_study_example_runs_as_written(tmp_path):
@@ -55,5 +68,6 @@ def test_the_study_example_runs_as_written(tmp_path):
     commands = [c for c in _commands(_block("readme-study", "sh")) if "paper-mc" not in c]
     assert len(commands) == 2
     _run_all(commands, tmp_path)
-    table = (tmp_path / "results" / "my-sweep.csv").read_text(encoding="utf-8").splitlines()
+    table = (tmp_path / "results" / "mine" / "my-sweep.csv").read_text(encoding="utf-8").splitlines()
+    assert sorted(p.name for p in (tmp_path / "results").iterdir()) == ["mine"], "a study example wrote outside results/mine"
     assert len(table) > 1 + 2 * 2 * 2  # a header, then rows for 2 methods x 2 seeds x 2 sample times

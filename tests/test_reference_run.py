@@ -4,17 +4,17 @@ Speed work (lazy imports, parallel ``compare``, cheaper HDF5 writes, compiled ta
 a single stored number. ``tests/data/reference_run.npz`` holds every numeric (and string) dataset of
 the stores that ``ilcforce compare`` writes for c1, c2, c3 over a shrunk paper setup (3 iterations,
 a 0.2 s reference, the m3 perturbation from iteration 2 so both the nominal and the perturbed plant
-are exercised), as produced by the code at commit 0550c53 (before the speed work). The test runs the
+are exercised), as produced by the code before the speed work. The test runs the
 real entry point in a fresh process and compares every reference dataset with ``np.array_equal``
 (NaN equal to NaN where the reference has NaN): bit for bit, no tolerance.
 
 Bit for bit holds on one kind of host. NumPy computes float64 sin, cos and exp with its own SIMD code
 (SVML) on a CPU with AVX-512 and with the C library's elsewhere, which differ in the last bit; the
 reference trajectory picks that up and the loop carries it on (measured: 119 of 225 datasets differ
-by 1e-19 to 6.5e-14 between the two). So there is one reference per kind, both from commit 0550c53:
+by 1e-19 to 6.5e-14 between the two). So there is one reference per kind, both from that code:
 ``reference_run.npz`` made on an AVX-512 host, ``reference_run_no_avx512.npz`` on an AMD EPYC with
 AVX2 and FMA but no AVX-512 (on which NumPy's sin/cos/exp equal glibc's, element for element), and
-a run must equal one of them exactly. HEAD and 0550c53 give identical numbers on each host.
+a run must equal one of them exactly. This code and that one give identical numbers on each host.
 
 If a number changes on purpose (a fix to the physics, a new definition), regenerate the reference
 deliberately, from the commit that makes the change, and say so in that commit:

@@ -43,7 +43,8 @@ def report(
             Path(f).is_relative_to(Path(target) / "tuning") for f in summary.files):
         raise CliError(f"no usable ilcforce stores under {results}")
     done = [*summary.experiments, *(f"study {name}" for name in summary.studies)] or ["the tuning stores"]
-    _say(f"report for {', '.join(done)} written to {target}/index.md")
+    page = f" and {summary.html.path.name} ({summary.html.size_text()})" if summary.html is not None else ""
+    _say(f"report for {', '.join(done)} written to {target}/index.md{page}")
 
 
 @app.command()

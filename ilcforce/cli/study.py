@@ -95,10 +95,11 @@ def study(
     """Run studies (seeds x settings x methods) on Dask; finished cells are stored and never rerun."""
     from ilcforce.study import load_study, run_study
     from ilcforce.study.runner import SharedClient, check_store
+    from ilcforce.tomlfile import resolve_toml
 
     # SIGTERM and Ctrl-C: the entry point's stops.stop_signals raise KeyboardInterrupt here
     try:
-        specs = [load_study(file) for file in files]  # every file valid before any cell runs
+        specs = [load_study(resolve_toml(file)) for file in files]  # every file valid before any cell runs
         names = [spec.name for spec in specs]
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:

@@ -44,9 +44,10 @@ def tune_command(file: Path | str, *, scheduler: str | None = None, workers: int
     from ilcforce.tune.runner import run_tuning
     from ilcforce.tune.spec import TuneError, load_tuning
     from ilcforce.store.tuning import TuningStoreError
+    from ilcforce.tomlfile import resolve_toml
 
     try:
-        tuning = load_tuning(file)
+        tuning = load_tuning(resolve_toml(file))  # a shipped tuning file by its bare name
         summary = run_tuning(tuning, results, workers=workers, scheduler=scheduler, overwrite=overwrite,
                              timeout=timeout, command=command, output=Path(output) if output else None,
                              progress=None if quiet else lambda p: _line(progress_line(tuning.name, p), stderr=True))

@@ -38,10 +38,32 @@ def param_names(model: str) -> tuple[str, ...]:
     return _module(model).PARAM_NAMES
 
 
+def perturbed_parameter(model: str) -> str:
+    """The parameter ``model``'s perturbation changes unless the configuration names another
+    (``plant.perturbation.parameter``): the five-bar's m3 (the paper's), the 2R arm's m2."""
+    if model not in MODELS:
+        raise ValueError(f"plant.model must be one of {', '.join(MODELS)}, got {model!r}")
+    return MODELS[model][3]
+
+
+def changed_parameter(config) -> str:
+    """The parameter the true plant's change scales, read from a configuration in its TOML layout
+    (a mapping, as a store keeps it): ``plant.perturbation.parameter``, else the model's own
+    (:func:`perturbed_parameter`; the five-bar's when the configuration names no model)."""
+    plant = config.get("plant", {}) if hasattr(config, "get") else {}
+    plant = plant if hasattr(plant, "get") else {}
+    change = plant.get("perturbation", {})
+    parameter = change.get("parameter") if hasattr(change, "get") else None
+    if parameter:
+        return str(parameter)
+    model = str(plant.get("model", "fivebar"))
+    return perturbed_parameter(model if model in MODELS else "fivebar")
+
+
 def make_plant(params) -> Plant:
     """The plant object for a parameters instance of any model."""
     return plant_class(params.model)(params)
 
 
 __all__ = ["MODELS", "Plant", "PlantKernels", "UnreachableError", "plant_class", "params_class",
-           "param_names", "make_plant"]
+           "param_names", "make_plant", "perturbed_parameter", "changed_parameter"]

@@ -33,7 +33,7 @@ import pandas as pd
 
 from ilcforce import store
 from ilcforce.report import claims as claims_module
-from ilcforce.report import long_run, paper, pool, readme, sections, stability, table_write, tables, tasks
+from ilcforce.report import html, long_run, paper, pool, readme, sections, stability, table_write, tables, tasks
 from ilcforce.report import verdicts as verdict_rows
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.study import count_text
@@ -70,6 +70,7 @@ class ReportSummary:
     files: tuple[Path, ...]
     warnings: tuple[str, ...]
     studies: tuple[str, ...] = ()  # studies reported (ilcforce.report.study), the paper's Monte Carlo first
+    html: Any = None  # the one-page HTML report (ilcforce.report.html.HtmlReport), None when not written
 
     @property
     def index(self) -> Path:
@@ -247,7 +248,9 @@ def _write_experiment(
     summary.attrs["flags"] = dict(flags)
     summary.attrs["claim_rows"] = claim_rows.to_dict("list")
     summary.attrs["stability_rows"] = stability_rows.to_dict("list")
-    summary.attrs["divergence"] = _divergence_lines(experiment, {})
+    summary.attrs["divergence"] = _divergence_lines(experiment, {}, p)
+    summary.attrs["task_loss"] = {m: lost for m, frame in metrics.items()
+                                  if tables.divergence(frame) is None and (lost := tables.task_loss(frame, p))}
     summary.attrs["diverged"] = {m: found[0] for m, frame in metrics.items()
                                  if (found := tables.divergence(frame)) is not None}
     # the iterations the run asked for (a diverged method stops early)
@@ -399,17 +402,21 @@ def write_report(
     findings = out_dir / "findings.md"  # experiment files as written only: a user's variant is not the README's
     write_text_whole(findings, readme.findings_markdown(
         {name: {"description": frame.attrs.get("description", ""), "diverged": frame.attrs.get("diverged", {}),
-                "iterations": frame.attrs.get("iterations", 0)}
+                "iterations": frame.attrs.get("iterations", 0), "task_loss": frame.attrs.get("task_loss", {})}
          for name, frame in verdicts.items() if not frame.attrs.get("variant")}, studies,
         claims=verdict_rows.read_back(out_dir / "claims.csv"),
         stability=verdict_rows.read_back(out_dir / "stability.csv")))
     written.append(findings)
+    page = html.write_html(out_dir)  # last: it is made of the Markdown pages written above
+    if page is not None:
+        written.append(page.path)
     return ReportSummary(
         out_dir=out_dir,
         experiments=tuple(sorted(verdicts)),
         files=tuple(written),
         warnings=tuple(warnings),
         studies=reported,
+        html=page,
     )
 
 
@@ -467,6 +474,8 @@ def _index_text(
                 # column, and "unstable learning: none" no longer reads as "all was well"
                 diverged = claims.attrs.get("diverged", {})
                 row["diverged"] = ", ".join(f"{m} (j = {j})" for m, j in diverged.items()) or "none"
+                # completed every iteration but lost the task after the plant's change (tables.task_loss)
+                row[tables.FAILS_THE_TASK] = ", ".join(claims.attrs.get("task_loss", {})) or "none"
                 row["warnings"] = len(experiment_warnings.get(name, []))
                 rows.append(row)
             return table_write.markdown_table(pd.DataFrame(rows))

@@ -133,17 +133,19 @@ CLAIMS: tuple[Claim, ...] = (
 )
 
 
-def statement_at(claim: Claim, perturbation_iteration: int) -> str:
-    """The claim as stated, plus where it is judged when a setting changes m3 at another iteration
-    than the paper's j = 10 (claims 1 and 4 are about that change)."""
+def statement_at(claim: Claim, perturbation_iteration: int, parameter: str = "m3") -> str:
+    """The claim as stated, naming the parameter this setting's plant changes (``parameter``: the
+    paper's m3 on the five-bar, m2 on the 2R arm), plus where it is judged when a setting changes
+    the plant at another iteration than the paper's j = 10 (claims 1 and 4 are about that change)."""
+    statement = claim.statement.replace("The m3 change", f"The {parameter} change")
     if claim.number in (1, 4) and perturbation_iteration != paper.PERTURBATION_ITERATION:
-        where = f"{claim.statement} Judged here at this setting's change of the plant, j = {perturbation_iteration}."
+        where = f"{statement} Judged here at this setting's change of the plant, j = {perturbation_iteration}."
         if claim.number == 1 and perturbation_iteration <= 1:
             first = perturbation_iteration + RELEARN
             where += (f" The plant is changed from the start, so C1's nominal model is wrong in every iteration: "
                       f"judged over j = {first}..{first + CONVERGED_WINDOW - 1}.")
         return where
-    return claim.statement
+    return statement
 
 
 class _Stop(Exception):

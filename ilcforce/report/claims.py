@@ -51,6 +51,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
+from ilcforce.plants import changed_parameter
 from ilcforce.report import paper
 from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY,  # noqa: F401 (re-exported)
                                          SHOWN, _Part, _Seed, _Stop, statement_at)
@@ -187,6 +188,7 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in PARTS}
     roles = {part.key: part.role for part in PARTS}
     rows, claim_rows = [], {}
+    parameter = changed_parameter(config or {})  # the plant's change, as claim 4 names it
     for claim in CLAIMS:
         mine = [part for part in PARTS if part.claim == claim.number]
         verdicts: dict[str, str] = {}
@@ -211,7 +213,7 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
             if diverged:
                 first = next(r[2] for r in results[part] if r[3])
                 notes = [f"{first} ({diverged} of {len(contexts)} seeds diverged)"] + [x for x in notes if x != first]
-            rows.append({"claim": claim.number, "statement": statement_at(claim, perturbation_iteration),
+            rows.append({"claim": claim.number, "statement": statement_at(claim, perturbation_iteration, parameter),
                          "part": part.key,
                          "part_text": part.text, "role": part.role, "statistic": part.statistic,
                          "median": stat.estimate, "low": stat.low, "high": stat.high,

@@ -60,6 +60,9 @@ RANGE_FROM = 0.02
 #: Free band above the data of an input panel, as a fraction of the data's range: the legend and the
 #: "off scale" note stand in it, so neither covers a sample (the signals fill their whole range).
 HEADROOM = 0.45
+#: The same band sized to the legend it holds: this much per legend row, plus HEADROOM_BASE (a fixed
+#: 0.45 left a panel 40% empty above a one-row legend; Fig. 7 (a) ran to 50 N for data under 32 N).
+HEADROOM_PER_ROW, HEADROOM_BASE = 0.1, 0.04
 
 
 def _range_without_start(ax: Axes, series: Sequence[tuple[np.ndarray, np.ndarray]], headroom: float = 0.0) -> str:
@@ -148,11 +151,13 @@ def plot_error_norms(
     same iteration are stacked, one under the other, so none hides another (a method that diverged
     at j = 0 has no point, and the cross is what shows it). A grey dashed line marks
     ``perturbation_iteration`` (None: none), labelled ``perturbation_label`` (the configuration's
-    change, e.g. "m2 x 1.4"). The legend stands outside the axes, on the right, off the data.
+    change, e.g. "m2 x 1.4"). The legend stands outside the axes, on the right, off the data. Each
+    method is drawn a little narrower than the one before it, so one lying on another (C1 and SMC-BL
+    after the 2R arm's change) leaves the other's rim visible.
     """
     artists: list[Artist] = []
     stacked: dict[float, int] = {}
-    for method, metrics in metrics_by_method.items():
+    for k, (method, metrics) in enumerate(metrics_by_method.items()):
         complete = metrics["status"].astype(str).to_numpy() == STATUS_COMPLETE
         j = np.asarray(metrics.index.to_numpy()[complete], dtype=float)
         values = np.asarray(metrics[column].to_numpy()[complete], dtype=float)
@@ -160,7 +165,8 @@ def plot_error_norms(
         diverged = metrics.index[metrics["status"].astype(str).to_numpy() != STATUS_COMPLETE]
         if len(diverged):
             label += f", diverged at j = {int(diverged[0])}"
-        (line,) = ax.plot(j, values, marker="o", color=_color(method), label=label)
+        (line,) = ax.plot(j, values, marker="o", color=_color(method), label=label, zorder=2 + 0.01 * k,
+                          markersize=max(3.0, 8.0 - 0.7 * k), linewidth=max(0.9, 2.8 - 0.3 * k))
         artists.append(line)
         if len(diverged):
             where = float(diverged[0])
@@ -185,6 +191,22 @@ def plot_error_norms(
     return artists
 
 
+def iteration_colour(j: int):
+    """A colour of its own for each of Fig. 5's iterations (TRACKING_ITERATIONS), from a sequential map
+    (dark early, light late): the method colours (C0, C1, ...) stay the methods'."""
+    from matplotlib import colormaps
+
+    if j not in TRACKING_ITERATIONS:
+        return "0.5"
+    shades = colormaps["viridis"](np.linspace(0.0, 0.8, len(TRACKING_ITERATIONS)))
+    return shades[TRACKING_ITERATIONS.index(j)]
+
+
+#: Methods side by side in Fig. 5 before it wraps to another pair of rows (seven in one row made
+#: the figure 4,200 px wide).
+TRACKING_COLUMNS = 4
+
+
 def plot_tracking_error(
     ax: Axes,
     frames_by_iteration: Mapping[int, pd.DataFrame],
@@ -200,8 +222,9 @@ def plot_tracking_error(
     when the figure holds one legend for all its panels."""
     artists: list[Artist] = []
     for j, frame in sorted(frames_by_iteration.items()):
-        artists += ax.plot(_time(frame), frame[column], color=f"C{TRACKING_ITERATIONS.index(j)}"
-                           if j in TRACKING_ITERATIONS else None, label=f"j = {j}")
+        artists += ax.plot(_time(frame), frame[column], color=iteration_colour(j), label=f"j = {j}")
+    # one number format on every panel: a multiplier (x1e-4) where the values are small, never an offset
+    ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 3), useOffset=False)
     ax.set_xlabel("time (s)")
     ax.set_ylabel(column if ylabel is None else ylabel)
     if title:
@@ -275,26 +298,48 @@ def plot_switching_gain(
     grid spanning [0, duration] s.
     """
     artists: list[Artist] = []
+    series = []
     for j, alpha in sorted(alpha_by_iteration.items()):
         alpha = np.asarray(alpha, dtype=float).reshape(-1)
-        artists += ax.plot(control_time(alpha.size, duration), alpha, label=f"j = {j}")
+        t = control_time(alpha.size, duration)
+        artists += ax.plot(t, alpha, label=f"j = {j}")
+        series.append((t, alpha))
     ax.set_xlabel("time (s)")
     ax.set_ylabel(rf"learned switching gain $\hat\alpha_j$ ({unit})")
+    # the y range from t >= RANGE_FROM: the spike at t = 0 (the start mismatch) no longer flattens
+    # the settled alpha_hat, the value the findings quote; it is named in the legend
+    note = _range_without_start(ax, series, headroom=0.35) if series else ""
     if artists:
-        ax.legend(ncols=2)
+        handles, texts = ax.get_legend_handles_labels()
+        if note:
+            from matplotlib.lines import Line2D
+
+            handles, texts = [*handles, Line2D([], [], linestyle="none")], [*texts, note.replace("\n", " ")]
+        ax.legend(handles, texts, ncols=3, fontsize="x-small", loc="upper left")
     return artists
 
 
 def plot_switching_gain_mean(
-    ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray], *, unit: str = "N"
+    ax: Axes, alpha_by_iteration: Mapping[int, np.ndarray], *, unit: str = "N", duration: float | None = None,
+    perturbation_iteration: int | None = None, perturbation_label: str = "m3 x 1.4",
 ) -> list[Artist]:
-    """Mean over time and maximum over time of alpha_hat_j against iteration j."""
+    """Mean over time and maximum over time of alpha_hat_j against iteration j; with ``duration``
+    (the control grid's span, s), over t >= RANGE_FROM (settled: the t = 0 spike would be the maximum)."""
     js = sorted(alpha_by_iteration)
-    mean = [float(np.mean(alpha_by_iteration[j])) for j in js]
-    peak = [float(np.max(alpha_by_iteration[j])) for j in js]
+
+    def settled(alpha) -> np.ndarray:
+        alpha = np.asarray(alpha, dtype=float).reshape(-1)
+        return alpha if duration is None else alpha[control_time(alpha.size, duration) >= RANGE_FROM]
+
+    mean = [float(np.mean(settled(alpha_by_iteration[j]))) for j in js]
+    peak = [float(np.max(settled(alpha_by_iteration[j]))) for j in js]
+    over = "over t" if duration is None else f"over t >= {RANGE_FROM * 1e3:.0f} ms"
     artists: list[Artist] = []
-    artists += ax.plot(js, mean, marker="o", color=_color("c3"), label="mean over t")
-    artists += ax.plot(js, peak, marker="s", color=_color("c3"), linestyle=":", label="max over t")
+    artists += ax.plot(js, mean, marker="o", color=_color("c3"), label=f"mean {over}")
+    artists += ax.plot(js, peak, marker="s", color=_color("c3"), linestyle=":", label=f"max {over}")
+    if perturbation_iteration is not None and js and js[0] <= perturbation_iteration <= js[-1]:
+        artists.append(ax.axvline(perturbation_iteration, color="0.4", linestyle="--", linewidth=1.0,
+                                  label=f"{perturbation_label} from j = {perturbation_iteration}"))
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("iteration j")
     ax.set_ylabel(rf"$\hat\alpha_j$ ({unit})")
@@ -345,14 +390,27 @@ def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]], *,
     """
     methods = list(frames)
     n = max(1, len(methods))
-    fig = Figure(figsize=(3.0 * n, 5.6), layout="constrained")
-    axes = np.atleast_2d(fig.subplots(2, n, sharex=True, squeeze=False))
+    columns = min(n, TRACKING_COLUMNS)
+    blocks = -(-n // columns)  # each block: a row of X panels over a row of Y panels
+    fig = Figure(figsize=(2.4 * columns + 0.4, 2.0 * 2 * blocks + 0.7), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(2 * blocks, columns, sharex=True, squeeze=False))
     for k, method in enumerate(methods):
-        plot_tracking_error(axes[0, k], frames[method], "position_error_x",
-                            ylabel="position error X (m)" if k == 0 else "", title=_label(method, labels), legend=False)
-        plot_tracking_error(axes[1, k], frames[method], "force_error_y", ylabel="force error Y (N)" if k == 0 else "",
+        block, column = divmod(k, columns)
+        ax_x, ax_y = axes[2 * block, column], axes[2 * block + 1, column]
+        plot_tracking_error(ax_x, frames[method], "position_error_x",
+                            ylabel="position error X (m)" if column == 0 else "", title=_label(method, labels),
                             legend=False)
-        axes[0, k].set_xlabel("")
+        plot_tracking_error(ax_y, frames[method], "force_error_y", ylabel="force error Y (N)" if column == 0 else "",
+                            legend=False)
+        ax_x.set_xlabel("")
+        if k + columns < n:  # another method below in this column: its time axis serves both
+            ax_y.set_xlabel("")
+        else:  # the lowest panel of its column: its time ticks shown (sharex hid them above the last row)
+            ax_y.xaxis.set_tick_params(labelbottom=True)
+    for k in range(n, blocks * columns):  # the empty places of the last block
+        block, column = divmod(k, columns)
+        axes[2 * block, column].set_visible(False)
+        axes[2 * block + 1, column].set_visible(False)
     handles = {}
     for ax in axes.ravel():
         for handle, label in zip(*ax.get_legend_handles_labels()):
@@ -392,14 +450,18 @@ def figure_input(
             (ax_input, [(t, frame[f"task_input_{axis}"]), (t, frame[f"desired_task_input_{axis}"])]),
             (ax_delta, [(t, frame[f"desired_task_input_{axis}"] - frame[f"task_input_{axis}"])]),
         ):
-            # the data fill the lower part; the legend (left) and the note (right) share the band above
-            note = _range_without_start(ax, series, headroom=HEADROOM)
+            # the data fill the lower part; the legend, the note its last line, stands in the band above,
+            # which is as tall as the legend's rows
+            note = _range_without_start(ax, series)
             handles, texts = ax.get_legend_handles_labels()
             if note:  # one more line of the legend: a long method label can never cover it
                 from matplotlib.lines import Line2D
 
                 handles, texts = [*handles, Line2D([], [], linestyle="none")], [*texts, note.replace("\n", " ")]
-            ax.legend(handles, texts, loc="upper left", ncols=2 if not note else 1, fontsize="x-small")
+            columns = 2 if not note else 1
+            rows = -(-len(texts) // columns)
+            _range_without_start(ax, series, headroom=HEADROOM_BASE + HEADROOM_PER_ROW * rows)
+            ax.legend(handles, texts, loc="upper left", ncols=columns, fontsize="x-small")
         if k < n - 1:
             ax_input.set_xlabel("")
             ax_delta.set_xlabel("")
@@ -412,14 +474,16 @@ def figure_input(
 
 
 def figure_switching_gain(
-    alpha_by_iteration: Mapping[int, np.ndarray], duration: float, *, profiles: Sequence[int] = (), unit: str = "N"
+    alpha_by_iteration: Mapping[int, np.ndarray], duration: float, *, profiles: Sequence[int] = (), unit: str = "N",
+    perturbation_iteration: int | None = None, perturbation_label: str = "m3 x 1.4",
 ) -> Figure:
     """alpha_hat_j(t) for the iterations in ``profiles`` (all if empty), and its mean/max per j."""
-    fig = Figure(figsize=(6.4, 5.0))
+    fig = Figure(figsize=(6.4, 5.0), layout="constrained")
     ax_profiles, ax_mean = fig.subplots(2, 1)
     chosen = {j: a for j, a in alpha_by_iteration.items() if not profiles or j in profiles}
     plot_switching_gain(ax_profiles, chosen, duration, unit=unit)
-    plot_switching_gain_mean(ax_mean, alpha_by_iteration, unit=unit)
+    plot_switching_gain_mean(ax_mean, alpha_by_iteration, unit=unit, duration=duration,
+                             perturbation_iteration=perturbation_iteration, perturbation_label=perturbation_label)
     return fig
 
 

@@ -16,6 +16,18 @@ import numpy as np
 
 #: Theta_hat's G columns in the 12-entry layout (C3Controller.theta_names with gravity)
 G_COLUMNS = {"x": (4, 5), "y": (10, 11)}
+#: Line style and width per drawn iteration, first to last: an earlier iteration is drawn wider
+#: underneath, so a later one that lies on it leaves it visible (j = 10 was hidden under j = 19).
+ITERATION_STYLES = (("-", 2.6), ("--", 1.8), ("-", 0.6), ("-.", 0.6))
+
+
+def gravity_error(learned: np.ndarray, truth: np.ndarray) -> float:
+    """RMS of learned - truth relative to the truth's RMS (1-D arrays of one axis, same samples):
+    0 is the truth learned exactly, 1 is as far off as learning nothing."""
+    truth_rms = float(np.sqrt(np.mean(np.square(truth))))
+    if not truth_rms > 0:
+        return float("nan")
+    return float(np.sqrt(np.mean(np.square(learned - truth)))) / truth_rms
 
 
 def learned_gravity(theta_hat: np.ndarray) -> np.ndarray:
@@ -36,6 +48,11 @@ def true_gravity(config, iteration: int, positions: np.ndarray) -> np.ndarray:
 def gravity_figure(store_path: Path, config, iterations=None):
     """Figure: learned G_x, G_y (C3's Theta_hat) over time for some iterations, against the truth.
 
+    Each panel's title answers the figure's question for the last iteration drawn: how far the
+    learned G is from the truth (relative RMS over t >= 20 ms, :func:`gravity_error`). The y range
+    is set from t >= 20 ms (the start mismatch at t = 0 makes the memory spike there; the spike is
+    named in the legend when it lies off scale).
+
     ``store_path`` is a C3 store of a plant with gravity; ``config`` its configuration. Returns the
     matplotlib figure (one panel per task axis), built without pyplot like the report's other figures
     (:mod:`ilcforce.report.figures`), with a constrained layout (``tight_layout`` on top of the report
@@ -44,6 +61,7 @@ def gravity_figure(store_path: Path, config, iterations=None):
     from matplotlib.figure import Figure
 
     from ilcforce import store
+    from ilcforce.report.figures import RANGE_FROM
 
     stored = store.iterations(store_path)
     if not stored:
@@ -55,31 +73,49 @@ def gravity_figure(store_path: Path, config, iterations=None):
     axes = fig.subplots(1, 2, sharex=True)
     metrics = store.read_metrics(store_path)
     shown: list[list[np.ndarray]] = [[], []]  # per axis: the values the y range is set from
-    for j in chosen:
+    start_peak = [0.0, 0.0]  # per axis: the largest |value| before RANGE_FROM, drawn off scale
+    settled = t >= RANGE_FROM
+    learned_last = None
+    for n, j in enumerate(chosen):
         g_hat = learned_gravity(store.read_memory(store_path, j)["theta_hat"])
         label = f"learned, j = {j}"
-        keep = np.ones(len(t), dtype=bool)
+        keep = settled.copy()
         if j in metrics.index and str(metrics.at[j, "status"]) == "diverged":
             # the memory blows up in the last samples before the watchdog stops the iteration: say so,
             # and set the y range from before those 20 ms, so the blow-up does not flatten the rest
             when = float(metrics.at[j, "diverged_time"])
             label += f" (diverged at t = {when:.3g} s; off scale near it)"
-            keep = t <= when - 0.02
+            keep &= t <= when - 0.02
+        style, width = ITERATION_STYLES[min(n, len(ITERATION_STYLES) - 1)]
         for k, ax in enumerate(axes):
-            ax.plot(t, g_hat[:, k], lw=1, label=label)
+            ax.plot(t, g_hat[:, k], lw=width, linestyle=style, color=f"C{n}", label=label, zorder=2 + n,
+                    alpha=0.85 if n else 1.0)
             shown[k].append(g_hat[keep, k])
+            early = g_hat[~settled, k]
+            if early.size:
+                start_peak[k] = max(start_peak[k], float(np.nanmax(np.abs(early))))
+        learned_last = g_hat
     truth = true_gravity(config, chosen[-1], positions)
     for k, (ax, axis) in enumerate(zip(axes, G_COLUMNS)):
-        ax.plot(t, truth[:, k], "k--", lw=1.2, label=f"true J^-T G_q (j = {chosen[-1]})")
-        values = np.concatenate([*shown[k], truth[:, k]])
+        ax.plot(t, truth[:, k], "k", lw=1.0, label=f"true J^-T G_q (j = {chosen[-1]})", zorder=10)
+        values = np.concatenate([*shown[k], truth[settled, k]])
         values = values[np.isfinite(values)]
         if values.size:
             low, high = float(values.min()), float(values.max())
             pad = 0.08 * (high - low) if high > low else max(abs(high), 1.0) * 0.1
             ax.set_ylim(low - pad, high + pad)
+            if start_peak[k] > max(abs(low), abs(high)) + pad:
+                ax.plot([], [], linestyle="none", label=f"off scale before t = {RANGE_FROM * 1e3:.0f} ms: "
+                        f"|G_{axis}| up to {start_peak[k]:.3g} N")
         i = "1" if axis == "x" else "2"
-        ax.set_title(f"G_{axis}: C3's G{i}1 + G{i}2 against J^-T G_q")
+        off = gravity_error(learned_last[settled, k], truth[settled, k])
+        ax.set_title(f"G_{axis} = C3's G{i}1 + G{i}2: at j = {chosen[-1]}, {off:.0%} off J^-T G_q\n"
+                     f"(relative RMS error, t >= {RANGE_FROM * 1e3:.0f} ms)", fontsize="medium")
         ax.set_xlabel("t (s)")
         ax.set_ylabel("N")
-    fig.legend(*axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, fontsize=7)  # off the curves
+    handles, texts = axes[0].get_legend_handles_labels()  # the curves, then each panel's off-scale note
+    for ax in axes[1:]:
+        more = [(h, x) for h, x in zip(*ax.get_legend_handles_labels()) if x.startswith("off scale")]
+        handles, texts = [*handles, *(h for h, _ in more)], [*texts, *(x for _, x in more)]
+    fig.legend(handles, texts, loc="outside lower center", ncols=3, fontsize=7)  # off the curves
     return fig

@@ -35,7 +35,8 @@ def _evaluation(claims: pd.DataFrame) -> str:
 
 
 def experiment_findings(name: str, description: str, claims: pd.DataFrame, stability_rows: pd.DataFrame,
-                        diverged: Mapping[str, int], iterations: int) -> list[str]:
+                        diverged: Mapping[str, int], iterations: int,
+                        task_loss: Mapping[str, str] | None = None) -> list[str]:
     """One experiment's findings, written from its rows of ``claims.csv`` and ``stability.csv``:
     each claim's verdict with its judged parts, the stability flags, and which methods diverged.
 
@@ -52,6 +53,8 @@ def experiment_findings(name: str, description: str, claims: pd.DataFrame, stabi
     if diverged:
         lines.append(f"* Diverged within the {iterations} iterations run (one seed; the iteration is in the "
                      f"run's report): {', '.join(diverged)}.")
+    for method, lost in (task_loss or {}).items():  # completed every iteration, but not the task
+        lines.append(f"* {method} completes the {iterations} iterations but {lost}.")
     lines.append("")
     return lines
 
@@ -250,7 +253,8 @@ def findings_markdown(experiments: Mapping[str, Mapping[str, object]],
         found = experiments[name]
         lines += experiment_findings(name, str(found["description"]), rows_of(claims, verdict_rows.EXPERIMENT, name),
                                      rows_of(stability, verdict_rows.EXPERIMENT, name),
-                                     found.get("diverged", {}), int(found.get("iterations", 0)))  # type: ignore[arg-type]
+                                     found.get("diverged", {}), int(found.get("iterations", 0)),  # type: ignore[arg-type]
+                                     found.get("task_loss", {}))  # type: ignore[arg-type]
     return "\n".join(lines).rstrip("\n") + "\n"
 
 

@@ -14,6 +14,7 @@ from collections.abc import Mapping
 
 import pandas as pd
 
+from ilcforce.plants import changed_parameter
 from ilcforce.report import claims as claims_module
 from ilcforce.report import stability
 from ilcforce.report.table_write import markdown_table
@@ -44,11 +45,8 @@ def perturbation_label(config: Mapping[str, object]) -> str:
     ``"m2 x 1.4"`` (serial 2R arm); the paper's ``"m3 x 1.4"`` when the configuration says nothing."""
     plant = config.get("plant", {}) if isinstance(config, Mapping) else {}
     change = plant.get("perturbation", {}) if isinstance(plant, Mapping) else {}
-    parameter = change.get("parameter") if isinstance(change, Mapping) else None
     factor = change.get("factor") if isinstance(change, Mapping) else None
-    if not parameter:  # a configuration stored before the parameter was resolved: the model's default
-        model = plant.get("model", "fivebar") if isinstance(plant, Mapping) else "fivebar"
-        parameter = {"serial2r": "m2"}.get(str(model), "m3")
+    parameter = changed_parameter(config)  # the plant's own when the configuration names none
     factor = 1.4 if not isinstance(factor, (int, float)) or isinstance(factor, bool) else factor
     return f"{parameter} x {factor:g}"
 

@@ -242,7 +242,9 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         report.files += table_write.write_table(parts, directory, f"claims_s{k}")
         lines += ["### The paper's claims over seeds", ""] + sections.claims_markdown(parts, flags)
         lines += ["### Learning stability", ""] + sections.stability_markdown(growth, flags)
-        figures = study_figures.norm_band_figures(mine, directory, f"s{k}", formats, flags)
+        figures = study_figures.norm_band_figures(
+            mine, directory, f"s{k}", formats, flags, perturbation_iteration=p,
+            perturbation_label=sections.perturbation_label(sections.config_of({"config_json": setting.config_json})))
         report.files += figures
         lines += ["### Figs. 3 and 4 over seeds", "", study_figures.BAND_CAPTION, ""]
         lines += [f"![{f.stem}]({f.name})" for f in figures if f.suffix == ".png"] + [""]

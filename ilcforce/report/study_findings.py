@@ -15,7 +15,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
+from ilcforce.config_units import axis_label
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import calibration, claim_map, claim_parts
 from ilcforce.report import claims as claims_module
@@ -59,6 +61,16 @@ def _divergence_text(div: pd.DataFrame) -> str:
     return f"j = {format_interval(median_interval(div['diverged_at']))} ({k} of {n} seeds)"
 
 
+def _task_loss_text(per_method: pd.DataFrame, perturbation_iteration: int) -> str:
+    """"; fails the task in k of n seeds" (seeds that completed but lost the task after the plant's
+    change, :func:`ilcforce.report.tables.task_loss`), or "" when none did."""
+    from ilcforce.report.tables import FAILS_THE_TASK, divergence, task_loss
+
+    seeds = [cell.set_index("iteration").sort_index() for _seed, cell in per_method.groupby("seed", sort=False)]
+    lost = sum(1 for cell in seeds if divergence(cell) is None and task_loss(cell, perturbation_iteration))
+    return f"; {FAILS_THE_TASK} in {lost} of {len(seeds)}" if lost else ""
+
+
 def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int, iterations: int,
                  deterministic: bool = False, config: dict | None = None
                  ) -> tuple[list[dict], pd.DataFrame, dict, pd.DataFrame]:
@@ -76,7 +88,8 @@ def setting_rows(frame: pd.DataFrame, *, perturbation_iteration: int, iterations
     j_key = min(paper.CHATTERING_ITERATION, iterations - 1)
     rows = []
     for method, per_method in frame.groupby("method", sort=False):
-        row = {"method": method, "divergence": _divergence_text(divergence[divergence["method"] == method]),
+        row = {"method": method, "divergence": _divergence_text(divergence[divergence["method"] == method])
+               + _task_loss_text(per_method, perturbation_iteration),
                "unstable learning": (flags.get(str(method), "no").split(": ", 1)[-1] if str(method) in fitted
                                      else stability.NOT_FITTED)}
         for column, label in KEY_COLUMNS:
@@ -234,19 +247,26 @@ def figure_boundary(results) -> Figure | None:
     ax_div.set_ylabel("first diverged iteration j")
     ax_div.set_ylim(-0.5, top + 1)
     ax_div.legend(fontsize="small")
+    ax_div.yaxis.set_major_locator(MaxNLocator(integer=True))  # iterations: no tick at 2.5
     ax_rate.axhline(1.0, color="0.4", linestyle="--", linewidth=1.0)
     ax_rate.set_ylabel("growth rate of settled H_x per iteration")
-    if not rates_drawn:
-        ax_rate.text(0.5, 0.5, stability.NOT_FITTED, transform=ax_rate.transAxes, ha="center", va="center",
-                     fontsize="small", color="0.3")
-    ax_rate.set_xlabel(key)
+    if not rates_drawn:  # an empty panel says nothing: the figure is (a) alone, and its title says why
+        ax_rate.remove()
+        ax_div.set_subplotspec(ax_div.get_subplotspec().get_gridspec()[:, 0])  # (a) takes the whole figure
+        ax_rate = ax_div
+        ax_div.xaxis.set_tick_params(labelbottom=True)
+        ax_div.set_title(f"Stability boundary over {key}\n(growth rate of settled H_x: {stability.NOT_FITTED})",
+                         fontsize="medium")
+        fig.set_size_inches(7.0, 3.6)
+    ax_rate.set_xlabel(axis_label(key))  # with its unit
     if min(xs) > 0:
         ax_rate.set_xscale("log")
         ax_rate.set_xlim(min(xs) / 1.5, max(xs) * 1.5)
     else:
         span = max(xs) - min(xs) or 1.0
         ax_rate.set_xlim(min(xs) - 0.1 * span, max(xs) + 0.1 * span)
-    ax_div.set_title(f"Stability boundary over {key}")
+    if rates_drawn:
+        ax_div.set_title(f"Stability boundary over {key}")
     return fig
 
 

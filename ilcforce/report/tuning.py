@@ -63,6 +63,38 @@ def plot_tuning_history(ax: Axes, frame: pd.DataFrame, method: str) -> list:
     return artists
 
 
+#: Significant digits of a chosen gain in the table: the search's resolution is far coarser (a
+#: log-scaled range over decades), and 16 digits hid the value. The tuned experiment file keeps
+#: every digit.
+GAIN_DIGITS = 4
+#: Method panels side by side in the history figure (one column of seven was 3,080 px tall).
+HISTORY_COLUMNS = 2
+
+
+def _gain(value) -> str:
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return "[" + ", ".join(_gain(v) for v in value) + "]"
+    if isinstance(value, (float, np.floating)):
+        return f"{float(value):.{GAIN_DIGITS}g}"
+    return str(value)
+
+
+def history_figure(frame: pd.DataFrame, methods: list[str]):
+    """One panel per method (:func:`plot_tuning_history`), HISTORY_COLUMNS to a row."""
+    from matplotlib.figure import Figure
+
+    columns = max(1, min(len(methods), HISTORY_COLUMNS))
+    rows = -(-len(methods) // columns)
+    fig = Figure(figsize=(4.8 * columns, 2.3 * rows + 0.3), layout="constrained")
+    axes = fig.subplots(rows, columns, squeeze=False).ravel()
+    for ax, method in zip(axes, methods):
+        plot_tuning_history(ax, frame, method)
+        ax.set_title(method, fontsize="medium")
+    for ax in axes[len(methods):]:
+        ax.set_visible(False)
+    return fig
+
+
 def tuning_table(frame: pd.DataFrame, budget: int) -> pd.DataFrame:
     """Per method: trials run of the budget, failed trials, trial 0's objective (the experiment's
     gains), the best objective and its trial, and the chosen gains (dotted key = value)."""
@@ -73,7 +105,7 @@ def tuning_table(frame: pd.DataFrame, budget: int) -> pd.DataFrame:
         done = group[group["state"] == "complete"]
         first = group[group["trial"] == 0]
         best = done.loc[done["objective"].idxmin()] if len(done) else None
-        chosen = "" if best is None else "; ".join(f"{c} = {best[c]}" for c in gain_columns
+        chosen = "" if best is None else "; ".join(f"{c} = {_gain(best[c])}" for c in gain_columns
                                                    if c.startswith(f"{method}.") and best[c] is not None
                                                    and best[c] == best[c])
         rows.append({"method": method, "trials": f"{len(group)} of {budget}",
@@ -90,8 +122,6 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
     index lines). Raises TuningStoreError for a store that is not valid."""
     import json
     from pathlib import Path
-
-    from matplotlib.figure import Figure
 
     from ilcforce.report.figure_files import save_figure, write_text_whole
     from ilcforce.report.table_write import markdown_table, write_table
@@ -110,12 +140,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
     budget = _budget(header["tuning_toml"])
     methods = [m for m in definition["methods"] if m in set(frame["method"])] if len(frame) else []
     if methods:
-        fig = Figure(figsize=(6.4, 2.2 * len(methods)), layout="constrained")
-        axes = fig.subplots(len(methods), 1, squeeze=False)[:, 0]
-        for ax, method in zip(axes, methods):
-            plot_tuning_history(ax, frame, method)
-            ax.set_title(method, fontsize="medium")
-        files += save_figure(fig, target, "history", formats)
+        files += save_figure(history_figure(frame, methods), target, "history", formats)
     table = tuning_table(frame, budget) if len(frame) else pd.DataFrame()
     description = header.get("description", "")
     text = [f"# Tuning {name}" + (f" (the store {path.name})" if path.name != name else ""), "", *([description, ""] if description else []),

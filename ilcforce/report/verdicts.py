@@ -5,7 +5,7 @@ these rows, so a reader who loads the CSVs with pandas filters the very verdicts
 
 ``claims.csv``: one row per claim (``part`` = "claim", ``role`` = "claim": the claim's verdict by the
 stated rule, ``seeds_passed`` = the seeds where the whole claim holds) and one row per part (judged
-or shown). Columns: :data:`CLAIM_COLUMNS`. ``stability.csv``: one row per method and quantity
+or shown; its ``evaluation`` is the part's own, :func:`part_evaluation`). Every column: docs/tables.md. Columns: :data:`CLAIM_COLUMNS`. ``stability.csv``: one row per method and quantity
 fitted by :func:`ilcforce.report.stability.learning_growth`. Columns: :data:`STABILITY_COLUMNS`.
 """
 
@@ -45,7 +45,7 @@ def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> 
                      "margin": math.nan, "spread_low": math.nan, "spread_high": math.nan, "partial": ""})
         for row in mine.itertuples(index=False):
             shown = row.role in claims_module.NOT_JUDGED
-            rows.append({**base, "part": row.part, "role": row.role,
+            rows.append({**base, "evaluation": part_evaluation(row), "part": row.part, "role": row.role,
                          "verdict": str(row.role) if shown else str(row.part_verdict),
                          "seeds_evaluated": int(row.evaluable),
                          "seeds_passed": pd.NA if shown else int(row.passed),
@@ -58,6 +58,22 @@ def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> 
     frame = pd.DataFrame(rows, columns=CLAIM_COLUMNS)
     frame["seeds_passed"] = frame["seeds_passed"].astype("Int64")
     return frame
+
+
+def part_evaluation(row) -> str:
+    """A part row's own evaluation (the claim row carries the claim's): how many seeds the part was
+    judged on and what it gave in each, e.g. "holds in 7, fails in 3 of 10 seeds" (its verdict is
+    the majority of the seeds judged); a shown part, how many seeds gave its number."""
+    if bool(row.deterministic):
+        return claims_module.ONE_EVALUATION
+    total = int(row.n_seeds)
+    seeds = f"{total} seed{'s' if total != 1 else ''}"
+    if row.role in claims_module.NOT_JUDGED:
+        return f"shown, not judged: a value in {int(row.evaluable)} of {seeds}"
+    judged, passed = int(row.evaluable), int(row.passed)
+    counts = [(claims_module.HOLDS, passed), (claims_module.FAILS, judged - passed),
+              (claims_module.NOT_EVALUABLE, total - judged)]
+    return ", ".join(f"{word} in {n}" for word, n in counts if n) + f" of {seeds}"
 
 
 def stability_rows(growth: pd.DataFrame, *, source: str, name: str, setting: str) -> pd.DataFrame:

@@ -1,0 +1,293 @@
+"""The report as one HTML page a reader opens from disk: ``<report>/index.html``.
+
+Built from the Markdown pages the report has just written, and from nothing else, so whatever a
+Markdown page says (a section added later included) is on the HTML page too. The pages are found by
+following the links of ``index.md`` and ``findings.md`` (in the order the links come), converted with
+markdown-it (installed with rich), and put in this order: a summary (the findings, then the paper's
+Table 2 and Table 3 beside ours when the paper's experiment was reported), the studies, the
+experiments, the tuning. Links between pages become links within the page; figures are ``<img>``
+elements pointing at the PNG files beside the page (relative paths: no network, no CDN, and the
+page stays small); every table sorts by a click on a column's header (a few lines of embedded
+script); provenance (a ``Provenance`` section, a long block of TOML) is folded in ``<details>``.
+"""
+
+from __future__ import annotations
+
+import html
+import posixpath
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from markdown_it import MarkdownIt
+
+from ilcforce.report.figure_files import write_text_whole
+
+#: The page written beside index.md.
+HTML_NAME = "index.html"
+#: A fenced block longer than this many lines is folded (configurations as stored run to 150 lines).
+FOLD_LINES = 15
+#: Headings whose section is folded whole (what a reader needs only to reproduce a run).
+FOLDED_HEADINGS = re.compile(r"\b(provenance|command lines?|configuration)\b", re.IGNORECASE)
+#: The order of the page's parts: a page's group is read from its first folder.
+GROUPS = (("summary", "Summary"), ("studies", "Studies"), ("experiments", "Experiments"), ("tuning", "Tuning"))
+#: The experiment whose Table 2 and Table 3 the summary shows beside the paper's (its setup).
+PAPER_EXPERIMENT = "paper"
+
+_LINK = re.compile(r"\]\(([^)\s]+\.md)(#[^)\s]*)?\)")
+_HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
+_FENCE = re.compile(r"^(```+|~~~+)")
+_SCHEME = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*:")
+
+_STYLE = """
+body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 0; color: #1b1b1b; line-height: 1.45; }
+nav { position: fixed; top: 0; left: 0; bottom: 0; width: 17rem; overflow-y: auto; padding: 1rem; background: #f4f5f7;
+      border-right: 1px solid #ddd; font-size: 0.85rem; box-sizing: border-box; }
+nav h2 { font-size: 0.95rem; margin: 1rem 0 0.3rem; } nav ul { list-style: none; padding-left: 0.6rem; margin: 0; }
+nav a { text-decoration: none; color: #0b57a4; } nav a:hover { text-decoration: underline; }
+main { margin-left: 17rem; padding: 1rem 2rem 4rem; max-width: 78rem; }
+section.page { border-top: 1px solid #ccc; margin-top: 2rem; padding-top: 0.5rem; }
+.source { color: #777; font-size: 0.8rem; font-family: monospace; }
+h1.group { font-size: 1.9rem; margin-top: 3rem; border-bottom: 3px solid #0b57a4; }
+table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.85rem; display: block; overflow-x: auto; }
+th, td { border: 1px solid #ccc; padding: 0.2rem 0.5rem; vertical-align: top; }
+th { background: #eef1f5; cursor: pointer; user-select: none; white-space: nowrap; }
+th[data-dir="asc"]::after { content: " \\25B2"; } th[data-dir="desc"]::after { content: " \\25BC"; }
+tr:nth-child(even) td { background: #fafafa; }
+img { max-width: 100%; height: auto; border: 1px solid #eee; margin: 0.5rem 0; }
+pre { background: #f6f8fa; padding: 0.6rem; overflow-x: auto; font-size: 0.8rem; }
+details { margin: 0.6rem 0; border: 1px solid #e2e2e2; padding: 0.3rem 0.6rem; background: #fcfcfc; }
+summary { cursor: pointer; color: #444; }
+.missing { color: #a00; font-style: italic; }
+"""
+
+# Click a column's header to sort the table's rows by it (numbers as numbers, where every filled
+# cell of the column starts with one; a dash or "n/a" sorts last); click again to reverse.
+_SCRIPT = """
+(function () {
+  function number(text) {
+    var m = text.replace(/\\u2212/g, "-").replace(/,/g, "").trim().match(/^[-+]?(\\d+\\.?\\d*|\\.\\d+)(e[-+]?\\d+)?/i);
+    return m ? parseFloat(m[0]) : null;
+  }
+  function sortBy(table, column, header) {
+    var body = table.tBodies[0];
+    if (!body) return;
+    var rows = Array.prototype.slice.call(body.rows);
+    var cells = rows.map(function (r) { return r.cells[column] ? r.cells[column].textContent.trim() : ""; });
+    var numeric = cells.every(function (c) { return c === "" || c === "-" || c === "\\u2013" || c === "n/a" || number(c) !== null; });
+    var dir = header.getAttribute("data-dir") === "asc" ? "desc" : "asc";
+    Array.prototype.forEach.call(header.parentNode.cells, function (h) { h.removeAttribute("data-dir"); });
+    header.setAttribute("data-dir", dir);
+    var keyed = rows.map(function (r, i) { return [cells[i], r, i]; });
+    keyed.sort(function (a, b) {
+      var x = numeric ? number(a[0]) : a[0], y = numeric ? number(b[0]) : b[0];
+      if (x === null || x === "") return y === null || y === "" ? a[2] - b[2] : 1;
+      if (y === null || y === "") return -1;
+      var order = numeric ? x - y : String(x).localeCompare(String(y), undefined, {numeric: true});
+      return (dir === "asc" ? order : -order) || a[2] - b[2];
+    });
+    keyed.forEach(function (k) { body.appendChild(k[1]); });
+  }
+  Array.prototype.forEach.call(document.querySelectorAll("table"), function (table) {
+    if (!table.tHead) return;
+    Array.prototype.forEach.call(table.tHead.rows[0].cells, function (header, column) {
+      header.title = "sort by this column";
+      header.addEventListener("click", function () { sortBy(table, column, header); });
+    });
+  });
+})();
+"""
+
+
+@dataclass(frozen=True)
+class HtmlReport:
+    """The page written, the Markdown pages it holds and what a reader downloads with it."""
+
+    path: Path
+    pages: tuple[str, ...]
+    figures: int
+    total_bytes: int  # the page and every figure it shows
+
+    def size_text(self) -> str:
+        return f"{self.total_bytes / 1e6:.1f} MB with its {self.figures} figures"
+
+
+def _anchor(page: str, prefix: str = "p") -> str:
+    return f"{prefix}-" + re.sub(r"[^A-Za-z0-9]+", "-", page.removesuffix(".md")).strip("-")
+
+
+def _linked_pages(out_dir: Path, start: list[str]) -> list[str]:
+    """Every Markdown page reachable from ``start`` by relative links, in the order first linked."""
+    seen: list[str] = []
+    queue = [p for p in start if (out_dir / p).is_file()]
+    while queue:
+        page = queue.pop(0)
+        if page in seen:
+            continue
+        seen.append(page)
+        folder = posixpath.dirname(page)
+        text = (out_dir / page).read_text(encoding="utf-8")
+        for target, _fragment in _LINK.findall(text):
+            if _SCHEME.match(target):
+                continue
+            linked = posixpath.normpath(posixpath.join(folder, target))
+            if not linked.startswith("../") and (out_dir / linked).is_file() and linked not in seen:
+                queue.append(linked)
+    return seen
+
+
+def _group(page: str) -> str:
+    first = page.split("/", 1)[0] if "/" in page else ""
+    if not first:
+        return "summary"
+    return first if first in ("studies", "tuning") else "experiments"
+
+
+def _blocks(text: str) -> list[tuple[str, str]]:
+    """The Markdown split into ("text" | "fold", markdown) pieces: a section under a heading that
+    :data:`FOLDED_HEADINGS` matches, up to the next heading of its level or higher, and a fenced
+    block longer than :data:`FOLD_LINES` lines are folded."""
+    pieces: list[tuple[str, str]] = []
+    current: list[str] = []
+    folded_level = 0  # the level of the heading whose section is being folded (0: none)
+    fence: str | None = None
+    fence_lines: list[str] = []
+
+    def flush(kind: str, lines: list[str]) -> None:
+        if lines:
+            pieces.append((kind, "\n".join(lines)))
+
+    for line in text.split("\n"):
+        if fence is not None:  # inside a fenced block: only its closing fence ends it
+            fence_lines.append(line)
+            if line.strip().startswith(fence) and line.strip() == fence[0] * len(line.strip()):
+                if folded_level or len(fence_lines) - 2 <= FOLD_LINES:
+                    current += fence_lines
+                else:
+                    flush("text", current)
+                    current = []
+                    flush("fold", fence_lines)
+                fence, fence_lines = None, []
+            continue
+        opening = _FENCE.match(line.strip())
+        if opening:
+            fence, fence_lines = opening.group(1), [line]
+            continue
+        heading = _HEADING.match(line)
+        if heading:
+            level = len(heading.group(1))
+            if folded_level and level <= folded_level:
+                flush("fold", current)
+                current, folded_level = [], 0
+            if not folded_level and FOLDED_HEADINGS.search(heading.group(2)):
+                flush("text", current)
+                current, folded_level = [], level
+        current.append(line)
+    current += fence_lines  # an unclosed fence: kept as written
+    flush("fold" if folded_level else "text", current)
+    return pieces
+
+
+class _Converter:
+    """Markdown pages of one report folder to HTML fragments with links and figures rewritten."""
+
+    def __init__(self, out_dir: Path, pages: list[str]):
+        self.out_dir = out_dir
+        self.pages = set(pages)
+        self.md = MarkdownIt("commonmark", {"html": False}).enable("table")
+        self.figures: set[str] = set()
+
+    def _target(self, folder: str, href: str) -> tuple[str, bool]:
+        """(the rewritten reference, whether it names a file that exists)."""
+        if not href or href.startswith("#") or _SCHEME.match(href):
+            return href, True
+        path, _, _fragment = href.partition("#")
+        resolved = posixpath.normpath(posixpath.join(folder, path))
+        if resolved in self.pages:
+            return "#" + _anchor(resolved), True
+        return resolved, (self.out_dir / resolved).exists()
+
+    def render(self, page: str, text: str) -> str:
+        folder = posixpath.dirname(page)
+        tokens = self.md.parse(text)
+        for token in tokens:
+            for child in token.children or []:
+                if child.type == "link_open":
+                    href, _ok = self._target(folder, str(child.attrGet("href") or ""))
+                    child.attrSet("href", href)
+                elif child.type == "image":
+                    src, exists = self._target(folder, str(child.attrGet("src") or ""))
+                    if exists:
+                        child.attrSet("src", src)
+                        child.attrSet("loading", "lazy")
+                        self.figures.add(src)
+                    else:  # said in words: a broken image tells the reader nothing
+                        child.type, child.tag, child.attrs = "text", "", {}
+                        child.content = f"[figure not written: {src}]"
+        return self.md.renderer.render(tokens, self.md.options, {})
+
+    def page(self, page: str, anchor: str) -> str:
+        text = (self.out_dir / page).read_text(encoding="utf-8")
+        parts = []
+        for kind, markdown in _blocks(text):
+            body = self.render(page, markdown)
+            if kind == "fold":
+                first = markdown.strip().split("\n", 1)[0]
+                heading = _HEADING.match(first)
+                label = heading.group(2) if heading else (
+                    f"{first.strip('`~ ') or 'text'} block, {markdown.count(chr(10)) - 1} lines")
+                body = f"<details><summary>{html.escape(label)}</summary>\n{body}</details>"
+            parts.append(body)
+        return (f'<section class="page" id="{anchor}">\n<div class="source">{html.escape(page)}</div>\n'
+                + "\n".join(parts) + "</section>\n")
+
+
+def _title(out_dir: Path, page: str) -> str:
+    """The page's first heading, with its file named where that alone would not tell two pages
+    apart (a study's report and its findings page)."""
+    stem = posixpath.basename(page).removesuffix(".md")
+    for line in (out_dir / page).read_text(encoding="utf-8").split("\n"):
+        heading = _HEADING.match(line)
+        if heading:
+            title = re.sub(r"[`*_]", "", heading.group(2))
+            return f"{title} ({stem})" if stem in ("findings",) else title
+    return stem.replace("_", " ").capitalize()
+
+
+def write_html(out_dir: Path) -> HtmlReport | None:
+    """Write ``out_dir/index.html`` from the Markdown pages under ``out_dir`` (see the module's
+    docstring); None, and nothing written, when ``out_dir`` holds neither index.md nor findings.md."""
+    out_dir = Path(out_dir)
+    pages = _linked_pages(out_dir, ["findings.md", "index.md"])
+    if not pages:
+        return None
+    summary_extra = [p for p in (f"{PAPER_EXPERIMENT}/table2.md", f"{PAPER_EXPERIMENT}/table3.md")
+                     if (out_dir / p).is_file()]
+    converter = _Converter(out_dir, pages)
+    by_group: dict[str, list[tuple[str, str]]] = {key: [] for key, _ in GROUPS}
+    folders = list(dict.fromkeys(posixpath.dirname(page) for page in pages))  # in the order first linked
+    for page in sorted(pages, key=lambda p: folders.index(posixpath.dirname(p))):  # a folder's pages together
+        by_group[_group(page)].append((page, _anchor(page)))
+    by_group["summary"] += [(page, _anchor(page, "summary")) for page in summary_extra]
+    nav, body = [], []
+    for key, title in GROUPS:
+        entries = by_group[key]
+        if not entries:
+            continue
+        body.append(f'<h1 class="group" id="group-{key}">{title}</h1>')
+        nav.append(f'<h2><a href="#group-{key}">{title}</a></h2><ul>')
+        for page, anchor in entries:
+            body.append(converter.page(page, anchor))
+            nav.append(f'<li><a href="#{anchor}">{html.escape(_title(out_dir, page))}</a></li>')
+        nav.append("</ul>")
+    document = "\n".join([
+        "<!DOCTYPE html>", '<html lang="en">', "<head>", '<meta charset="utf-8">',
+        '<meta name="viewport" content="width=device-width, initial-scale=1">',
+        "<title>ilcforce report</title>", f"<style>{_STYLE}</style>", "</head>", "<body>",
+        "<nav>", '<div><strong>ilcforce report</strong></div>', *nav, "</nav>", "<main>", *body, "</main>",
+        f"<script>{_SCRIPT}</script>", "</body>", "</html>", ""])
+    path = out_dir / HTML_NAME
+    write_text_whole(path, document)
+    total = path.stat().st_size + sum((out_dir / f).stat().st_size for f in converter.figures)
+    return HtmlReport(path=path, pages=tuple(pages + summary_extra), figures=len(converter.figures),
+                      total_bytes=total)
