@@ -66,7 +66,7 @@ def test_truth_and_verdicts_of_constructed_runs():
     assert table.loc["unbounded", long_run.FLAGGED] == 2 and table.loc["unbounded", long_run.NOT_FLAGGED] == 1
     assert int(table.to_numpy().sum()) == 5
     text = long_run.confusion_text(cases.reset_index(), 40)
-    assert text.startswith("1 of the 2 unbounded cases that had not diverged by j = 40 missed (late, s, seed 0: "
+    assert text.startswith("1 of the 2 unbounded cases that had not diverged by j = 40 missed (late, constructed, seed 0: "
                            "diverged at j = 250)"), text
 
 

@@ -140,7 +140,8 @@ def validation_cases(studies: dict[str, object]) -> pd.DataFrame:
                 frame = frame.sort_values("iteration")
                 truth, reason, factor = truth_of(frame)
                 memory, memory_text = largest_growth(frame, sorted(c for c in frame if c.startswith(MEMORIES)))
-                row = {"study": name, "setting": label or "-", "seed": int(seed), "method": str(method),
+                setting = label if getattr(results, "labelled", False) and label else name
+                row = {"study": name, "setting": setting, "seed": int(seed), "method": str(method),
                        "iterations_run": int(frame["iteration"].max()) + 1, "diverged_at": _diverged_at(frame),
                        "truth": truth, "truth_reason": reason, "settled_growth": factor,
                        "memory_growth": memory_text or "-",
@@ -161,7 +162,7 @@ def confusion(cases: pd.DataFrame, horizon: int, truth: str = "truth") -> pd.Dat
     return table
 
 
-def confusion_text(cases: pd.DataFrame, horizon: int, truth: str = "truth") -> str:
+def confusion_text(cases: pd.DataFrame, horizon: int, truth: str = "truth", *, names: bool = True) -> str:
     """"2 of 31 unbounded cases missed (...); 1 of 40 bounded cases falsely flagged (2.5%)"."""
     unbounded = cases[cases[truth] == "unbounded"]
     bounded = cases[cases[truth] == "bounded"]
@@ -172,10 +173,10 @@ def confusion_text(cases: pd.DataFrame, horizon: int, truth: str = "truth") -> s
     false = bounded[bounded[verdict] == FLAGGED]
     unsure = cases[cases[verdict] == NOT_EVALUABLE]
     share = f" ({100 * len(false) / len(bounded):.0f}%)" if len(bounded) else ""
-    names = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}: {r.truth_reason}" for r in missed.itertuples())
-    alarms = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}" for r in false.itertuples())
+    missing = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}: {r.truth_reason}" for r in missed.itertuples())
+    alarms = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}" for r in false.itertuples()) if names else ""
     return (f"{len(missed)} of the {len(later)} unbounded cases that had not diverged by j = {horizon} missed"
-            + (f" ({names})" if names else "") + f"; {len(false)} of {len(bounded)} bounded cases flagged{share}"
+            + (f" ({missing})" if missing else "") + f"; {len(false)} of {len(bounded)} bounded cases flagged{share}"
             + (f" ({alarms})" if alarms else "") + f"; {len(unsure)} not evaluable")
 
 
@@ -209,9 +210,11 @@ def long_run_table(results) -> pd.DataFrame:
         growth = stability.learning_growth(mine, perturbation_iteration=p, config=_setting_config(results, 0))
         judged = growth[growth["judged"] & growth["quantity"].str.startswith("chattering_task_")]
         fastest = judged.sort_values("rate", ascending=False).iloc[0] if len(judged) else None
-        row["settled H growth (late half)"] = (f"x{fastest.rate:.4g} [{fastest.rate_low:.4g}, {fastest.rate_high:.4g}] "
-                                               f"({stability.short_name(fastest.quantity)}, {fastest.window})"
-                                               if fastest is not None else "-")
+        windows = sorted(set(fastest.window.split("; "))) if fastest is not None else []
+        row["settled H growth (late half), % per iteration"] = (
+            f"{100 * (fastest.rate - 1):+.3f} [{100 * (fastest.rate_low - 1):+.3f}, {100 * (fastest.rate_high - 1):+.3f}] "
+            f"({stability.short_name(fastest.quantity)}, {windows[0] if len(windows) == 1 else 'each seed its own window'})"
+            if fastest is not None else "-")
         row["late verdict"] = stability.verdict(growth, method)
         rows.append(row)
     return pd.DataFrame(rows)
@@ -431,8 +434,11 @@ def headline_lines(found: dict[str, object], cases: pd.DataFrame) -> list[str]:
         lines.append("Over 1,000 iterations of the paper's setup on 10 held-out seeds: " + "; ".join(said)
                      + (f"; {', '.join(bounded)} run all 1,000 in every seed" if bounded else "") + ".")
     if len(cases):
-        lines.append(f"The growth test on {len(cases)} runs of 300 iterations, from their first 40 iterations: "
-                     + confusion_text(cases, 40) + "; from their first 20: " + confusion_text(cases, 20) + ".")
+        lengths = " or ".join(f"{n:,}" for n in sorted(set(cases["iterations_run"].clip(lower=300).map(
+            lambda n: 300 if n <= 300 else 1000))))
+        lines.append(f"The growth test on {len(cases)} runs of {lengths} iterations, applied to their first 40 "
+                     f"iterations: {confusion_text(cases, 40, names=False)}; to their first 20: "
+                     f"{confusion_text(cases, 20, names=False)} (docs/long-run/long-run.md names each case).")
     return lines
 
 
@@ -452,19 +458,18 @@ def is_long_study(name: str) -> bool:
 
 
 def _provenance(found: dict[str, object]) -> str:
-    sessions = []
-    for results in found.values():
-        frame = getattr(results, "sessions", None)
-        if frame is not None and len(frame):
-            sessions.append(frame)
+    """"studies run on 2026-12-05 at commit 0123456789ab" from the studies' recorded sessions."""
     commits, dates = set(), []
-    for frame in sessions:
-        for column in ("git_commit", "commit"):
-            if column in frame:
-                commits |= {str(c)[:12] for c in frame[column] if str(c)}
-        for column in ("finished_utc", "started_utc", "time_utc"):
-            if column in frame:
-                dates += [str(d)[:10] for d in frame[column] if str(d)]
+    for results in found.values():
+        for session in getattr(results, "sessions", None) or []:
+            if not isinstance(session, dict):
+                continue
+            commit = str((session.get("versions") or {}).get("git_commit") or "")
+            if commit:
+                commits.add(commit[:12])
+            when = str(session.get("finished") or session.get("started") or "")
+            if when:
+                dates.append(when[:10])
     when = max(dates) if dates else datetime.now(timezone.utc).strftime("%Y-%m-%d")
     return f"studies run on {when}" + (f" at commit {', '.join(sorted(commits))}" if commits else "")
 
