@@ -253,7 +253,7 @@ def long_run_figure(results, out: Path) -> Path:
 
     metrics = results.metrics
     methods = tables.ordered_methods(metrics["method"].unique().tolist())
-    fig = Figure(figsize=(12, 8))
+    fig = Figure(figsize=(9.5, 6.5))  # under 2,000 px a side at the style's 200 dpi
     axes = fig.subplots(2, 2, sharex=True)
     panels = (("chattering_task_x_settled", "settled H_x (N)"), ("chattering_task_y_settled", "settled H_y (N)"),
               ("position_error_2norm", "|e_P| 2-norm (m)"), ("force_error_2norm", "|e_F| 2-norm (N)"))
@@ -268,9 +268,7 @@ def long_run_figure(results, out: Path) -> Path:
     for ax in axes[1]:
         ax.set_xlabel("iteration j")
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="upper center", ncol=min(len(labels), 5), frameon=False)
-    fig.suptitle("")
-    fig.tight_layout(rect=(0, 0, 1, 0.93))
+    fig.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), 5), frameon=False)
     return save_figure(fig, out.parent, out.stem, ("png",))[0]
 
 
@@ -315,7 +313,7 @@ def cause_figure(results, out: Path) -> Path:
     from ilcforce.report.figure_files import save_figure
 
     methods = tables.ordered_methods(results.metrics["method"].unique().tolist())
-    fig = Figure(figsize=(12, 4 * len(methods)))
+    fig = Figure(figsize=(9.5, 3.5 * len(methods)))
     axes = fig.subplots(len(methods), 2, squeeze=False)
     styles = ["-", "--", ":", "-.", (0, (5, 1)), (0, (3, 1, 1, 1)), (0, (1, 2)), (0, (6, 2, 1, 2))]
     for k, label, _p in _settings(results):
@@ -338,14 +336,15 @@ def cause_figure(results, out: Path) -> Path:
                 ax.set_title(f"{method}: {stability.short_name(column)}"
                              + (" (log scale)" if kind == "settled" else " (linear scale)"))
                 ax.set_xlabel("iteration j")
-    axes[0, 0].legend(fontsize=8, loc="upper left")
-    fig.tight_layout()
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=4, frameon=False)
     return save_figure(fig, out.parent, out.stem, ("png",))[0]
 
 
 def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
     """Write ``long-run.md`` with its tables and figure into ``out_dir`` from the long-run and
     growth-validation studies under ``results_dir/studies``; nothing when none of them is stored."""
+    from ilcforce.report.figures import report_style
     from ilcforce.study import StudyStoreError, read_study
 
     study_dir = Path(results_dir) / "studies"
@@ -390,7 +389,8 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
         results = found[LONG_RUN]
         table = long_run_table(results)
         written += table_write.write_table(table, out_dir, "long_run")
-        figure = long_run_figure(results, out_dir / "long_run.png")
+        with report_style():
+            figure = long_run_figure(results, out_dir / "long_run.png")
         written.append(figure)
         lines += ["## Every method over 1,000 iterations", "", str(getattr(results, "description", "")), "",
                   table_write.markdown_table(table), "",
@@ -402,7 +402,8 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
         results = found[CAUSE]
         table = cause_table(results)
         written += table_write.write_table(table, out_dir, "cause")
-        figure = cause_figure(results, out_dir / "cause.png")
+        with report_style():
+            figure = cause_figure(results, out_dir / "cause.png")
         written.append(figure)
         lines += ["## Why the paper's laws diverge: one candidate cause at a time", "",
                   str(getattr(results, "description", "")) + " (the account: docs/model.md#long-run).", "",
