@@ -271,8 +271,8 @@ def test_changed_settings_are_refused_then_overwritten(tmp_path):
     with pytest.raises(StudyStoreError, match=r"different settings \(setting columns \[\] -> \['c3.eta'\]\)"):
         run_study(changed, tmp_path, workers=1)
     fixed = small_study(**{"set": {**SMALL, "c3.eta": 1.0}})
-    # c3.eta reaches c3-leak too (a method family shares its keys): two keys differ, named in order
-    with pytest.raises(StudyStoreError, match=r"different settings \(setting 0: c3-leak.eta 5.0 -> 1.0 and 1 more"):
+    # c3.eta reaches c3-leak and c3-robust too (a method family shares its keys): three keys differ, in order
+    with pytest.raises(StudyStoreError, match=r"different settings \(setting 0: c3-leak.eta 5.0 -> 1.0 and 2 more"):
         run_study(fixed, tmp_path, workers=1)
     summary = run_study(changed, tmp_path, workers=1, overwrite=True)
     assert summary.ran == 4 and summary.skipped == 0
