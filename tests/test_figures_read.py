@@ -4,6 +4,7 @@ iteration axis, every iteration or method asked for drawn, and at most 2,000 px 
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -17,8 +18,9 @@ from ilcforce.report.figures import RANGE_FROM
 from ilcforce.report.gravity import gravity_figure
 from ilcforce.store.run import open_run
 
-#: The report saves at savefig.dpi (style.mplstyle): 200.
-SAVE_DPI = 200
+#: The report saves at savefig.dpi of its style (style.mplstyle), read from the file itself.
+SAVE_DPI = float(re.search(r"^savefig\.dpi\s*:\s*([0-9.]+)", (Path(figures.__file__).parent / "style.mplstyle")
+                           .read_text(encoding="utf-8"), re.M).group(1))
 MAX_SIDE_PX = 2000
 P = 2  # the plant's change in the small runs
 

@@ -253,7 +253,7 @@ def long_run_figure(results, out: Path) -> Path:
 
     metrics = results.metrics
     methods = tables.ordered_methods(metrics["method"].unique().tolist())
-    fig = Figure(figsize=(9.5, 6.5))  # under 2,000 px a side at the style's 200 dpi
+    fig = Figure(figsize=(9.5, 6.5))  # under 2,000 px a side at the style's dpi (120)
     axes = fig.subplots(2, 2, sharex=True)
     panels = (("chattering_task_x_settled", "settled H_x (N)"), ("chattering_task_y_settled", "settled H_y (N)"),
               ("position_error_2norm", "|e_P| 2-norm (m)"), ("force_error_2norm", "|e_F| 2-norm (N)"))
