@@ -77,8 +77,3 @@ class C2RobustController(QFiltered, C2Controller):
 
     name = "c2-robust"
     law = compiled_law(c2_robust_law)
-
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C2RobustGains, *, gravity: bool = False,
-                 sample_time: float = float("nan")):
-        super().__init__(n_control, surface, wall_sign, gains, gravity=gravity, sample_time=sample_time)
-        self._design_q(gains)

@@ -85,8 +85,3 @@ class C3RobustController(QFiltered, C3Controller):
 
     name = "c3-robust"
     law = compiled_law(c3_robust_law)
-
-    def __init__(self, n_control: int, surface, wall_sign: float, gains: C3RobustGains, *, gravity: bool = False,
-                 sample_time: float = float("nan")):
-        super().__init__(n_control, surface, wall_sign, gains, gravity=gravity, sample_time=sample_time)
-        self._design_q(gains)

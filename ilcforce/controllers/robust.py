@@ -76,7 +76,8 @@ class QFiltered:
     ``q_order``: the memory a finished iteration wrote passes through Q before iteration j + 1 reads it
     (a diverged iteration hands on nothing, as in the base class). Put it first among the bases."""
 
-    def _design_q(self, gains) -> None:
+    def __init__(self, n_control: int, surface, wall_sign: float, gains, **options):
+        super().__init__(n_control, surface, wall_sign, gains, **options)
         self._q = QFilter(gains.section, gains.q_cutoff, gains.q_order, self.sample_time)
 
     def end_iteration(self, record) -> None:

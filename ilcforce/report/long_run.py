@@ -1,16 +1,10 @@
 """Long runs: what learning does past the paper's 20 iterations, and how well the growth test foretells it.
 
-Two kinds of study feed this page (``make long``; their files are in ``experiments/long/``):
+Three kinds of study feed this page (``make long``; their files are in ``experiments/long/``):
 
-* **growth validation** (``growth-validation*``): runs of 300 iterations. Each run (setting x seed x
-  method) is one *case*. Its **truth** is what the whole run shows: *unbounded* when it diverged, or when a
-  settled quantity (settled H on either task axis, or a learned memory's settled norm) grew more than
-  TRUTH_GROWTH = 10x between j = TRUTH_FROM = 20 and its last iteration; *bounded* otherwise. The growth
-  test (:mod:`ilcforce.report.stability`) is then applied to the case's first 20 and first 40 iterations
-  alone, as a user who ran only those would see it: *flagged* (it diverged within them, or a judged
-  quantity grows), *not flagged* ("no growth") or *not evaluable* (inconclusive, or too few iterations).
-  The confusion matrix counts the cases in each (truth, verdict) pair: a *miss* is an unbounded case not
-  flagged, a *false alarm* a bounded case flagged.
+* **growth validation** (``growth-validation*``): runs of 300 iterations, each a *case* whose truth the
+  whole run shows and whose first 20 and 40 iterations the growth test judges; the confusion matrix of
+  the two (``ilcforce/report/growth_validation.py`` states the rules, and the page below).
 * **cause** (``long-run-cause``): C2 and C3 with one candidate cause of the divergence changed at a time
   (each noise source alone, the sample time, the initial velocity, C3's regressor acceleration): when and
   where in the iteration each run diverged, and how its memory grew, at t = 0 and settled.
@@ -34,150 +28,20 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ilcforce.report import stability, table_write, tables
+from ilcforce.report import growth_validation, stability, table_write, tables
+from ilcforce.report.growth_validation import (
+    JUDGED_AT, TRUTH_FROM, diverged_at, setting_config, study_settings, confusion, confusion_text, validation_cases,
+)
 from ilcforce.stats import growth_rate
 
-#: A settled quantity grown more than this between TRUTH_FROM and the run's end makes the truth "unbounded".
-TRUTH_GROWTH = 10.0
-#: The iteration the truth's growth is measured from (the end of the paper's run).
-TRUTH_FROM = 20
-#: The horizons the growth test is judged at: the first 20 (the paper's run) and the first 40 iterations.
-JUDGED_AT = (20, 40)
-#: Settled quantities whose growth defines the truth (memory columns are added when present).
-TRUTH_QUANTITIES = ("chattering_task_x_settled", "chattering_task_y_settled")
-#: Every learned memory's norms (settled, whole grid, t = 0): the broader truth also counts their growth.
-MEMORIES = ("memory_settled_", "memory_norm_", "memory_start_")
 #: Study names (prefixes) this page reads from results/studies/.
 VALIDATION_PREFIX = "growth-validation"
 LONG_RUN = "long-run-1000"
 CAUSE = "long-run-cause"
-#: Verdict classes of the confusion matrix.
-FLAGGED, NOT_FLAGGED, NOT_EVALUABLE = "flagged", "not flagged", "not evaluable"
 #: The summary ``make long`` writes beside its page, read by the findings.
 SUMMARY = "summary.json"
 #: The iterations at which the long-run table reports settled H.
 H_AT = (19, 99, 499, 999)
-
-
-def _diverged_at(frame: pd.DataFrame) -> float:
-    """The first iteration that did not complete (NaN when every one did)."""
-    bad = frame.loc[frame["status"] != "complete", "iteration"]
-    return float(bad.min()) if len(bad) else math.nan
-
-
-def largest_growth(frame: pd.DataFrame, columns: list[str]) -> tuple[float, str]:
-    """The largest factor by which one of ``columns`` grew from j = TRUTH_FROM to the run's last complete
-    iteration, and a text naming it (NaN, "" when none can be compared)."""
-    complete = frame[frame["status"] == "complete"]
-    start = complete[complete["iteration"] == TRUTH_FROM]
-    worst, what = math.nan, ""
-    if len(start) and len(complete):
-        end = complete.iloc[-1]
-        for column in columns:
-            a, b = float(start.iloc[0][column]), float(end[column])
-            if a > 0 and math.isfinite(a) and math.isfinite(b):
-                factor = b / a
-                if not math.isfinite(worst) or factor > worst:
-                    worst, what = factor, f"{stability.short_name(column)} x{factor:.3g} from j = {TRUTH_FROM} to " \
-                                          f"{int(end['iteration'])}"
-    return worst, what
-
-
-def truth_of(frame: pd.DataFrame) -> tuple[str, str, float]:
-    """("unbounded" / "bounded", the reason, the largest settled growth factor) of one run (one seed, one
-    method, sorted by iteration) from all its iterations."""
-    diverged = _diverged_at(frame)
-    columns = [c for c in TRUTH_QUANTITIES if c in frame] + sorted(c for c in frame if c.startswith("memory_settled_"))
-    worst, what = largest_growth(frame, columns)
-    if math.isfinite(diverged):
-        return "unbounded", f"diverged at j = {int(diverged)}", worst
-    if math.isfinite(worst) and worst > TRUTH_GROWTH:
-        return "unbounded", what, worst
-    return "bounded", what or "no settled quantity to compare", worst
-
-
-def verdict_of(frame: pd.DataFrame, method: str, horizon: int, perturbation_iteration: int,
-               config: dict | None = None) -> tuple[str, str]:
-    """(class, text) of the growth test on the first ``horizon`` iterations of one run."""
-    first = frame[frame["iteration"] < horizon]
-    diverged = _diverged_at(first)
-    if math.isfinite(diverged):
-        return FLAGGED, f"diverged at j = {int(diverged)}"
-    growth = stability.learning_growth(first, perturbation_iteration=perturbation_iteration, config=config)
-    said = stability.verdict(growth, method)
-    if said == "grows":
-        fastest = growth[growth["grows"]].sort_values("rate", ascending=False).iloc[0]
-        return FLAGGED, stability.growth_text(fastest)
-    if said == "no growth":
-        return NOT_FLAGGED, "no growth"
-    if said == "inconclusive":
-        unsure = growth[growth["inconclusive"]].sort_values("rate", ascending=False).iloc[0]
-        return NOT_EVALUABLE, (f"inconclusive: {stability.short_name(unsure.quantity)} x{unsure.rate:.3g} "
-                               f"[{unsure.rate_low:.3g}, {unsure.rate_high:.3g}]")
-    return NOT_EVALUABLE, stability.NOT_FITTED
-
-
-def _settings(results):
-    from ilcforce.report.study import setting_perturbation
-
-    for setting in results.settings.itertuples(index=False):
-        yield int(setting.setting), str(setting.label or ""), setting_perturbation(setting.config_json)
-
-
-def _setting_config(results, k: int) -> dict:
-    return json.loads(str(results.settings.set_index("setting").loc[k, "config_json"]))
-
-
-def validation_cases(studies: dict[str, object]) -> pd.DataFrame:
-    """One row per run of the given study results (name -> ``read_study`` result): the truth from the
-    whole run and the test's verdict at each horizon of JUDGED_AT."""
-    rows = []
-    for name, results in studies.items():
-        for k, label, p in _settings(results):
-            metrics = results.setting_metrics(k)
-            config = _setting_config(results, k)
-            for (seed, method), frame in metrics.groupby(["seed", "method"], sort=True):
-                frame = frame.sort_values("iteration")
-                truth, reason, factor = truth_of(frame)
-                memory, memory_text = largest_growth(frame, sorted(c for c in frame if c.startswith(MEMORIES)))
-                setting = label if getattr(results, "labelled", False) and label else name
-                row = {"study": name, "setting": setting, "seed": int(seed), "method": str(method),
-                       "iterations_run": int(frame["iteration"].max()) + 1, "diverged_at": _diverged_at(frame),
-                       "truth": truth, "truth_reason": reason, "settled_growth": factor,
-                       "memory_growth": memory_text or "-",
-                       "truth_with_memories": ("unbounded" if truth == "unbounded" or memory > TRUTH_GROWTH
-                                               else "bounded")}
-                for horizon in JUDGED_AT:
-                    row[f"verdict_{horizon}"], row[f"test_{horizon}"] = verdict_of(frame, str(method), horizon, p, config)
-                rows.append(row)
-    return pd.DataFrame(rows)
-
-
-def confusion(cases: pd.DataFrame, horizon: int, truth: str = "truth") -> pd.DataFrame:
-    """Counts of cases per truth (rows: unbounded, bounded) and verdict at ``horizon`` (columns); ``truth``
-    names the column of the truth ("truth", or "truth_with_memories": every memory's growth counts)."""
-    table = pd.crosstab(cases[truth], cases[f"verdict_{horizon}"]).reindex(
-        index=["unbounded", "bounded"], columns=[FLAGGED, NOT_FLAGGED, NOT_EVALUABLE], fill_value=0)
-    table.index.name, table.columns.name = "truth", f"test on the first {horizon} iterations"
-    return table
-
-
-def confusion_text(cases: pd.DataFrame, horizon: int, truth: str = "truth", *, names: bool = True) -> str:
-    """"2 of 31 unbounded cases missed (...); 1 of 40 bounded cases falsely flagged (2.5%)"."""
-    unbounded = cases[cases[truth] == "unbounded"]
-    bounded = cases[cases[truth] == "bounded"]
-    verdict = f"verdict_{horizon}"
-    # a case that diverges within the horizon is flagged by construction: the goal is about the later ones
-    later = unbounded[~(unbounded["diverged_at"] < horizon)]
-    missed = later[later[verdict] != FLAGGED]
-    false = bounded[bounded[verdict] == FLAGGED]
-    unsure = cases[cases[verdict] == NOT_EVALUABLE]
-    share = f" ({100 * len(false) / len(bounded):.0f}%)" if len(bounded) else ""
-    missing = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}: {r.truth_reason}" for r in missed.itertuples())
-    alarms = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}" for r in false.itertuples()) if names else ""
-    return (f"{len(missed)} of the {len(later)} unbounded cases that had not diverged by j = {horizon} missed"
-            + (f" ({missing})" if missing else "") + f"; {len(false)} of {len(bounded)} bounded cases flagged{share}"
-            + (f" ({alarms})" if alarms else "") + f"; {len(unsure)} not evaluable")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -189,11 +53,11 @@ def long_run_table(results) -> pd.DataFrame:
     """Per method over the long-run study: divergences, settled H at H_AT, the late growth, the test's verdicts."""
     metrics = results.metrics
     rows = []
-    p = next(iter(_settings(results)))[2]
+    p = next(iter(study_settings(results)))[2]
     for method in tables.ordered_methods(metrics["method"].unique().tolist()):
         mine = metrics[metrics["method"] == method]
         per_seed = {int(s): f.sort_values("iteration") for s, f in mine.groupby("seed")}
-        diverged = sorted(_diverged_at(f) for f in per_seed.values() if math.isfinite(_diverged_at(f)))
+        diverged = sorted(diverged_at(f) for f in per_seed.values() if math.isfinite(diverged_at(f)))
         n = len(per_seed)
         row = {"method": method, "seeds": n, "diverged": len(diverged),
                "diverged_at (median)": float(np.median(diverged)) if diverged else math.nan,
@@ -207,7 +71,7 @@ def long_run_table(results) -> pd.DataFrame:
         window = mine[(mine["iteration"] >= 15) & (mine["iteration"] <= 19)]
         row["e_P j=15..19"] = float(window["position_error_2norm"].median())
         row["e_F j=15..19"] = float(window["force_error_2norm"].median())
-        growth = stability.learning_growth(mine, perturbation_iteration=p, config=_setting_config(results, 0))
+        growth = stability.learning_growth(mine, perturbation_iteration=p, config=setting_config(results, 0))
         judged = growth[growth["judged"] & growth["quantity"].str.startswith("chattering_task_")]
         fastest = judged.sort_values("rate", ascending=False).iloc[0] if len(judged) else None
         windows = sorted(set(fastest.window.split("; "))) if fastest is not None else []
@@ -257,7 +121,7 @@ def long_run_figure(results, out: Path) -> Path:
     axes = fig.subplots(2, 2, sharex=True)
     panels = (("chattering_task_x_settled", "settled H_x (N)"), ("chattering_task_y_settled", "settled H_y (N)"),
               ("position_error_2norm", "|e_P| 2-norm (m)"), ("force_error_2norm", "|e_F| 2-norm (N)"))
-    p = next(iter(_settings(results)))[2]
+    p = next(iter(study_settings(results)))[2]
     for ax, (column, title) in zip(axes.ravel(), panels, strict=True):
         for method in methods:
             _band(ax, metrics[metrics["method"] == method], column, method)
@@ -281,12 +145,12 @@ def _memory_column(frame: pd.DataFrame, kind: str) -> str | None:
 def cause_table(results) -> pd.DataFrame:
     """Per setting and method of the cause study: where the run diverged, and how its memory grew."""
     rows = []
-    for k, label, _p in _settings(results):
+    for k, label, _p in study_settings(results):
         metrics = results.setting_metrics(k)
         for method, frame in metrics.groupby("method", sort=False):
             frame = frame.sort_values("iteration")
             complete = frame[frame["status"] == "complete"]
-            diverged = _diverged_at(frame)
+            diverged = diverged_at(frame)
             settled, start = _memory_column(complete, "settled"), _memory_column(complete, "start")
             late = complete[complete["iteration"] >= TRUTH_FROM]
             rate = (growth_rate(late[settled], iterations=late["iteration"])
@@ -316,12 +180,12 @@ def cause_figure(results, out: Path) -> Path:
     fig = Figure(figsize=(9.5, 3.5 * len(methods)))
     axes = fig.subplots(len(methods), 2, squeeze=False)
     styles = ["-", "--", ":", "-.", (0, (5, 1)), (0, (3, 1, 1, 1)), (0, (1, 2)), (0, (6, 2, 1, 2))]
-    for k, label, _p in _settings(results):
+    for k, label, _p in study_settings(results):
         metrics = results.setting_metrics(k)
         for row, method in enumerate(methods):
             mine = metrics[metrics["method"] == method]
             frame = mine[mine["status"] == "complete"].sort_values("iteration")
-            diverged = math.isfinite(_diverged_at(mine))
+            diverged = math.isfinite(diverged_at(mine))
             for col, kind in enumerate(("settled", "start")):
                 column = _memory_column(frame, kind)
                 if column is None:
@@ -363,12 +227,15 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
     provenance = _provenance(found)
     cases = pd.DataFrame()
     lines = ["# Long runs: does learning stay bounded, and does the growth test see it coming?", "",
-             f"Generated by `make long` ({provenance}). " + __doc__.split("\n\n", 1)[1].split("``python -m")[0].strip(),
+             f"Generated by `make long` ({provenance}). "
+             + __doc__.split("\n\n", 1)[1].split("``python -m")[0].strip().replace("``", "`"),
              ""]
     cases = validation_cases(found)
     if len(cases):
         written += table_write.write_table(cases, out_dir, "growth_validation")
-        lines += ["## The growth test against the truth", "",
+        rules = growth_validation.__doc__.split("\n\n", 1)[1].split(" The page\n")[0].replace(
+            ":mod:`ilcforce.report.stability`", "`ilcforce/report/stability.py`").replace("``", "`")
+        lines += ["## The growth test against the truth", "", rules, "",
                   f"{len(cases)} cases ({', '.join(sorted(set(cases['study'])))}): "
                   f"{int((cases['truth'] == 'unbounded').sum())} unbounded, {int((cases['truth'] == 'bounded').sum())} "
                   "bounded.", ""]
@@ -385,34 +252,28 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
         lines += ["### Every case", "", table_write.markdown_table(cases[[
             "study", "setting", "seed", "method", "iterations_run", "truth", "truth_reason", "memory_growth",
             "test_20", "test_40"]]), ""]
-    if LONG_RUN in found:
-        results = found[LONG_RUN]
-        table = long_run_table(results)
-        written += table_write.write_table(table, out_dir, "long_run")
+    sections = (
+        (LONG_RUN, long_run_table, long_run_figure, "long_run", "Every method over 1,000 iterations", "",
+         "settled H and error norms against the iteration",
+         "Line: median over the seeds still running; band: 5-95% of them; x: a seed's last complete iteration "
+         "before it diverged; dash-dotted: the plant's change; dotted: j = 19, the paper's last iteration."),
+        (CAUSE, cause_table, cause_figure, "cause", "Why the paper's laws diverge: one candidate cause at a time",
+         " (the account: docs/model.md#long-run).", "memory growth per setting",
+         "Left: the learned memory's norm over t >= 20 ms (log scale: geometric growth is a straight line); "
+         "right: its norm at t = 0 alone (linear scale: the start drift is a straight line). x: the last complete "
+         "iteration of a run that diverged. A setting that changes only C3's law (the desired acceleration in "
+         "Psi) runs C2 as in the paper's setup: its line lies under that one."),
+    )
+    for name, make_table, make_figure, stem, title, after, alt, caption in sections:
+        if name not in found:
+            continue
+        table = make_table(found[name])
+        written += table_write.write_table(table, out_dir, stem)
         with report_style():
-            figure = long_run_figure(results, out_dir / "long_run.png")
+            figure = make_figure(found[name], out_dir / f"{stem}.png")
         written.append(figure)
-        lines += ["## Every method over 1,000 iterations", "", str(getattr(results, "description", "")), "",
-                  table_write.markdown_table(table), "",
-                  f"![settled H and error norms against the iteration]({figure.name})", "",
-                  "Line: median over the seeds still running; band: 5-95% of them; x: a seed's last complete "
-                  "iteration before it diverged; dash-dotted: the plant's change; dotted: j = 19, the paper's last "
-                  "iteration.", ""]
-    if CAUSE in found:
-        results = found[CAUSE]
-        table = cause_table(results)
-        written += table_write.write_table(table, out_dir, "cause")
-        with report_style():
-            figure = cause_figure(results, out_dir / "cause.png")
-        written.append(figure)
-        lines += ["## Why the paper's laws diverge: one candidate cause at a time", "",
-                  str(getattr(results, "description", "")) + " (the account: docs/model.md#long-run).", "",
-                  table_write.markdown_table(table), "", f"![memory growth per setting]({figure.name})", "",
-                  "Left: the learned memory's norm over t >= 20 ms (log scale: geometric growth is a straight "
-                  "line); right: its norm at t = 0 alone (linear scale: the start drift is a straight line). x: "
-                  "the last complete iteration of a run that diverged. A setting that changes only C3's law "
-                  "(the desired acceleration in Psi) runs C2 as in the paper's setup: its line lies under that one.",
-                  ""]
+        lines += [f"## {title}", "", str(getattr(found[name], "description", "")) + after, "",
+                  table_write.markdown_table(table), "", f"![{alt}]({figure.name})", "", caption, ""]
     summary = {"provenance": provenance, "headline": headline_lines(found, cases)}
     (out_dir / SUMMARY).write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     written.append(out_dir / SUMMARY)

@@ -1,0 +1,156 @@
+"""The growth test checked against what long runs show: each run's truth, the test's verdict on its first
+20 and 40 iterations, and the confusion matrix of the two.
+
+Each run (setting x seed x method of a study) is one *case*. Its **truth** is what the whole run shows:
+*unbounded* when it diverged, or when a settled quantity (settled H on either task axis, or a learned
+memory's settled norm) grew more than TRUTH_GROWTH = 10x between j = TRUTH_FROM = 20 and its last
+iteration; *bounded* otherwise (``truth_with_memories`` also counts growth of every memory, t = 0 included).
+The growth test (:mod:`ilcforce.report.stability`) is applied to the case's first 20 and first 40
+iterations alone, as a user who ran only those would see it: *flagged* (it diverged within them, or a
+judged quantity grows), *not flagged* ("no growth") or *not evaluable* (inconclusive, or too few
+iterations). A *miss* is an unbounded case not flagged, a *false alarm* a bounded case flagged. The page
+that shows all this is :mod:`ilcforce.report.long_run`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pandas as pd
+
+from ilcforce.report import stability
+
+#: A settled quantity grown more than this between TRUTH_FROM and the run's end makes the truth "unbounded".
+TRUTH_GROWTH = 10.0
+#: The iteration the truth's growth is measured from (the end of the paper's run).
+TRUTH_FROM = 20
+#: The horizons the growth test is judged at: the first 20 (the paper's run) and the first 40 iterations.
+JUDGED_AT = (20, 40)
+#: Settled quantities whose growth defines the truth (memory columns are added when present).
+TRUTH_QUANTITIES = ("chattering_task_x_settled", "chattering_task_y_settled")
+#: Every learned memory's norms (settled, whole grid, t = 0): the broader truth also counts their growth.
+MEMORIES = ("memory_settled_", "memory_norm_", "memory_start_")
+#: Verdict classes of the confusion matrix.
+FLAGGED, NOT_FLAGGED, NOT_EVALUABLE = "flagged", "not flagged", "not evaluable"
+
+
+def diverged_at(frame: pd.DataFrame) -> float:
+    """The first iteration that did not complete (NaN when every one did)."""
+    bad = frame.loc[frame["status"] != "complete", "iteration"]
+    return float(bad.min()) if len(bad) else math.nan
+
+
+def largest_growth(frame: pd.DataFrame, columns: list[str]) -> tuple[float, str]:
+    """The largest factor by which one of ``columns`` grew from j = TRUTH_FROM to the run's last complete
+    iteration, and a text naming it (NaN, "" when none can be compared)."""
+    complete = frame[frame["status"] == "complete"]
+    start = complete[complete["iteration"] == TRUTH_FROM]
+    worst, what = math.nan, ""
+    if len(start) and len(complete):
+        end = complete.iloc[-1]
+        for column in columns:
+            a, b = float(start.iloc[0][column]), float(end[column])
+            if a > 0 and math.isfinite(a) and math.isfinite(b):
+                factor = b / a
+                if not math.isfinite(worst) or factor > worst:
+                    worst, what = factor, f"{stability.short_name(column)} x{factor:.3g} from j = {TRUTH_FROM} to " \
+                                          f"{int(end['iteration'])}"
+    return worst, what
+
+
+def truth_of(frame: pd.DataFrame) -> tuple[str, str, float]:
+    """("unbounded" / "bounded", the reason, the largest settled growth factor) of one run (one seed, one
+    method, sorted by iteration) from all its iterations."""
+    diverged = diverged_at(frame)
+    columns = [c for c in TRUTH_QUANTITIES if c in frame] + sorted(c for c in frame if c.startswith("memory_settled_"))
+    worst, what = largest_growth(frame, columns)
+    if math.isfinite(diverged):
+        return "unbounded", f"diverged at j = {int(diverged)}", worst
+    if math.isfinite(worst) and worst > TRUTH_GROWTH:
+        return "unbounded", what, worst
+    return "bounded", what or "no settled quantity to compare", worst
+
+
+def verdict_of(frame: pd.DataFrame, method: str, horizon: int, perturbation_iteration: int,
+               config: dict | None = None) -> tuple[str, str]:
+    """(class, text) of the growth test on the first ``horizon`` iterations of one run."""
+    first = frame[frame["iteration"] < horizon]
+    diverged = diverged_at(first)
+    if math.isfinite(diverged):
+        return FLAGGED, f"diverged at j = {int(diverged)}"
+    growth = stability.learning_growth(first, perturbation_iteration=perturbation_iteration, config=config)
+    said = stability.verdict(growth, method)
+    if said == "grows":
+        fastest = growth[growth["grows"]].sort_values("rate", ascending=False).iloc[0]
+        return FLAGGED, stability.growth_text(fastest)
+    if said == "no growth":
+        return NOT_FLAGGED, "no growth"
+    if said == "inconclusive":
+        unsure = growth[growth["inconclusive"]].sort_values("rate", ascending=False).iloc[0]
+        return NOT_EVALUABLE, (f"inconclusive: {stability.short_name(unsure.quantity)} x{unsure.rate:.3g} "
+                               f"[{unsure.rate_low:.3g}, {unsure.rate_high:.3g}]")
+    return NOT_EVALUABLE, stability.NOT_FITTED
+
+
+def study_settings(results):
+    from ilcforce.report.study import setting_perturbation
+
+    for setting in results.settings.itertuples(index=False):
+        yield int(setting.setting), str(setting.label or ""), setting_perturbation(setting.config_json)
+
+
+def setting_config(results, k: int) -> dict:
+    return json.loads(str(results.settings.set_index("setting").loc[k, "config_json"]))
+
+
+def validation_cases(studies: dict[str, object]) -> pd.DataFrame:
+    """One row per run of the given study results (name -> ``read_study`` result): the truth from the
+    whole run and the test's verdict at each horizon of JUDGED_AT."""
+    rows = []
+    for name, results in studies.items():
+        for k, label, p in study_settings(results):
+            metrics = results.setting_metrics(k)
+            config = setting_config(results, k)
+            for (seed, method), frame in metrics.groupby(["seed", "method"], sort=True):
+                frame = frame.sort_values("iteration")
+                truth, reason, factor = truth_of(frame)
+                memory, memory_text = largest_growth(frame, sorted(c for c in frame if c.startswith(MEMORIES)))
+                setting = label if getattr(results, "labelled", False) and label else name
+                row = {"study": name, "setting": setting, "seed": int(seed), "method": str(method),
+                       "iterations_run": int(frame["iteration"].max()) + 1, "diverged_at": diverged_at(frame),
+                       "truth": truth, "truth_reason": reason, "settled_growth": factor,
+                       "memory_growth": memory_text or "-",
+                       "truth_with_memories": ("unbounded" if truth == "unbounded" or memory > TRUTH_GROWTH
+                                               else "bounded")}
+                for horizon in JUDGED_AT:
+                    row[f"verdict_{horizon}"], row[f"test_{horizon}"] = verdict_of(frame, str(method), horizon, p, config)
+                rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def confusion(cases: pd.DataFrame, horizon: int, truth: str = "truth") -> pd.DataFrame:
+    """Counts of cases per truth (rows: unbounded, bounded) and verdict at ``horizon`` (columns); ``truth``
+    names the column of the truth ("truth", or "truth_with_memories": every memory's growth counts)."""
+    table = pd.crosstab(cases[truth], cases[f"verdict_{horizon}"]).reindex(
+        index=["unbounded", "bounded"], columns=[FLAGGED, NOT_FLAGGED, NOT_EVALUABLE], fill_value=0)
+    table.index.name, table.columns.name = "truth", f"test on the first {horizon} iterations"
+    return table
+
+
+def confusion_text(cases: pd.DataFrame, horizon: int, truth: str = "truth", *, names: bool = True) -> str:
+    """"2 of 31 unbounded cases missed (...); 1 of 40 bounded cases falsely flagged (2.5%)"."""
+    unbounded = cases[cases[truth] == "unbounded"]
+    bounded = cases[cases[truth] == "bounded"]
+    verdict = f"verdict_{horizon}"
+    # a case that diverges within the horizon is flagged by construction: the goal is about the later ones
+    later = unbounded[~(unbounded["diverged_at"] < horizon)]
+    missed = later[later[verdict] != FLAGGED]
+    false = bounded[bounded[verdict] == FLAGGED]
+    unsure = cases[cases[verdict] == NOT_EVALUABLE]
+    share = f" ({100 * len(false) / len(bounded):.0f}%)" if len(bounded) else ""
+    missing = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}: {r.truth_reason}" for r in missed.itertuples())
+    alarms = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}" for r in false.itertuples()) if names else ""
+    return (f"{len(missed)} of the {len(later)} unbounded cases that had not diverged by j = {horizon} missed"
+            + (f" ({missing})" if missing else "") + f"; {len(false)} of {len(bounded)} bounded cases flagged{share}"
+            + (f" ({alarms})" if alarms else "") + f"; {len(unsure)} not evaluable")
