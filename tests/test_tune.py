@@ -369,7 +369,7 @@ def test_the_tuned_file_gives_each_method_the_gains_its_trials_ran():
     tuned file must give C3-leak the Gamma its own trials ran with, not C3's tuned one."""
     import tomllib
 
-    from ilcforce.tune.runner import tuned_experiment
+    from ilcforce.tune.output import tuned_experiment
 
     data = tiny_table(methods=["c3", "c3-leak"], gains={"c3": {"eta": {"low": 1.0, "high": 9.0}},
                                                         "c3-leak": {"eta": {"low": 1.0, "high": 9.0}}})

@@ -251,12 +251,12 @@ FULL_DISK = """
 import resource, signal, sys
 sys.path.insert(0, {tests!r})
 from pathlib import Path
-from ilcforce.tune.runner import _write_output
+from ilcforce.tune.output import write_output
 from ilcforce.tune.spec import TuneError
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
 resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
 try:
-    _write_output(Path({output!r}), "x = 1\\n" * 10000, replace=True)
+    write_output(Path({output!r}), "x = 1\\n" * 10000, replace=True)
 except TuneError as exc:
     print(exc)
 """
