@@ -331,13 +331,13 @@ def test_an_unreachable_scheduler_is_one_line_and_leaves_no_store(tmp_path):
 def test_the_report_has_a_tuning_page_per_store_and_warns_on_a_damaged_one(tmp_path):
     import pandas as pd
 
-    from ilcforce.report.build import _tuning_pages
+    from ilcforce.report.tuning import tuning_pages
 
     path = tiny_file(tmp_path, TINY.replace("trials = 2", "trials = 3"))
     results = tmp_path / "results"
     summary = run_tuning(load_tuning(path), results, workers=1, cell_function=fake_cell)
     written, warnings = [], []
-    lines = _tuning_pages(results, tmp_path / "report", ("png",), written, warnings)
+    lines = tuning_pages(results, tmp_path / "report", ("png",), written, warnings)
     page = tmp_path / "report" / "tuning" / "tiny"
     assert warnings == [] and {p.name for p in written} >= {"index.md", "history.png", "tuning.csv"}
     table = pd.read_csv(page / "tuning.csv")
@@ -345,7 +345,7 @@ def test_the_report_has_a_tuning_page_per_store_and_warns_on_a_damaged_one(tmp_p
     assert table.set_index("method").loc["c2", "best objective"] == pytest.approx(summary.best["c2"][1])
     assert lines[0].startswith("- [tuning tiny](tuning/tiny/index.md): c2 ")
     (summary.path / "trials" / "c3-00001.json").write_text("{")  # a damaged record: a warning, not a crash
-    lines = _tuning_pages(results, tmp_path / "report2", ("png",), [], warnings)
+    lines = tuning_pages(results, tmp_path / "report2", ("png",), [], warnings)
     assert lines == [] and len(warnings) == 1 and "c3-00001.json" in warnings[0]
 
 

@@ -36,6 +36,7 @@ from ilcforce.report import claims as claims_module
 from ilcforce.report import html, long_run, paper, pool, readme, sections, stability, table_write, tables, tasks
 from ilcforce.report import verdicts as verdict_rows
 from ilcforce.report.figure_files import write_text_whole
+from ilcforce.report.index_page import index_text
 from ilcforce.report.study import count_text
 from ilcforce.report.run_figures import DEFAULT_FORMATS, FIGURE_FORMATS, FIGURES, READ_ERRORS as _READ_ERRORS
 from ilcforce.report.run_figures import write_figures as _write_figures
@@ -368,7 +369,9 @@ def write_report(
         study_section = [*study_section, "Findings per study (verdicts, unstable learning, first diverged "
                          "iteration per setting; the stability-boundary figure for one-key sweeps): "
                          + ", ".join(f"[{n}](studies/{n}/findings.md)" for n in sorted(studies)), ""]
-    tuning_lines = _tuning_pages(results_dir, out_dir, tuple(formats), written, warnings)
+    from ilcforce.report.tuning import tuning_pages  # matplotlib's axes only when the report runs
+
+    tuning_lines = tuning_pages(results_dir, out_dir, tuple(formats), written, warnings)
     if tuning_lines:  # `ilcforce tune`'s stores: per method the objective against the trial and the chosen gains
         study_section = [*study_section, "## Tuning", "", *tuning_lines, ""]
     long_files = long_run.write_page(results_dir, out_dir / "long-run")  # `make long`'s studies, when stored
@@ -383,7 +386,7 @@ def write_report(
             written.append(out_dir / "index.md")
         return ReportSummary(out_dir=out_dir, experiments=(), files=tuple(written), warnings=tuple(warnings))
     index = out_dir / "index.md"
-    title, rest = _index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
+    title, rest = index_text(results_dir, verdicts, experiment_warnings, warnings).split("\n", 1)
     write_text_whole(index, "\n".join([title, "", *study_section]) + rest)  # studies lead
     written.append(index)
     # every verdict of every experiment and study as rows; the findings are written from these rows
@@ -418,84 +421,3 @@ def write_report(
         studies=reported,
         html=page,
     )
-
-
-def _tuning_pages(results_dir: Path, out_dir: Path, formats: tuple[str, ...], written: list,
-                  warnings: list) -> list[str]:
-    """The page of every tuning store under ``results/tuning/`` (:mod:`ilcforce.report.tuning`);
-    index lines. A store that is not valid is a warning line, never the end of the report."""
-    from ilcforce.report.figures import report_style
-    from ilcforce.report.tuning import write_tuning_report
-    from ilcforce.store.tuning import TuningStoreError, is_tuning_store
-
-    folder = results_dir / "tuning"
-    lines: list[str] = []
-    for path in sorted(folder.iterdir()) if folder.is_dir() else []:
-        if not is_tuning_store(path):
-            continue
-        try:
-            with report_style():
-                files, index_lines = write_tuning_report(path, out_dir / "tuning", formats)
-        except (TuningStoreError, ValueError, KeyError) as error:
-            warnings.append(f"{path}: tuning page not written: {' '.join(str(error).split())}")
-            continue
-        written += files
-        lines += index_lines
-    return lines
-
-
-def _index_text(
-    results_dir: Path,
-    verdicts: Mapping[str, pd.DataFrame],
-    experiment_warnings: Mapping[str, list[str]],
-    warnings: list[str],
-) -> str:
-    lines = ["# ilcforce reports", "",
-             "One report per experiment: each runs C1 (sliding mode), C2 (traditional ILC) and C3 (the paper's "
-             "ILC + sliding mode law) under the setting its description names, and judges the paper's five "
-             "claims part by part.", "", f"Results read from `{results_dir}`.", ""]
-    if not verdicts:
-        lines += ["No experiment found (expected `<experiment>/<method>.h5` stores).", ""]
-    else:
-        def table(names, with_reason: bool) -> str:
-            rows = []
-            for name in names:
-                claims = verdicts[name]
-                row: dict[str, object] = {"experiment": f"[{name}]({name}/report.md)",
-                                          "description": claims.attrs.get("description", "")}
-                if with_reason:
-                    row["why it is a variant"] = claims.attrs.get("variant", "")
-                for claim in claims.itertuples(index=False):
-                    row[f"claim {claim.claim}"] = claim.verdict
-                flagged = claims.attrs.get("flags", {})
-                row["unstable learning"] = ", ".join(flagged) if flagged else "none"
-                # "unstable learning" is a growth test over the complete iterations after the perturbation,
-                # so a method that diverged before them is not flagged by it: its divergence has its own
-                # column, and "unstable learning: none" no longer reads as "all was well"
-                diverged = claims.attrs.get("diverged", {})
-                row["diverged"] = ", ".join(f"{m} (j = {j})" for m, j in diverged.items()) or "none"
-                # completed every iteration but lost the task after the plant's change (tables.task_loss)
-                row[tables.FAILS_THE_TASK] = ", ".join(claims.attrs.get("task_loss", {})) or "none"
-                row["warnings"] = len(experiment_warnings.get(name, []))
-                rows.append(row)
-            return table_write.markdown_table(pd.DataFrame(rows))
-
-        as_written = [name for name, claims in verdicts.items() if not claims.attrs.get("variant")]
-        variants = [name for name in verdicts if name not in as_written]
-        if as_written:
-            lines += ["Verdicts on the paper's five claims, one experiment file each, run as written (see each "
-                      "report for the numbers and rules):", "", table(as_written, False)]
-        if variants:
-            lines += ["## Your runs and variants", "",
-                      "Runs that are not an experiment file as written: stored under another experiment's "
-                      "folder, or run with `--set` or `--seed` overrides. "
-                      "Their descriptions say what they changed; they are kept out of the findings "
-                      "(`findings.md`, the README's copy).", "", table(variants, True)]
-        for number, claim in enumerate(claims_module.CLAIMS, start=1):
-            lines.append(f"{number}. {claim.statement}")
-        lines.append("")
-    lines += ["## Warnings", ""]
-    lines += [f"* {w}" for w in warnings] or ["None."]
-    lines.append("")
-    return "\n".join(lines)
-

@@ -6,6 +6,8 @@ Draws on the Axes it is given and returns the artists, as every report figure do
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 from matplotlib.axes import Axes
@@ -170,3 +172,26 @@ def _budget(tuning_toml: str) -> int:
         return int(tomllib.loads(tuning_toml)["tune"]["trials"])
     except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError):
         return -1
+
+
+def tuning_pages(results_dir: Path, out_dir: Path, formats: tuple[str, ...], written: list,
+                  warnings: list) -> list[str]:
+    """The page of every tuning store under ``results/tuning/`` (:mod:`ilcforce.report.tuning`);
+    index lines. A store that is not valid is a warning line, never the end of the report."""
+    from ilcforce.report.figures import report_style
+    from ilcforce.store.tuning import TuningStoreError, is_tuning_store
+
+    folder = results_dir / "tuning"
+    lines: list[str] = []
+    for path in sorted(folder.iterdir()) if folder.is_dir() else []:
+        if not is_tuning_store(path):
+            continue
+        try:
+            with report_style():
+                files, index_lines = write_tuning_report(path, out_dir / "tuning", formats)
+        except (TuningStoreError, ValueError, KeyError) as error:
+            warnings.append(f"{path}: tuning page not written: {' '.join(str(error).split())}")
+            continue
+        written += files
+        lines += index_lines
+    return lines
