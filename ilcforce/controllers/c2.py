@@ -16,6 +16,7 @@ from typing import ClassVar
 
 import numpy as np
 
+from ilcforce.compiled.jit import njit
 from ilcforce.controllers.base import (
     DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
     compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, surface_terms,
@@ -40,20 +41,34 @@ class C2Gains:
 K, GRAVITY_FEEDFORWARD = gain_indices(C2Gains, "k", "gravity_feedforward")
 
 
-def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)
+@njit(inline="always", error_model="numpy")
+def c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, learn):
+    """Eq. (27) at sample k. Where ``learn`` is False (C2-robust's samples before its learning window)
+    the memory is carried unchanged and J^T k sigma acts as feedback only; the paper's C2 is learn = True."""
+    sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)  # eq. (8)
     w = gains[GAIN_FEEDFORWARD_SIGN]
-    lx, ly = joint_torque(meas, gains[K] * sx, gains[K + 1] * sy)
+    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])
+    ux = w * meas[MEAS_FORCE] + gx  # +w F (erratum 1) (+ g_ff G_nom)
+    uy = w * meas[MEAS_FORCE + 1] + gy
+    if learn:
+        lx, ly = joint_torque(meas, gains[K] * sx, gains[K + 1] * sy)
+    else:  # nothing learned here: the same J^T k sigma, as feedback
+        lx, ly = 0.0, 0.0
+        ux += gains[K] * sx
+        uy += gains[K + 1] * sy
     v1 = mem_prev[k, 0] + lx  # eq. (27), v_j = v_{j-1} + J^T k sigma_j
     v2 = mem_prev[k, 1] + ly
     if write:
         mem_new[k, 0] = v1
         mem_new[k, 1] = v2
-    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])
-    fx, fy = joint_torque(meas, w * meas[MEAS_FORCE] + gx, w * meas[MEAS_FORCE + 1] + gy)
+    fx, fy = joint_torque(meas, ux, uy)
     diag[DIAG_SIGMA] = sx
     diag[DIAG_SIGMA + 1] = sy
     return v1 + fx, v2 + fy  # eq. (27), tau_j = v_j + w J^T F_j (erratum 1) (+ g_ff J^T G_nom)
+
+
+def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+    return c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, True)
 
 
 class C2Controller(MemoryController):

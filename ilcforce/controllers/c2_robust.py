@@ -24,11 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, compiled_law, gain_indices, joint_torque, nominal_gravity,
-    surface_terms,
-)
-from ilcforce.controllers.c2 import C2Controller, C2Gains
+from ilcforce.controllers.base import compiled_law, gain_indices
+from ilcforce.controllers.c2 import GRAVITY_FEEDFORWARD, K, C2Controller, C2Gains, c2_torque
 from ilcforce.controllers.robust import QFiltered, check_robust_gains
 
 
@@ -47,29 +44,14 @@ class C2RobustGains(C2Gains):
         check_robust_gains(self.section, self.learn_from, self.q_cutoff, self.q_order)
 
 
-K, GRAVITY_FEEDFORWARD, LEARN_FROM, Q_CUTOFF, Q_ORDER = gain_indices(
+*_SHARED, LEARN_FROM, Q_CUTOFF, Q_ORDER = gain_indices(
     C2RobustGains, "k", "gravity_feedforward", "learn_from", "q_cutoff", "q_order")
+assert tuple(_SHARED) == (K, GRAVITY_FEEDFORWARD), "C2-robust packs C2's gains at C2's indices (the shared kernel reads them)"
 
 
 def c2_robust_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)  # eq. (8)
-    learn = t >= gains[LEARN_FROM]
-    lx = sx if learn else 0.0  # sigma as the update of eq. (27) sees it
-    ly = sy if learn else 0.0
-    w = gains[GAIN_FEEDFORWARD_SIGN]
-    l1, l2 = joint_torque(meas, gains[K] * lx, gains[K + 1] * ly)
-    v1 = mem_prev[k, 0] + l1  # eq. (27), v_j = v_{j-1} + J^T k sigma_L
-    v2 = mem_prev[k, 1] + l2
-    if write:
-        mem_new[k, 0] = v1
-        mem_new[k, 1] = v2
-    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])
-    # the feedback the update withheld from the memory (sigma - sigma_L), the feed-forward +w F (erratum 1)
-    fx, fy = joint_torque(meas, gains[K] * (sx - lx) + w * meas[MEAS_FORCE] + gx,
-                          gains[K + 1] * (sy - ly) + w * meas[MEAS_FORCE + 1] + gy)
-    diag[DIAG_SIGMA] = sx
-    diag[DIAG_SIGMA + 1] = sy
-    return v1 + fx, v2 + fy  # eq. (27), tau_j = v_j + w J^T F_j (+ the withheld feedback)
+    # eq. (27) learning only from t_L on; before it J^T k sigma feeds back (Q runs after the iteration)
+    return c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, t >= gains[LEARN_FROM])
 
 
 class C2RobustController(QFiltered, C2Controller):
