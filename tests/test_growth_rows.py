@@ -13,6 +13,7 @@ import pytest
 from ilcforce import metrics
 from ilcforce.config_load import load_config
 from ilcforce.experiment import simulate_iterations
+from ilcforce import stability
 from ilcforce.report import growth_validation
 
 NO_NOISE = {"noise.disturbance_amplitude": 0.0, "noise.encoder": 0.0, "noise.joint_rate": 0.0,
@@ -40,8 +41,8 @@ def test_each_case_is_classified_as_its_long_run_shows(case, path, overrides, me
     rows = [{**metrics.iteration_metrics(r), **metrics.memory_norms(r.memory, settled_from_sample=k0)}
             for r in simulate_iterations(config, method)]
     frame = pd.DataFrame(rows).assign(seed=config.experiment.seed, method=method)
-    said, text = growth_validation.verdict_of(frame, method, iterations, config.plant.perturbation.from_iteration,
+    said, text = stability.verdict_of(frame, method, iterations, config.plant.perturbation.from_iteration,
                                      json.loads(config.to_json()))
-    assert (said == growth_validation.FLAGGED) == flagged, f"{case}: {said} ({text})"
+    assert (said == stability.FLAGGED) == flagged, f"{case}: {said} ({text})"
     if flagged and not text.startswith("diverged"):
         assert "grows x" in text and "reaches 10x in" in text, text

@@ -9,6 +9,7 @@ import json
 import numpy as np
 import pandas as pd
 
+from ilcforce import stability
 from ilcforce.report import growth_validation, long_run
 
 
@@ -55,15 +56,15 @@ def test_truth_and_verdicts_of_constructed_runs():
         _run("drift", 0, 300, lambda j: 0.02, memory=lambda j: 0.5 + 0.01 * j),  # memory x1.4: bounded truth
     ], ignore_index=True)
     cases = growth_validation.validation_cases({"constructed": _Study({"s": runs})}).set_index("method")
-    assert cases.loc["grows", "truth"] == "unbounded" and cases.loc["grows", "verdict_20"] == growth_validation.FLAGGED
+    assert cases.loc["grows", "truth"] == "unbounded" and cases.loc["grows", "verdict_20"] == stability.FLAGGED
     assert "reaches 10x in" in cases.loc["grows", "test_40"]
-    assert cases.loc["flat", "truth"] == "bounded" and cases.loc["flat", "verdict_40"] == growth_validation.NOT_FLAGGED
+    assert cases.loc["flat", "truth"] == "bounded" and cases.loc["flat", "verdict_40"] == stability.NOT_FLAGGED
     assert cases.loc["late", "truth_reason"] == "diverged at j = 250"
-    assert cases.loc["late", "verdict_40"] == growth_validation.NOT_FLAGGED
-    assert cases.loc["early", "test_40"] == "diverged at j = 30" and cases.loc["early", "verdict_20"] == growth_validation.NOT_FLAGGED
+    assert cases.loc["late", "verdict_40"] == stability.NOT_FLAGGED
+    assert cases.loc["early", "test_40"] == "diverged at j = 30" and cases.loc["early", "verdict_20"] == stability.NOT_FLAGGED
     assert cases.loc["drift", "truth"] == "bounded"
     table = growth_validation.confusion(cases.reset_index(), 40)
-    assert table.loc["unbounded", growth_validation.FLAGGED] == 2 and table.loc["unbounded", growth_validation.NOT_FLAGGED] == 1
+    assert table.loc["unbounded", stability.FLAGGED] == 2 and table.loc["unbounded", stability.NOT_FLAGGED] == 1
     assert int(table.to_numpy().sum()) == 5
     text = growth_validation.confusion_text(cases.reset_index(), 40)
     assert text.startswith("1 of the 2 unbounded cases that had not diverged by j = 40 missed (late, constructed, seed 0: "
@@ -77,9 +78,9 @@ def test_a_capped_memory_is_not_judged():
     run["memory_settled_alpha_hat"] = [0.005 + 1e-4 * j for j in range(40)]
     config = {"plant": {"perturbation": {"from_iteration": 10}}, "c3-robust": {"alpha_max": 0.03}}
     cases = growth_validation.validation_cases({"c": _Study({"s": run}, config)})
-    assert cases.loc[0, "verdict_40"] == growth_validation.NOT_FLAGGED
+    assert cases.loc[0, "verdict_40"] == stability.NOT_FLAGGED
     unbounded = growth_validation.validation_cases({"c": _Study({"s": run}, {**config, "c3-robust": {}})})
-    assert unbounded.loc[0, "verdict_40"] == growth_validation.FLAGGED
+    assert unbounded.loc[0, "verdict_40"] == stability.FLAGGED
 
 
 def test_the_findings_cite_the_committed_summary_and_leave_make_longs_studies_out(tmp_path, monkeypatch):

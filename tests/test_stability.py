@@ -1,4 +1,4 @@
-"""The learning-stability test (ilcforce.report.stability) on series whose growth is known.
+"""The learning-stability test (ilcforce.stability) on series whose growth is known.
 
 Each case is a constructed metrics frame where the right verdict is known: growth over the whole
 trajectory, growth of the memory at t = 0 (the start drift that ends in divergence) and growth of a
@@ -12,7 +12,7 @@ import re
 import numpy as np
 import pandas as pd
 
-from ilcforce.report.stability import (FIRST, MIN_RATE, MIN_WINDOW, RELEARN, growth_window, learning_growth,
+from ilcforce.stability import (FIRST, MIN_RATE, MIN_WINDOW, RELEARN, growth_window, learning_growth,
                                        unstable_methods, verdict)
 
 P = 10  # the perturbation iteration of every case

@@ -33,7 +33,8 @@ import pandas as pd
 
 from ilcforce import store
 from ilcforce.report import claims as claims_module
-from ilcforce.report import html, long_run, paper, pool, readme, sections, stability, table_write, tables, tasks
+from ilcforce import stability
+from ilcforce.report import html, long_run, paper, pool, readme, sections, table_write, tables, tasks
 from ilcforce.report import verdicts as verdict_rows
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.index_page import index_text

@@ -5,7 +5,7 @@ Each run (setting x seed x method of a study) is one *case*. Its **truth** is wh
 *unbounded* when it diverged, or when a settled quantity (settled H on either task axis, or a learned
 memory's settled norm) grew more than TRUTH_GROWTH = 10x between j = TRUTH_FROM = 20 and its last
 iteration; *bounded* otherwise (``truth_with_memories`` also counts growth of every memory, t = 0 included).
-The growth test (:mod:`ilcforce.report.stability`) is applied to the case's first 20 and first 40
+The growth test (:mod:`ilcforce.stability`) is applied to the case's first 20 and first 40
 iterations alone, as a user who ran only those would see it: *flagged* (it diverged within them, or a
 judged quantity grows), *not flagged* ("no growth") or *not evaluable* (inconclusive, or too few
 iterations). A *miss* is an unbounded case not flagged, a *false alarm* a bounded case flagged. The page
@@ -19,7 +19,8 @@ import math
 
 import pandas as pd
 
-from ilcforce.report import stability
+from ilcforce import stability
+from ilcforce.stability import FLAGGED, NOT_EVALUABLE, NOT_FLAGGED, diverged_at, verdict_of
 
 #: A settled quantity grown more than this between TRUTH_FROM and the run's end makes the truth "unbounded".
 TRUTH_GROWTH = 10.0
@@ -31,14 +32,6 @@ JUDGED_AT = (20, 40)
 TRUTH_QUANTITIES = ("chattering_task_x_settled", "chattering_task_y_settled")
 #: Every learned memory's norms (settled, whole grid, t = 0): the broader truth also counts their growth.
 MEMORIES = ("memory_settled_", "memory_norm_", "memory_start_")
-#: Verdict classes of the confusion matrix.
-FLAGGED, NOT_FLAGGED, NOT_EVALUABLE = "flagged", "not flagged", "not evaluable"
-
-
-def diverged_at(frame: pd.DataFrame) -> float:
-    """The first iteration that did not complete (NaN when every one did)."""
-    bad = frame.loc[frame["status"] != "complete", "iteration"]
-    return float(bad.min()) if len(bad) else math.nan
 
 
 def largest_growth(frame: pd.DataFrame, columns: list[str]) -> tuple[float, str]:
@@ -70,27 +63,6 @@ def truth_of(frame: pd.DataFrame) -> tuple[str, str, float]:
     if math.isfinite(worst) and worst > TRUTH_GROWTH:
         return "unbounded", what, worst
     return "bounded", what or "no settled quantity to compare", worst
-
-
-def verdict_of(frame: pd.DataFrame, method: str, horizon: int, perturbation_iteration: int,
-               config: dict | None = None) -> tuple[str, str]:
-    """(class, text) of the growth test on the first ``horizon`` iterations of one run."""
-    first = frame[frame["iteration"] < horizon]
-    diverged = diverged_at(first)
-    if math.isfinite(diverged):
-        return FLAGGED, f"diverged at j = {int(diverged)}"
-    growth = stability.learning_growth(first, perturbation_iteration=perturbation_iteration, config=config)
-    said = stability.verdict(growth, method)
-    if said == "grows":
-        fastest = growth[growth["grows"]].sort_values("rate", ascending=False).iloc[0]
-        return FLAGGED, stability.growth_text(fastest)
-    if said == "no growth":
-        return NOT_FLAGGED, "no growth"
-    if said == "inconclusive":
-        unsure = growth[growth["inconclusive"]].sort_values("rate", ascending=False).iloc[0]
-        return NOT_EVALUABLE, (f"inconclusive: {stability.short_name(unsure.quantity)} x{unsure.rate:.3g} "
-                               f"[{unsure.rate_low:.3g}, {unsure.rate_high:.3g}]")
-    return NOT_EVALUABLE, stability.NOT_FITTED
 
 
 def study_settings(results):

@@ -28,9 +28,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ilcforce.report import growth_validation, stability, table_write, tables
+from ilcforce import stability
+from ilcforce.stability import diverged_at
+from ilcforce.report import growth_validation, table_write, tables
 from ilcforce.report.growth_validation import (
-    JUDGED_AT, TRUTH_FROM, diverged_at, setting_config, study_settings, confusion, confusion_text, validation_cases,
+    JUDGED_AT, TRUTH_FROM, setting_config, study_settings, confusion, confusion_text, validation_cases,
 )
 from ilcforce.stats import growth_rate
 
@@ -234,7 +236,7 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
     if len(cases):
         written += table_write.write_table(cases, out_dir, "growth_validation")
         rules = growth_validation.__doc__.split("\n\n", 1)[1].split(" The page\n")[0].replace(
-            ":mod:`ilcforce.report.stability`", "`ilcforce/report/stability.py`").replace("``", "`")
+            ":mod:`ilcforce.stability`", "`ilcforce/stability.py`").replace("``", "`")
         lines += ["## The growth test against the truth", "", rules, "",
                   f"{len(cases)} cases ({', '.join(sorted(set(cases['study'])))}): "
                   f"{int((cases['truth'] == 'unbounded').sum())} unbounded, {int((cases['truth'] == 'bounded').sum())} "

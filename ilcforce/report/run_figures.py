@@ -13,7 +13,8 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from ilcforce import store
-from ilcforce.report import figures, sections, stability, tables
+from ilcforce import stability
+from ilcforce.report import figures, sections, tables
 from ilcforce.report.figure_files import ReportWriteError, save_figure
 
 #: Figures written per experiment: file stem -> caption, the report's list of figures (what each shows).

@@ -16,7 +16,7 @@ import pandas as pd
 
 from ilcforce.plants import changed_parameter
 from ilcforce.report import claims as claims_module
-from ilcforce.report import stability
+from ilcforce import stability
 from ilcforce.report.table_write import markdown_table
 
 #: Settings under which a method's law is not the paper's: (method, config section, key, paper value).

@@ -182,7 +182,8 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
                        progress: Callable[[str], None] | None = None) -> StudyReport:
     """Write the report of the study store ``path`` into ``out_dir/<name>/``. Never raises for a bad store."""
     from ilcforce.report import claims as claims_module
-    from ilcforce.report import seed_bands, sections, stability, study_figures
+    from ilcforce import stability
+    from ilcforce.report import seed_bands, sections, study_figures
     from ilcforce.study import StudyStoreError, read_study
 
     report = StudyReport(Path(path).stem)

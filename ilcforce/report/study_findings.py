@@ -21,7 +21,8 @@ from ilcforce.config_units import axis_label
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import calibration, claim_map, claim_parts
 from ilcforce.report import claims as claims_module
-from ilcforce.report import figures, paper, stability
+from ilcforce import stability
+from ilcforce.report import figures, paper
 from ilcforce.report.figure_files import save_figure, write_text_whole
 from ilcforce.report.study import incomplete_text, setting_iterations, setting_perturbation
 from ilcforce.report import verdicts as verdict_rows

@@ -6,7 +6,7 @@ these rows, so a reader who loads the CSVs with pandas filters the very verdicts
 ``claims.csv``: one row per claim (``part`` = "claim", ``role`` = "claim": the claim's verdict by the
 stated rule, ``seeds_passed`` = the seeds where the whole claim holds) and one row per part (judged
 or shown; its ``evaluation`` is the part's own, :func:`part_evaluation`). Every column: docs/tables.md. Columns: :data:`CLAIM_COLUMNS`. ``stability.csv``: one row per method and quantity
-fitted by :func:`ilcforce.report.stability.learning_growth`. Columns: :data:`STABILITY_COLUMNS`.
+fitted by :func:`ilcforce.stability.learning_growth`. Columns: :data:`STABILITY_COLUMNS`.
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ import math
 import pandas as pd
 
 from ilcforce.report import claims as claims_module
-from ilcforce.report import stability
+from ilcforce import stability
 
 EXPERIMENT, STUDY = "experiment", "study"
 CLAIM_ROW = "claim"
@@ -77,7 +77,7 @@ def part_evaluation(row) -> str:
 
 
 def stability_rows(growth: pd.DataFrame, *, source: str, name: str, setting: str) -> pd.DataFrame:
-    """The ``stability.csv`` rows of one setting from :func:`ilcforce.report.stability.learning_growth`'s frame."""
+    """The ``stability.csv`` rows of one setting from :func:`ilcforce.stability.learning_growth`'s frame."""
     rows = [{"source": source, "name": name, "setting": setting, "method": r.method, "quantity": r.quantity,
              "judged": bool(r.judged), "window": r.window, "rate_per_iteration": r.rate, "rate_low": r.rate_low,
              "rate_high": r.rate_high, "seeds_growing": int(r.growing), "seeds_fitted": int(r.fitted),

@@ -53,7 +53,6 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
-from ilcforce.report.seedframes import split_seeds
 from ilcforce.stats import growth_rate, median_interval
 
 #: A quantity grows in a seed when the lower end of its rate's 95% interval exceeds this (1%/iteration).
@@ -156,6 +155,17 @@ def capped(config: Mapping[str, object] | None, method: str) -> dict[str, float]
     return {"alpha_hat": float(bound)} if isinstance(bound, (int, float)) and math.isfinite(bound) else {}
 
 
+def _runs(metrics: pd.DataFrame, columns: list[str]) -> dict[str, list[tuple[np.ndarray, dict[str, np.ndarray]]]]:
+    """method -> per seed (ascending): (its complete iterations ascending, each column's values at them)."""
+    complete = metrics[metrics["status"] == "complete"] if "status" in metrics else metrics
+    out: dict[str, list] = {}
+    for (_seed, method), frame in complete.sort_values(["seed", "method", "iteration"]).groupby(
+            ["seed", "method"], sort=True):
+        out.setdefault(str(method), []).append(
+            (frame["iteration"].to_numpy(), {c: frame[c].to_numpy(dtype=float) for c in columns}))
+    return out
+
+
 def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
                     config: Mapping[str, object] | None = None) -> pd.DataFrame:
     """Growth rates per method and quantity over the seeds of ONE setting.
@@ -175,17 +185,15 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
     """
     rows = []
     columns = watched_columns(metrics)
-    by_seed = split_seeds(metrics)  # seed (ascending) -> method -> arrays sorted by iteration
+    runs = _runs(metrics, [c for c, _ in columns])
     p = perturbation_iteration
     for method in dict.fromkeys(metrics["method"].astype(str)):  # methods in order of appearance
         # each seed's window is found once and read for every watched column
         windows = []
-        for per_seed in by_seed.values():
-            if method not in per_seed:
-                continue
-            seed = per_seed[method]
-            window = growth_window(seed.complete_iterations, p)
-            windows.append((window, {c: seed.columns[c][[seed.position[j] for j in window]] for c, _ in columns}))
+        for iterations, values in runs.get(method, []):
+            window = growth_window(list(iterations), p)
+            at = np.searchsorted(iterations, window)
+            windows.append((window, {c: values[c][at] for c, _ in columns}))
         caps = capped(config, str(method))
         for column, judged in columns:
             judged = judged and not any(column.startswith(prefix) and column.removeprefix(prefix) in caps
@@ -261,3 +269,35 @@ def label(method: str, flags: dict[str, str], base: str | None = None) -> str:
     """A method's label with " (unstable learning)" appended when it is flagged."""
     text = base if base is not None else method
     return f"{text} ({UNSTABLE})" if method in flags else text
+
+
+#: The growth test's verdict on one run: flagged (it diverged, or a judged quantity grows), not flagged
+#: ("no growth"), or not evaluable (inconclusive, or too few iterations).
+FLAGGED, NOT_FLAGGED, NOT_EVALUABLE = "flagged", "not flagged", "not evaluable"
+
+
+def diverged_at(frame: pd.DataFrame) -> float:
+    """The first iteration that did not complete (NaN when every one did)."""
+    bad = frame.loc[frame["status"] != "complete", "iteration"]
+    return float(bad.min()) if len(bad) else math.nan
+
+
+def verdict_of(frame: pd.DataFrame, method: str, horizon: int, perturbation_iteration: int,
+               config: dict | None = None) -> tuple[str, str]:
+    """(class, text) of the growth test on the first ``horizon`` iterations of one run."""
+    first = frame[frame["iteration"] < horizon]
+    diverged = diverged_at(first)
+    if math.isfinite(diverged):
+        return FLAGGED, f"diverged at j = {int(diverged)}"
+    growth = learning_growth(first, perturbation_iteration=perturbation_iteration, config=config)
+    said = verdict(growth, method)
+    if said == "grows":
+        fastest = growth[growth["grows"]].sort_values("rate", ascending=False).iloc[0]
+        return FLAGGED, growth_text(fastest)
+    if said == "no growth":
+        return NOT_FLAGGED, "no growth"
+    if said == "inconclusive":
+        unsure = growth[growth["inconclusive"]].sort_values("rate", ascending=False).iloc[0]
+        return NOT_EVALUABLE, (f"inconclusive: {short_name(unsure.quantity)} x{unsure.rate:.3g} "
+                               f"[{unsure.rate_low:.3g}, {unsure.rate_high:.3g}]")
+    return NOT_EVALUABLE, NOT_FITTED
