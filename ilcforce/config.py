@@ -18,6 +18,7 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
                   initial_velocity, implicit_fallback
     [noise]       disturbance_amplitude, ..., encoder, joint_rate, force_sensor, scale
     [surface]     selection, lambda_p, lambda_f1, lambda_f2          (eq. 8, shared by all methods)
+    [tuning]      source, withheld                                   (set by `ilcforce tune` in a tuned file)
     [c1] [c2] [c3] [smc-bl] ... one per registered method            (each method's own gains)
 
 A method family shares its keys: a key set in ``[c3]`` (or by ``--set c3.KEY=...``) reaches every
@@ -137,6 +138,28 @@ class SurfaceGains:
         force_axis(self.selection)
 
 
+@dataclass(frozen=True)
+class TuningInfo:
+    """What a tuned experiment file (written by ``ilcforce tune``) says of its gains: the tuning that chose
+    them, and the methods it found no stable gains for under its chattering cap (their sections keep the
+    experiment's gains, and no command runs them with this file)."""
+
+    source: str = ""  # the tuning's name; "" for an experiment not written by a tuning
+    withheld: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        for method in self.withheld:
+            if method not in REGISTRY:
+                raise ValueError(f"tuning.withheld: unknown method {method!r}")
+
+    def refusal(self, method: str) -> str | None:
+        """One line saying why ``method`` may not run with this file, or None when it may."""
+        if method not in self.withheld:
+            return None
+        return (f"{method} has no gains in this tuned experiment: the tuning {self.source} found no stable gains "
+                "under its chattering cap ([tuning] withheld); run it with the untuned experiment")
+
+
 def _default_gains() -> dict[str, object]:
     return {name: spec.gains_class() for name, spec in REGISTRY.items()}
 
@@ -154,6 +177,7 @@ class Config:
     simulation: SimulationSettings = field(default_factory=SimulationSettings)
     noise: NoiseModel = field(default_factory=NoiseModel)
     surface: SurfaceGains = field(default_factory=SurfaceGains)
+    tuning: TuningInfo = field(default_factory=TuningInfo)
     gains: dict = field(default_factory=_default_gains)
 
     def __getattr__(self, name: str):

@@ -68,6 +68,9 @@ def canonical(method: str) -> str:
 def make_controller(config: Config, method: str):
     """Instantiate the registered controller ``method`` (any case) with the experiment's gains."""
     method = canonical(method)
+    refusal = config.tuning.refusal(method)
+    if refusal:
+        raise ConfigError(refusal)
     cls = REGISTRY[method].controller_class
     try:
         # a law with the plant's own regressor (sl-adapt) also takes the nominal plant's parameters

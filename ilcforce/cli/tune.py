@@ -1,8 +1,9 @@
 """The `tune` command: ``ilcforce tune TUNING.toml`` tunes methods' gains with one budget each
 (:mod:`ilcforce.tune`), then writes the tuned experiment file. No science here.
 
-Output: a progress line per stored trial on stderr (``tune NAME: c3 trial 4/30: 1.234 (best 0.98,
-trial 2)``), then one summary line per method and the path of the tuned experiment file on stdout.
+Output: a progress line per stored trial on stderr (``tune NAME: c3 trial 4/65: error -4.12, chattering
+-0.31, feasible (front 3)``), then one summary line per method (its search, and the gains shipped or
+withheld) and the path of the tuned experiment file on stdout.
 Every error is one line on stderr, exit 2; an interrupt stores every finished trial and exits 130.
 """
 
@@ -29,9 +30,24 @@ def _shown(value: float | None) -> str:
 
 def progress_line(name: str, p) -> str:
     """One progress line for a stored trial (:class:`~ilcforce.tune.runner.TuneProgress`)."""
-    best = f"best {_shown(p.best_value)}, trial {p.best_number}" if p.best_number is not None else "no trial complete yet"
-    why = f" [{p.message[:100]}]" if p.state != "complete" and p.message else ""
-    return f"tune {name}: {p.method} trial {p.number + 1}/{p.trials}: {_shown(p.value)}{why} ({best})"
+    if p.state != "complete":
+        said = f"failed [{p.message[:100]}]"
+    else:
+        said = (f"error {p.value:.4g}, chattering {p.chattering:+.3g}, "
+                + ("feasible" if p.feasible else f"infeasible [{p.message[:100]}]"))
+    return f"tune {name}: {p.method} trial {p.number + 1}/{p.trials}: {said} (front {p.front})"
+
+
+def summary_line(name: str, method: str, search: dict, point: dict | None) -> str:
+    """One method's outcome: its search (trials, converged or not) and what it ships."""
+    from ilcforce.tune.heldout import NONE_UNDER_CAP
+
+    done = (f"{search['trials']} trials (first budget {search['first']}, at most {search['most']}), "
+            + (f"converged (front grew {search['gain']:.1%} over the last quarter)" if search["converged"]
+               else "NOT converged"))
+    ships = (f"ships trial {point['trial']}: held-out e_P {point['e_p']:.3g} m, e_F {point['e_f']:.3g} N, "
+             f"H_x {point['h_x']:.3g} N, H_y {point['h_y']:.3g} N" if point is not None else NONE_UNDER_CAP)
+    return f"{name}: {method}: {done}; {ships}"
 
 
 def tune_command(file: Path | str, *, scheduler: str | None = None, workers: int | None = None,
@@ -62,17 +78,16 @@ def tune_command(file: Path | str, *, scheduler: str | None = None, workers: int
         return stop_code()
     for line in summary.quarantined:
         _line(f"warning: {line}", stderr=True)
-    for method, best in summary.best.items():
-        stored = f"{summary.stored[method]} stored (budget {tuning.trials})"
-        if best is None:
-            _line(f"{tuning.name}: {method}: every one of its {stored} trials failed: left untuned")
-        else:
-            _line(f"{tuning.name}: {method}: best trial {best[0]} of {stored}, objective {best[1]:.4g}")
+    for method in tuning.methods:
+        _line(summary_line(tuning.name, method, summary.searches[method], summary.chosen.get(method)))
     if not quiet:
+        run, planned = summary.pruned
+        pruning = (f"; check runs stopped early ran {run} of {planned} iterations ({1 - run / planned:.0%} saved)"
+                   if planned else "")
         _line(f"{tuning.name}: {summary.ran} trials run, {summary.skipped} already stored, in "
-              f"{summary.wall_time:.1f} s on {summary.scheduler} -> {summary.path}")
+              f"{summary.wall_time:.1f} s on {summary.scheduler}{pruning} -> {summary.path}")
     if summary.tuned is None:
-        _line(f"error: {tuning.name}: no method could be tuned (every trial failed); no tuned experiment file "
+        _line(f"error: {tuning.name}: no method has stable gains under the cap; no tuned experiment file "
               "written", stderr=True)
         return 1
     _line(f"{tuning.name}: tuned experiment file {summary.tuned} (run it with `ilcforce simulate -c {summary.tuned}`)")

@@ -1,6 +1,7 @@
 """The tuning store, ``results/tuning/<name>/`` (layout: docs/store-format.md): a sealed header
-``tuning.json`` and one sealed JSON record per finished trial in ``trials/``, written as it finishes,
-so a rerun after ``kill -9`` repeats none of them.
+``tuning.json``, one sealed JSON record per finished trial in ``trials/``, written as it finishes, and one
+per front point re-evaluated on the held-out seeds in ``heldout/``, so a rerun after ``kill -9`` repeats
+none of them.
 
 Durability is the study journal's, from the same code (:mod:`.records`): whole-or-absent writes (a
 trial by a hard link that never replaces a finished one), sha256 seals, reads in bounded time. The
@@ -32,14 +33,20 @@ from ilcforce.store.safeio import StoreError, acquire_writer_lock, check_writer_
 from ilcforce.store.study_journal import _is_int  # an integer, not a bool
 
 SCHEMA_NAME = "ilcforce.tuning"
-SCHEMA_VERSION = 2
-HEADER, TRIALS, TUNED = "tuning.json", "trials", "tuned.toml"
+SCHEMA_VERSION = 3
+HEADER, TRIALS, HELDOUT, TUNED = "tuning.json", "trials", "heldout", "tuned.toml"
 HEADER_FIELDS = frozenset({"schema", "schema_version", "name", "description", "tuning_toml", "definition_json",
                            "fingerprint", "created", "tuning_id", "sessions", "checksum"})
 #: A trial's fields (docs/store-format.md says what each holds).
-RECORD_FIELDS = frozenset({"tuning", "search", "method", "number", "params", "gains", "state", "value", "seeds",
-                           "message", "elapsed", "in_sampler", "checksum"})
-SEED_KEYS = ("seed", "value", "iterations_run", "diverged_iteration", "position_error_rms", "force_error_rms")
+RECORD_FIELDS = frozenset({"tuning", "search", "method", "number", "params", "gains", "state", "value", "chattering",
+                           "feasible", "cap", "scored", "seeds", "checks", "message", "elapsed", "in_sampler",
+                           "checksum"})
+SEED_KEYS = ("seed", "value", "chattering", "iterations_run", "diverged_iteration", "position_error_rms",
+             "force_error_rms", "chattering_task_x_settled", "chattering_task_y_settled")
+CHECK_KEYS = ("seed", "iterations_run", "planned", "diverged_iteration", "verdict", "text", "h_x_last", "h_y_last")
+#: A held-out evaluation's fields, and each held-out seed's.
+HELDOUT_FIELDS = frozenset({"tuning", "search", "method", "number", "gains", "seeds", "checksum"})
+HELDOUT_KEYS = ("seed", "iterations_run", "diverged_iteration", "e_p", "e_f", "h_x", "h_y", "verdict", "text")
 COMPLETE, FAILED = "complete", "failed"
 MAX_BYTES = 16 << 20
 _TRIAL_FILE = re.compile(r"(?P<method>[a-z0-9][a-z0-9-]{0,63})-(?P<number>\d{5})\.json")
@@ -60,6 +67,8 @@ class Search:  # what a record is checked against: the store's identity and the 
     digest: str  # sha256 of the simulation code's fingerprint and the search's definition
     methods: tuple[str, ...]
     seeds: tuple[int, ...]
+    check_seeds: tuple[int, ...]
+    heldout_seeds: tuple[int, ...]
     most: int  # the largest budget a run of the search asked for
 
 
@@ -67,6 +76,7 @@ def search_of(header: dict) -> Search:
     definition = json.loads(header["definition_json"])
     return Search(header["tuning_id"], hashlib.sha256(f"{header['fingerprint']}\0{header['definition_json']}".encode())
                   .hexdigest(), tuple(definition["methods"]), tuple(definition["seeds"]),
+                  tuple(definition["check_seeds"]), tuple(definition["heldout_seeds"]),
                   max([s["trials"] for s in header["sessions"] if _is_int(s.get("trials"))] or [0]))
 
 
@@ -80,7 +90,8 @@ def read_header(path: Path | str) -> dict:
                               f"reads {SCHEMA_NAME} {SCHEMA_VERSION}")
         definition = json.loads(header["definition_json"])
         if not (isinstance(header["sessions"], list) and all(isinstance(s, dict) for s in header["sessions"]) and
-                all(isinstance(m, str) for m in definition["methods"]) and all(map(_is_int, definition["seeds"]))):
+                all(isinstance(m, str) for m in definition["methods"]) and
+                all(map(_is_int, definition["seeds"] + definition["check_seeds"] + definition["heldout_seeds"]))):
             raise RecordError("its sessions or the search's methods or seeds are not what they must be")
     except (RecordError, ValueError, RecursionError, TypeError, KeyError) as error:
         raise TuningStoreError(f"{Path(path) / HEADER}: not a valid tuning header ({error})") from None
@@ -106,21 +117,27 @@ def check_record(record, search: Search, name: tuple[str, str] | None = None, ch
         raise RecordError(f"it holds {method} trial {number}, not the trial of its file name")
     if not 0 <= number < search.most:
         raise RecordError(f"trial {number} is beyond every budget a run of this tuning asked for ({search.most})")
-    seeds = record["seeds"]
-    if not isinstance(seeds, list) or [e.get("seed") if isinstance(e, dict) and _is_int(e.get("seed")) else None
-                                       for e in seeds] not in (list(search.seeds), [] if record["state"] == FAILED else 0):
-        raise RecordError(f"its seeds are not the tuning's {list(search.seeds)[:10]} (none: gains refused unrun)")
+    seeds, checks = record["seeds"], record["checks"]
+    unrun = record["state"] == FAILED and seeds == [] and checks == []  # gains refused before any cell ran
+    if not unrun:
+        _check_entries(seeds, search.seeds, SEED_KEYS, "seeds")
+        _check_entries(checks, search.check_seeds, CHECK_KEYS, "check seeds")
     for entry in seeds:
-        if not set(SEED_KEYS) <= set(entry) <= {*SEED_KEYS, "message"}:
-            raise RecordError(f"seed {entry['seed']}: its fields are not {', '.join(SEED_KEYS)}")
-        if entry["value"] is not None and not _is_number(entry["value"]):
-            raise RecordError(f"seed {entry['seed']}: value {str(entry['value'])[:30]} is not a finite number")
-    values = [e["value"] for e in seeds]
+        for key in ("value", "chattering"):
+            if entry[key] is not None and not _is_number(entry[key]):
+                raise RecordError(f"seed {entry['seed']}: {key} {str(entry[key])[:30]} is not a finite number")
     if record["state"] == COMPLETE:
-        if not _is_number(record["value"]) or None in values or record["value"] != statistics.median(values):
-            raise RecordError(f"value {str(record['value'])[:30]} is not the median of its seeds' values")
-    elif record["state"] != FAILED or record["value"] is not None:
+        for key in ("value", "chattering"):
+            values = [e[key] for e in seeds]
+            if not _is_number(record[key]) or None in values or record[key] != statistics.median(values):
+                raise RecordError(f"{key} {str(record[key])[:30]} is not the median of its seeds' values")
+    elif record["state"] != FAILED or record["value"] is not None or record["chattering"] is not None:
         raise RecordError(f"state {str(record['state'])[:20]!r} with value {str(record['value'])[:30]}")
+    if not isinstance(record["feasible"], bool) or record["feasible"] and record["state"] != COMPLETE:
+        raise RecordError("feasible is not true or false, or true for a failed trial")
+    cap = record["cap"]
+    if cap is not None and not (isinstance(cap, list) and len(cap) == 2 and all(_is_number(c) and c > 0 for c in cap)):
+        raise RecordError("its cap is not two positive numbers")
     params = record["params"]
     if not isinstance(params, dict) or not all(map(_is_number, params.values())) or (number == 0) != (params == {}):
         raise RecordError("params is not a table of finite numbers (empty for trial 0 alone, the experiment's gains)")
@@ -129,6 +146,49 @@ def check_record(record, search: Search, name: tuple[str, str] | None = None, ch
         raise RecordError("gains, message, elapsed or in_sampler is not of its kind")
     if check is not None:
         check(record)
+
+
+def _check_entries(entries, seeds: tuple[int, ...], keys: tuple[str, ...], what: str) -> None:
+    if not isinstance(entries, list) or [e.get("seed") if isinstance(e, dict) and _is_int(e.get("seed")) else None
+                                         for e in entries] != list(seeds):
+        raise RecordError(f"its {what} are not the tuning's {list(seeds)[:10]}")
+    for entry in entries:
+        if not set(keys) <= set(entry) <= {*keys, "message"}:
+            raise RecordError(f"{what[:-1]} {entry['seed']}: its fields are not {', '.join(keys)}")
+
+
+def check_heldout(record, search: Search, trials: dict, name: tuple[str, str] | None = None) -> None:
+    """RecordError unless ``record`` is a sealed held-out evaluation of a stored trial of ``search``
+    (``trials``: method -> {number: record}) with the gains of that trial, on the held-out seeds."""
+    records.check_fields(record, HELDOUT_FIELDS, "a held-out evaluation")
+    if (record["tuning"], record["search"]) != (search.tuning_id, search.digest):
+        raise RecordError("it belongs to another tuning store or search")
+    method, number = record["method"], record["number"]
+    if name is not None and (method, number) != (name[0], int(name[1])):
+        raise RecordError(f"it holds {str(method)[:64]} trial {str(number)[:10]}, not the trial of its file name")
+    trial = trials.get(method, {}).get(number) if _is_int(number) and isinstance(method, str) else None
+    if trial is None or trial["gains"] != record["gains"]:
+        raise RecordError(f"it evaluates {str(method)[:64]} trial {str(number)[:10]}, which is not stored with "
+                          "these gains")
+    _check_entries(record["seeds"], search.heldout_seeds, HELDOUT_KEYS, "held-out seeds")
+    for entry in record["seeds"]:
+        if not all(entry[k] is None or _is_number(entry[k]) for k in ("e_p", "e_f", "h_x", "h_y")):
+            raise RecordError(f"held-out seed {entry['seed']}: a norm is not a finite number")
+
+
+def scan_heldout(path: Path, search: Search, trials: dict) -> tuple[dict, list]:
+    """((method, number) -> held-out record that passes, [(file, why)] refused) in ``<path>/heldout/``."""
+    found, refused = {}, []
+    folder = Path(path) / HELDOUT
+    for item in sorted(folder.iterdir()) if folder.is_dir() and not folder.is_symlink() else []:
+        if (match := _TRIAL_FILE.fullmatch(item.name)) is not None:
+            try:
+                record = records.read_json(item, MAX_BYTES)
+                check_heldout(record, search, trials, (match["method"], match["number"]))
+                found[(record["method"], record["number"])] = record
+            except RecordError as error:
+                refused.append((item, str(error)))
+    return found, refused
 
 
 def scan(path: Path, search: Search, check: Check | None = None) -> tuple[dict, list]:
@@ -154,6 +214,12 @@ def read_trials(path: Path | str, check: Check | None) -> dict[str, dict[int, di
     return scan(Path(path), search_of(read_header(path)), check)[0]
 
 
+def read_heldout(path: Path | str, check: Check | None) -> dict[tuple[str, int], dict]:
+    """Every held-out evaluation that passes its checks: (method, number) -> record."""
+    search = search_of(read_header(path))
+    return scan_heldout(Path(path), search, scan(Path(path), search, check)[0])[0]
+
+
 def validate_tuning(path: Path | str, check: Check | None) -> dict:
     """Check a tuning store; returns {name, methods: {method: (trials, failed, best value)}}.
 
@@ -161,7 +227,9 @@ def validate_tuning(path: Path | str, check: Check | None) -> dict:
     with why), or a gap in a method's trial numbers (the next ``ilcforce tune`` runs it again)."""
     path = Path(path)
     header = read_header(path)
-    trials, refused = scan(path, search_of(header), check)
+    search = search_of(header)
+    trials, refused = scan(path, search, check)
+    refused += scan_heldout(path, search, trials)[1]
     if refused:
         item, why = refused[0]
         more = f" (and {len(refused) - 1} more refused records)" if len(refused) > 1 else ""
@@ -178,8 +246,8 @@ def validate_tuning(path: Path | str, check: Check | None) -> dict:
         if numbers != list(range(len(numbers))):
             gap = next(i for i, n in enumerate(numbers) if n != i)
             raise TuningStoreError(f"{path}: {method}'s trial {gap} is missing (the next `ilcforce tune` runs it again)")
-        values = [r["value"] for r in stored.values() if r["state"] == COMPLETE]
-        summary[method] = (len(stored), sum(r["state"] == FAILED for r in stored.values()), min(values, default=None))
+        values = [r["value"] for r in stored.values() if r["state"] == COMPLETE and r["feasible"]]
+        summary[method] = (len(stored), sum(not r["feasible"] for r in stored.values()), min(values, default=None))
     return {"name": header["name"], "methods": summary}
 
 
@@ -224,11 +292,12 @@ class TuningStore:
                              ("fingerprint", "its trials were computed by different simulation code")):
                 if stored is not None and stored[key] != header[key] and not overwrite:
                     raise TuningStoreError(f"{self.path}: {why}; pass --overwrite to start the tuning over")
-        for item in dead_copies_in(self.path) + dead_copies_in(self.path / TRIALS):
+        for item in dead_copies_in(self.path) + dead_copies_in(self.path / TRIALS) + dead_copies_in(self.path / HELDOUT):
             item.unlink(missing_ok=True)
         if stored is None or overwrite:
-            if (self.path / TRIALS).exists():
-                shutil.rmtree(self.path / TRIALS)
+            for folder in (TRIALS, HELDOUT):
+                if (self.path / folder).exists():
+                    shutil.rmtree(self.path / folder)
             (self.path / TUNED).unlink(missing_ok=True)
             stored = {**header, "tuning_id": uuid.uuid4().hex, "sessions": []}
         # the tuning file as last run (a changed budget is the one change of it a stored search takes)
@@ -238,8 +307,9 @@ class TuningStore:
         (self.path / TRIALS).mkdir(exist_ok=True)
         self.search = search_of(self.header)
         self.trials, refused = scan(self.path, self.search, self.check)
-        self.quarantined = [f"{item}: refused ({why}); moved to {records.quarantine(item)}, its trial runs again"
-                            for item, why in refused]
+        self.heldout, refused_heldout = scan_heldout(self.path, self.search, self.trials)
+        self.quarantined = [f"{item}: refused ({why}); moved to {records.quarantine(item)}, it runs again"
+                            for item, why in refused + refused_heldout]
         self.committed = 0
 
     def commit(self, record: dict) -> None:
@@ -261,6 +331,36 @@ class TuningStore:
                                    "is kept") from None
         self.committed += 1
         self.trials.setdefault(record["method"], {})[record["number"]] = record
+
+    def commit_heldout(self, record: dict) -> None:
+        """Store one held-out evaluation (whole or not at all; never over a stored one)."""
+        record = records.seal({**record, "tuning": self.search.tuning_id, "search": self.search.digest})
+        target = self.path / HELDOUT / f"{record['method']}-{record['number']:05d}.json"
+        try:
+            check_heldout(record, self.search, self.trials)
+        except RecordError as exc:
+            raise TuningStoreError(f"{target}: refusing to store the held-out evaluation ({exc})") from None
+        if not check_writer_lock(self._lock):
+            raise TuningStoreError(f"{self.path}: no longer the folder this tuning locked; stopping")
+        try:
+            target.parent.mkdir(exist_ok=True)
+            records.atomic_write(target, json.dumps(record).encode(), replace=False)
+        except FileExistsError:
+            raise TuningStoreError(f"{target}: already stored; refusing to overwrite it") from None
+        except OSError as exc:
+            raise TuningStoreError(f"{target}: cannot write ({exc.strerror or exc}); every record stored before "
+                                   "is kept") from None
+        self.committed += 1
+        self.heldout[(record["method"], record["number"])] = record
+
+    def tuned_text(self) -> str | None:
+        """The tuned file this store holds, if it is the one its last writer sealed (else None)."""
+        digests = [s["tuned_sha256"] for s in self.header["sessions"] if "tuned_sha256" in s]
+        try:
+            data = (self.path / TUNED).read_bytes()
+        except OSError:
+            return None
+        return data.decode() if digests and hashlib.sha256(data).hexdigest() == digests[-1] else None
 
     def save_header(self) -> None:
         records.atomic_write(self.path / HEADER, json.dumps(records.seal(self.header)).encode())

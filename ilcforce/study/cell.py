@@ -22,6 +22,7 @@ import os
 import socket
 import time
 from collections import OrderedDict
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -47,7 +48,8 @@ def desired_cache(config: Config) -> dict:
     return cache
 
 
-def run_cell(config: Config, method: str, keep_store: str | None = None) -> dict:
+def run_cell(config: Config, method: str, keep_store: str | None = None,
+             stop: Callable[[list[dict]], bool] | None = None) -> dict:
     """Run every iteration of ``method`` under ``config``; return the metrics rows.
 
     Parameters
@@ -59,6 +61,9 @@ def run_cell(config: Config, method: str, keep_store: str | None = None) -> dict
     keep_store : str or None
         If given, also write the full run store (today's format) at this path, replacing an
         ilcforce store left there by an earlier attempt.
+    stop : callable or None
+        Called with the rows so far after each iteration (not with ``keep_store``); True ends the run
+        there (tuning's stability check prunes a trial whose learning grows).
 
     Returns
     -------
@@ -87,5 +92,7 @@ def run_cell(config: Config, method: str, keep_store: str | None = None) -> dict
 
         for record in simulate_iterations(config, method, desired_cache=cache):
             collect(record, metrics.iteration_metrics(record))
+            if stop is not None and stop(rows):
+                break
     return {"rows": rows, "elapsed": time.perf_counter() - start,
             "worker": f"{socket.gethostname()}:{os.getpid()}"}

@@ -61,39 +61,48 @@ def write_output(output: Path, text: str, *, replace: bool) -> Path:
     return output
 
 
-def tuned_experiment(tuning: Tuning, best: dict[str, dict], baseline: dict[str, dict] | None = None, *,
-                     name: str | None = None, stored: dict[str, int] | None = None) -> str:
-    """The experiment file of the tuning (its experiment with ``[tune.set]``, named ``name``) with
-    each method's best trial's gains, headed by comments stating the tuning file and budget. The
-    experiment keeps its own iteration count (the tuning's horizon only judged the gains)."""
+def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: dict[str, dict], cap, *,
+                     name: str | None = None) -> str:
+    """The experiment file of the tuning (its experiment with ``[tune.set]``, named ``name``) with each
+    method's chosen gains (:func:`ilcforce.tune.heldout.choose`), headed by comments stating the tuning,
+    each search's budget and convergence, the cap, and what each chosen point did on the held-out seeds.
+    A method with no stable point under the cap keeps the experiment's gains and is listed under
+    ``[tuning] withheld``: simulate, compare and studies refuse to run it with this file."""
     from ilcforce.config_load import load_config
     from ilcforce.tomlfile import dump_toml, toml_comment
+    from ilcforce.tune.heldout import NONE_UNDER_CAP
 
     overrides = {**tuning.fixed, "experiment.name": name or f"{tuning.name}-tuned",
                  "experiment.description": f"{tuning.base.experiment.description}; gains tuned by ilcforce tune "
                                            f"({tuning.name})"}
     config = load_config(tuning.experiment, overrides)
     document = config.to_dict()
-    # each method's section as its trials ran it: its own best gains on the experiment (a method family
+    # each method's section as its trials ran it: its own chosen gains on the experiment (a method family
     # shares keys, so one config holding every method's tuned gains would hand C3's to C3-leak)
-    for method, record in best.items():
-        document[method] = load_config(tuning.experiment, {**tuning.fixed, **record["gains"]}).to_dict()[method]
+    for method, point in chosen.items():
+        if point is not None:
+            document[method] = load_config(tuning.experiment, {**tuning.fixed, **point["gains"]}).to_dict()[method]
+    withheld = [m for m in tuning.methods if chosen.get(m) is None]
+    document["tuning"] = {"source": tuning.name, "withheld": withheld}
     source = tuning.path.name if tuning.path is not None else tuning.name
+    b = tuning.budget
     lines = [f"Written by `ilcforce tune {source}`: the experiment {tuning.experiment.name} with [tune.set] "
-             f"and each tuned method's best gains.",
-             f"Budget per method: {tuning.trials} trials (trial 0 = the experiment's gains) x {len(tuning.seeds)} "
-             f"seeds x {tuning.iterations} iterations; sampler TPE, seed {tuning.sampler_seed}"
-             + (" (this run's budget; the counts below include trials stored by runs with another)."
-                if any(c != tuning.trials for c in (stored or {}).values()) else "."),
-             f"Objective ({tuning.objective}): median over seeds of the mean over iterations "
-             f"{tuning.score_iterations - tuning.score_last}..{tuning.score_iterations - 1} of log10(e_P/1 mm) "
-             f"and/or log10(e_F/1 N) (RMS norms); a divergence anywhere in the horizon fails the trial."]
+             "and each method's gains chosen on held-out seeds (docs/tuning.md).",
+             f"Search: error and settled chattering (two objectives), feasible only when {len(tuning.check_seeds)} "
+             f"check seeds run {tuning.check_iterations} iterations without divergence or a growth-test flag; "
+             f"scored on {len(tuning.seeds)} seeds x {tuning.iterations} iterations (the last {tuning.score_last}); "
+             f"budget {b.base} + {b.per_dimension} x dimension trials, then on until the front's hypervolume "
+             f"gains under {b.stop_gain:.0%} over the last quarter (at most {b.extend}x); TPE, seed "
+             f"{tuning.sampler_seed}.",
+             f"Chosen: the front point with the lowest error over {len(tuning.heldout_seeds)} held-out seeds x "
+             f"{tuning.heldout_iterations} iterations that stayed stable with settled H at the last iteration "
+             f"within the cap ({tuning.cap_factor:g} x {tuning.cap_reference} with the experiment's gains"
+             + (f": H_x {cap[0]:.3g} N, H_y {cap[1]:.3g} N)." if cap else ").")]
     for method in tuning.methods:
-        first, record = (baseline or {}).get(method), best.get(method)
-        count = (stored or {}).get(method, "the")
-        was = ("failed" if first["value"] is None else f"{first['value']:.4g}") if first else "not run"
-        lines.append(f"{method}: best trial {record['number']} of {count} stored, objective {record['value']:.4g} "
-                     f"(trial 0, the experiment's gains: {was})" if record is not None else
-                     f"{method}: UNTUNED: every one of its {count} stored trials failed; its gains are the "
-                     "experiment's own")
+        state, point = searches.get(method, {}), chosen.get(method)
+        search = (f"{state.get('trials', '?')} trials ({'converged' if state.get('converged') else 'NOT converged'}"
+                  f", front {state.get('front', 0)})")
+        lines.append(f"{method}: {search}; " + (
+            f"trial {point['trial']}: e_P {point['e_p']:.3g} m, e_F {point['e_f']:.3g} N, H_x {point['h_x']:.3g} N, "
+            f"H_y {point['h_y']:.3g} N (held-out medians)" if point is not None else f"{NONE_UNDER_CAP}: withheld"))
     return "\n".join(toml_comment(line) for line in lines) + "\n" + dump_toml(document)

@@ -1,27 +1,30 @@
-"""The tuning driver: Optuna's ask-and-tell over each method's gains, every trial's cells on the
-same Dask engine as studies (:mod:`ilcforce.study.dask_run`), every finished trial stored at once.
+"""The tuning driver: Optuna's ask-and-tell over each method's gains with two objectives (error and
+chattering) and stability as a constraint, every trial's cells on the same Dask engine as studies
+(:mod:`ilcforce.study.dask_run`), every finished trial stored at once; then the front re-evaluated on
+held-out seeds (:mod:`ilcforce.tune.heldout`) and the tuned experiment file written.
 
 Why Optuna: its ask-and-tell interface leaves the loop, the cluster and the store to us (a trial is
-asked, its cells run wherever studies run, its value told back), its TPE sampler handles log and
-linear ranges and tens of parameters, and a finished trial is replayed into a new study with
-``add_trial`` — which is how a rerun resumes after ``kill -9`` without repeating a trial.
+asked, its cells run wherever studies run, its values told back), its TPE sampler handles log and
+linear ranges, tens of parameters, several objectives and constraints (a trial's constraint value
+above 0 makes it infeasible: the sampler then prefers feasible regions), and a finished trial is
+replayed into a new study with ``add_trial``, which is how a rerun resumes after ``kill -9`` without
+repeating a trial.
 
-One Optuna study per method, each with the same budget (``tune.trials``). Trials go in rounds: a
-round asks the next trial of every method not yet done, runs all their cells (seeds) together on
-the cluster, scores and tells each trial as its last cell comes back, and stores it. The trial
-asked as number n of a method depends only on that method's trials 0 .. n - 1 and on
-``(sampler_seed, method, n)`` (a fresh seeded sampler per ask), so a resumed tuning asks exactly
-what an uninterrupted one would have.
+One Optuna study per method. The cap's reference method runs its trial 0 (the experiment's gains) first:
+its settled H on the scoring seeds is the unit of every trial's chattering objective. Then trials go in
+rounds: a round asks the next trial of every method not yet done, runs their scoring cells and check cells
+together on the cluster, and tells and stores each trial as its last cell comes back. The trial asked as
+number n of a method depends only on that method's trials 0 .. n - 1 and on ``(sampler_seed, method,
+n)``, and whether a method is done only on its stored trials (:meth:`MethodSearch.target`), so a resumed
+tuning asks exactly what an uninterrupted one would have.
 
-Trial 0 of every method is the experiment's own gains (the paper's, or a method's published
-defaults), so the chosen gains can only be as good or better on the objective. It is told to the
-sampler only when it lies in the search space (:meth:`Tuning.defaults_in_space`).
+Trial 0 of every method is the experiment's own gains; it is told to the sampler only when it lies in
+the search space (:meth:`Tuning.defaults_in_space`).
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import platform
@@ -35,23 +38,13 @@ from ilcforce.config import ConfigError
 from ilcforce.study.cell import run_cell
 from ilcforce.study.dask_run import CONNECT_TIMEOUT, IN_FLIGHT_PER_THREAD, dask_client, run_on_dask
 from ilcforce.study.runner import _ADDRESS, _run_in_process, fingerprint, max_local_workers
+from ilcforce.tune import check as stability_check
+from ilcforce.tune import heldout
 from ilcforce.tune.output import check_output, tuned_experiment, write_output
-from ilcforce.tune.spec import GainRange, SearchedGain, Tuning, TuneError, seed_score
-from ilcforce.store.records import RecordError
-from ilcforce.store.tuning import COMPLETE, FAILED, SCHEMA_NAME, SCHEMA_VERSION, TuningStore, TuningStoreError
-
-
-@dataclass(frozen=True)
-class TrialCell:
-    """One cell of a trial: every iteration of ``method`` on ``seed`` with trial ``number``'s gains."""
-
-    method: str
-    number: int
-    seed: int
-
-    @property
-    def key(self) -> str:
-        return f"{self.method}-{self.number}-{self.seed}"
+from ilcforce.tune.search import MethodSearch
+from ilcforce.tune.spec import Tuning, TuneError
+from ilcforce.tune.trial import TrialCell, check_entry, reference_cap, score_entry, trial_check, trial_record
+from ilcforce.store.tuning import SCHEMA_NAME, SCHEMA_VERSION, TuningStore, TuningStoreError
 
 
 @dataclass(frozen=True)
@@ -60,11 +53,12 @@ class TuneProgress:
 
     method: str
     number: int
-    trials: int  # the budget per method
+    trials: int  # the method's budget now (its first budget, or more while its front still improves)
     state: str  # "complete" or "failed"
-    value: float | None
-    best_value: float | None  # the method's best so far
-    best_number: int | None
+    value: float | None  # the error objective
+    chattering: float | None  # the chattering objective
+    feasible: bool
+    front: int  # feasible non-dominated trials so far
     message: str
 
 
@@ -73,13 +67,15 @@ class TuneSummary:
     path: Path
     ran: int  # trials run now
     skipped: int  # trials already stored
-    best: dict  # method -> (number, value) or None
-    stored: dict  # method -> trials stored (this run's and earlier runs', whatever their budget)
-    tuned: Path | None  # the experiment file with the best gains (None: no method could be tuned)
+    searches: dict  # method -> {"trials", "first", "most", "converged", "gain", "front"}
+    chosen: dict  # method -> held-out summary of its shipped point, or None (no stable gains under the cap)
+    cap: tuple | None  # the held-out cap (H_x, H_y), N
+    tuned: Path | None  # the experiment file with the chosen gains (None: no method ships gains)
     wall_time: float
     workers: int
     scheduler: str
     quarantined: tuple = ()  # one line per refused record moved aside
+    pruned: tuple = (0, 0)  # (check iterations run, check iterations planned) over this run's trials
 
 
 def _header(tuning: Tuning) -> dict:
@@ -87,56 +83,6 @@ def _header(tuning: Tuning) -> dict:
             "description": tuning.description, "tuning_toml": tuning.source,
             "definition_json": json.dumps(tuning.definition(), sort_keys=True), "fingerprint": fingerprint(),
             "created": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-
-
-def trial_check(definition: dict) -> Callable[[dict], None]:
-    """The search's own check of a stored trial (:func:`ilcforce.store.tuning.check_record` runs it),
-    from the search's stored ``definition`` (:meth:`Tuning.definition`) alone: its params are a
-    point of the search space, its gains are computed from them (trial 0: the experiment's own), and
-    each seed's value is the score (:func:`seed_score`) of its stored error norms."""
-    from types import SimpleNamespace
-
-    gains = {m: [SearchedGain(g["field"], tuple(GainRange(**e) if isinstance(e, dict) else e for e in g["elements"]),
-                              g["vector"], g["integer"]) for g in gs] for m, gs in definition["gains"].items()}
-    names = {m: dict(p for g in gs for p in g.parameter_names()) for m, gs in gains.items()}
-    integer = {m: {n for g in gs if g.integer for n, _ in g.parameter_names()} for m, gs in gains.items()}
-    experiment = json.loads(definition["experiment"])
-    scoring = SimpleNamespace(**{k: definition[k] for k in ("iterations", "score_iterations", "score_last",
-                                                              "objective")})
-
-    def check(record: dict) -> None:
-        try:
-            fits(record)
-        except (TypeError, KeyError, ValueError, AttributeError, IndexError) as error:  # a field of the wrong kind
-            raise RecordError(f"does not fit its search ({type(error).__name__}: {str(error)[:60]})") from None
-
-    def fits(record: dict) -> None:
-        method, params = record["method"], record["params"]
-        if params and set(params) != set(names[method]):
-            raise RecordError(f"its params are not {method}'s searched gains {sorted(names[method])[:6]}")
-        for name, value in params.items():
-            if not names[method][name].contains(value) or (name in integer[method] and value != int(value)):
-                raise RecordError(f"param {name} = {value:.6g} is outside its range or not an integer")
-        ran = ({f"{method}.{g.field}": g.value(params) for g in gains[method]} if params else
-               {f"{method}.{g.field}": experiment[method][g.field] for g in gains[method]})
-        if json.loads(json.dumps(ran)) != record["gains"]:
-            raise RecordError("its gains are not the ones its params give")
-        for entry in record["seeds"]:
-            if "message" in entry:
-                continue
-            n, diverged = entry["iterations_run"], entry["diverged_iteration"]
-            if not _is_count(n) or diverged is not None and not _is_count(diverged):
-                raise RecordError(f"seed {entry['seed']}: iterations_run or diverged_iteration is no iteration count")
-            rows = [{"status": "complete" if diverged is None or j < diverged else "diverged",
-                     "position_error_rms": p, "force_error_rms": f}
-                    for j, (p, f) in enumerate(zip(entry["position_error_rms"], entry["force_error_rms"]))]
-            if len(rows) != n or any(not isinstance(r[k], (int, float)) for r in rows if r["status"] == "complete"
-                                     for k in ("position_error_rms", "force_error_rms")):
-                raise RecordError(f"seed {entry['seed']}: its error norms do not cover its {n} iterations")
-            if seed_score(rows, scoring) != entry["value"]:
-                raise RecordError(f"seed {entry['seed']}: value {entry['value']} is not the score of its error norms")
-
-    return check
 
 
 def stored_check(path: Path | str) -> Callable[[dict], None]:
@@ -163,127 +109,9 @@ def read_trials(path: Path | str) -> dict[str, dict[int, dict]]:
     return tuning.read_trials(path, stored_check(path))
 
 
-def _is_count(value) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
 def tuning_dir(results_dir: Path | str, name: str) -> Path:
     """Where the tuning ``name`` is stored: ``<results>/tuning/<name>/``."""
     return Path(results_dir) / "tuning" / name
-
-
-def _distributions(tuning: Tuning, method: str) -> dict:
-    from optuna.distributions import FloatDistribution, IntDistribution
-
-    out = {}
-    integer = {name: g.integer for g in tuning.gains[method] for name, _ in g.parameter_names()}
-    for name, r in tuning.parameters(method):
-        if integer[name]:
-            out[name] = IntDistribution(int(r.low), int(r.high), log=r.log)
-        else:
-            out[name] = FloatDistribution(r.low, r.high, log=r.log)
-    return out
-
-
-def _sampler_seed(tuning: Tuning, method: str, number: int) -> int:
-    digest = hashlib.sha256(f"{tuning.sampler_seed}/{method}/{number}".encode()).digest()
-    return int.from_bytes(digest[:4], "little")
-
-
-class _MethodSearch:
-    """One method's Optuna study, with the stored trials replayed into it."""
-
-    def __init__(self, tuning: Tuning, method: str, stored: dict[int, dict]) -> None:
-        import optuna
-
-        self.tuning, self.method = tuning, method
-        self.distributions = _distributions(tuning, method)
-        self.study = optuna.create_study(direction="minimize")
-        self.records = dict(stored)
-        for number in sorted(stored):
-            record = stored[number]
-            if record["in_sampler"]:
-                self._replay(record)
-        # the trials still to run: every number below the budget not stored (a gap left by a record
-        # moved aside or lost is run again; a stored trial is never run, so never overwritten)
-        self.missing = [n for n in range(tuning.trials) if n not in stored]
-
-    def _replay(self, record: dict) -> None:
-        import optuna
-
-        state = optuna.trial.TrialState.COMPLETE if record["state"] == COMPLETE else optuna.trial.TrialState.FAIL
-        self.study.add_trial(optuna.trial.create_trial(
-            state=state, value=record["value"] if state == optuna.trial.TrialState.COMPLETE else None,
-            params=record["params"] or self.tuning.default_params(self.method), distributions=self.distributions))
-
-    def ask(self) -> tuple[int, dict, object]:
-        """(number, params, Optuna trial or None): trial 0 is the experiment's gains."""
-        import optuna
-
-        number = self.missing.pop(0)
-        if number == 0:
-            return 0, {}, None
-        self.study.sampler = optuna.samplers.TPESampler(seed=_sampler_seed(self.tuning, self.method, number))
-        trial = self.study.ask(self.distributions)
-        return number, dict(trial.params), trial
-
-    def tell(self, trial, number: int, params: dict, value: float | None) -> bool:
-        """Tell the sampler; returns whether it learned from this trial."""
-        import optuna
-
-        if trial is not None:
-            if value is None:
-                self.study.tell(trial, state=optuna.trial.TrialState.FAIL)
-            else:
-                self.study.tell(trial, value)
-            return True
-        if not self.tuning.defaults_in_space(self.method):
-            return False
-        self._replay({"state": COMPLETE if value is not None else FAILED, "value": value, "params": {}})
-        return True
-
-    def best(self) -> tuple[int, float] | None:
-        done = [(r["value"], n) for n, r in self.records.items() if r["state"] == COMPLETE]
-        if not done:
-            return None
-        value, number = min(done)
-        return number, value
-
-
-def _gains_of(tuning: Tuning, method: str, params: dict) -> dict:
-    """The trial's gains as dotted keys (trial 0: the experiment's own)."""
-    gains = tuning.base.gains[method]
-    return {f"{method}.{g.field}": (list(getattr(gains, g.field)) if g.vector else getattr(gains, g.field))
-            if not params else g.value(params) for g in tuning.gains[method]}
-
-
-def _seed_entry(tuning: Tuning, seed: int, result: dict | None, message: str | None) -> dict:
-    rows = result["rows"] if result is not None else []
-    diverged = next((r["iteration"] for r in rows if r["status"] != "complete"), None)
-    return {"seed": seed, "value": seed_score(rows, tuning) if result is not None else None,
-            "iterations_run": len(rows), "diverged_iteration": diverged,
-            "position_error_rms": [_json_float(r["position_error_rms"]) for r in rows],
-            "force_error_rms": [_json_float(r["force_error_rms"]) for r in rows],
-            **({"message": message} if message else {})}
-
-
-def _json_float(value) -> float | None:
-    value = float(value)
-    return value if value == value and abs(value) != float("inf") else None
-
-
-def _trial_value(entries: list[dict]) -> tuple[float | None, str]:
-    """The median over seeds of the seed scores, or None with the reason."""
-    import statistics
-
-    for entry in entries:
-        if entry.get("message"):
-            return None, f"seed {entry['seed']}: {entry['message']}"
-        if entry["diverged_iteration"] is not None:
-            return None, f"seed {entry['seed']} diverged at iteration {entry['diverged_iteration']}"
-        if entry["value"] is None:
-            return None, f"seed {entry['seed']} has no finite score"
-    return statistics.median(e["value"] for e in entries), ""
 
 
 def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: int | None = None,
@@ -291,8 +119,9 @@ def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: 
                command: str = "", output: Path | None = None,
                progress: Callable[[TuneProgress], None] | None = None,
                cell_function: Callable = run_cell) -> TuneSummary:
-    """Run every trial of ``tuning`` not yet in ``results/tuning/<name>/`` and store it; write the
-    best gains as an experiment file (``tuned.toml`` in the store, and ``output`` if given).
+    """Run every trial of ``tuning`` not yet in ``results/tuning/<name>/`` and store it, re-evaluate each
+    method's front on the held-out seeds, and write the chosen gains as an experiment file
+    (``tuned.toml`` in the store, and ``output`` if given).
 
     ``workers``: local Dask workers (default: one per usable core; 1 runs in this process);
     ``scheduler``: an existing Dask scheduler's address instead. Raises TuneError (bad request),
@@ -316,15 +145,17 @@ def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: 
     if output is not None:
         check_output(Path(output), tuning, overwrite=overwrite)
     where = scheduler or ("in-process" if workers == 1 else "LocalCluster")
+    most = max(tuning.most_trials(m) for m in tuning.methods)
     session = {"started": datetime.now(timezone.utc).isoformat(timespec="seconds"), "command": command,
-               "host": platform.node(), "scheduler": where, "workers": workers, "trials": tuning.trials}
+               "host": platform.node(), "scheduler": where, "workers": workers, "trials": most}
     store = TuningStore(tuning_dir(results_dir, tuning.name), _header(tuning), session, overwrite=overwrite,
                         check=trial_check(tuning.definition()))
-    ran = 0
+    ran, pruned = 0, [0, 0]
     try:
         skipped = sum(len(v) for v in store.trials.values())
-        searches = {m: _MethodSearch(tuning, m, store.trials.get(m, {})) for m in tuning.methods}
-        if any(s.missing for s in searches.values()):
+        searches = {m: MethodSearch(tuning, m, store.trials.get(m, {})) for m in tuning.methods}
+        todo = heldout.missing(tuning, store)
+        if any(s.next_number() is not None for s in searches.values()) or todo is None or todo:
             with contextlib.ExitStack() as stack:
                 if scheduler or workers > 1:
                     client = stack.enter_context(dask_client(workers or 0, scheduler, timeout))
@@ -340,27 +171,38 @@ def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: 
 
                     def execute(jobs):
                         return _run_in_process(jobs, cell_function)
+                reference = searches[tuning.cap_reference]
+                if 0 not in reference.records:  # the cap first: every chattering value is relative to it
+                    ran += _run_round(tuning, searches, _ask_round(tuning, {tuning.cap_reference: reference}),
+                                      execute, store, progress, None, pruned)
+                cap = reference_cap(reference.records[0])
+                if cap is None:
+                    raise TuneError(f"the cap's reference {tuning.cap_reference} did not complete its scored "
+                                    f"iterations with the experiment's gains ({reference.records[0]['message']}); "
+                                    "there is no chattering cap to tune against")
                 while True:
                     batch = _ask_round(tuning, searches)
                     if not batch:
                         break
-                    ran += _run_round(tuning, searches, batch, execute, store, progress)
-        best = {m: s.best() for m, s in searches.items()}
-        stored = {m: len(store.trials.get(m, {})) for m in tuning.methods}
+                    ran += _run_round(tuning, searches, batch, execute, store, progress, cap, pruned)
+                heldout.run(tuning, store, searches, execute)
+        states = {m: s.state() for m, s in searches.items()}
+        chosen, cap = heldout.choose(tuning, store)
         tuned = None
-        if any(b is not None for b in best.values()):
+        if any(c is not None for c in chosen.values()):
             # named after the output file when there is one: an experiments/<stem>.toml must be named <stem>
             name = Path(output).stem if output is not None else f"{tuning.name}-tuned"
-            text = tuned_experiment(tuning, {m: store.trials[m][b[0]] for m, b in best.items() if b is not None},
-                                    {m: store.trials[m][0] for m in tuning.methods if 0 in store.trials.get(m, {})},
-                                    name=name, stored=stored)
-            tuned = store.write_tuned(text)
+            text = tuned_experiment(tuning, chosen, states, cap, name=name)
+            if store.tuned_text() != text or output is not None:
+                tuned = store.write_tuned(text) if store.tuned_text() != text else store.path / "tuned.toml"
+            else:
+                tuned = store.path / "tuned.toml"
             if output is not None:
                 tuned = write_output(Path(output), text, replace=overwrite)
-        else:  # nothing could be tuned: no tuned file, and none left from an earlier run to be taken for one
+        else:  # no method ships gains: no tuned file, and none left from an earlier run to be taken for one
             (store.path / "tuned.toml").unlink(missing_ok=True)
-        return TuneSummary(store.path, ran, skipped, best, stored, tuned, time.perf_counter() - start,
-                           workers or 0, where, tuple(store.quarantined))
+        return TuneSummary(store.path, ran, skipped, states, chosen, cap, tuned, time.perf_counter() - start,
+                           workers or 0, where, tuple(store.quarantined), tuple(pruned))
     except BaseException:
         store.discard_if_unused()  # e.g. an unreachable scheduler: no empty store left behind
         raise
@@ -375,67 +217,75 @@ def _warm_up(run, tuning: Tuning) -> None:
         run(preload_kernels, tuning.trial_config(tuning.methods[0], {}, tuning.seeds[0]), list(tuning.methods))
 
 
-def _ask_round(tuning: Tuning, searches: dict) -> list[tuple[str, int, dict, object, dict, str]]:
-    """The next trial of every method not done: (method, number, params, optuna trial, seed -> config,
+def _ask_round(tuning: Tuning, searches: dict) -> list[tuple]:
+    """The next trial of every method not done: (method, number, params, optuna trial, [(cell, args)],
     error message if the gains are not a valid configuration)."""
     batch = []
     for method, search in searches.items():
-        if not search.missing:
+        number = search.next_number()
+        if number is None:
             continue
-        number, params, trial = search.ask()
-        configs, message = {}, ""
+        params, trial = search.ask(number)
+        jobs, message = [], ""
         try:
-            configs = {seed: tuning.trial_config(method, params, seed) for seed in tuning.seeds}
             from ilcforce.experiment import make_controller
 
-            make_controller(configs[tuning.seeds[0]], method)  # gains valid alone but not with this setting
+            for seed in tuning.seeds:
+                config = tuning.trial_config(method, params, seed)
+                jobs.append((TrialCell(method, number, seed), (config, method, None, None)))
+            make_controller(jobs[0][1][0], method)  # gains valid alone but not with this setting
+            p = tuning.base.plant.perturbation.from_iteration
+            for seed in tuning.check_seeds:
+                config = tuning.trial_config(method, params, seed, tuning.check_iterations)
+                stop = stability_check.stopper(method, p, config.to_dict(), tuning.check_iterations)
+                jobs.append((TrialCell(method, number, seed, "check"), (config, method, None, stop)))
         except ConfigError as exc:
-            configs, message = {}, f"invalid gains: {exc}"
-        batch.append((method, number, params, trial, configs, message))
+            jobs, message = [], f"invalid gains: {exc}"
+        batch.append((method, number, params, trial, jobs, message))
     return batch
 
 
-def _run_round(tuning, searches, batch, execute, store, progress) -> int:
-    pending = {}  # (method, number) -> {seed: entry}
-    meta = {}
+def _run_round(tuning, searches, batch, execute, store, progress, cap, pruned) -> int:
+    pending: dict = {}  # (method, number) -> {cell: entry}
+    meta, expected = {}, {}
     jobs = []
-    for method, number, params, trial, configs, message in batch:
-        meta[(method, number)] = (params, trial, message)
+    for method, number, params, trial, cells, message in batch:
+        meta[(method, number)] = (params, trial, message, {c: a[0].to_dict() for c, a in cells})
         pending[(method, number)] = {}
-        for seed, config in configs.items():
-            jobs.append((TrialCell(method, number, seed), (config, method, None)))
+        expected[(method, number)] = len(cells)
+        jobs.extend(cells)
     finished = 0
 
     def finish(method, number) -> None:
         nonlocal finished
-        params, trial, message = meta[(method, number)]
-        entries = [pending[(method, number)][s] for s in sorted(pending[(method, number)])]
-        if message:
-            value = None
-        else:
-            value, message = _trial_value(entries)
-        elapsed = sum(e.pop("_elapsed", 0.0) for e in entries)
+        params, trial, message, _configs = meta[(method, number)]
+        cells = pending[(method, number)]
+        scores = [cells[c] for c in sorted(cells, key=lambda c: c.seed) if c.role == "score"]
+        checks = [cells[c] for c in sorted(cells, key=lambda c: c.seed) if c.role == "check"]
+        record = trial_record(tuning, method, number, params, scores, checks, message, cap)
         search = searches[method]
-        learned = search.tell(trial, number, params, value)
-        record = {"method": method, "number": number, "params": params, "gains": _gains_of(tuning, method, params),
-                  "state": COMPLETE if value is not None else FAILED, "value": value, "seeds": entries,
-                  "message": message, "elapsed": elapsed,
-                  "in_sampler": learned}
+        record["in_sampler"] = search.tell(trial, record)
         store.commit(record)
         search.records[number] = store.trials[method][number]
+        pruned[0] += sum(c["iterations_run"] for c in checks)
+        pruned[1] += tuning.check_iterations * len(checks)
         finished += 1
         if progress is not None:
-            best = search.best()
-            progress(TuneProgress(method, number, tuning.trials, record["state"], value,
-                                  best[1] if best else None, best[0] if best else None, message))
+            state = search.state() if search.next_number() is None else {"trials": search.target(), "front": 0}
+            progress(TuneProgress(method, number, state["trials"], record["state"], record["value"],
+                                  record["chattering"], record["feasible"], search.front_size(), record["message"]))
 
-    for key, (_params, _trial, message) in meta.items():
+    for key, (_params, _trial, message, _configs) in meta.items():
         if message:  # no cells: the gains were refused before running
             finish(*key)
     for cell, _attempt, result, failure in execute(iter(jobs)):
-        entry = _seed_entry(tuning, cell.seed, result, failure)
+        configs = meta[(cell.method, cell.number)][3]
+        if cell.role == "score":
+            entry = score_entry(tuning, cell.seed, result, failure, cap)
+        else:
+            entry = check_entry(tuning, cell.method, cell.seed, result, failure, configs[cell])
         entry["_elapsed"] = float(result["elapsed"]) if result is not None else 0.0
-        pending[(cell.method, cell.number)][cell.seed] = entry
-        if len(pending[(cell.method, cell.number)]) == len(tuning.seeds):
+        pending[(cell.method, cell.number)][cell] = entry
+        if len(pending[(cell.method, cell.number)]) == expected[(cell.method, cell.number)]:
             finish(cell.method, cell.number)
     return finished

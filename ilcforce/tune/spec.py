@@ -1,36 +1,42 @@
-"""The tuning file: which gains of which methods to tune, on what, scored how; validated in full
-before any trial runs.
+"""The tuning file: which gains of which methods to tune, on what, scored how, checked how; validated in
+full before any trial runs (docs/tuning.md has the whole format and the reasons).
 
 File format (TOML)::
 
     [tune]
     name = "serial2r-tune"               # results/tuning/<name>/; a plain file name
-    description = "..."                  # optional
     experiment = "serial2r.toml"         # relative to the tuning file (then to the working directory)
-    methods = ["c2", "c3"]               # each gets its own sampler and the same budget
-    seeds = [0, 1, 2]                    # every trial is scored on every seed ("a-b" or a list)
-    iterations = 30                      # horizon: every trial runs this many iterations per seed; a
-                                         #   divergence anywhere in it fails the trial
-    score_iterations = 20                # optional (default: iterations): iterations j < this are scored
-    score_last = 5                       # optional (default 5): the last score_last of those are averaged
-    objective = "both"                   # optional: "both" (default), "position" or "force"
-    trials = 40                          # trials per method, trial 0 (the experiment's gains) included
-    sampler_seed = 0                     # the TPE sampler's seed
-    [tune.set]                           # fixed overrides, exactly as --set (e.g. a shorter reference)
-    "reference.duration" = 1.0
+    methods = ["c1", "c2", "c3"]         # each gets its own sampler and a budget by its dimension
+    seeds = "0-2"                        # scoring seeds: every trial runs `iterations` on each
+    iterations = 20                      # the scored horizon; its last `score_last` iterations are scored
+    score_last = 5                       # optional (default 5)
+    objective = "both"                   # the error objective: "both" (default), "position" or "force"
+    chattering = "settled-H"             # the chattering objective (the one kind there is; see below)
+    check_seeds = "10-11"                # stability check: other seeds, a horizon >= 3 x iterations
+    check_iterations = 60
+    heldout_seeds = "90-93"              # the front re-evaluated on seeds never searched or checked
+    heldout_iterations = 60              # >= 3 x iterations
+    sampler_seed = 0
+    [tune.budget]                        # trials = base + per_dimension x (searched parameters), then
+    base = 10                            #   more, one at a time, until the front stops improving
+    per_dimension = 5                    #   (hypervolume gain under stop_gain over the last quarter of
+    extend = 3                           #   trials), at most extend x the first budget
+    stop_gain = 0.01
+    [tune.cap]                           # the chattering cap the shipped gains must keep
+    reference = "c1"                     # a method of tune.methods, with the experiment's gains
+    factor = 1.0                         # cap = factor x its settled H per task axis
+    [tune.set]                           # fixed overrides, exactly as --set
     [tune.gains.c3]                      # the searched gains of one method
     k = { low = 1.0, high = 1e4, log = true }     # a vector gain: every element searched on this range
-    eta = { low = 0.0, high = 20.0 }              # linear unless log = true
-    gamma_gravity = [{ low = 10.0, high = 1e4, log = true }, 100.0, { low = 10.0, high = 1e4, log = true }, 100.0]
-                                                  # per element: a range, or a number held fixed
+    gamma = [{ low = 400, high = 4e4, log = true }, 40.0, ...]   # per element: a range or a fixed number
 
-The objective (minimised) of a trial, per seed: the mean over the scored iterations
-``score_iterations - score_last .. score_iterations - 1`` (the settled end of learning) of the RMS
-error norms, combined as ``log10(e_P / 1 mm) + log10(e_F / 1 N)`` ("both": a tenfold improvement of
-either error counts the same; the scales only shift the value), ``log10(e_P / 1 mm)`` ("position")
-or ``log10(e_F / 1 N)`` ("force"); then the median over seeds. A trial in which any seed diverges
-anywhere in the horizon (``iterations``, which may be longer than the scored part) has no value: it
-is recorded as failed and can never be chosen, so a fragile gain set cannot win.
+The objectives (both minimised) of a trial, per scoring seed, over the scored iterations
+``iterations - score_last .. iterations - 1``: the **error** ``log10(e_P / 1 mm) + log10(e_F / 1 N)``
+of the mean RMS norms ("both"; "position" or "force" keep one term), and the **chattering**
+``log10(max(H_x / cap_x, H_y / cap_y))`` of the mean settled H per task axis, where the cap is the
+reference method's settled H with the experiment's gains on the same seeds (so 0 is "as much as the
+reference"); then the median over seeds. A trial is **feasible** when every check seed runs the whole
+``check_iterations`` without divergence and the growth test (:mod:`ilcforce.stability`) flags none.
 Every problem raises :class:`TuneError` with one line naming the key.
 """
 
@@ -54,8 +60,20 @@ class TuneError(ValueError):
     """An invalid tuning file or tuning request; the message is one line."""
 
 
-TUNE_KEYS = ("name", "description", "experiment", "methods", "seeds", "iterations", "score_iterations",
-             "score_last", "objective", "trials", "sampler_seed", "set", "gains")
+TUNE_KEYS = ("name", "description", "experiment", "methods", "seeds", "iterations", "score_last", "objective",
+             "chattering", "check_seeds", "check_iterations", "heldout_seeds", "heldout_iterations", "sampler_seed",
+             "budget", "cap", "set", "gains")
+BUDGET_KEYS = ("base", "per_dimension", "extend", "stop_gain")
+CAP_KEYS = ("reference", "factor")
+#: The chattering objectives there are: settled H per task axis against the cap (why H and not the control
+#: effort: H is what the paper and the claims call chattering, and per axis it cannot trade one axis for the other).
+CHATTERING = ("settled-H",)
+#: The check and held-out horizons are at least this many times the scored one (a learning result holds
+#: on the horizon a user runs: the shipped tuned gains diverged just past a 30-iteration tuning horizon).
+HORIZON_FACTOR = 3
+#: Hypervolume reference point (error, chattering) in the objectives' units: e_P = 1 mm with e_F = 10 N
+#: (or their product), and 10x the cap's chattering. A point beyond it adds nothing to the front's volume.
+HV_REFERENCE = (1.0, 1.0)
 #: objective name -> (position weight, force weight) of log10(e_P / 1 mm) and log10(e_F / 1 N)
 OBJECTIVES = {"both": (1.0, 1.0), "position": (1.0, 0.0), "force": (0.0, 1.0)}
 #: Scales of the objective's logarithms (they shift it by a constant; they make it readable).
@@ -63,6 +81,24 @@ POSITION_SCALE = 1e-3  # m
 FORCE_SCALE = 1.0  # N
 #: Trials per method allowed in one tuning file (a guard against typos).
 MAX_TRIALS = 10_000
+
+
+@dataclass(frozen=True)
+class Budget:
+    """A method's trials: ``base + per_dimension x d`` first (d its searched parameters), then one more at
+    a time until the front's hypervolume gained less than ``stop_gain`` (relative) over the last quarter
+    of its trials, at most ``extend`` times the first budget."""
+
+    base: int = 10
+    per_dimension: int = 5
+    extend: int = 3
+    stop_gain: float = 0.01
+
+    def first(self, dimension: int) -> int:
+        return self.base + self.per_dimension * dimension
+
+    def most(self, dimension: int) -> int:
+        return self.extend * self.first(dimension)
 RANGE_KEYS = ("low", "high", "log")
 
 
@@ -118,10 +154,16 @@ class Tuning:
     methods: tuple[str, ...]
     seeds: tuple[int, ...]
     iterations: int
-    score_iterations: int
     score_last: int
     objective: str
-    trials: int
+    chattering: str
+    check_seeds: tuple[int, ...]
+    check_iterations: int
+    heldout_seeds: tuple[int, ...]
+    heldout_iterations: int
+    budget: Budget
+    cap_reference: str
+    cap_factor: float
     sampler_seed: int
     fixed: dict  # [tune.set]
     gains: dict  # method -> tuple of SearchedGain
@@ -130,6 +172,19 @@ class Tuning:
     def parameters(self, method: str) -> list[tuple[str, GainRange]]:
         """Every searched parameter of ``method``, in file order."""
         return [p for g in self.gains[method] for p in g.parameter_names()]
+
+    def first_budget(self, method: str) -> int:
+        """The trials ``method`` runs before its convergence is judged (grows with its dimension)."""
+        return self.budget.first(len(self.parameters(method)))
+
+    def most_trials(self, method: str) -> int:
+        """The most trials ``method`` may run (its search stops earlier once its front stops improving)."""
+        return self.budget.most(len(self.parameters(method)))
+
+    @property
+    def score_iterations(self) -> int:
+        """The scored runs' length (the check and held-out runs are longer)."""
+        return self.iterations
 
     def overrides(self, method: str, params: dict) -> dict:
         """Dotted --set overrides of the sampled ``params`` (an empty ``params``: none, the defaults)."""
@@ -159,30 +214,77 @@ class Tuning:
         return all(g.value(params) == (list(getattr(gains, g.field)) if g.vector else getattr(gains, g.field))
                    for g in self.gains[method])
 
-    def trial_config(self, method: str, params: dict, seed: int) -> Config:
-        """The configuration one cell of a trial runs; ConfigError if the gains are not valid."""
+    def trial_config(self, method: str, params: dict, seed: int, iterations: int | None = None) -> Config:
+        """The configuration one cell of a trial runs (``iterations``: default the scored horizon);
+        ConfigError if the gains are not valid."""
         overrides = {**self.fixed, **self.overrides(method, params), "experiment.seed": seed,
-                     "experiment.iterations": self.iterations}
+                     "experiment.iterations": iterations or self.iterations}
         return load_config(self.experiment, overrides)
 
     def definition(self) -> dict:
         """What identifies the tuning (stored; a rerun must match it)."""
         return {"name": self.name, "experiment": self.base.to_json(), "methods": list(self.methods),
-                "seeds": list(self.seeds), "iterations": self.iterations,
-                "score_iterations": self.score_iterations, "score_last": self.score_last,
-                "objective": self.objective, "sampler_seed": self.sampler_seed,
+                "seeds": list(self.seeds), "iterations": self.iterations, "score_last": self.score_last,
+                "objective": self.objective, "chattering": self.chattering, "check_seeds": list(self.check_seeds),
+                "check_iterations": self.check_iterations, "heldout_seeds": list(self.heldout_seeds),
+                "heldout_iterations": self.heldout_iterations, "budget": dataclasses.asdict(self.budget),
+                "cap": {"reference": self.cap_reference, "factor": self.cap_factor},
+                "sampler_seed": self.sampler_seed,
                 "gains": {m: [dataclasses.asdict(g) for g in gs] for m, gs in self.gains.items()}}
 
 
-def _positive_int(table: dict, key: str, default=None, *, at_most: int | None = None) -> int:
+def _positive_int(table: dict, key: str, default=None, *, at_most: int | None = None, where: str = "tune") -> int:
     value = table.get(key, default)
     if value is None:
-        raise TuneError(f"tune.{key} is missing")
+        raise TuneError(f"{where}.{key} is missing")
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise TuneError(f"tune.{key} must be an integer >= 1, got {shown(value)}")
+        raise TuneError(f"{where}.{key} must be an integer >= 1, got {shown(value)}")
     if at_most is not None and value > at_most:
-        raise TuneError(f"tune.{key} must be at most {at_most}, got {value}")
+        raise TuneError(f"{where}.{key} must be at most {at_most}, got {value}")
     return value
+
+
+def _seeds(table: dict, key: str) -> tuple[int, ...]:
+    try:
+        return parse_seeds(table[key])
+    except StudyError as exc:
+        raise TuneError(str(exc).replace("study.seeds", f"tune.{key}")) from None
+
+
+def _budget(spec) -> Budget:
+    if not isinstance(spec, dict):
+        raise TuneError(f"[tune.budget] must be a table {{ {', '.join(BUDGET_KEYS)} }}, got {shown(spec)}")
+    for key in spec:
+        if key not in BUDGET_KEYS:
+            raise TuneError(f"unknown key tune.budget.{key}{_hint(key, BUDGET_KEYS)}")
+    default = Budget()
+    base = _positive_int(spec, "base", default.base, at_most=MAX_TRIALS, where="tune.budget")
+    per_dimension = spec.get("per_dimension", default.per_dimension)
+    if isinstance(per_dimension, bool) or not isinstance(per_dimension, int) or not 0 <= per_dimension <= 1000:
+        raise TuneError(f"tune.budget.per_dimension must be an integer in 0 .. 1000, got {shown(per_dimension)}")
+    extend = _positive_int(spec, "extend", default.extend, at_most=100, where="tune.budget")
+    stop_gain = _number("tune.budget.stop_gain", spec.get("stop_gain", default.stop_gain))
+    if not 0 < stop_gain < 1:
+        raise TuneError(f"tune.budget.stop_gain must be between 0 and 1 (a relative gain), got {stop_gain:g}")
+    return Budget(base, per_dimension, extend, stop_gain)
+
+
+def _cap(spec, methods: list) -> tuple[str, float]:
+    if not isinstance(spec, dict):
+        raise TuneError(f"[tune.cap] must be a table {{ reference, factor }}, got {shown(spec)}")
+    for key in spec:
+        if key not in CAP_KEYS:
+            raise TuneError(f"unknown key tune.cap.{key}{_hint(key, CAP_KEYS)}")
+    if "reference" not in spec:
+        raise TuneError("tune.cap has no reference: name the method whose chattering with the experiment's gains "
+                        "is the cap (e.g. reference = \"c1\")")
+    reference = spec["reference"]
+    if reference not in methods:
+        raise TuneError(f"tune.cap.reference {shown(reference)} is not in tune.methods (its trial 0 measures the cap)")
+    factor = _number("tune.cap.factor", spec.get("factor", 1.0))
+    if not factor > 0:
+        raise TuneError(f"tune.cap.factor must be above 0, got {factor:g}")
+    return reference, factor
 
 
 def _number(where: str, value) -> float:
@@ -286,7 +388,8 @@ def build_tuning(data: dict, *, source: str = "", path: Path | None = None) -> T
     for key in table:
         if key not in TUNE_KEYS:
             raise TuneError(f"unknown key tune.{key}{_hint(key, TUNE_KEYS)}")
-    for key in ("name", "experiment", "methods", "seeds", "iterations", "trials", "gains"):
+    for key in ("name", "experiment", "methods", "seeds", "iterations", "check_seeds", "check_iterations",
+                "heldout_seeds", "heldout_iterations", "cap", "gains"):
         if key not in table:
             raise TuneError(f"tune.{key} is missing")
     name = table["name"]
@@ -304,21 +407,33 @@ def build_tuning(data: dict, *, source: str = "", path: Path | None = None) -> T
                             f"{', '.join(REGISTRY)}")
     if len(set(methods)) != len(methods):
         raise TuneError("tune.methods lists a method twice")
-    try:
-        seeds = parse_seeds(table["seeds"])
-    except StudyError as exc:
-        raise TuneError(str(exc).replace("study.seeds", "tune.seeds")) from None
+    seeds = _seeds(table, "seeds")
     iterations = _positive_int(table, "iterations", at_most=10_000)
-    score_iterations = _positive_int(table, "score_iterations", iterations)
-    if score_iterations > iterations:
-        raise TuneError(f"tune.score_iterations ({score_iterations}) must not exceed tune.iterations ({iterations})")
-    score_last = _positive_int(table, "score_last", min(5, score_iterations))
-    if score_last > score_iterations:
-        raise TuneError(f"tune.score_last ({score_last}) must not exceed tune.score_iterations ({score_iterations})")
+    score_last = _positive_int(table, "score_last", min(5, iterations))
+    if score_last > iterations:
+        raise TuneError(f"tune.score_last ({score_last}) must not exceed tune.iterations ({iterations})")
     objective = table.get("objective", "both")
     if objective not in OBJECTIVES:
-        raise TuneError(f"tune.objective must be one of {', '.join(OBJECTIVES)}, got {shown(objective)}")
-    trials = _positive_int(table, "trials", at_most=MAX_TRIALS)
+        raise TuneError(f"tune.objective: unknown objective {shown(objective)}; choose from {', '.join(OBJECTIVES)}")
+    chattering = table.get("chattering", CHATTERING[0])
+    if chattering not in CHATTERING:
+        raise TuneError(f"tune.chattering: unknown chattering objective {shown(chattering)}; choose from "
+                        f"{', '.join(CHATTERING)}")
+    check_seeds, heldout_seeds = _seeds(table, "check_seeds"), _seeds(table, "heldout_seeds")
+    for name_a, a, name_b, b in (("seeds", seeds, "check_seeds", check_seeds), ("seeds", seeds, "heldout_seeds",
+                                 heldout_seeds), ("check_seeds", check_seeds, "heldout_seeds", heldout_seeds)):
+        shared = sorted(set(a) & set(b))
+        if shared:
+            raise TuneError(f"tune.{name_b} shares seed {shared[0]} with tune.{name_a}; the three sets of seeds "
+                            "must be disjoint (a check or a held-out result on a searched seed proves nothing)")
+    check_iterations = _positive_int(table, "check_iterations", at_most=10_000)
+    heldout_iterations = _positive_int(table, "heldout_iterations", at_most=10_000)
+    for key, value in (("check_iterations", check_iterations), ("heldout_iterations", heldout_iterations)):
+        if value < HORIZON_FACTOR * iterations:
+            raise TuneError(f"tune.{key} must be at least {HORIZON_FACTOR} x tune.iterations = "
+                            f"{HORIZON_FACTOR * iterations}, got {value}")
+    budget = _budget(table.get("budget", {}))
+    reference, cap_factor = _cap(table["cap"], methods)
     sampler_seed = table.get("sampler_seed", 0)
     if isinstance(sampler_seed, bool) or not isinstance(sampler_seed, int) or not 0 <= sampler_seed < 2**31:
         raise TuneError(f"tune.sampler_seed must be an integer in [0, 2^31), got {shown(sampler_seed)}")
@@ -350,8 +465,10 @@ def build_tuning(data: dict, *, source: str = "", path: Path | None = None) -> T
             if f"{method}.{g.field}" in fixed:
                 raise TuneError(f"{method}.{g.field} is both searched and fixed in [tune.set]")
     return Tuning(name=name, description=description, source=source, path=path, experiment=experiment,
-                  methods=tuple(methods), seeds=seeds, iterations=iterations, score_iterations=score_iterations,
-                  score_last=score_last, objective=objective, trials=trials, sampler_seed=sampler_seed,
+                  methods=tuple(methods), seeds=seeds, iterations=iterations, score_last=score_last,
+                  objective=objective, chattering=chattering, check_seeds=check_seeds, check_iterations=check_iterations,
+                  heldout_seeds=heldout_seeds, heldout_iterations=heldout_iterations, budget=budget,
+                  cap_reference=reference, cap_factor=cap_factor, sampler_seed=sampler_seed,
                   fixed=dict(fixed), gains=gains, base=base)
 
 
@@ -365,18 +482,30 @@ def load_tuning(path: Path | str) -> Tuning:
         raise TuneError(f"{path}: {exc}") from None
 
 
-def seed_score(rows: list[dict], tuning: Tuning) -> float | None:
-    """One seed's objective from its cell's metrics rows (one per iteration run); None if the cell
-    diverged anywhere or did not run the whole horizon."""
-    if len(rows) < tuning.iterations or any(r["status"] != "complete" for r in rows):
+def scored_means(rows: list[dict], tuning) -> dict[str, float] | None:
+    """The means over the scored iterations (``iterations - score_last .. iterations - 1``) of the RMS
+    error norms and the settled H per task axis of one seed's rows; None if the cell diverged anywhere
+    or did not run the scored horizon."""
+    if len(rows) < tuning.iterations or any(r["status"] != "complete" for r in rows[:tuning.iterations]):
         return None
-    scored = rows[tuning.score_iterations - tuning.score_last:tuning.score_iterations]
-    e_p = sum(r["position_error_rms"] for r in scored) / len(scored)
-    e_f = sum(r["force_error_rms"] for r in scored) / len(scored)
-    wp, wf = OBJECTIVES[tuning.objective]
+    scored = rows[tuning.iterations - tuning.score_last:tuning.iterations]
+    keys = {"e_p": "position_error_rms", "e_f": "force_error_rms", "h_x": "chattering_task_x_settled",
+            "h_y": "chattering_task_y_settled"}
+    return {k: sum(float(r[c]) for r in scored) / len(scored) for k, c in keys.items()}
+
+
+def error_value(e_p: float, e_f: float, objective: str) -> float | None:
+    """The error objective: ``log10(e_P / 1 mm) + log10(e_F / 1 N)`` (weights of ``objective``)."""
+    wp, wf = OBJECTIVES[objective]
     value = 0.0
     if wp:
         value += wp * math.log10(max(e_p, 1e-300) / POSITION_SCALE)
     if wf:
         value += wf * math.log10(max(e_f, 1e-300) / FORCE_SCALE)
+    return value if math.isfinite(value) else None
+
+
+def chattering_value(h_x: float, h_y: float, cap: tuple[float, float]) -> float | None:
+    """The chattering objective: ``log10(max(H_x / cap_x, H_y / cap_y))`` (0: the cap's chattering)."""
+    value = math.log10(max(max(h_x, 1e-300) / cap[0], max(h_y, 1e-300) / cap[1]))
     return value if math.isfinite(value) else None
