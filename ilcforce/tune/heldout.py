@@ -25,7 +25,7 @@ from ilcforce.tune.spec import Tuning, error_value
 from ilcforce.tune.trial import TrialCell, diverged_at, json_float
 
 #: Front points re-evaluated per method (the front's ends always among them).
-FRONT_POINTS = 8
+FRONT_POINTS = 6
 #: What the tuned tables say of a method that ships no gains.
 NONE_UNDER_CAP = "no stable gains found under the cap"
 

@@ -271,7 +271,7 @@ def _run_round(tuning, searches, batch, execute, store, progress, cap, pruned) -
         pruned[1] += tuning.check_iterations * len(checks)
         finished += 1
         if progress is not None:
-            state = search.state() if search.next_number() is None else {"trials": search.target(), "front": 0}
+            state = search.state()
             progress(TuneProgress(method, number, state["trials"], record["state"], record["value"],
                                   record["chattering"], record["feasible"], search.front_size(), record["message"]))
 

@@ -46,6 +46,27 @@ def point(record: dict) -> tuple[float, float] | None:
     return record["value"], record["chattering"]
 
 
+def extent(records: dict[int, dict], first: int, most: int, stop_gain: float) -> dict:
+    """How far a search with the stored trials ``records`` (number -> record) goes, from them alone: its
+    ``first`` budget, then one more trial at a time while its front still improves
+    (:func:`ilcforce.tune.front.converged`), up to ``most``. Returns ``trials`` (the budget now),
+    ``done`` (all of them stored), ``converged``, ``gain`` (the front's relative hypervolume gain over the
+    last quarter; NaN while not done), ``front`` (its feasible non-dominated trials), ``first``, ``most``."""
+    def history(n):
+        return [point(records[k]) for k in range(n)]
+
+    n = first
+    while n < most and all(k in records for k in range(n)):
+        if fronts.converged(history(n), HV_REFERENCE, stop_gain)[0]:
+            break
+        n += 1
+    done = all(k in records for k in range(n))
+    ok, gain = fronts.converged(history(n), HV_REFERENCE, stop_gain) if done else (False, math.nan)
+    points = [p for p in history(n) if p is not None] if done else []
+    return {"trials": n, "first": first, "most": most, "converged": ok, "gain": gain, "done": done,
+            "front": len(fronts.pareto_indices(points))}
+
+
 class MethodSearch:
     """One method's Optuna study, with the stored trials replayed into it."""
 
@@ -72,31 +93,14 @@ class MethodSearch:
         trial.set_constraint(CONSTRAINT, 0.0 if record["feasible"] else 1.0)
         self.study.add_trial(trial)
 
-    def history(self, n: int) -> list:
-        """The points of trials 0 .. n - 1 (None: failed or infeasible)."""
-        return [point(self.records[k]) for k in range(n)]
-
     def target(self) -> int:
-        """How many trials this search runs, from its stored trials alone: its first budget, then one
-        more while its front still improves (:func:`ilcforce.tune.front.converged`), up to its most."""
-        first, most = self.tuning.first_budget(self.method), self.tuning.most_trials(self.method)
-        n = first
-        while n < most and all(k in self.records for k in range(n)):
-            if fronts.converged(self.history(n), HV_REFERENCE, self.tuning.budget.stop_gain)[0]:
-                break
-            n += 1
-        return n
+        """How many trials this search runs (:func:`extent`)."""
+        return self.state()["trials"]
 
     def state(self) -> dict:
-        """Its trials (budget now, first, most), whether it converged and by how much its front still grew."""
-        n = self.target()
-        done = all(k in self.records for k in range(n))
-        ok, gain = fronts.converged(self.history(n), HV_REFERENCE, self.tuning.budget.stop_gain) if done else \
-            (False, math.nan)
-        points = [p for p in self.history(n)] if done else []
-        return {"trials": n, "first": self.tuning.first_budget(self.method), "most": self.tuning.most_trials(self.method),
-                "converged": ok, "gain": gain, "done": done,
-                "front": len(fronts.pareto_indices([p for p in points if p is not None]))}
+        """:func:`extent` of this search's stored trials."""
+        return extent(self.records, self.tuning.first_budget(self.method), self.tuning.most_trials(self.method),
+                      self.tuning.budget.stop_gain)
 
     def next_number(self) -> int | None:
         missing = [k for k in range(self.target()) if k not in self.records and k not in self.asked]
