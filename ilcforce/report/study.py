@@ -79,7 +79,7 @@ def _diverged_at(metrics: SeedMetrics) -> float:
 def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -> dict[str, dict[str, list[float]]]:
     """quantity -> method -> per-seed values (NaN where the number does not exist) for ONE setting."""
     last = iterations - 1
-    key_js = sorted({min(j, last) for j in KEY_ITERATIONS})
+    key_js = sorted({min(j, last) for j in KEY_ITERATIONS} | {last})  # a long run's last iteration too
     out: dict[str, dict[str, list[float]]] = {}
 
     def put(quantity: str, method: str, value: float) -> None:
@@ -99,12 +99,12 @@ def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -
                     norms = [_value(metrics, column, j) for j in range(last + 1)]
                     jb = convergence_iteration(norms)
                     put(f"j̄ {quantity}", method, math.nan if jb is None else float(jb))
-            j_h = min(paper.CHATTERING_ITERATION, last)
-            for column in ("chattering_task_x", "chattering_task_y", "chattering_task_x_settled",
-                           "chattering_task_y_settled"):
-                if column in metrics.columns:
-                    put(f"H {column.removeprefix('chattering_task_').replace('_', ' ')} at j = {j_h} (N)", method,
-                        _value(metrics, column, j_h))
+            for j_h in sorted({min(paper.CHATTERING_ITERATION, last), last}):  # settled H beside the norms
+                for column in ("chattering_task_x", "chattering_task_y", "chattering_task_x_settled",
+                               "chattering_task_y_settled"):
+                    if column in metrics.columns:
+                        put(f"H {column.removeprefix('chattering_task_').replace('_', ' ')} at j = {j_h} (N)", method,
+                            _value(metrics, column, j_h))
             put("first diverged iteration (diverged seeds only)", method, _diverged_at(metrics))
     # ratios, seed by seed (common random numbers: the methods of a seed saw the same draws)
     pairs = []
@@ -127,8 +127,12 @@ def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -
     return out
 
 
-def key_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -> pd.DataFrame:
-    """One row per quantity, one column per method (and ``ratio``): "median [low, high] (n = k)"."""
+def key_numbers(frame: pd.DataFrame, methods: list[str], iterations: int,
+                withheld: tuple[str, ...] = ()) -> pd.DataFrame:
+    """One row per quantity, one column per method (and ``ratio``): "median [low, high] (n = k)"; a
+    method the setting's tuned experiment withholds (no stable gains under its cap) has a column saying so."""
+    from ilcforce.tune.heldout import NONE_UNDER_CAP
+
     numbers = per_seed_numbers(frame, methods, iterations)
     n_seeds = frame["seed"].nunique()
     rows = []
@@ -143,7 +147,11 @@ def key_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -> pd.
                 continue
             row[method] = _cell(median_interval(values), n_seeds)
         rows.append(row)
-    columns = ["quantity", *[m for m in methods], *(["ratio"] if any("ratio" in r for r in rows) else [])]
+    for row in rows:
+        row.update({m: NONE_UNDER_CAP for m in withheld})
+    withheld = [m for m in withheld if m not in methods]
+    columns = ["quantity", *tables.ordered_methods([*methods, *withheld]),
+               *(["ratio"] if any("ratio" in r for r in rows) else [])]
     return pd.DataFrame(rows).reindex(columns=columns).fillna("-")
 
 
@@ -231,7 +239,8 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
         iterations = setting_iterations(setting.config_json)
         title = setting.label if results.sweep_keys else "the study's setting"
         lines += [f"## Setting {k}: {title}" if results.sweep_keys else "## Results", ""]
-        numbers = key_numbers(mine, methods, iterations)
+        numbers = key_numbers(mine, methods, iterations, tuple(_config(setting.config_json).get("tuning", {})
+                                                               .get("withheld", ())))
         report.files += table_write.write_table(numbers, directory, f"key_numbers_s{k}")
         lines += ["### Key numbers (median over seeds [95% bootstrap interval of the median])", "", table_write.markdown_table(numbers), ""]
         deterministic = claims_module.is_deterministic(_config(setting.config_json))

@@ -1,11 +1,15 @@
-"""Tuning figures: a method's objective against the trial number (``ilcforce tune``).
+"""The page of a tuning (``ilcforce tune``): every search's convergence, every method's front re-evaluated on
+held-out seeds (``pareto.csv`` and one figure of every front against the chattering cap), and what each
+method ships.
 
-Draws on the Axes it is given and returns the artists, as every report figure does; the input is
-:func:`trials_frame`.
+Figures draw on the Axes they are given and return the artists, as every report figure does; their inputs
+are :func:`trials_frame` (one row per trial) and :func:`pareto_frame` (one row per held-out point).
 """
 
 from __future__ import annotations
 
+import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -14,170 +18,301 @@ from matplotlib.axes import Axes
 
 from ilcforce.controllers import REGISTRY
 
+#: Significant digits of a gain in the tables: the search's resolution is far coarser (a log-scaled range
+#: over decades), and 16 digits hid the value. The tuned experiment file keeps every digit.
+GAIN_DIGITS = 4
+#: Where ``make tune`` commits each tuning's page (with its date and commit), for reports of results folders
+#: that hold no tuning store (``make reproduce`` does not tune: it reports the committed page).
+COMMITTED = Path(__file__).resolve().parent.parent.parent / "docs" / "tuning"
 
-def trials_frame(path) -> pd.DataFrame:
-    """Every trial of the tuning store ``path`` that passes every check
-    (:func:`ilcforce.tune.runner.read_trials`) as a tidy table, one row per (method, trial), in trial
-    order: method, trial, state, objective (NaN when failed), best_so_far (the method's best up to
-    and including this trial, NaN before the first complete one), message, elapsed (s), then one
-    column per gain (dotted key; a vector gain holds a list)."""
-    import math
 
-    from ilcforce.tune.runner import read_trials
+def _dimension(gains: list[dict]) -> int:
+    return sum(isinstance(e, dict) for g in gains for e in g["elements"])
+
+
+def searches(definition: dict, trials: dict[str, dict[int, dict]]) -> dict[str, dict]:
+    """Per method, how far its search went (:func:`ilcforce.tune.search.extent`) from the stored trials."""
+    from ilcforce.tune.search import extent
+
+    budget = definition["budget"]
+    out = {}
+    for method in definition["methods"]:
+        first = budget["base"] + budget["per_dimension"] * _dimension(definition["gains"][method])
+        out[method] = extent(trials.get(method, {}), first, budget["extend"] * first, budget["stop_gain"])
+    return out
+
+
+def trials_frame(trials: dict[str, dict[int, dict]]) -> pd.DataFrame:
+    """One row per (method, trial) in trial order: method, trial, state, error, chattering (NaN when
+    failed), feasible, hypervolume (of the method's feasible front up to and including this trial),
+    message, elapsed (s), then one column per gain (dotted key; a vector gain holds a list)."""
+    from ilcforce.tune.front import hypervolume
+    from ilcforce.tune.search import point
+    from ilcforce.tune.spec import HV_REFERENCE
 
     rows = []
-    for method, trials in read_trials(path).items():
-        best = math.inf
-        for number in sorted(trials):
-            record = trials[number]
-            value = record["value"] if record["state"] == "complete" else math.nan
-            best = min(best, value) if value == value else best
-            rows.append({"method": method, "trial": number, "state": record["state"], "objective": value,
-                         "best_so_far": best if best < math.inf else math.nan, "message": record["message"],
-                         "elapsed": record["elapsed"], **record["gains"]})
-    return pd.DataFrame(rows, columns=None if rows else ["method", "trial", "state", "objective", "best_so_far",
-                                                          "message", "elapsed"])
+    for method, stored in trials.items():
+        seen = []
+        for number in sorted(stored):
+            record = stored[number]
+            if (p := point(record)) is not None:
+                seen.append(p)
+            complete = record["state"] == "complete"
+            rows.append({"method": method, "trial": number, "state": record["state"],
+                         "error": record["value"] if complete else math.nan,
+                         "chattering": record["chattering"] if complete else math.nan,
+                         "feasible": bool(record["feasible"]), "hypervolume": hypervolume(seen, HV_REFERENCE),
+                         "message": record["message"], "elapsed": record["elapsed"], **record["gains"]})
+    return pd.DataFrame(rows, columns=None if rows else ["method", "trial", "state", "error", "chattering",
+                                                          "feasible", "hypervolume", "message", "elapsed"])
 
 
-def plot_tuning_history(ax: Axes, frame: pd.DataFrame, method: str) -> list:
-    """The objective of each complete trial (dots), the best so far (a step line), failed trials
-    as crosses at the bottom, and trial 0 (the experiment's own gains) ringed."""
-    rows = frame[frame["method"] == method].sort_values("trial")
+def pareto_frame(definition: dict, trials: dict, heldout: dict, chosen: dict, cap) -> pd.DataFrame:
+    """``pareto.csv``: one row per point re-evaluated on the held-out seeds: method, trial, every gain, the
+    held-out medians e_P, e_F (RMS, last score_last iterations), H_x, H_y (settled, last iteration),
+    relative chattering max(H_x / cap_x, H_y / cap_y), feasible (in the search), front (on the search's
+    front; trial 0 is evaluated either way), stable (no held-out seed diverged or was flagged), diverged
+    iteration (first over seeds), flagged seeds, under cap, shipped."""
+    from types import SimpleNamespace
+
+    from ilcforce.tune.heldout import summary
+
+    tuning = SimpleNamespace(objective=definition["objective"])
+    rows = []
+    for (method, number), record in sorted(heldout.items(), key=lambda kv: (definition["methods"].index(kv[0][0]),
+                                                                             kv[0][1])):
+        s = summary(tuning, record)
+        trial = trials[method][number]
+        relative = (max(s["h_x"] / cap[0], s["h_y"] / cap[1]) if cap and s["h_x"] is not None else math.nan)
+        shipped = chosen.get(method) is not None and chosen[method]["trial"] == number
+        rows.append({"method": method, "trial": number, **{k: _plain(v) for k, v in trial["gains"].items()},
+                     "e_P": s["e_p"], "e_F": s["e_f"], "H_x settled": s["h_x"], "H_y settled": s["h_y"],
+                     "chattering / cap": relative, "error objective": s["error"],
+                     "feasible": bool(trial["feasible"]), "stable": s["stable"],
+                     "diverged iteration": s["diverged"] if s["diverged"] is not None else math.nan,
+                     "flagged seeds": s["flagged"], "under cap": bool(relative <= 1.0) if relative == relative else False,
+                     "shipped": shipped})
+    frame = pd.DataFrame(rows)
+    frame.attrs["units"] = {"e_P": "m", "e_F": "N", "H_x settled": "N", "H_y settled": "N"}
+    return frame
+
+
+def _plain(value):
+    return json.dumps(value) if isinstance(value, list) else value
+
+
+def _style(method: str) -> tuple[str | None, str]:
     spec = REGISTRY.get(method)
-    color = spec.color if spec is not None else None
-    label = spec.label if spec is not None else method
-    done = rows[rows["state"] == "complete"]
-    artists = [ax.plot(done["trial"], done["objective"], "o", ms=3, color=color, alpha=0.6, label=f"{label}: trial")[0],
-               ax.step(rows["trial"], rows["best_so_far"], where="post", color=color, label=f"{label}: best so far")[0]]
-    failed = rows[rows["state"] != "complete"]
-    if len(failed):  # at the axes' foot (x in trials, y as a fraction of the axes): never on the step line
-        artists.append(ax.plot(failed["trial"], np.full(len(failed), 0.03), "x", color="0.4", clip_on=False,
-                               transform=ax.get_xaxis_transform(), label="failed (diverged or invalid)")[0])
-    first = rows[(rows["trial"] == 0) & (rows["state"] == "complete")]
-    if len(first):
-        artists.append(ax.plot(first["trial"], first["objective"], "o", ms=8, mfc="none", color=color,
-                               label="trial 0: the experiment's gains")[0])
-    if len(failed):  # a free band at the foot for the crosses, below every objective drawn
-        low, high = ax.get_ylim()
-        ax.set_ylim(low - 0.12 * (high - low), high)
-    ax.set_xlabel("trial")
-    ax.set_ylabel("objective (lower is better)")
+    return (spec.color, spec.label) if spec is not None else (None, method)
+
+
+def plot_convergence(ax: Axes, frame: pd.DataFrame, method: str, state: dict) -> list:
+    """The hypervolume of the method's feasible front against the trial number (a step line), its first
+    budget (a dotted line) and where the search stopped (a ring: converged; a cross: not)."""
+    rows = frame[frame["method"] == method].sort_values("trial")
+    color, label = _style(method)
+    artists = [ax.step(rows["trial"], rows["hypervolume"], where="post", color=color, label=label)[0]]
+    artists.append(ax.axvline(state["first"] - 1, color=color, ls=":", lw=0.8))
+    if len(rows):
+        end = rows.iloc[-1]
+        artists.append(ax.plot(end["trial"], end["hypervolume"], "o" if state["converged"] else "x", ms=7,
+                               mfc="none", color=color)[0])
     return artists
 
 
-#: Significant digits of a chosen gain in the table: the search's resolution is far coarser (a
-#: log-scaled range over decades), and 16 digits hid the value. The tuned experiment file keeps
-#: every digit.
-GAIN_DIGITS = 4
-#: Method panels side by side in the history figure (one column of seven was 3,080 px tall).
-HISTORY_COLUMNS = 2
-
-
-def _gain(value) -> str:
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return "[" + ", ".join(_gain(v) for v in value) + "]"
-    if isinstance(value, (float, np.floating)):
-        return f"{float(value):.{GAIN_DIGITS}g}"
-    return str(value)
-
-
-def history_figure(frame: pd.DataFrame, methods: list[str]):
-    """One panel per method (:func:`plot_tuning_history`), HISTORY_COLUMNS to a row."""
+def convergence_figure(frame: pd.DataFrame, states: dict[str, dict]):
+    """One panel per method (:func:`plot_convergence`), three to a row, each with its own y scale."""
     from matplotlib.figure import Figure
 
-    columns = max(1, min(len(methods), HISTORY_COLUMNS))
+    methods = [m for m in states if (frame["method"] == m).any()]
+    columns = min(3, max(1, len(methods)))
     rows = -(-len(methods) // columns)
-    fig = Figure(figsize=(4.8 * columns, 2.3 * rows + 0.3), layout="constrained")
+    fig = Figure(figsize=(3.6 * columns, 2.2 * rows + 0.5), layout="constrained")
     axes = fig.subplots(rows, columns, squeeze=False).ravel()
     for ax, method in zip(axes, methods):
-        plot_tuning_history(ax, frame, method)
-        ax.set_title(method, fontsize="medium")
+        plot_convergence(ax, frame, method, states[method])
+        s = states[method]
+        ax.set_title(f"{_style(method)[1]}: {s['trials']} trials, "
+                     + ("converged" if s["converged"] else "NOT converged"), fontsize="small")
+        ax.set_xlabel("trial", fontsize="small")
+        ax.set_ylabel("hypervolume", fontsize="small")
     for ax in axes[len(methods):]:
         ax.set_visible(False)
+    fig.suptitle("Each search's feasible front: its hypervolume against the trial (dotted: the first budget; "
+                 "ring: stopped converged, cross: not)", fontsize="small")
     return fig
 
 
-def tuning_table(frame: pd.DataFrame, budget: int) -> pd.DataFrame:
-    """Per method: trials run of the budget, failed trials, trial 0's objective (the experiment's
-    gains), the best objective and its trial, and the chosen gains (dotted key = value)."""
+def plot_front(ax: Axes, pareto: pd.DataFrame, method: str) -> list:
+    """One method's held-out points: error objective against chattering relative to the cap (log x), the
+    stable ones joined in order of chattering, unstable ones as crosses (at their search error, if any),
+    the shipped one ringed."""
+    rows = pareto[pareto["method"] == method].sort_values("chattering / cap")
+    color, label = _style(method)
+    stable = rows[rows["stable"] & rows["error objective"].notna()]
+    artists = [ax.plot(stable["chattering / cap"], stable["error objective"], "-o", ms=3.5, lw=1, color=color,
+                       label=label)[0]]
+    unstable = rows[~rows["stable"] & rows["chattering / cap"].notna()]
+    if len(unstable):
+        artists.append(ax.plot(unstable["chattering / cap"], np.zeros(len(unstable)) + 0.02, "x", color=color,
+                               transform=ax.get_xaxis_transform(), clip_on=False)[0])
+    shipped = rows[rows["shipped"]]
+    if len(shipped):
+        artists.append(ax.plot(shipped["chattering / cap"], shipped["error objective"], "o", ms=10, mfc="none",
+                               mew=1.5, color=color)[0])
+    return artists
+
+
+def fronts_figure(pareto: pd.DataFrame, methods: list[str], title: str):
+    """Every method's held-out front on one axes (:func:`plot_front`) with the cap as a vertical line."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(8.5, 5.2), layout="constrained")
+    ax = fig.subplots()
+    for method in methods:
+        plot_front(ax, pareto, method)
+    ax.axvline(1.0, color="0.3", ls="--", lw=1, label="the cap (C1's chattering)")
+    ax.set_xscale("log")
+    ax.set_xlabel("settled chattering at the last held-out iteration / cap (max over the task axes)")
+    ax.set_ylabel("error objective: log10(e_P / 1 mm) + log10(e_F / 1 N)")
+    ax.set_title(title, fontsize="medium")
+    from matplotlib.ticker import FuncFormatter
+
+    plain = FuncFormatter(lambda x, _pos: f"{x:g}")
+    ax.xaxis.set_major_formatter(plain)
+    ax.xaxis.set_minor_formatter(plain)
+    ax.tick_params(axis="x", which="minor", labelsize="x-small")
+    ax.legend(fontsize="small", ncol=2, loc="best")
+    return fig
+
+
+def outcome_table(definition: dict, states: dict, chosen: dict, trials: dict) -> pd.DataFrame:
+    """Per method: its search (trials, first budget, most, converged, last-quarter gain, feasible trials,
+    front) and what it ships (trial, held-out medians), or the words of :data:`NONE_UNDER_CAP`."""
+    from ilcforce.tune.heldout import NONE_UNDER_CAP
+
     rows = []
-    gain_columns = [c for c in frame.columns if "." in c]
-    for method, group in frame.groupby("method", sort=False):
-        group = group.sort_values("trial")
-        done = group[group["state"] == "complete"]
-        first = group[group["trial"] == 0]
-        best = done.loc[done["objective"].idxmin()] if len(done) else None
-        chosen = "" if best is None else "; ".join(f"{c} = {_gain(best[c])}" for c in gain_columns
-                                                   if c.startswith(f"{method}.") and best[c] is not None
-                                                   and best[c] == best[c])
-        rows.append({"method": method, "trials": f"{len(group)} of {budget}",
-                     "failed": int((group["state"] != "complete").sum()),
-                     "trial 0 objective": float(first["objective"].iloc[0]) if len(first) else float("nan"),
-                     "best objective": float(best["objective"]) if best is not None else float("nan"),
-                     "best trial": int(best["trial"]) if best is not None else -1, "chosen gains": chosen})
-    return pd.DataFrame(rows)
+    for method in definition["methods"]:
+        s, point = states[method], chosen.get(method)
+        stored = trials.get(method, {})
+        rows.append({"method": method, "trials": s["trials"], "first budget": s["first"], "at most": s["most"],
+                     "converged": "yes" if s["converged"] else "NO",
+                     "front gain, last quarter": f"{s['gain']:.1%}" if math.isfinite(s["gain"]) else "-",
+                     "feasible": sum(r["feasible"] for r in stored.values()), "front": s["front"],
+                     "shipped": f"trial {point['trial']}" if point else NONE_UNDER_CAP,
+                     "e_P": point["e_p"] if point else math.nan, "e_F": point["e_f"] if point else math.nan,
+                     "H_x": point["h_x"] if point else math.nan, "H_y": point["h_y"] if point else math.nan})
+    frame = pd.DataFrame(rows)
+    frame.attrs["units"] = {"e_P": "m", "e_F": "N", "H_x": "N", "H_y": "N"}
+    return frame
 
 
 def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, list[str]]:
-    """``<out_dir>/<name>/index.md`` and ``history.<fmt>`` for the tuning store ``path``: the table of
-    :func:`tuning_table` and the objective against the trial number per method. Returns (files,
-    index lines). Raises TuningStoreError for a store that is not valid."""
-    import json
-    from pathlib import Path
+    """``<out_dir>/<name>/index.md`` with ``tuning.csv`` (per method), ``pareto.csv`` (per held-out point),
+    ``fronts.<fmt>`` and ``convergence.<fmt>`` for the tuning store ``path``. Returns (files, index lines).
+    Raises TuningStoreError for a store that is not valid."""
+    from types import SimpleNamespace
 
     from ilcforce.report.figure_files import save_figure, write_text_whole
     from ilcforce.report.table_write import markdown_table, write_table
-    from ilcforce.store.tuning import read_header
-    from ilcforce.tune.runner import validate_tuning
+    from ilcforce.store.tuning import read_header, read_heldout
+    from ilcforce.tune.heldout import choose
+    from ilcforce.tune.runner import read_trials, stored_check, validate_tuning
 
     path, out_dir = Path(path), Path(out_dir)
-    summary = validate_tuning(path)
+    validate_tuning(path)
     header = read_header(path)
     definition = json.loads(header["definition_json"])
-    frame = trials_frame(path)
-    name = summary["name"]
+    trials = read_trials(path)
+    heldout = read_heldout(path, stored_check(path))
+    cap_spec = definition["cap"]
+    view = SimpleNamespace(methods=definition["methods"], cap_reference=cap_spec["reference"],
+                           cap_factor=cap_spec["factor"], objective=definition["objective"])
+    chosen, cap = choose(view, SimpleNamespace(heldout=heldout))
+    states = searches(definition, trials)
+    name = header["name"]
     target = out_dir / path.name  # a renamed copy of a store is its own page, not the original's
     target.mkdir(parents=True, exist_ok=True)
-    files = []
-    budget = _budget(header["tuning_toml"])
-    methods = [m for m in definition["methods"] if m in set(frame["method"])] if len(frame) else []
-    if methods:
-        files += save_figure(history_figure(frame, methods), target, "history", formats)
-    table = tuning_table(frame, budget) if len(frame) else pd.DataFrame()
-    description = header.get("description", "")
-    text = [f"# Tuning {name}" + (f" (the store {path.name})" if path.name != name else ""), "", *([description, ""] if description else []),
-            f"Budget per method: {budget} trials (trial 0 = the experiment's gains) x {len(definition['seeds'])} "
-            f"seeds x {definition['iterations']} iterations; objective {definition['objective']!r} over iterations "
-            f"{definition['score_iterations'] - definition['score_last']}..{definition['score_iterations'] - 1} "
-            "(lower is better; a divergence anywhere fails the trial).", ""]
-    if len(table):
-        files += write_table(table, target, "tuning")  # tuning.csv beside the page: the verdict as data
-        text += [markdown_table(table), ""]
-        text += [f"![objective against trial](history.{formats[0]})", "",
-                 "One panel per method: a dot is a complete trial's objective, the step line the best so far, the "
-                 "ringed dot trial 0 (the experiment's own gains), a cross at the foot of the panel a failed trial "
-                 "(a seed diverged somewhere in the horizon, or gains the setting refuses). The objective is "
-                 "log10(e_P / 1 mm) + log10(e_F / 1 N) of the settled error norms (or one of the two terms), median "
-                 "over seeds: one unit lower is a tenfold smaller error.", ""] if methods and formats else []
+    files: list[Path] = []
+    frame = trials_frame(trials)
+    pareto = pareto_frame(definition, trials, heldout, chosen, cap)
+    outcome = outcome_table(definition, states, chosen, trials)
+    files += write_table(outcome, target, "tuning")
+    if len(pareto):
+        files += write_table(pareto, target, "pareto")
+    if formats and len(frame):
+        files += save_figure(convergence_figure(frame, states), target, "convergence", formats)
+    if formats and len(pareto):
+        files += save_figure(fronts_figure(pareto, definition["methods"], f"{name}: every method's front on "
+                                           f"{len(definition['heldout_seeds'])} held-out seeds x "
+                                           f"{definition['heldout_iterations']} iterations"), target, "fronts", formats)
+    b = definition["budget"]
+    shipped = [m for m in definition["methods"] if chosen.get(m)]
+    withheld = [m for m in definition["methods"] if not chosen.get(m)]
+    text = [f"# Tuning {name}" + (f" (the store {path.name})" if path.name != name else ""), "",
+            *([header["description"], ""] if header.get("description") else []),
+            f"Each method's gains searched for two objectives on seeds {_seeds(definition['seeds'])} x "
+            f"{definition['iterations']} iterations (the last {definition['score_last']} scored): the error "
+            "log10(e_P / 1 mm) + log10(e_F / 1 N) and the chattering log10(max(H_x / cap_x, H_y / cap_y)) of the "
+            f"settled H, relative to {cap_spec['reference']} with the experiment's gains. A trial is feasible only "
+            f"when check seeds {_seeds(definition['check_seeds'])} run {definition['check_iterations']} iterations "
+            "without divergence and the growth test flags neither (a check run flagged at 40 or 50 iterations "
+            f"stops there). Budget: {b['base']} + {b['per_dimension']} x (searched parameters) trials, then one at a "
+            f"time until the feasible front's hypervolume grew less than {b['stop_gain']:.0%} over the last quarter "
+            f"of the trials, at most {b['extend']}x the first budget. Each front (at most 6 points, its ends "
+            f"always) and trial 0 are then re-run on held-out seeds {_seeds(definition['heldout_seeds'])} x "
+            f"{definition['heldout_iterations']} iterations; the shipped point is the stable one with the lowest "
+            "error whose settled H at the last iteration is within the cap"
+            + (f" (H_x {cap[0]:.3g} N, H_y {cap[1]:.3g} N: {cap_spec['factor']:g} x {cap_spec['reference']}'s "
+               "held-out median)." if cap else "."), "",
+            f"Shipped: {', '.join(shipped) or 'none'}." + (f" No stable gains under the cap: {', '.join(withheld)}."
+                                                          if withheld else ""), "",
+            markdown_table(outcome), ""]
+    if formats and len(pareto):
+        text += [f"![every method's held-out front](fronts.{formats[0]})", "",
+                 "A dot is a point re-evaluated on the held-out seeds (median over them): its error objective "
+                 "against its chattering relative to the cap; right of the dashed line is over the cap. A ring "
+                 "marks the point shipped; crosses at the foot are points that diverged or were flagged by the "
+                 "growth test on a held-out seed. Every point is listed in [pareto.csv](pareto.csv).", ""]
+    if formats and len(frame):
+        text += [f"![each search's convergence](convergence.{formats[0]})", "",
+                 "Each search's feasible front, as the hypervolume it dominates (up to the reference point: error "
+                 "1.0, chattering 10x the cap), against the trial: a search stopped when the last quarter of its "
+                 "trials added less than the stated share.", ""]
     files.append(write_text_whole(target / "index.md", "\n".join(text)))
     line = f"- [tuning {path.name}](tuning/{path.name}/index.md): " + ", ".join(
-        f"{row['method']} {row['trial 0 objective']:.3g} -> {row['best objective']:.3g}" for _, row in table.iterrows())
+        f"{m} {'ships trial ' + str(chosen[m]['trial']) if chosen.get(m) else 'none under the cap'}"
+        for m in definition["methods"])
     return files, [line]
 
 
-def _budget(tuning_toml: str) -> int:
-    import tomllib
+def _seeds(seeds: list[int]) -> str:
+    return f"{seeds[0]}-{seeds[-1]}" if seeds == list(range(seeds[0], seeds[-1] + 1)) and len(seeds) > 1 else \
+        ", ".join(map(str, seeds))
 
-    try:
-        return int(tomllib.loads(tuning_toml)["tune"]["trials"])
-    except (tomllib.TOMLDecodeError, KeyError, TypeError, ValueError):
-        return -1
+
+def committed_pages(out_dir: Path, written: list) -> list[str]:
+    """The pages ``make tune`` committed under docs/tuning/, copied into the report (``make reproduce`` does
+    not tune); index lines. Nothing when there are none."""
+    import shutil
+
+    lines = []
+    for page in sorted(COMMITTED.glob("*/index.md")) if COMMITTED.is_dir() else []:
+        target = out_dir / "tuning" / page.parent.name
+        target.mkdir(parents=True, exist_ok=True)
+        for item in sorted(page.parent.iterdir()):
+            if item.is_file():
+                shutil.copyfile(item, target / item.name)
+                written.append(target / item.name)
+        title = page.read_text(encoding="utf-8").split("\n", 1)[0].removeprefix("# ")
+        lines.append(f"- [{title}](tuning/{page.parent.name}/index.md) (committed by `make tune`)")
+    return lines
 
 
 def tuning_pages(results_dir: Path, out_dir: Path, formats: tuple[str, ...], written: list,
-                  warnings: list) -> list[str]:
-    """The page of every tuning store under ``results/tuning/`` (:mod:`ilcforce.report.tuning`);
-    index lines. A store that is not valid is a warning line, never the end of the report."""
+                 warnings: list) -> list[str]:
+    """The page of every tuning store under ``results/tuning/``, or the committed pages when there is
+    none; index lines. A store that is not valid is a warning line, never the end of the report."""
     from ilcforce.report.figures import report_style
     from ilcforce.store.tuning import TuningStoreError, is_tuning_store
 
@@ -194,4 +329,61 @@ def tuning_pages(results_dir: Path, out_dir: Path, formats: tuple[str, ...], wri
             continue
         written += files
         lines += index_lines
-    return lines
+    return lines or committed_pages(out_dir, written)
+
+
+def commit_pages(results_dir: Path, out_dir: Path, names: list[str], seconds: dict[str, float]) -> list[Path]:
+    """``make tune``'s committed pages: :func:`write_tuning_report` of each named store into ``out_dir``
+    (docs/tuning/), each headed by when, at which commit, and in how long it ran."""
+    import subprocess
+    from datetime import date
+
+    from ilcforce.report.figure_files import write_text_whole
+    from ilcforce.report.figures import report_style
+
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], capture_output=True, text=True,
+                                check=True, cwd=COMMITTED.parent.parent).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        commit = "unknown"
+    written: list[Path] = []
+    for name in names:
+        with report_style():
+            files, _lines = write_tuning_report(Path(results_dir) / "tuning" / name, out_dir, ("png",))
+        index = Path(out_dir) / name / "index.md"
+        title, rest = index.read_text(encoding="utf-8").split("\n", 1)
+        took = f", {seconds[name] / 60:.0f} min on 2 cores" if name in seconds else ""
+        written += files
+        written.append(write_text_whole(index, f"{title}\n\nGenerated by `make tune` on {date.today().isoformat()} "
+                                              f"at commit {commit}{took}.\n{rest}"))
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m ilcforce.report.tuning",
+                                     description="write the committed pages of make tune's tunings")
+    parser.add_argument("--results", type=Path, default=Path("results"))
+    parser.add_argument("--out", type=Path, default=COMMITTED)
+    parser.add_argument("names", nargs="+", help="tuning names, each NAME or NAME=SECONDS (its wall time)")
+    args = parser.parse_args(argv)
+    names, seconds = [], {}
+    for item in args.names:
+        name, _, took = item.partition("=")
+        names.append(name)
+        if took:
+            seconds[name] = float(took)
+    from ilcforce.store.tuning import TuningStoreError
+
+    try:
+        written = commit_pages(args.results, args.out, names, seconds)
+    except (TuningStoreError, OSError) as error:
+        print(f"error: {error}", file=__import__("sys").stderr)
+        return 2
+    print(f"wrote {len(written)} files under {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

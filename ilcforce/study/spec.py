@@ -294,6 +294,7 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
     if not isinstance(description, str):
         raise StudyError(f"study.description must be a string, got {shown(description)}")
     methods = _check_methods(table.get("methods"))
+    given = "methods" in table
     seeds = parse_seeds(table["seeds"])
     fixed = _check_table("set", table.get("set"))
     sweep_raw = _check_table("sweep", table.get("sweep"))
@@ -322,9 +323,17 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
     # every seed must be valid for the configuration (e.g. ranges the loader enforces)
     for seed in {seeds[0], seeds[-1]}:
         try:
-            load_config(experiment, {**fixed, **settings[0][1], "experiment.seed": seed})
+            first = load_config(experiment, {**fixed, **settings[0][1], "experiment.seed": seed})
         except ConfigError as exc:
             raise StudyError(f"study.seeds: {exc}") from None
+    # a tuned experiment's withheld methods (no stable gains under its cap) are left out of the default
+    # list, and refused when named
+    for method in methods if given else ():
+        if (refusal := first.tuning.refusal(method)) is not None:
+            raise StudyError(f"study.methods: {refusal}")
+    methods = tuple(m for m in methods if m not in first.tuning.withheld)
+    if not methods:
+        raise StudyError("study.methods: every method is withheld by the tuned experiment ([tuning] withheld)")
     return Study(name=name, description=description, source=source, path=path, experiment=experiment,
                  methods=methods, seeds=seeds, fixed=fixed, sweep=sweep,
                  settings=tuple(setting for setting, _overrides in settings), listed=listed)
