@@ -28,8 +28,8 @@ ROWS = [  # (case, experiment file or None for the paper's setup, overrides, met
     ("C2, paper setup, seed 71", None, {"experiment.seed": 71}, "c2", 40, True),
     ("C1, paper setup, seed 71", None, {"experiment.seed": 71}, "c1", 40, False),
     ("PD-ILC, paper setup, seed 71", None, {"experiment.seed": 71}, "pd-ilc", 40, False),
-    ("tuned C2, seed 100", "experiments/fivebar-tuned.toml", {"experiment.seed": 100}, "c2", 40, True),
-    ("tuned C3, seed 101", "experiments/fivebar-tuned.toml", {"experiment.seed": 101}, "c3", 40, True),
+    ("tuned C2, seed 100", "experiments/long/fivebar-tuned-error-only.toml", {"experiment.seed": 100}, "c2", 40, True),
+    ("tuned C3, seed 101", "experiments/long/fivebar-tuned-error-only.toml", {"experiment.seed": 101}, "c3", 40, True),
 ]
 
 
