@@ -41,12 +41,15 @@ def hypervolume(points: Sequence[Point], reference: Point) -> float:
 def converged(history: Sequence[Point | None], reference: Point, stop_gain: float) -> tuple[bool, float]:
     """Whether a search with trials ``history`` (each its point, None when infeasible or failed) has stopped
     improving: the front's hypervolume gained less than ``stop_gain`` of itself over the last quarter of
-    the trials (at least one). Returns (converged, that relative gain; inf while the volume is 0)."""
+    the trials (at least one). A front still empty (no feasible trial) has nothing to improve: it counts as
+    converged with gain 0, and the report says it is empty. Returns (converged, that relative gain)."""
     n = len(history)
     last_quarter = max(1, math.ceil(n / 4))
     now = hypervolume([p for p in history if p is not None], reference)
     before = hypervolume([p for p in history[:n - last_quarter] if p is not None], reference)
-    gain = (now - before) / now if now > 0 else math.inf
+    if now == 0.0:
+        return True, 0.0
+    gain = (now - before) / now
     return gain < stop_gain, gain
 
 
