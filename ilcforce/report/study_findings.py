@@ -19,14 +19,14 @@ from matplotlib.ticker import MaxNLocator
 
 from ilcforce.config_units import axis_label
 from ilcforce.records import STATUS_DIVERGED
-from ilcforce.report import calibration, claim_map, claim_parts
-from ilcforce.report import claims as claims_module
 from ilcforce import stability
+from ilcforce.report import calibration, claim_map, claim_parts, equal_chattering
+from ilcforce.report import claims as claims_module
 from ilcforce.report import figures, paper
 from ilcforce.report.figure_files import save_figure, write_text_whole
 from ilcforce.report.study import incomplete_text, setting_iterations, setting_perturbation
 from ilcforce.report import verdicts as verdict_rows
-from ilcforce.report.table_write import markdown_table, write_csv
+from ilcforce.report.table_write import markdown_table, write_csv, write_table
 from ilcforce.stats import format_interval, median_interval
 
 #: Key numbers per setting and method, read at the paper's Table 3 iteration (j = 19, or the setting's
@@ -308,6 +308,12 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
         text += "\n" + "\n".join(lines)
         extra["calibration_text"] = found.text() if found is not None else ""
         extra["calibration_scale"] = found.scale if found is not None else math.nan
+    table, sentence = equal_chattering.comparison(results)
+    if len(table):
+        written += write_table(table, directory, "equal_chattering")
+        text += ("\n## At equal chattering\n\n" + equal_chattering.__doc__.split("\n\n")[1].replace("\n", " ")
+                 + "\n\n" + markdown_table(table) + "\n\n" + sentence[0].upper() + sentence[1:] + "\n")
+        extra["equal_chattering_text"] = sentence
     write_text_whole(directory / "findings.md", text)
     written.append(directory / "findings.md")
     return written, name, {**extra, "description": results.description, "settings": summary,

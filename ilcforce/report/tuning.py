@@ -247,6 +247,10 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
                                            f"{len(definition['heldout_seeds'])} held-out seeds x "
                                            f"{definition['heldout_iterations']} iterations"), target, "fronts", formats)
     b = definition["budget"]
+    checks = [c for stored in trials.values() for r in stored.values() for c in r["checks"]]
+    ran, planned = sum(c["iterations_run"] for c in checks), sum(c["planned"] for c in checks)
+    pruning = (f" Check runs ran {ran:,} of {planned:,} iterations: pruning (a divergence, or a flag at 40 or 50 "
+               f"iterations) saved {1 - ran / planned:.0%} of them." if planned else "")
     shipped = [m for m in definition["methods"] if chosen.get(m)]
     withheld = [m for m in definition["methods"] if not chosen.get(m)]
     text = [f"# Tuning {name}" + (f" (the store {path.name})" if path.name != name else ""), "",
@@ -265,6 +269,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
             "error whose settled H at the last iteration is within the cap"
             + (f" (H_x {cap[0]:.3g} N, H_y {cap[1]:.3g} N: {cap_spec['factor']:g} x {cap_spec['reference']}'s "
                "held-out median)." if cap else "."), "",
+            f"{sum(s['trials'] for s in states.values())} trials in all.{pruning}", "",
             f"Shipped: {', '.join(shipped) or 'none'}." + (f" No stable gains under the cap: {', '.join(withheld)}."
                                                           if withheld else ""), "",
             markdown_table(outcome), ""]

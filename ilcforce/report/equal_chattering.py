@@ -1,0 +1,102 @@
+"""A tuned study's comparison at equal chattering: every method the tuning shipped, over the study's seeds
+(none of them used by the tuning) and its whole horizon, its errors beside its settled chattering and the
+tuning's cap, and the methods it withheld.
+
+A study is *tuned* when its experiment is a file ``ilcforce tune`` wrote: its ``[tuning]`` table names the
+cap (the cap's reference method's settled H per task axis on the tuning's held-out seeds) and the methods
+withheld. Per method: the median over seeds [95% bootstrap interval] of the RMS errors averaged over the
+last five iterations (the tuning's own error measure) and of the settled H at the last iteration, that H
+over the cap, the seeds that diverged. Methods are compared at equal chattering: the ranking by error is
+stated among the methods whose median settled H stays within the cap on both axes, and a method over it is
+named as such.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+
+from ilcforce.stats import median_interval
+
+#: The iterations at the end of a run whose RMS errors are averaged (the tuning's score_last).
+LAST = 5
+
+
+def tuning_of(results) -> dict | None:
+    """The ``[tuning]`` table of the study's (first) setting when its experiment is a tuned file with a cap."""
+    config = json.loads(str(results.settings.iloc[0]["config_json"])) if len(results.settings) else {}
+    tuning = config.get("tuning", {})
+    return tuning if tuning.get("source") and len(tuning.get("cap", ())) == 2 else None
+
+
+def _interval(values) -> str:
+    values = np.asarray(values, dtype=float)
+    values = values[np.isfinite(values)]
+    if not len(values):
+        return "-"
+    found = median_interval(values)
+    return f"{found.estimate:.3g} [{found.low:.3g}, {found.high:.3g}]"
+
+
+def comparison(results) -> tuple[pd.DataFrame, str]:
+    """(table, sentence) of the study's first setting at equal chattering; an empty table and "" when the
+    study is not tuned."""
+    from ilcforce.report.tables import ordered_methods
+    from ilcforce.tune.heldout import NONE_UNDER_CAP
+
+    tuning = tuning_of(results)
+    if tuning is None:
+        return pd.DataFrame(), ""
+    cap = tuning["cap"]
+    metrics = results.setting_metrics(int(results.settings.iloc[0]["setting"]))
+    last = int(metrics["iteration"].max())
+    rows, within, over = [], [], []
+    for method in ordered_methods(metrics["method"].unique().tolist()):
+        mine = metrics[metrics["method"] == method]
+        per_seed = []
+        for _seed, run in mine.groupby("seed"):
+            run = run.sort_values("iteration")
+            ok = bool((run["status"] == "complete").all()) and int(run["iteration"].max()) == last
+            tail = run[run["iteration"] > last - LAST]
+            end = run[run["iteration"] == last]
+            per_seed.append({
+                "diverged": not ok,
+                "e_p": float(tail["position_error_rms"].mean()) if ok else math.nan,
+                "e_f": float(tail["force_error_rms"].mean()) if ok else math.nan,
+                "h_x": float(end["chattering_task_x_settled"].iloc[0]) if ok else math.nan,
+                "h_y": float(end["chattering_task_y_settled"].iloc[0]) if ok else math.nan})
+        seeds = pd.DataFrame(per_seed)
+        h_x, h_y = float(np.nanmedian(seeds["h_x"])), float(np.nanmedian(seeds["h_y"]))
+        relative = max(h_x / cap[0], h_y / cap[1])
+        under = relative <= 1.0
+        (within if under else over).append((method, float(np.nanmedian(seeds["e_p"])),
+                                            float(np.nanmedian(seeds["e_f"])), relative))
+        rows.append({"method": method, f"e_P RMS, j = {last - LAST + 1}..{last}": _interval(seeds["e_p"]),
+                     f"e_F RMS, j = {last - LAST + 1}..{last}": _interval(seeds["e_f"]),
+                     f"H_x settled, j = {last}": _interval(seeds["h_x"]),
+                     f"H_y settled, j = {last}": _interval(seeds["h_y"]),
+                     "H / cap (max over axes)": f"{relative:.2f}",
+                     "diverged": f"{int(seeds['diverged'].sum())} of {len(seeds)}"})
+    for method in tuning.get("withheld", ()):
+        rows.append({"method": method, **{k: NONE_UNDER_CAP for k in rows[0] if k != "method"}} if rows else
+                    {"method": method})
+    table = pd.DataFrame(rows)
+    cap_text = (f"{tuning.get('cap_reference', 'the reference')}'s settled H on the tuning's held-out seeds: "
+                f"H_x {cap[0]:.3g} N, H_y {cap[1]:.3g} N")
+    parts = [f"over {last + 1} iterations on {metrics['seed'].nunique()} seeds the tuning never used, "
+             f"{len(within)} of {len(within) + len(over)} shipped methods keep their median settled H at j = {last} "
+             f"within the cap ({cap_text})"]
+    if within:
+        by_p = sorted(within, key=lambda r: r[1])
+        by_f = sorted(within, key=lambda r: r[2])
+        parts.append("among them the smallest position error is " + ", then ".join(
+            f"{m} ({p:.3g} m)" for m, p, _f, _r in by_p[:3]) + "; the smallest force error " + ", then ".join(
+            f"{m} ({f:.3g} N)" for m, _p, f, _r in by_f[:3]))
+    if over:
+        parts.append("over the cap here: " + ", ".join(f"{m} ({r:.2f}x)" for m, _p, _f, r in over))
+    if tuning.get("withheld"):
+        parts.append(f"{NONE_UNDER_CAP}: {', '.join(tuning['withheld'])}")
+    return table, "; ".join(parts) + "."

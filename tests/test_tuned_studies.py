@@ -1,0 +1,104 @@
+"""What a tuned experiment file's [tuning] table does downstream: a withheld method is refused by name and
+left out of a study's default methods, every tuned table gives it a column saying so, and a tuned study's
+comparison at equal chattering ranks only the methods within the cap."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from ilcforce.cli.main import app
+from ilcforce.report import equal_chattering
+from ilcforce.report.study import key_numbers
+from ilcforce.study.spec import StudyError, build_study
+from ilcforce.tune.heldout import NONE_UNDER_CAP
+
+EXPERIMENTS = Path(__file__).resolve().parent.parent / "experiments"
+
+
+def tuned_file(tmp_path: Path, withheld=("c3",), cap=(0.1, 0.5)) -> Path:
+    text = (EXPERIMENTS / "paper.toml").read_text()
+    path = tmp_path / "mine-tuned.toml"
+    path.write_text(text + f'\n[tuning]\nsource = "mine-tune"\nwithheld = {json.dumps(list(withheld))}\n'
+                           f'cap_reference = "c1"\ncap = {json.dumps(list(cap))}\n')
+    return path
+
+
+def test_a_withheld_method_is_refused_by_every_command(tmp_path):
+    path = tuned_file(tmp_path)
+    result = CliRunner().invoke(app, ["simulate", "-c", str(path), "-m", "c3", "-n", "1", "--results",
+                                      str(tmp_path / "r")])
+    assert result.exit_code == 2
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and "c3 has no gains in this tuned experiment" in lines[0] and "mine-tune" in lines[0]
+    assert "Traceback" not in result.output
+    assert not (tmp_path / "r").exists() or not any((tmp_path / "r").rglob("*.h5"))
+
+
+def test_a_study_leaves_a_withheld_method_out_and_refuses_it_by_name(tmp_path):
+    path = tuned_file(tmp_path)
+    study = build_study({"study": {"name": "s", "experiment": str(path), "seeds": [1]}})
+    assert "c3" not in study.methods and "c2" in study.methods
+    with pytest.raises(StudyError, match="study.methods: c3 has no gains"):
+        build_study({"study": {"name": "s", "experiment": str(path), "seeds": [1], "methods": ["c2", "c3"]}})
+
+
+def test_a_bad_tuning_table_is_one_line(tmp_path):
+    path = tuned_file(tmp_path, withheld=("c9",))
+    result = CliRunner().invoke(app, ["simulate", "-c", str(path), "-m", "c2", "-n", "1", "--results",
+                                      str(tmp_path / "r")])
+    assert result.exit_code == 2 and "tuning.withheld: unknown method 'c9'" in result.output
+    path = tuned_file(tmp_path, cap=(0.1, -1.0))
+    result = CliRunner().invoke(app, ["simulate", "-c", str(path), "-m", "c2", "-n", "1", "--results",
+                                      str(tmp_path / "r")])
+    assert result.exit_code == 2 and "tuning.cap must hold positive numbers" in result.output
+
+
+def _frame(runs: dict[str, tuple[float, float, float, float]], seeds=(100, 101, 102), iterations=60) -> pd.DataFrame:
+    """A tidy metrics frame: per method constant e_P, e_F (RMS and 2-norm) and settled H_x, H_y."""
+    rows = []
+    for method, (e_p, e_f, h_x, h_y) in runs.items():
+        for seed in seeds:
+            for j in range(iterations):
+                rows.append({"seed": seed, "method": method, "iteration": j, "status": "complete",
+                             "position_error_rms": e_p, "force_error_rms": e_f, "position_error_2norm": e_p,
+                             "force_error_2norm": e_f, "chattering_task_x": h_x, "chattering_task_y": h_y,
+                             "chattering_task_x_settled": h_x, "chattering_task_y_settled": h_y})
+    return pd.DataFrame(rows)
+
+
+def test_key_numbers_give_a_withheld_method_a_column_that_says_so():
+    frame = _frame({"c1": (1e-4, 0.1, 0.1, 0.5), "c2": (1e-5, 0.01, 0.05, 0.2)})
+    table = key_numbers(frame, ["c1", "c2"], 60, withheld=("c3",))
+    assert list(table.columns[:4]) == ["quantity", "c1", "c2", "c3"]
+    assert (table["c3"] == NONE_UNDER_CAP).all()
+    quantities = set(table["quantity"])
+    assert "H x settled at j = 59 (N)" in quantities and "position 2-norm at j = 59 (m)" in quantities
+
+
+def test_the_comparison_at_equal_chattering_ranks_only_methods_within_the_cap():
+    frame = _frame({"c1": (1e-4, 0.1, 0.1, 0.5),          # at the cap: within
+                    "c2-robust": (1e-5, 0.02, 0.05, 0.2),  # within, most accurate in position
+                    "smc-bl": (1e-6, 0.001, 0.3, 0.5)})    # more accurate still, but 3x the cap on H_x
+    config = {"tuning": {"source": "t", "withheld": ["c3"], "cap_reference": "c1", "cap": [0.1, 0.5]}}
+    results = SimpleNamespace(settings=pd.DataFrame([{"setting": 0, "config_json": json.dumps(config)}]),
+                              setting_metrics=lambda k: frame)
+    table, sentence = equal_chattering.comparison(results)
+    assert list(table["method"]) == ["c1", "smc-bl", "c2-robust", "c3"]
+    assert table.set_index("method").loc["smc-bl", "H / cap (max over axes)"] == "3.00"
+    assert (table.set_index("method").loc["c3"].drop("diverged") == NONE_UNDER_CAP).all()
+    assert "2 of 3 shipped methods" in sentence
+    assert "smallest position error is c2-robust (1e-05 m), then c1 (0.0001 m)" in sentence
+    assert "over the cap here: smc-bl (3.00x)" in sentence and f"{NONE_UNDER_CAP}: c3" in sentence
+
+
+def test_an_untuned_study_has_no_comparison_at_equal_chattering():
+    results = SimpleNamespace(settings=pd.DataFrame([{"setting": 0, "config_json": json.dumps({"tuning": {}})}]),
+                              setting_metrics=lambda k: _frame({"c1": (1, 1, 1, 1)}))
+    table, sentence = equal_chattering.comparison(results)
+    assert table.empty and sentence == ""
