@@ -80,18 +80,20 @@ def trial_check(definition: dict) -> Callable[[dict], None]:
                 raise RecordError(f"seed {entry['seed']}: its values are not the scores of its norms")
         checks = record["checks"]
         feasible = (record["state"] == COMPLETE and len(checks) == len(definition["check_seeds"]) and
-                    all(c["diverged_iteration"] is None and c["verdict"] != _flagged()
-                        and "message" not in c for c in checks))
+                    all(check_passed(c, definition["check_iterations"]) for c in checks))
         if feasible != record["feasible"]:
             raise RecordError(f"feasible is {record['feasible']}, its check runs say {feasible}")
 
     return check
 
 
-def _flagged() -> str:
+def check_passed(entry: dict, horizon: int) -> bool:
+    """Whether a check run passed: it ran the whole ``horizon`` (a run stops early only when it diverged or
+    the growth test flagged it) without divergence, a flag or a failure."""
     from ilcforce.stability import FLAGGED
 
-    return FLAGGED
+    return (entry["diverged_iteration"] is None and entry["verdict"] != FLAGGED and "message" not in entry
+            and entry["planned"] == horizon and entry["iterations_run"] == horizon)
 
 
 def stored_rows(entry: dict) -> list[dict]:
@@ -176,8 +178,6 @@ class _Scoring:  # the scored horizon of a stored record (what scored_means read
 def trial_record(tuning: Tuning, method: str, number: int, params: dict, scores: list, checks: list, message: str,
             cap) -> dict:
     """A finished trial's record: its objectives (medians over scoring seeds), feasibility, every cell."""
-    from ilcforce.stability import FLAGGED
-
     elapsed = sum(e.pop("_elapsed", 0.0) for e in scores + checks)
     if cap is None and not message:  # the reference's trial 0: it is its own cap
         probe = {"seeds": scores, "state": COMPLETE, "scored": [tuning.iterations, tuning.score_last]}
@@ -205,11 +205,9 @@ def trial_record(tuning: Tuning, method: str, number: int, params: dict, scores:
             chattering = statistics.median(e["chattering"] for e in scores)
     state = COMPLETE if value is not None else FAILED
     feasible = (state == COMPLETE and len(checks) == len(tuning.check_seeds) and
-                all(c["diverged_iteration"] is None and c["verdict"] != FLAGGED and "message" not in c
-                    for c in checks))
+                all(check_passed(c, tuning.check_iterations) for c in checks))
     if state == COMPLETE and not feasible:
-        bad = next(c for c in checks if c["diverged_iteration"] is not None or c["verdict"] == FLAGGED
-                   or "message" in c)
+        bad = next(c for c in checks if not check_passed(c, tuning.check_iterations))
         message = (f"check seed {bad['seed']}: " + (bad.get("message") or
                    (f"diverged at iteration {bad['diverged_iteration']}" if bad["diverged_iteration"] is not None
                     else f"{bad['text']} (stopped at {bad['iterations_run']} of {bad['planned']})")))
