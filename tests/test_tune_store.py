@@ -10,6 +10,7 @@ time files and processes, not physics.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import shutil
@@ -27,14 +28,13 @@ from ilcforce.store import records
 from ilcforce.store.tuning import TuningStore, TuningStoreError
 from ilcforce.tune.runner import read_trials
 from ilcforce.tune import TuneError, load_tuning, run_tuning, validate_tuning
-from test_tune import ROOT, TINY, fake_cell, tiny_file
+from tunekit import ROOT, TINY, budget, fake_cell, failing_cell, tiny_file, tuned as _tuned
 
-TRIALS = TINY.replace("trials = 2", "trials = 4")
+TRIALS = budget(base=4)
 
 
 def tuned(tmp_path, text=TRIALS, results="r", **kwargs):
-    return run_tuning(load_tuning(tiny_file(tmp_path, text)), tmp_path / results, workers=1,
-                      cell_function=fake_cell, **kwargs)
+    return _tuned(tmp_path, text, results, **kwargs)
 
 
 def reseal(path: Path, change) -> None:
@@ -52,10 +52,23 @@ def validate_cli(path) -> tuple[int, str]:
 
 FORGERIES = {
     "objective edited to -99": lambda r: r.update(value=-99.0),
+    "chattering edited to -99": lambda r: r.update(chattering=-99.0),
     "value disagrees with its seeds": lambda r: r["seeds"][0].update(value=r["seeds"][0]["value"] - 1.0),
     "seed value and objective both edited": lambda r: (r["seeds"][0].update(value=-99.0),
                                                        r["seeds"][1].update(value=-99.0), r.update(value=-99.0)),
-    "gains differ from its params": lambda r: r["gains"].update({"c2.k": [1e6, 1e6]}),
+    "seed chattering and chattering both edited": lambda r: (r["seeds"][0].update(chattering=-9.0),
+                                                             r["seeds"][1].update(chattering=-9.0),
+                                                             r.update(chattering=-9.0)),
+    "a stored norm edited": lambda r: r["seeds"][0]["position_error_rms"].__setitem__(-1, 1e-9),
+    "cap edited": lambda r: r.update(cap=[c * 10 for c in r["cap"]]),
+    "feasible flipped": lambda r: r.update(feasible=False),
+    "check flagged but feasible": lambda r: r["checks"][0].update(verdict="flagged"),
+    "check diverged but feasible": lambda r: r["checks"][0].update(diverged_iteration=4),
+    "a check run cut short but feasible": lambda r: r["checks"][0].update(iterations_run=5),
+    "a check run planned shorter": lambda r: r["checks"][0].update(planned=5, iterations_run=5),
+    "a check seed the tuning does not run": lambda r: r["checks"][0].update(seed=11),
+    "a check entry without its fields": lambda r: r["checks"][0].pop("planned"),
+    "gains differ from its params": lambda r: r["gains"].update({"c1.k": [1e6, 1e6]}),
     "param out of range": lambda r: r["params"].update({"k[0]": 1e6}),
     "param missing": lambda r: r["params"].pop("k[0]"),
     "param of the wrong type": lambda r: r["params"].update({"k[0]": "abc"}),
@@ -73,30 +86,63 @@ FORGERIES = {
 }
 
 
+@pytest.fixture(scope="module")
+def stored(tmp_path_factory):
+    """One tuning of TRIALS, run once: each test gets a copy (:func:`copy_of`)."""
+    where = tmp_path_factory.mktemp("stored")
+    return tuned(where)
+
+
+def copy_of(stored, tmp_path):
+    """A copy of the ``stored`` tuning where :func:`tuned` of ``tmp_path`` finds it."""
+    shutil.copytree(stored.path, tmp_path / "r" / "tuning" / "tiny")
+    return stored
+
+
 @pytest.mark.parametrize("forgery", list(FORGERIES))
-def test_a_forged_record_is_named_skipped_quarantined_and_never_shipped(tmp_path, forgery):
-    first = tuned(tmp_path)
-    name = "c2-00002.json" if forgery != "number beyond every budget" else "c2-00040.json"
+def test_a_forged_record_is_named_skipped_quarantined_and_never_shipped(tmp_path, forgery, stored):
+    first = copy_of(stored, tmp_path)
+    first = dataclasses.replace(first, path=tmp_path / "r" / "tuning" / "tiny")
+    beyond = forgery == "number beyond every budget"
+    name = "c1-00002.json" if not beyond else "c1-00040.json"
     target = first.path / "trials" / name
-    if forgery == "number beyond every budget":
-        shutil.copy(first.path / "trials" / "c2-00002.json", target)
+    if beyond:
+        shutil.copy(first.path / "trials" / "c1-00002.json", target)
     reseal(target, FORGERIES[forgery])
     code, output = validate_cli(first.path)
     assert code == 2 and f"{name}: refused (" in output and len(output.strip().splitlines()) == 1, output
-    assert 2 not in read_trials(first.path)["c2"] or forgery == "number beyond every budget"
-    assert 40 not in read_trials(first.path)["c2"]
+    assert (2 in read_trials(first.path)["c1"]) == beyond and 40 not in read_trials(first.path)["c1"]
     again = tuned(tmp_path)  # the next writer moves it aside, says so, reruns its trial
-    assert len(again.quarantined) == 1 and name in again.quarantined[0], again.quarantined
+    # (and its held-out evaluation, if it had one: it evaluates a trial no longer stored)
+    assert any(name in line for line in again.quarantined), again.quarantined
+    assert all(name in line or "heldout/c1-00002.json" in line for line in again.quarantined), again.quarantined
     assert (first.path / "trials" / ".quarantine" / name).is_file()
-    assert again.ran == (0 if forgery == "number beyond every budget" else 1)
-    assert validate_tuning(again.path)["methods"]["c2"][0] == 4
-    assert again.best == first.best  # the rerun trial is what it was: the forgery changed nothing
-    assert "1000000" not in again.tuned.read_text() and "-99" not in again.tuned.read_text()
+    assert again.ran == (0 if beyond else 1)
+    assert validate_tuning(again.path)["methods"]["c1"][0] == 4
+    assert again.chosen == first.chosen  # the rerun trial is what it was: the forgery changed nothing
+    text = again.tuned.read_text()
+    assert "1000000" not in text and "1e+06" not in text and "-99" not in text
+
+
+def test_a_forged_held_out_record_is_refused_quarantined_and_rerun(tmp_path, stored):
+    copy_of(stored, tmp_path)
+    first = tuned(tmp_path)
+    target = first.path / "heldout" / "c1-00000.json"
+    reseal(target, lambda r: r.update(gains={"c1.k": [1e6, 1e6]}))  # gains not the trial's: refused
+    code, output = validate_cli(first.path)
+    assert code == 2 and "heldout/c1-00000.json: refused (it evaluates c1 trial 0" in output, output
+    assert len(output.strip().splitlines()) == 1, output
+    again = tuned(tmp_path)
+    assert [line for line in again.quarantined if "c1-00000.json" in line] == list(again.quarantined) != []
+    assert again.ran == 0 and again.chosen == first.chosen and again.cap == first.cap
+    assert json.loads(target.read_text())["gains"] == {"c1.k": [10.0, 100.0]}
 
 
 def test_any_one_digit_change_in_any_file_of_a_tuning_store_is_refused(tmp_path):
     first = tuned(tmp_path, TINY)
-    files = [first.path / "tuning.json", first.path / "tuned.toml", *sorted((first.path / "trials").glob("*.json"))]
+    files = [first.path / "tuning.json", first.path / "tuned.toml", *sorted((first.path / "trials").glob("*.json")),
+             *sorted((first.path / "heldout").glob("*.json"))]
+    assert len(files) > 6
     changed = 0
     for file in files:
         data = file.read_bytes()
@@ -104,22 +150,25 @@ def test_any_one_digit_change_in_any_file_of_a_tuning_store_is_refused(tmp_path)
             if not chr(data[at]).isdigit():
                 continue
             digit = b"7" if data[at:at + 1] != b"7" else b"3"
-            file.write_bytes(data[:at] + digit + data[at + 1:])
+            changed_data = data[:at] + digit + data[at + 1:]
+            if file.suffix == ".json" and json.loads(changed_data) == json.loads(data):
+                continue  # the 17th digit of a float: the same number, no change
+            file.write_bytes(changed_data)
             with pytest.raises(TuningStoreError):
                 validate_tuning(first.path)
             changed += 1
         file.write_bytes(data)
-    assert changed > 40
-    assert validate_tuning(first.path)["methods"]["c2"][0] == 2
+    assert changed > 50
+    assert validate_tuning(first.path)["methods"]["c1"][0] == 2
 
 
 def test_hard_linked_and_symlinked_records_of_another_store_are_refused(tmp_path):
     one, other = tuned(tmp_path, results="one"), tuned(tmp_path, results="two")
-    (one.path / "trials" / "c2-00003.json").unlink()
-    os.link(other.path / "trials" / "c2-00003.json", one.path / "trials" / "c2-00003.json")
+    (one.path / "trials" / "c1-00003.json").unlink()
+    os.link(other.path / "trials" / "c1-00003.json", one.path / "trials" / "c1-00003.json")
     assert "another tuning store" in validate_cli(one.path)[1]
-    (one.path / "trials" / "c2-00003.json").unlink()
-    (one.path / "trials" / "c2-00003.json").symlink_to(other.path / "trials" / "c2-00003.json")
+    (one.path / "trials" / "c1-00003.json").unlink()
+    (one.path / "trials" / "c1-00003.json").symlink_to(other.path / "trials" / "c1-00003.json")
     assert "a symbolic link" in validate_cli(one.path)[1]
 
 
@@ -148,31 +197,31 @@ def test_a_fifo_in_the_store_never_hangs_a_reader(tmp_path):
     os.mkfifo(first.path / "tuned.toml")
     assert "tuned.toml: not the tuned file the last run wrote" in validate_cli(first.path)[1]
     (first.path / "tuned.toml").unlink()
-    (first.path / "trials" / "c2-00001.json").unlink()
-    os.mkfifo(first.path / "trials" / "c2-00001.json")
+    (first.path / "trials" / "c1-00001.json").unlink()
+    os.mkfifo(first.path / "trials" / "c1-00001.json")
     os.mkfifo(first.path / "trials" / "notes")  # not a record's name: never opened
     result = subprocess.run([sys.executable, "-m", "ilcforce", "validate", str(first.path)], capture_output=True,
                             text=True, timeout=60, env={**os.environ, "PYTHONPATH": str(ROOT)})
-    assert result.returncode == 2 and "c2-00001.json: refused (not a regular file)" in result.stdout + result.stderr
+    assert result.returncode == 2 and "c1-00001.json: refused (not a regular file)" in result.stdout + result.stderr
 
 
 def test_a_gap_is_refilled_and_no_finished_trial_is_written_again(tmp_path):
-    first = tuned(tmp_path, TRIALS.replace("trials = 4", "trials = 6"))
+    first = tuned(tmp_path, budget(base=6))
     trials = first.path / "trials"
-    kept = {f.name: (f.stat().st_ino, f.stat().st_mtime_ns) for f in trials.glob("c2-*.json") if f.name != "c2-00002.json"}
-    before = read_trials(first.path)["c2"]
-    (trials / "c2-00002.json").unlink()
-    again = tuned(tmp_path, TRIALS.replace("trials = 4", "trials = 6"))
+    kept = {f.name: (f.stat().st_ino, f.stat().st_mtime_ns) for f in trials.glob("c1-*.json") if f.name != "c1-00002.json"}
+    before = read_trials(first.path)["c1"]
+    (trials / "c1-00002.json").unlink()
+    again = tuned(tmp_path, budget(base=6))
     assert again.ran == 1 and again.skipped == 11
-    after = {f.name: (f.stat().st_ino, f.stat().st_mtime_ns) for f in trials.glob("c2-*.json") if f.name != "c2-00002.json"}
+    after = {f.name: (f.stat().st_ino, f.stat().st_mtime_ns) for f in trials.glob("c1-*.json") if f.name != "c1-00002.json"}
     assert after == kept  # in particular trial 5 (what the old resume overwrote) is untouched
-    assert read_trials(first.path)["c2"][5] == before[5]
-    assert validate_tuning(first.path)["methods"]["c2"][0] == 6
+    assert read_trials(first.path)["c1"][5] == before[5]
+    assert validate_tuning(first.path)["methods"]["c1"][0] == 6
 
 
 def test_a_committed_trial_is_never_overwritten(tmp_path):
     first = tuned(tmp_path, TINY)
-    record = {k: v for k, v in read_trials(first.path)["c2"][1].items() if k not in ("tuning", "search", "checksum")}
+    record = {k: v for k, v in read_trials(first.path)["c1"][1].items() if k not in ("tuning", "search", "checksum")}
     tuning = load_tuning(tiny_file(tmp_path, TINY))
     from ilcforce.tune.runner import _header, trial_check
 
@@ -201,7 +250,8 @@ def test_a_killed_writers_temporary_files_are_removed(tmp_path):
     first = tuned(tmp_path, TINY)
     dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
     pid = int(dead.stdout)
-    leftovers = [first.path / "trials" / f".c2-00001.json.tmp-{pid}", first.path / f".tuning.json.tmp-{pid}"]
+    leftovers = [first.path / "trials" / f".c1-00001.json.tmp-{pid}", first.path / f".tuning.json.tmp-{pid}",
+                 first.path / "heldout" / f".c1-00000.json.tmp-{pid}"]
     for item in leftovers:
         item.write_text("{")
     tuned(tmp_path, TINY)
@@ -229,9 +279,11 @@ def test_tune_output_is_refused_where_it_would_destroy_something(tmp_path):
     (tmp_path / "folder.toml").mkdir()
     tuned(tmp_path, TINY)
     header = tmp_path / "r" / "tuning" / "tiny" / "tuning.json"
+    heldout = tmp_path / "r" / "tuning" / "tiny" / "heldout" / "c1-00000.json"
     cases = {existing: "exists; pass --overwrite", store: "is an HDF5 store", tmp_path / "fifo.toml": "is not a regular file",
              tmp_path / "folder.toml": "is a folder", tmp_path / "tiny.toml": "is the tuning file itself",
-             header: "is a file of a tuning store", tmp_path / "on" / ".toml": "the tuned experiment file must be named <name>.toml"}
+             header: "is a file of a tuning store", heldout: "is a file of a tuning store",
+             tmp_path / "on" / ".toml": "the tuned experiment file must be named <name>.toml"}
     for output, why in cases.items():
         for overwrite in (False, True):
             if overwrite and why.startswith("exists"):
@@ -276,60 +328,87 @@ def test_a_full_disk_leaves_an_existing_tuned_file_whole(tmp_path):
 # outputs that say what happened
 
 
-def test_a_changed_budget_gives_true_statements(tmp_path):
-    tuned(tmp_path, TINY.replace("trials = 2", "trials = 3"))
-    summary = tuned(tmp_path, TINY)
-    assert summary.ran == 0 and summary.stored == {"c2": 3, "c3": 3}
-    text = summary.tuned.read_text()
-    assert "best trial" in text and "of 3 stored" in text and "the counts below include trials stored by runs" in text
-    from ilcforce.cli.tune import tune_command
-
-    lines = []
-    import ilcforce.cli.tune as cli_tune
-
-    original = cli_tune._line
-    cli_tune._line = lambda text, stderr=False: lines.append(text)
-    try:
-        tune_command(tiny_file(tmp_path, TINY), results=tmp_path / "r", workers=1, quiet=True)
-    finally:
-        cli_tune._line = original
-    assert any(line.startswith("tiny: c2: best trial") and "of 3 stored (budget 2)" in line for line in lines), lines
-
-
-def failing_cell(config, method, keep_store=None):
-    """C3 diverges at iteration 1 whatever its gains; C2 as :func:`fake_cell`."""
-    result = fake_cell(config, method)
-    if method == "c3":
-        result["rows"][1]["status"] = "diverged"
-    return result
-
-
-def test_failed_methods_are_written_untuned_and_nothing_tuned_is_an_error(tmp_path):
-    path = tiny_file(tmp_path, TINY)
-    summary = run_tuning(load_tuning(path), tmp_path / "r", workers=1, cell_function=failing_cell)
-    assert summary.best["c3"] is None and summary.best["c2"] is not None
-    assert "# c3: UNTUNED: every one of its 2 stored trials failed" in summary.tuned.read_text()
-    only_c3 = TINY.replace('methods = ["c2", "c3"]', 'methods = ["c3"]')
-    only_c3 = only_c3[:only_c3.index("[tune.gains.c2]")] + only_c3[only_c3.index("[tune.gains.c3]"):]
-    stale = tmp_path / "r2" / "tuning" / "tiny" / "tuned.toml"
-    stale.parent.mkdir(parents=True)
-    nothing = run_tuning(load_tuning(tiny_file(tmp_path, only_c3, "c3.toml")), tmp_path / "r2", workers=1,
-                         cell_function=failing_cell)
-    assert nothing.tuned is None and not stale.exists()
-
-
-def test_nothing_tuned_exits_non_zero_with_one_line(tmp_path, monkeypatch, capsys):
+def cli_lines(tmp_path, text, monkeypatch, capsys, cell=fake_cell, **kwargs) -> tuple[int, list[str], str]:
+    """(exit code, stdout lines, stderr) of `ilcforce tune` (tune_command) with the stand-in ``cell``."""
     from ilcforce.cli.tune import tune_command
     from ilcforce.tune import runner
 
-    monkeypatch.setitem(runner.run_tuning.__kwdefaults__, "cell_function", failing_cell)
-    text = TINY.replace('methods = ["c2", "c3"]', 'methods = ["c3"]')
-    text = text[:text.index("[tune.gains.c2]")] + text[text.index("[tune.gains.c3]"):]
-    code = tune_command(tiny_file(tmp_path, text), results=tmp_path / "r", workers=1, quiet=True,
-                        output=tmp_path / "out.toml")
-    err = capsys.readouterr().err
-    assert code == 1 and err.count("\n") == 1 and "no method could be tuned" in err, err
-    assert not (tmp_path / "out.toml").exists()
+    monkeypatch.setitem(runner.run_tuning.__kwdefaults__, "cell_function", cell)
+    code = tune_command(tiny_file(tmp_path, text), results=tmp_path / "r", workers=1, **kwargs)
+    out, err = capsys.readouterr()
+    return code, out.splitlines(), err
+
+
+def test_the_outputs_say_what_the_search_did_and_what_ships(tmp_path, monkeypatch, capsys):
+    code, lines, err = cli_lines(tmp_path, TRIALS, monkeypatch, capsys)
+    assert code == 0, err
+    progress = err.splitlines()
+    assert len(progress) == 8 and progress[0].startswith("tune tiny: c1 trial 1/4: error "), progress
+    assert all(", feasible (front " in line for line in progress), progress
+    c1 = next(line for line in lines if line.startswith("tiny: c1: "))
+    assert "4 trials (first budget 4, at most 4), converged" in c1 or "NOT converged" in c1, c1
+    assert "ships trial 0: held-out e_P" in c1, c1  # only trial 0 is within the cap (H_x grows with k)
+    assert any(line.startswith("tiny: 8 trials run, 0 already stored") and "check runs stopped early" in line
+               for line in lines), lines
+    assert lines[-1].startswith("tiny: tuned experiment file ") and lines[-1].endswith("tuned.toml`)"), lines
+    text = (tmp_path / "r" / "tuning" / "tiny" / "tuned.toml").read_text()
+    assert "# c1: 4 trials (" in text and "trial 0: e_P " in text and "(held-out medians)" in text
+    assert "2 held-out seeds x 9 iterations" in text and "1 check seeds run 9 iterations" in text
+    code, lines, err = cli_lines(tmp_path, TRIALS, monkeypatch, capsys, quiet=True)
+    assert code == 0 and err == "" and not any("trials run" in line for line in lines)
+
+
+def test_a_method_with_no_stable_gains_is_withheld_and_refused_by_name(tmp_path):
+    summary = tuned(tmp_path, TINY, cell=failing_cell)
+    trials = read_trials(summary.path)["c3"]
+    assert all(r["state"] == "failed" and not r["feasible"] for r in trials.values())
+    assert summary.chosen["c3"] is None and summary.chosen["c1"] is not None
+    text = summary.tuned.read_text()
+    assert "# c3: 2 trials (" in text and "no stable gains found under the cap: withheld" in text
+    from ilcforce.config_load import load_config
+
+    assert list(load_config(summary.tuned).tuning.withheld) == ["c3"]
+    run = CliRunner().invoke(app, ["simulate", "-c", str(summary.tuned), "-m", "c3", "--iters", "1",
+                                   "--out", str(tmp_path / "sim.h5")])
+    assert run.exit_code == 2, run.output
+    assert len(run.output.strip().splitlines()) == 1 and "c3 has no gains in this tuned experiment" in run.output, \
+        run.output
+    assert "Traceback" not in run.output
+    ok = CliRunner().invoke(app, ["simulate", "-c", str(summary.tuned), "-m", "c1", "--iters", "1", "--set",
+                                  "reference.duration=0.2", "--out", str(tmp_path / "sim.h5")])
+    assert ok.exit_code == 0, ok.output
+
+
+def late_failing_cell(config, method, keep_store=None, stop=None):
+    """Every method diverges at iteration 5: the scored runs (3 iterations) complete, every check and
+    held-out run (9) diverges; nothing is stable."""
+    result = fake_cell(config, method, keep_store, stop)
+    for row in result["rows"][5:]:
+        row["status"] = "diverged"
+    return result
+
+
+def test_nothing_stable_writes_no_tuned_file_and_exits_1_with_one_line(tmp_path, monkeypatch, capsys):
+    stale = tmp_path / "r" / "tuning" / "tiny" / "tuned.toml"
+    code, lines, err = cli_lines(tmp_path, TINY, monkeypatch, capsys, cell=late_failing_cell, quiet=True,
+                                 output=tmp_path / "out.toml")
+    assert code == 1 and err.count("\n") == 1 and "no method has stable gains under the cap" in err, err
+    assert not (tmp_path / "out.toml").exists() and not stale.exists()
+    trials = read_trials(tmp_path / "r" / "tuning" / "tiny")
+    assert all(r["state"] == "complete" and not r["feasible"] for t in trials.values() for r in t.values())
+    assert all("check seed 10: diverged at iteration 5" in r["message"] for t in trials.values() for r in t.values())
+    assert any("no stable gains found under the cap" in line for line in lines)
+
+
+def test_a_cap_reference_that_fails_is_one_line_exit_2(tmp_path, monkeypatch, capsys):
+    def c1_fails(config, method, keep_store=None, stop=None):
+        result = fake_cell(config, method, keep_store, stop)
+        if method == "c1":
+            result["rows"][0]["status"] = "diverged"
+        return result
+
+    code, _lines, err = cli_lines(tmp_path, TINY, monkeypatch, capsys, cell=c1_fails, quiet=True)
+    assert code == 2 and err.count("\n") == 1 and "the cap's reference c1 did not complete" in err, err
 
 
 @pytest.mark.parametrize("spec, message", [
@@ -337,8 +416,8 @@ def test_nothing_tuned_exits_non_zero_with_one_line(tmp_path, monkeypatch, capsy
     ('q_order = { low = 1.5, high = 3.7 }', "needs whole numbers"),
 ])
 def test_integer_gain_ranges_are_checked(tmp_path, spec, message):
-    text = TINY.replace('methods = ["c2", "c3"]', 'methods = ["pd-ilc"]')
-    text = text[:text.index("[tune.gains.c2]")] + f"[tune.gains.pd-ilc]\n{spec}\n"
+    text = TINY.replace('methods = ["c1", "c3"]', 'methods = ["c1", "pd-ilc"]')
+    text = text[:text.index("[tune.gains.c3]")] + f"[tune.gains.pd-ilc]\n{spec}\n"
     with pytest.raises(TuneError, match=message):
         load_tuning(tiny_file(tmp_path, text))
 
@@ -349,7 +428,7 @@ def test_tune_help_shows_the_tune_table():
 
 
 def test_sigterm_ends_tune_with_one_line(tmp_path):
-    text = TINY.replace("trials = 2", "trials = 50")
+    text = budget(base=50)
     process = subprocess.Popen([sys.executable, "-m", "ilcforce", "tune", str(tiny_file(tmp_path, text)), "--results",
                                 str(tmp_path / "r"), "--workers", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                text=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
