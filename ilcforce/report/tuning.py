@@ -18,9 +18,6 @@ from matplotlib.axes import Axes
 
 from ilcforce.controllers import REGISTRY
 
-#: Significant digits of a gain in the tables: the search's resolution is far coarser (a log-scaled range
-#: over decades), and 16 digits hid the value. The tuned experiment file keeps every digit.
-GAIN_DIGITS = 4
 #: Where ``make tune`` commits each tuning's page (with its date and commit), for reports of results folders
 #: that hold no tuning store (``make reproduce`` does not tune: it reports the committed page).
 COMMITTED = Path(__file__).resolve().parent.parent.parent / "docs" / "tuning"

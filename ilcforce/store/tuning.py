@@ -300,7 +300,7 @@ class TuningStore:
                     shutil.rmtree(self.path / folder)
             (self.path / TUNED).unlink(missing_ok=True)
             stored = {**header, "tuning_id": uuid.uuid4().hex, "sessions": []}
-        # the tuning file as last run (a changed budget is the one change of it a stored search takes)
+        # the tuning file as last run (its definition, the budget included, is the stored one)
         self.header = {**stored, "tuning_toml": header["tuning_toml"], "sessions": [*stored["sessions"], session]}
         self.save_header()
         self.header = read_header(self.path)

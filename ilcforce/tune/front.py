@@ -57,5 +57,7 @@ def spread(front: Sequence[int], most: int) -> list[int]:
     """At most ``most`` of the front's indices (ordered along it), evenly spaced and always both ends."""
     if len(front) <= most:
         return list(front)
+    if most < 2:
+        return list(front[:most])
     picks = sorted({round(k * (len(front) - 1) / (most - 1)) for k in range(most)})
     return [front[k] for k in picks]
