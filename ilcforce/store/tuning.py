@@ -314,32 +314,24 @@ class TuningStore:
 
     def commit(self, record: dict) -> None:
         """Store one finished trial (whole or not at all; never over a stored one)."""
-        record = records.seal({**record, "tuning": self.search.tuning_id, "search": self.search.digest})
-        target = self.path / TRIALS / f"{record['method']}-{record['number']:05d}.json"
-        try:  # never commit a record that a reader would refuse
-            check_record(record, self.search, None, self.check)
-        except RecordError as exc:
-            raise TuningStoreError(f"{target}: refusing to store the trial ({exc})") from None
-        if not check_writer_lock(self._lock):
-            raise TuningStoreError(f"{self.path}: no longer the folder this tuning locked; stopping")
-        try:
-            records.atomic_write(target, json.dumps(record).encode(), replace=False)
-        except FileExistsError:
-            raise TuningStoreError(f"{target}: a trial is already stored there; refusing to overwrite it") from None
-        except OSError as exc:
-            raise TuningStoreError(f"{target}: cannot write ({exc.strerror or exc}); every trial stored before "
-                                   "is kept") from None
-        self.committed += 1
+        record = self._write(TRIALS, record, lambda r: check_record(r, self.search, None, self.check), "the trial")
         self.trials.setdefault(record["method"], {})[record["number"]] = record
 
     def commit_heldout(self, record: dict) -> None:
         """Store one held-out evaluation (whole or not at all; never over a stored one)."""
+        record = self._write(HELDOUT, record, lambda r: check_heldout(r, self.search, self.trials),
+                             "the held-out evaluation")
+        self.heldout[(record["method"], record["number"])] = record
+
+    def _write(self, folder: str, record: dict, check: Callable[[dict], None], what: str) -> dict:
+        """Seal ``record``, check it as a reader would, and write it under ``folder`` by its method and
+        number; returns the sealed record."""
         record = records.seal({**record, "tuning": self.search.tuning_id, "search": self.search.digest})
-        target = self.path / HELDOUT / f"{record['method']}-{record['number']:05d}.json"
-        try:
-            check_heldout(record, self.search, self.trials)
+        target = self.path / folder / f"{record['method']}-{record['number']:05d}.json"
+        try:  # never commit a record that a reader would refuse
+            check(record)
         except RecordError as exc:
-            raise TuningStoreError(f"{target}: refusing to store the held-out evaluation ({exc})") from None
+            raise TuningStoreError(f"{target}: refusing to store {what} ({exc})") from None
         if not check_writer_lock(self._lock):
             raise TuningStoreError(f"{self.path}: no longer the folder this tuning locked; stopping")
         try:
@@ -351,7 +343,7 @@ class TuningStore:
             raise TuningStoreError(f"{target}: cannot write ({exc.strerror or exc}); every record stored before "
                                    "is kept") from None
         self.committed += 1
-        self.heldout[(record["method"], record["number"])] = record
+        return record
 
     def tuned_text(self) -> str | None:
         """The tuned file this store holds, if it is the one its last writer sealed (else None)."""
