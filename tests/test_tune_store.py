@@ -227,7 +227,7 @@ def test_a_committed_trial_is_never_overwritten(tmp_path):
 
     store = TuningStore(first.path, _header(tuning), {"trials": 2}, check=trial_check(tuning.definition()))
     try:
-        with pytest.raises(TuningStoreError, match="already stored there; refusing to overwrite it"):
+        with pytest.raises(TuningStoreError, match="already stored; refusing to overwrite it"):
             store.commit(record)
         with pytest.raises(TuningStoreError, match="another `ilcforce tune` is writing"):
             TuningStore(first.path, _header(tuning), {"trials": 2})
