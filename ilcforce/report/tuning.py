@@ -129,8 +129,8 @@ def convergence_figure(frame: pd.DataFrame, states: dict[str, dict]):
     for ax, method in zip(axes, methods):
         plot_convergence(ax, frame, method, states[method])
         s = states[method]
-        ax.set_title(f"{_style(method)[1]}: {s['trials']} trials, "
-                     + ("converged" if s["converged"] else "NOT converged"), fontsize="small")
+        ax.set_title(f"{_style(method)[1]}: {s['trials']} trials, " + ("no feasible trial" if not s.get("front", 1)
+                     else "converged" if s["converged"] else "NOT converged"), fontsize="small")
         ax.set_xlabel("trial", fontsize="small")
         ax.set_ylabel("hypervolume", fontsize="small")
     for ax in axes[len(methods):]:
@@ -141,14 +141,18 @@ def convergence_figure(frame: pd.DataFrame, states: dict[str, dict]):
 
 
 def plot_front(ax: Axes, pareto: pd.DataFrame, method: str) -> list:
-    """One method's held-out points: error objective against chattering relative to the cap (log x), the
-    stable ones joined in order of chattering, unstable ones as crosses (at their search error, if any),
-    the shipped one ringed."""
-    rows = pareto[pareto["method"] == method].sort_values("chattering / cap")
+    """One method's held-out points: error objective against chattering relative to the cap (log x). Every
+    stable point is a dot; the line joins those no other stable point beats on both (the front as the
+    held-out seeds see it); unstable points are crosses at the foot; the shipped one is ringed."""
+    from ilcforce.tune.front import pareto_indices
+
+    rows = pareto[pareto["method"] == method]
     color, label = _style(method)
     stable = rows[rows["stable"] & rows["error objective"].notna()]
-    artists = [ax.plot(stable["chattering / cap"], stable["error objective"], "-o", ms=3.5, lw=1, color=color,
-                       label=label)[0]]
+    points = list(zip(stable["chattering / cap"], stable["error objective"]))
+    front = stable.iloc[pareto_indices([(c, e) for c, e in points])] if len(stable) else stable
+    artists = [ax.plot(front["chattering / cap"], front["error objective"], "-", lw=1.2, color=color, label=label)[0],
+               ax.plot(stable["chattering / cap"], stable["error objective"], "o", ms=3.5, color=color)[0]]
     unstable = rows[~rows["stable"] & rows["chattering / cap"].notna()]
     if len(unstable):
         artists.append(ax.plot(unstable["chattering / cap"], np.zeros(len(unstable)) + 0.02, "x", color=color,
@@ -175,9 +179,11 @@ def fronts_figure(pareto: pd.DataFrame, methods: list[str], title: str):
     ax.set_title(title, fontsize="medium")
     from matplotlib.ticker import FuncFormatter
 
-    plain = FuncFormatter(lambda x, _pos: f"{x:g}")
-    ax.xaxis.set_major_formatter(plain)
-    ax.xaxis.set_minor_formatter(plain)
+    def some(x, _pos):  # 0.2, 0.5, 2, 5 ... between the decades: every minor label crowded a wide axis
+        return f"{x:g}" if x > 0 and round(x / 10 ** math.floor(math.log10(x))) in (2, 5) else ""
+
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _pos: f"{x:g}"))
+    ax.xaxis.set_minor_formatter(FuncFormatter(some))
     ax.tick_params(axis="x", which="minor", labelsize="x-small")
     ax.legend(fontsize="small", ncol=2, loc="best")
     return fig
@@ -273,9 +279,11 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
     if formats and len(pareto):
         text += [f"![every method's held-out front](fronts.{formats[0]})", "",
                  "A dot is a point re-evaluated on the held-out seeds (median over them): its error objective "
-                 "against its chattering relative to the cap; right of the dashed line is over the cap. A ring "
-                 "marks the point shipped; crosses at the foot are points that diverged or were flagged by the "
-                 "growth test on a held-out seed. Every point is listed in [pareto.csv](pareto.csv).", ""]
+                 "against its chattering relative to the cap; right of the dashed line is over the cap. The line "
+                 "joins each method's points that no other of its stable points beats on both (its front as the "
+                 "held-out seeds see it). A ring marks the point shipped; crosses at the foot are points that "
+                 "diverged or were flagged by the growth test on a held-out seed. Every point is listed in "
+                 "[pareto.csv](pareto.csv).", ""]
     if formats and len(frame):
         text += [f"![each search's convergence](convergence.{formats[0]})", "",
                  "Each search's feasible front, as the hypervolume it dominates (up to the reference point: error "
