@@ -65,5 +65,18 @@ def make_plant(params) -> Plant:
     return plant_class(params.model)(params)
 
 
+#: a robot from a URDF or MJCF file (docs/model.md#model-file), imported on first use: only reading
+#: a file imports MuJoCo
+_MODEL_FILE = {"load_model": "ilcforce.plants.model_file", "ModelFileError": "ilcforce.plants.model_file",
+               "check_task_dimension": "ilcforce.plants.model_file", "shipped_models": "ilcforce.plants.model_file",
+               "SerialArm": "ilcforce.plants.serial_arm"}
+
+
+def __getattr__(name: str):
+    if name in _MODEL_FILE:
+        return getattr(importlib.import_module(_MODEL_FILE[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 __all__ = ["MODELS", "Plant", "PlantKernels", "UnreachableError", "plant_class", "params_class",
-           "param_names", "make_plant", "perturbed_parameter", "changed_parameter"]
+           "param_names", "make_plant", "perturbed_parameter", "changed_parameter", *_MODEL_FILE]
