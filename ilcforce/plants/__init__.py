@@ -11,6 +11,9 @@ import importlib
 
 from ilcforce.plants.base import Plant, PlantKernels, UnreachableError
 
+#: the robot of an experiment that names none: the paper's five-bar
+DEFAULT_MODEL = "fivebar"
+
 #: model name -> (module, plant class, parameters class, default perturbed parameter)
 MODELS = {
     "fivebar": ("ilcforce.plants.fivebar", "FiveBar", "FiveBarParams", "m3"),
@@ -56,8 +59,8 @@ def changed_parameter(config) -> str:
     parameter = change.get("parameter") if hasattr(change, "get") else None
     if parameter:
         return str(parameter)
-    model = str(plant.get("model", "fivebar"))
-    return perturbed_parameter(model if model in MODELS else "fivebar")
+    model = str(plant.get("model", DEFAULT_MODEL))
+    return perturbed_parameter(model if model in MODELS else DEFAULT_MODEL)
 
 
 def make_plant(params) -> Plant:
@@ -78,5 +81,5 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["MODELS", "Plant", "PlantKernels", "UnreachableError", "plant_class", "params_class",
+__all__ = ["DEFAULT_MODEL", "MODELS", "Plant", "PlantKernels", "UnreachableError", "plant_class", "params_class",
            "param_names", "make_plant", "perturbed_parameter", "changed_parameter", *_MODEL_FILE]
