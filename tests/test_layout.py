@@ -131,8 +131,11 @@ def test_no_module_outside_plants_names_a_robot():
     """docs/design.md: nothing outside ilcforce/plants/ knows which robot it simulates. The laws, the
     configuration and the report reach every plant-specific fact (regressor, parameters, default
     perturbation, working mode, gravity) through the plant interface and the registry."""
+    from ilcforce.plants import MODELS, TITLES, plant_title
+
     names = _robot_names()
     assert {"fivebar", "serial2r", "FiveBar", "Serial2RParams"} <= names
+    assert set(TITLES) == set(MODELS) and plant_title("serial2r") == "serial 2R arm"  # prose for the report
     offenders = [f"{path.relative_to(PACKAGE.parent)}:{line}: {text[:80]!r}"
                  for path in sorted(PACKAGE.rglob("*.py")) if "plants" not in path.relative_to(PACKAGE).parts[:1]
                  for line, text in _named_robots(path.read_text(encoding="utf-8"), names)]

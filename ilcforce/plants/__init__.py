@@ -21,6 +21,17 @@ MODELS = {
 }
 
 
+#: model name -> the robot's name in prose (tables, figure labels, the report's text)
+TITLES = {"fivebar": "five-bar", "serial2r": "serial 2R arm"}
+
+
+def plant_title(model: str) -> str:
+    """The robot ``model`` in words (``"five-bar"``), for text that must not name it in code."""
+    if model not in MODELS:
+        raise ValueError(f"plant.model must be one of {', '.join(MODELS)}, got {model!r}")
+    return TITLES[model]
+
+
 def _module(model: str):
     if model not in MODELS:
         raise ValueError(f"plant.model must be one of {', '.join(MODELS)}, got {model!r}")
@@ -81,5 +92,5 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["DEFAULT_MODEL", "MODELS", "Plant", "PlantKernels", "UnreachableError", "plant_class", "params_class",
+__all__ = ["DEFAULT_MODEL", "MODELS", "TITLES", "plant_title", "Plant", "PlantKernels", "UnreachableError", "plant_class", "params_class",
            "param_names", "make_plant", "perturbed_parameter", "changed_parameter", *_MODEL_FILE]
