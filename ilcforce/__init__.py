@@ -28,6 +28,8 @@ _PUBLIC = {
     "ConfigError": ("ilcforce.config", "ConfigError"),
     "METHODS": ("ilcforce.controllers", "REGISTRY"),
     "PLANTS": ("ilcforce.plants", "MODELS"),
+    "load_model": ("ilcforce.plants.model_file", "load_model"),  # a robot from a URDF or MJCF file
+    "ModelFileError": ("ilcforce.plants.model_file", "ModelFileError"),
     "run_method": ("ilcforce.experiment", "api_run_method"),  # refusals name overwrite=True, not --overwrite
     "simulate_iterations": ("ilcforce.experiment", "simulate_iterations"),
     "iteration_metrics": ("ilcforce.metrics", "iteration_metrics"),

@@ -9,8 +9,8 @@ writes the resolved configuration back (a minimal TOML writer at the end: tomlli
 TOML layout (every table and key optional; see ``experiments/paper.toml``)::
 
     [experiment]  name, description, seed, iterations
-    [plant]       model ("fivebar" | "serial2r")
-    [plant.fivebar]  L1 ... I4 (Table 1)   [plant.serial2r]  L1 ... I2, g (docs/model.md#serial2r)
+    [plant]       model (a key of ilcforce.plants.MODELS: "fivebar", the paper's robot, or "serial2r")
+    [plant.<model>]  each robot's nominal parameters (five-bar: L1 ... I4, Table 1; 2R arm: L1 ... I2, g)
     [plant.perturbation]  parameter, factor, from_iteration
     [wall]        position, stiffness, force_sign
     [reference]   duration, x_amplitude, ...
@@ -38,9 +38,7 @@ import numpy as np
 from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.base import check_vector
 from ilcforce.noise import NoiseModel
-from ilcforce.plants import MODELS, make_plant
-from ilcforce.plants.fivebar import FiveBarParams
-from ilcforce.plants.serial2r import Serial2RParams
+from ilcforce.plants import DEFAULT_MODEL, MODELS, make_plant, params_class, perturbed_parameter
 from ilcforce.simulate import SimulationSettings, force_axis
 from ilcforce.task import Reference, Wall
 
@@ -69,7 +67,7 @@ class ExperimentInfo:
 class Perturbation:
     """The true plant's parameter change (Section 4.1: m3 x 1.4 from j = 10); the nominal model never changes."""
 
-    parameter: str = ""  # one of the plant model's parameter names; "" = the model's default (m3, or m2 for serial2r)
+    parameter: str = ""  # one of the plant model's parameter names; "" = the model's own (ilcforce.plants.perturbed_parameter)
     factor: float = 1.4  # multiplier applied to the true plant
     from_iteration: int = 10  # first iteration with the changed plant
 
@@ -80,17 +78,8 @@ class Perturbation:
             raise ValueError(f"plant.perturbation.from_iteration must be >= 0, got {self.from_iteration}")
 
 
-@dataclass(frozen=True)
-class PlantConfig:
-    """The robot (``model``), each model's nominal parameters, and the true plant's perturbation.
-
-    Only the selected model's table is used; the other keeps its defaults.
-    """
-
-    model: str = "fivebar"  # a key of ilcforce.plants.MODELS
-    fivebar: FiveBarParams = field(default_factory=FiveBarParams)  # docs/model.md#fivebar, Table 1
-    serial2r: Serial2RParams = field(default_factory=Serial2RParams)  # docs/model.md#serial2r
-    perturbation: Perturbation = field(default_factory=Perturbation)
+class _PlantConfigMethods:
+    """The methods of :class:`PlantConfig` (its fields come from the plant registry)."""
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -98,7 +87,7 @@ class PlantConfig:
         names = tuple(f.name for f in dataclasses.fields(self.nominal()))
         p = self.perturbation
         if p.parameter == "":  # the model's default perturbation (docs/model.md#perturbation)
-            object.__setattr__(self, "perturbation", dataclasses.replace(p, parameter=MODELS[self.model][3]))
+            object.__setattr__(self, "perturbation", dataclasses.replace(p, parameter=perturbed_parameter(self.model)))
         elif p.parameter not in names:
             raise ValueError(f"plant.perturbation.parameter must be one of {', '.join(names)} for "
                              f"plant.model = {self.model!r}, got {p.parameter!r}")
@@ -121,6 +110,26 @@ class PlantConfig:
     def has_gravity(self) -> bool:
         """True if the selected robot has a gravity vector (C3 then learns Theta's G block)."""
         return make_plant(self.nominal()).has_gravity
+
+
+def _plant_config_class() -> type:
+    """PlantConfig: ``model`` (a key of ilcforce.plants.MODELS, the paper's robot by default), one field
+    per registered robot holding its nominal parameters (TOML ``[plant.<model>]``, in registry order),
+    and ``perturbation``. Made from the registry so that this module names no robot."""
+    robots = [(model, params_class(model), field(default_factory=params_class(model))) for model in MODELS]
+    return dataclasses.make_dataclass(
+        "PlantConfig",
+        [("model", str, field(default=DEFAULT_MODEL)), *robots,
+         ("perturbation", Perturbation, field(default_factory=Perturbation))],
+        bases=(_PlantConfigMethods,), frozen=True,
+        namespace={"__module__": __name__, "__doc__": """The robot (``model``), each model's nominal parameters, and the true plant's perturbation.
+
+    Only the selected model's table is used; the others keep their defaults.
+    """})
+
+
+#: the robot (``model``), each registered model's nominal parameters, and the true plant's perturbation
+PlantConfig = _plant_config_class()
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-HEAVY = ("rich.table", "rich.progress", "pandas", "numba", "h5py", "matplotlib", "scipy")
+HEAVY = ("rich.table", "rich.progress", "pandas", "numba", "h5py", "matplotlib", "scipy", "mujoco")
 
 
 def _imported_after(code: str) -> set[str]:

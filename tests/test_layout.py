@@ -5,6 +5,7 @@ top level stays small enough to read."""
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parents[1] / "ilcforce"
@@ -85,3 +86,66 @@ def test_the_package_holds_no_benchmark_and_a_small_top_level():
     assert not [p for p in PACKAGE.rglob("*.py") if p.name.startswith("bench")]
     top = sorted(p.name for p in PACKAGE.glob("*.py"))
     assert len(top) <= 20, top
+
+
+def _robot_names() -> set[str]:
+    """Every registered robot's model name, module name and class names (ilcforce.plants.MODELS)."""
+    from ilcforce.plants import MODELS
+
+    return {part.rpartition(".")[2] for model, entry in MODELS.items() for part in (model, *entry[:3])}
+
+
+def _named_robots(source: str, names: set[str]) -> list[tuple[int, str]]:
+    """(line, text) of each place the code of ``source`` names a robot: an identifier, an attribute, an
+    import or a string that is not a docstring holding one of ``names`` as a word. Comments and
+    docstrings (prose, pointers into docs/model.md) are not code."""
+    tree = ast.parse(source)
+    docstrings = set()
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)) and node.body:
+            first = node.body[0]
+            if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
+                docstrings.add(id(first.value))
+    pattern = re.compile(r"(?<![A-Za-z0-9_])(" + "|".join(map(re.escape, sorted(names))) + r")(?![A-Za-z0-9_])")
+    found = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in docstrings:
+            texts = [node.value]
+        elif isinstance(node, ast.Name):
+            texts = [node.id]
+        elif isinstance(node, ast.Attribute):
+            texts = [node.attr]
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            texts = [alias.name for alias in node.names] + [getattr(node, "module", None) or ""]
+        elif isinstance(node, (ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef)):
+            texts = [node.name]
+        elif isinstance(node, ast.arg):
+            texts = [node.arg]
+        else:
+            continue
+        found += [(node.lineno, text) for text in texts for part in re.split(r"[.]", text) if pattern.search(part)]
+    return found
+
+
+def test_no_module_outside_plants_names_a_robot():
+    """docs/design.md: nothing outside ilcforce/plants/ knows which robot it simulates. The laws, the
+    configuration and the report reach every plant-specific fact (regressor, parameters, default
+    perturbation, working mode, gravity) through the plant interface and the registry."""
+    from ilcforce.plants import MODELS, TITLES, plant_title
+
+    names = _robot_names()
+    assert {"fivebar", "serial2r", "FiveBar", "Serial2RParams"} <= names
+    assert set(TITLES) == set(MODELS) and plant_title("serial2r") == "serial 2R arm"  # prose for the report
+    offenders = [f"{path.relative_to(PACKAGE.parent)}:{line}: {text[:80]!r}"
+                 for path in sorted(PACKAGE.rglob("*.py")) if "plants" not in path.relative_to(PACKAGE).parts[:1]
+                 for line, text in _named_robots(path.read_text(encoding="utf-8"), names)]
+    assert offenders == [], "modules outside ilcforce/plants/ name a robot:\n" + "\n".join(offenders)
+
+
+def test_the_robot_name_scan_finds_code_not_prose():
+    names = {"fivebar", "serial2r", "FiveBarParams"}
+    code = ('"""The five-bar and the serial2r arm (docs/model.md#serial2r)."""\n'
+            "from ilcforce.plants.fivebar import FiveBarParams  # fivebar\n"
+            "def f(model):\n    '''on the fivebar'''\n    return model == \"serial2r\"\n"
+            "x = plants.fivebar.thing\nlabel = 'five-bar: kg m^2'\n")
+    assert sorted({line for line, _ in _named_robots(code, names)}) == [2, 5, 6]

@@ -111,3 +111,16 @@ def test_a_pip_user_simulates_a_shipped_experiment(installed, tmp_path):
                tmp_path, 900)
     assert ran.returncode == 0, ran.stderr
     assert (tmp_path / "results" / "serial2r" / "c1.h5").is_file()
+
+
+def test_the_wheel_ships_the_model_files(installed, tmp_path):
+    """experiments/models/ installs with the experiments: a pip user loads a shipped robot by its name."""
+    code = ("from ilcforce.plants import load_model, shipped_models\nprint(shipped_models())\n"
+            "arm = load_model('arm3.urdf', 'tool')\nprint(arm.n, arm.source)")
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+    done = subprocess.run([str(installed / "python"), "-c", code], capture_output=True, text=True, cwd=tmp_path,
+                          env=env, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "'arm3.urdf', 'arm3.xml', 'serial2r.urdf', 'serial2r.xml'" in done.stdout
+    n, source = done.stdout.splitlines()[-1].split(" ", 1)
+    assert n == "3" and Path(source).is_relative_to(installed.parent), source

@@ -7,8 +7,8 @@ constant physical parameters online (Slotine & Li, "On the adaptive control of r
 IJRR 6(3), 1987; Applied Nonlinear Control, 1991, sec. 9.2, eqs. 9.25-9.27), does as well.
 
 The robot's dynamics are linear in a vector a of constant base parameters (each plant provides its
-regressor, ``regressor`` and ``base_parameters`` in its module: 6 for the five-bar, 5 for the 2R arm
-with its two gravity moments):
+regressor and base parameters; the law reaches them through ``ilcforce.plants.adaptive`` by the
+plant's code, so it names no robot: 6 for the five-bar, 5 for the 2R arm with its two gravity moments):
 
     Dq(q) ddq_r + Cq(q, dq) dq_r + G_q(q) = Y(q, dq, dq_r, ddq_r) a
 
@@ -47,14 +47,12 @@ from ilcforce.controllers.base import (
     check_vector, compiled_law, gain_indices, pack_gains, surface_terms,
 )
 from ilcforce.controllers.c3 import PSI_ACCELERATION
-from ilcforce.plants import fivebar, serial2r
+from ilcforce.plants import adaptive
 
-#: The plants this law has a regressor for: model -> (code in the packed gains, module).
-PLANTS = {"fivebar": (0.0, fivebar), "serial2r": (1.0, serial2r)}
-#: Room for the nominal plant's packed parameters in the gain vector (the five-bar's 17).
-MAX_PLANT_PARAMS = 17
+#: Room for the nominal plant's packed parameters in the gain vector (the most of any plant).
+MAX_PLANT_PARAMS = adaptive.PARAM_ROOM
 #: Columns of every plant's regressor tuple (a plant with fewer base parameters pads with zeros).
-REGRESSOR_WIDTH = 6
+REGRESSOR_WIDTH = adaptive.REGRESSOR_WIDTH
 
 
 @dataclass(frozen=True)
@@ -113,20 +111,12 @@ def sl_adapt_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     r2 = (-J10 * p2x + J00 * p2y) / det
     sj1 = (J11 * sx - J01 * sy) / det
     sj2 = (-J10 * sx + J00 * sy) / det
-    if gains[PLANT] > 0.5:
-        dyn = serial2r._dynamics(p, th1, th2, d1, d2)
-        dJ00, dJ01, dJ10, dJ11 = dyn[7], dyn[8], dyn[9], dyn[10]
-    else:
-        dyn5 = fivebar._dynamics(p, th1, th2, d1, d2)
-        dJ00, dJ01, dJ10, dJ11 = dyn5[7], dyn5[8], dyn5[9], dyn5[10]
+    dJ00, dJ01, dJ10, dJ11 = adaptive.jacobian_derivative(gains[PLANT], p, th1, th2, d1, d2)
     bx = p1x - (dJ00 * r1 + dJ01 * r2)  # ddq_r = J^-1 (ddP_r - dJ dq_r), ddP_r = psi1
     by = p1y - (dJ10 * r1 + dJ11 * r2)
     rr1 = (J11 * bx - J01 * by) / det
     rr2 = (-J10 * bx + J00 * by) / det
-    if gains[PLANT] > 0.5:
-        Y = serial2r.regressor(p, th1, th2, d1, d2, r1, r2, rr1, rr2)
-    else:
-        Y = fivebar.regressor(p, th1, th2, d1, d2, r1, r2, rr1, rr2)
+    Y = adaptive.regressor(gains[PLANT], p, th1, th2, d1, d2, r1, r2, rr1, rr2)
     last = mem_prev.shape[0] - 1
     tau1 = 0.0
     tau2 = 0.0
@@ -159,12 +149,12 @@ class SlotineLiController(MemoryController):
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: SlotineLiGains, *,
                  gravity: bool = False, sample_time: float = float("nan"), nominal=None):
-        if nominal is None or getattr(nominal, "model", None) not in PLANTS:
-            raise ValueError(f"sl-adapt needs the nominal parameters of one of the plants {', '.join(PLANTS)}")
-        code, module = PLANTS[nominal.model]
-        self.base_parameter_names = module.BASE_PARAMETER_NAMES
+        if nominal is None or not hasattr(nominal, "model"):
+            raise ValueError("sl-adapt needs the nominal parameters of a plant (ilcforce.plants.MODELS)")
+        code = adaptive.code(nominal.model)
+        self.base_parameter_names = adaptive.base_parameter_names(nominal.model)
         width = len(self.base_parameter_names)
-        unit = "kg m^2" if nominal.model == "fivebar" else "kg m^2 (a, b, d), N m (g1, g2)"
+        unit = adaptive.base_parameter_units(nominal.model)
         self.memory_layout = {"a_hat_change": (0, width, f"a_hat - a_hat_0, base parameters: {unit}")}
         super().__init__(n_control, sample_time)
         if not (np.isfinite(self.sample_time) and self.sample_time > 0):
@@ -174,7 +164,7 @@ class SlotineLiController(MemoryController):
         head = pack_gains(surface, wall_sign, gains, encode={"psi_acceleration": PSI_ACCELERATION}, derived={"sample_time": self.sample_time, "plant": code,
                                                               "params": packed[0]})
         initial = np.zeros(REGRESSOR_WIDTH)
-        initial[:width] = gains.initial_estimate * module.base_parameters(nominal)  # a_hat_0
+        initial[:width] = gains.initial_estimate * adaptive.base_parameters(nominal)  # a_hat_0
         self._gains = np.concatenate([head, packed[1:], initial])
 
     @property

@@ -11,11 +11,25 @@ import importlib
 
 from ilcforce.plants.base import Plant, PlantKernels, UnreachableError
 
+#: the robot of an experiment that names none: the paper's five-bar
+DEFAULT_MODEL = "fivebar"
+
 #: model name -> (module, plant class, parameters class, default perturbed parameter)
 MODELS = {
     "fivebar": ("ilcforce.plants.fivebar", "FiveBar", "FiveBarParams", "m3"),
     "serial2r": ("ilcforce.plants.serial2r", "Serial2R", "Serial2RParams", "m2"),
 }
+
+
+#: model name -> the robot's name in prose (tables, figure labels, the report's text)
+TITLES = {"fivebar": "five-bar", "serial2r": "serial 2R arm"}
+
+
+def plant_title(model: str) -> str:
+    """The robot ``model`` in words (``"five-bar"``), for text that must not name it in code."""
+    if model not in MODELS:
+        raise ValueError(f"plant.model must be one of {', '.join(MODELS)}, got {model!r}")
+    return TITLES[model]
 
 
 def _module(model: str):
@@ -56,8 +70,8 @@ def changed_parameter(config) -> str:
     parameter = change.get("parameter") if hasattr(change, "get") else None
     if parameter:
         return str(parameter)
-    model = str(plant.get("model", "fivebar"))
-    return perturbed_parameter(model if model in MODELS else "fivebar")
+    model = str(plant.get("model", DEFAULT_MODEL))
+    return perturbed_parameter(model if model in MODELS else DEFAULT_MODEL)
 
 
 def make_plant(params) -> Plant:
@@ -65,5 +79,18 @@ def make_plant(params) -> Plant:
     return plant_class(params.model)(params)
 
 
-__all__ = ["MODELS", "Plant", "PlantKernels", "UnreachableError", "plant_class", "params_class",
-           "param_names", "make_plant", "perturbed_parameter", "changed_parameter"]
+#: a robot from a URDF or MJCF file (docs/model.md#model-file), imported on first use: only reading
+#: a file imports MuJoCo
+_MODEL_FILE = {"load_model": "ilcforce.plants.model_file", "ModelFileError": "ilcforce.plants.model_file",
+               "check_task_dimension": "ilcforce.plants.model_file", "shipped_models": "ilcforce.plants.model_file",
+               "SerialArm": "ilcforce.plants.serial_arm"}
+
+
+def __getattr__(name: str):
+    if name in _MODEL_FILE:
+        return getattr(importlib.import_module(_MODEL_FILE[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["DEFAULT_MODEL", "MODELS", "TITLES", "plant_title", "Plant", "PlantKernels", "UnreachableError", "plant_class", "params_class",
+           "param_names", "make_plant", "perturbed_parameter", "changed_parameter", *_MODEL_FILE]

@@ -46,7 +46,7 @@ from ilcforce.plants.base import (
     UnreachableError, check_pair as _pair,
 )
 
-__all__ = ["FiveBarParams", "FiveBar", "UnreachableError", "PARAM_NAMES", "BASE_PARAMETER_NAMES", "base_parameters",
+__all__ = ["FiveBarParams", "FiveBar", "UnreachableError", "PARAM_NAMES", "BASE_PARAMETER_NAMES", "BASE_PARAMETER_UNITS", "base_parameters",
            "regressor"]
 
 #: Order of the packed parameter vector used by the compiled kernels.
@@ -408,6 +408,8 @@ class FiveBar(Plant):
 #: The base parameters a: the open tree's inertia entries M11, M22, M33, M44 and the couplings
 #: k3 = m3 L1 Lc3, k4 = m4 L2 Lc4 (Dq and Cq are linear in them for given lengths; see _dynamics).
 BASE_PARAMETER_NAMES = ("M11", "M22", "M33", "M44", "k3", "k4")
+#: their units, as an adaptive law's memory describes them
+BASE_PARAMETER_UNITS = "kg m^2"
 
 
 def base_parameters(params: FiveBarParams) -> np.ndarray:

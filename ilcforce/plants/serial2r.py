@@ -55,7 +55,7 @@ from ilcforce.plants.base import (
     params_view,
 )
 
-__all__ = ["Serial2RParams", "Serial2R", "PARAM_NAMES", "BASE_PARAMETER_NAMES", "base_parameters", "regressor"]
+__all__ = ["Serial2RParams", "Serial2R", "PARAM_NAMES", "BASE_PARAMETER_NAMES", "BASE_PARAMETER_UNITS", "base_parameters", "regressor"]
 
 #: Order of the packed parameter vector used by the compiled kernels.
 PARAM_NAMES = ("L1", "L2", "Lc1", "Lc2", "m1", "m2", "I1", "I2", "g")
@@ -234,6 +234,8 @@ class Serial2R(Plant):
 
 #: The base parameters a, constant for a given arm (the model's a, b, d and the two gravity moments).
 BASE_PARAMETER_NAMES = ("a", "b", "d", "g1", "g2")
+#: their units, as an adaptive law's memory describes them
+BASE_PARAMETER_UNITS = "kg m^2 (a, b, d), N m (g1, g2)"
 
 
 def base_parameters(params: Serial2RParams) -> np.ndarray:

@@ -1,0 +1,72 @@
+"""What an adaptive law needs from the plant it controls, by the plant's code: the linear
+parametrisation Dq(q) ddq_r + Cq(q, dq) dq_r + G_q(q) = Y(q, dq, dq_r, ddq_r) a (Slotine & Li 1987)
+and dJ/dt, so that a compiled law (``ilcforce.controllers.sl_adapt``) calls one function whichever
+robot it controls and names none.
+
+Each plant module provides its ``regressor`` (a compiled function returning Y, shape (2, 6), as a
+12-tuple, row 0 then row 1; a plant with fewer base parameters pads with zero columns),
+``base_parameters(params)``, ``BASE_PARAMETER_NAMES`` and ``BASE_PARAMETER_UNITS``. A law's packed
+gains carry the plant's :func:`code` (its position in ``ilcforce.plants.MODELS``); the compiled
+functions below branch on it.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+import numpy as np
+
+from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
+from ilcforce.plants import MODELS, fivebar, serial2r
+
+__all__ = ["REGRESSOR_WIDTH", "PARAM_ROOM", "code", "base_parameter_names", "base_parameter_units",
+           "base_parameters", "regressor", "jacobian_derivative"]
+
+#: columns of every plant's regressor tuple (the most base parameters of any plant)
+REGRESSOR_WIDTH = 6
+#: room for any plant's packed parameters in a law's gains (the most of any plant)
+PARAM_ROOM = max(len(importlib.import_module(module).PARAM_NAMES) for module, *_ in MODELS.values())
+
+
+def _module(model: str):
+    if model not in MODELS:
+        raise ValueError(f"no plant model {model!r}; expected one of {', '.join(MODELS)}")
+    return importlib.import_module(MODELS[model][0])
+
+
+def code(model: str) -> float:
+    """The plant's code in a law's packed gains: its position in ``MODELS``."""
+    _module(model)
+    return float(list(MODELS).index(model))
+
+
+def base_parameter_names(model: str) -> tuple[str, ...]:
+    return tuple(_module(model).BASE_PARAMETER_NAMES)
+
+
+def base_parameter_units(model: str) -> str:
+    """The units of the base parameters, as words (e.g. ``"kg m^2"``)."""
+    return _module(model).BASE_PARAMETER_UNITS
+
+
+def base_parameters(params) -> np.ndarray:
+    """The base parameters a of the plant with parameters ``params``, shape (n_base,)."""
+    return _module(params.model).base_parameters(params)
+
+
+@njit(cache=True, error_model="numpy")
+def jacobian_derivative(plant, p, th1, th2, d1, d2):
+    """(dJ00, dJ01, dJ10, dJ11) of the plant of code ``plant`` with packed parameters ``p``."""
+    if plant > 0.5:
+        dyn = serial2r._dynamics(p, th1, th2, d1, d2)
+        return dyn[7], dyn[8], dyn[9], dyn[10]
+    dyn5 = fivebar._dynamics(p, th1, th2, d1, d2)
+    return dyn5[7], dyn5[8], dyn5[9], dyn5[10]
+
+
+@njit(cache=True, error_model="numpy")
+def regressor(plant, p, th1, th2, d1, d2, r1, r2, rr1, rr2):
+    """Y(q, dq, dq_r, ddq_r) of the plant of code ``plant``: (2, REGRESSOR_WIDTH) as a 12-tuple."""
+    if plant > 0.5:
+        return serial2r.regressor(p, th1, th2, d1, d2, r1, r2, rr1, rr2)
+    return fivebar.regressor(p, th1, th2, d1, d2, r1, r2, rr1, rr2)

@@ -1,0 +1,157 @@
+"""The plant of an n-joint serial arm described by a packed parameter vector (``ilcforce.plants.chain``;
+``ilcforce.plants.model_file`` builds one from a URDF or MJCF file): the public methods of the
+closed-form plants (``ilcforce.plants.base.Plant``) in n dimensions, plus the joint-torque regressor.
+
+Joint values q (rad for a hinge, m for a slide) are the model file's; the task is the end
+effector's world position P (3,), J its linear-velocity Jacobian (3, n). The task-space model of
+eq. (4) needs a square J, so ``task_*`` require n = 3 (docs/model.md#model-file).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ilcforce.plants import chain
+
+__all__ = ["SerialArm"]
+
+#: the end effector's position: the task dimension of a spatial arm
+TASK_DIMENSION = 3
+
+
+class SerialArm:
+    """An n-joint serial arm of hinge and slide joints with gravity (docs/model.md#model-file)."""
+
+    def __init__(self, packed, *, joint_names=(), link_names=(), end_effector: str = "", source: str = "") -> None:
+        self._p = np.ascontiguousarray(packed, dtype=np.float64)
+        self._p.setflags(write=False)
+        self.n = chain.link_count(self._p)
+        self.joint_names = tuple(joint_names)
+        self.link_names = tuple(link_names)
+        self.end_effector = end_effector
+        self.source = source
+
+    def __repr__(self) -> str:
+        return (f"SerialArm({self.n} joints {', '.join(self.joint_names)}; end effector {self.end_effector!r}; "
+                f"from {self.source or 'a packed vector'})")
+
+    @property
+    def packed(self) -> np.ndarray:
+        """The packed parameter vector the kernels read (read-only)."""
+        return self._p
+
+    @property
+    def gravity_vector(self) -> np.ndarray:
+        """Gravity in the world frame (m/s^2), shape (3,)."""
+        return np.array(self._p[5:8])
+
+    def _joints(self, name: str, value) -> np.ndarray:
+        arr = np.ascontiguousarray(value, dtype=np.float64)
+        if arr.shape != (self.n,):
+            raise ValueError(f"{name} must have shape ({self.n},), got {arr.shape}")
+        return arr
+
+    def _zeros(self) -> np.ndarray:
+        return np.zeros(self.n)
+
+    # --- kinematics ----------------------------------------------------------------------------
+    def forward_kinematics(self, theta) -> np.ndarray:
+        """End-effector position P (m) in the world frame, shape (3,)."""
+        return chain.forward_kinematics(self._p, self._joints("theta", theta))
+
+    def jacobian(self, theta) -> np.ndarray:
+        """J with dP/dt = J dtheta, shape (3, n)."""
+        return chain.jacobian(self._p, self._joints("theta", theta))
+
+    def jacobian_derivative(self, theta, dtheta) -> np.ndarray:
+        """dJ/dt along dtheta, shape (3, n)."""
+        return chain.jacobian_derivative(self._p, self._joints("theta", theta), self._joints("dtheta", dtheta))
+
+    def jacobian_derivative_times_rate(self, theta, dtheta) -> np.ndarray:
+        """dJ/dt dtheta (m/s^2), shape (3,): the end effector's acceleration at ddtheta = 0."""
+        d = self._joints("dtheta", dtheta)
+        return self.jacobian_derivative(theta, d) @ d
+
+    # --- joint-space model (eq. 1) -------------------------------------------------------------
+    def joint_inertia(self, theta) -> np.ndarray:
+        """M(theta) (Dq), shape (n, n), by the composite-rigid-body algorithm."""
+        return chain.joint_inertia(self._p, self._joints("theta", theta))
+
+    def joint_coriolis(self, theta, dtheta) -> np.ndarray:
+        """Cq(theta, dtheta), shape (n, n), in Christoffel form: dDq/dt - 2 Cq is skew-symmetric."""
+        return chain.joint_coriolis(self._p, self._joints("theta", theta), self._joints("dtheta", dtheta))
+
+    def gravity(self, theta) -> np.ndarray:
+        """G_q(theta) = dV/dtheta, shape (n,)."""
+        z = self._zeros()
+        return chain.inverse_dynamics(self._p, self._joints("theta", theta), z, z, True)
+
+    def bias(self, theta, dtheta) -> np.ndarray:
+        """Cq(theta, dtheta) dtheta + G_q(theta), shape (n,), by recursive Newton-Euler at ddtheta = 0."""
+        return chain.inverse_dynamics(self._p, self._joints("theta", theta), self._joints("dtheta", dtheta),
+                                      self._zeros(), True)
+
+    # --- task-space model (eq. 4, n = 3) -------------------------------------------------------
+    def _square(self, theta):
+        if self.n != TASK_DIMENSION:
+            raise ValueError(f"the task-space model needs as many joints as task dimensions ({TASK_DIMENSION}); "
+                             f"this arm has {self.n}")
+        J = self.jacobian(theta)
+        return J, np.linalg.inv(J)
+
+    def task_inertia(self, theta) -> np.ndarray:
+        """D = J^-T Dq J^-1 (eq. 4), shape (3, 3), kg."""
+        J, Ji = self._square(theta)
+        return Ji.T @ self.joint_inertia(theta) @ Ji
+
+    def task_coriolis(self, theta, dtheta) -> np.ndarray:
+        """C = J^-T (Cq - Dq J^-1 dJ) J^-1 (eq. 4), shape (3, 3), kg / s."""
+        J, Ji = self._square(theta)
+        Dq = self.joint_inertia(theta)
+        return Ji.T @ (self.joint_coriolis(theta, dtheta) - Dq @ Ji @ self.jacobian_derivative(theta, dtheta)) @ Ji
+
+    def task_gravity(self, theta) -> np.ndarray:
+        """G = J^-T G_q (eq. 4), shape (3,), N."""
+        J, _ = self._square(theta)
+        return np.linalg.solve(J.T, self.gravity(theta))
+
+    # --- dynamics ------------------------------------------------------------------------------
+    def inverse_dynamics(self, theta, dtheta, ddtheta, force_on_end_effector=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """tau = Dq ddtheta + Cq dtheta + G_q - J^T f (N m or N), f the force on the robot (eq. 1),
+        by recursive Newton-Euler."""
+        q = self._joints("theta", theta)
+        tau = chain.inverse_dynamics(self._p, q, self._joints("dtheta", dtheta), self._joints("ddtheta", ddtheta), True)
+        f = np.asarray(force_on_end_effector, dtype=np.float64)
+        if f.shape != (3,):
+            raise ValueError(f"force_on_end_effector must have shape (3,), got {f.shape}")
+        return tau - self.jacobian(q).T @ f if f.any() else tau
+
+    def forward_dynamics(self, theta, dtheta, tau, force_on_end_effector=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """ddtheta from Dq ddtheta + Cq dtheta + G_q = tau + J^T f, f the force on the robot."""
+        q = self._joints("theta", theta)
+        f = np.asarray(force_on_end_effector, dtype=np.float64)
+        if f.shape != (3,):
+            raise ValueError(f"force_on_end_effector must have shape (3,), got {f.shape}")
+        rhs = self._joints("tau", tau) + self.jacobian(q).T @ f - self.bias(q, dtheta)
+        return np.linalg.solve(self.joint_inertia(q), rhs)
+
+    def kinetic_energy(self, theta, dtheta) -> float:
+        """T = dtheta^T Dq dtheta / 2 (J)."""
+        d = self._joints("dtheta", dtheta)
+        return 0.5 * float(d @ self.joint_inertia(theta) @ d)
+
+    def potential_energy(self, theta) -> float:
+        """V = -sum_i m_i g . c_i (J), zero with every centre of mass at the world origin; G_q = dV/dtheta."""
+        return float(chain.potential_energy(self._p, self._joints("theta", theta)))
+
+    # --- linear parametrisation ----------------------------------------------------------------
+    def regressor(self, theta, dtheta, ddtheta) -> np.ndarray:
+        """Y (n, 10 n) with Y a = inverse_dynamics(theta, dtheta, ddtheta), a = inertial_parameters().ravel()
+        (gravity included): inverse dynamics is linear in each link's ten inertial parameters."""
+        return chain.regressor(self._p, self._joints("theta", theta), self._joints("dtheta", dtheta),
+                               self._joints("ddtheta", ddtheta))
+
+    def inertial_parameters(self) -> np.ndarray:
+        """Per link [m, m cx, m cy, m cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz], shape (n, 10): mass (kg), first
+        moment (kg m) and inertia about the link frame's origin (kg m^2), in the link frame."""
+        return chain.inertial_parameters(self._p)
