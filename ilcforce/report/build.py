@@ -372,7 +372,8 @@ def write_report(
                          + ", ".join(f"[{n}](studies/{n}/findings.md)" for n in sorted(studies)), ""]
     from ilcforce.report.tuning import tuning_pages  # matplotlib's axes only when the report runs
 
-    tuning_lines = tuning_pages(results_dir, out_dir, tuple(formats), written, warnings)
+    sources = {facts["tuning_source"] for facts in studies.values() if facts.get("tuning_source")}
+    tuning_lines = tuning_pages(results_dir, out_dir, tuple(formats), written, warnings, sources)
     if tuning_lines:  # `ilcforce tune`'s stores: per method the objective against the trial and the chosen gains
         study_section = [*study_section, "## Tuning", "", *tuning_lines, ""]
     long_files = long_run.write_page(results_dir, out_dir / "long-run")  # `make long`'s studies, when stored

@@ -314,6 +314,7 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
         text += ("\n## At equal chattering\n\n" + equal_chattering.__doc__.split("\n\n")[1].replace("\n", " ")
                  + "\n\n" + markdown_table(table) + "\n\n" + sentence[0].upper() + sentence[1:] + "\n")
         extra["equal_chattering_text"] = sentence
+        extra["tuning_source"] = equal_chattering.tuning_of(results)["source"]
     write_text_whole(directory / "findings.md", text)
     written.append(directory / "findings.md")
     return written, name, {**extra, "description": results.description, "settings": summary,

@@ -301,13 +301,16 @@ def _seeds(seeds: list[int]) -> str:
         ", ".join(map(str, seeds))
 
 
-def committed_pages(out_dir: Path, written: list) -> list[str]:
-    """The pages ``make tune`` committed under docs/tuning/, copied into the report (``make reproduce`` does
-    not tune); index lines. Nothing when there are none."""
+def committed_pages(out_dir: Path, written: list, sources: set[str]) -> list[str]:
+    """The pages ``make tune`` committed under docs/tuning/ for the tunings named in ``sources`` (those
+    whose tuned experiment a reported study ran), copied into the report: ``make reproduce`` does not tune,
+    and its tuned studies' gains come from these tunings. Index lines; nothing when there are none."""
     import shutil
 
     lines = []
     for page in sorted(COMMITTED.glob("*/index.md")) if COMMITTED.is_dir() else []:
+        if page.parent.name not in sources:
+            continue
         target = out_dir / "tuning" / page.parent.name
         target.mkdir(parents=True, exist_ok=True)
         for item in sorted(page.parent.iterdir()):
@@ -320,9 +323,10 @@ def committed_pages(out_dir: Path, written: list) -> list[str]:
 
 
 def tuning_pages(results_dir: Path, out_dir: Path, formats: tuple[str, ...], written: list,
-                 warnings: list) -> list[str]:
-    """The page of every tuning store under ``results/tuning/``, or the committed pages when there is
-    none; index lines. A store that is not valid is a warning line, never the end of the report."""
+                 warnings: list, sources: set[str] = frozenset()) -> list[str]:
+    """The page of every tuning store under ``results/tuning/``, or, when there is none, the committed pages
+    of the tunings in ``sources`` (:func:`committed_pages`); index lines. A store that is not valid is a
+    warning line, never the end of the report."""
     from ilcforce.report.figures import report_style
     from ilcforce.store.tuning import TuningStoreError, is_tuning_store
 
@@ -339,7 +343,7 @@ def tuning_pages(results_dir: Path, out_dir: Path, formats: tuple[str, ...], wri
             continue
         written += files
         lines += index_lines
-    return lines or committed_pages(out_dir, written)
+    return lines or committed_pages(out_dir, written, set(sources))
 
 
 def commit_pages(results_dir: Path, out_dir: Path, names: list[str], seconds: dict[str, float]) -> list[Path]:
