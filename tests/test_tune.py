@@ -25,7 +25,7 @@ from ilcforce.cli.main import app
 from ilcforce.config_load import load_config
 from ilcforce.tune import TuneError, TuningStoreError, build_tuning, load_tuning, run_tuning, validate_tuning
 from ilcforce.tune.runner import read_trials
-from ilcforce.tune.spec import chattering_value, error_value, scored_means
+from ilcforce.tune.objectives import chattering_value, error_value, scored_means
 from tunekit import EXPERIMENTS, ROOT, TINY, budget, fake_cell, only_c1, tiny_file, tiny_table, tuned
 
 RANGE = {"low": 1.0, "high": 2.0}

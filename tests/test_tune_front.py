@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from ilcforce.tune.front import converged, hypervolume, pareto_indices, spread
-from ilcforce.tune.spec import HV_REFERENCE
+from ilcforce.tune.objectives import HV_REFERENCE
 
 
 def test_pareto_indices_keeps_the_non_dominated_ordered_by_the_first_objective():

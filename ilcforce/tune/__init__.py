@@ -6,7 +6,7 @@ Python API::
     tuning = load_tuning("experiments/serial2r-tune.toml")
     summary = run_tuning(tuning, "results", workers=2)   # results/tuning/<name>/, tuned.toml
 
-Modules: :mod:`~ilcforce.tune.spec` (the tuning file and the objective), :mod:`~ilcforce.tune.runner`
+Modules: :mod:`~ilcforce.tune.spec` (the tuning file), :mod:`~ilcforce.tune.objectives` (what a trial scores), :mod:`~ilcforce.tune.runner`
 (Optuna ask-and-tell, cells on the study engine), :mod:`ilcforce.store.tuning` (one sealed JSON record per
 trial, resumable, checked by :func:`~ilcforce.tune.runner.validate_tuning`); the ``ilcforce tune`` command is
 :mod:`ilcforce.cli.tune`.

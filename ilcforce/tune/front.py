@@ -3,7 +3,7 @@ stopped improving, and which front points are re-evaluated on held-out seeds.
 
 Both objectives are minimised: (error, chattering) in the units of :mod:`ilcforce.tune.spec`. The
 hypervolume is the area the front dominates up to the fixed reference point
-:data:`ilcforce.tune.spec.HV_REFERENCE`, so it only grows as trials are added and is comparable
+:data:`ilcforce.tune.objectives.HV_REFERENCE`, so it only grows as trials are added and is comparable
 between the trials of one search.
 """
 

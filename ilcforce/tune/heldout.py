@@ -21,7 +21,8 @@ import statistics
 from ilcforce.tune import check
 from ilcforce.tune.front import pareto_indices, spread
 from ilcforce.tune.search import MethodSearch, point
-from ilcforce.tune.spec import Tuning, error_value
+from ilcforce.tune.objectives import error_value
+from ilcforce.tune.spec import Tuning
 from ilcforce.tune.trial import TrialCell, diverged_at, json_float
 
 #: Front points re-evaluated per method (the front's ends always among them).

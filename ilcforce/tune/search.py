@@ -13,7 +13,8 @@ import math
 
 from ilcforce.store.tuning import COMPLETE
 from ilcforce.tune import front as fronts
-from ilcforce.tune.spec import HV_REFERENCE, Tuning
+from ilcforce.tune.objectives import HV_REFERENCE
+from ilcforce.tune.spec import Tuning
 
 
 def _distributions(tuning: Tuning, method: str) -> dict:

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from ilcforce.store.records import RecordError
 from ilcforce.store.tuning import COMPLETE, FAILED
 from ilcforce.tune import check as stability_check
-from ilcforce.tune.spec import GainRange, SearchedGain, Tuning, chattering_value, error_value, scored_means
+from ilcforce.tune.objectives import chattering_value, error_value, scored_means
+from ilcforce.tune.spec import GainRange, SearchedGain, Tuning
 
 
 @dataclass(frozen=True)
