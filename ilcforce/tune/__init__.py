@@ -6,10 +6,13 @@ Python API::
     tuning = load_tuning("experiments/serial2r-tune.toml")
     summary = run_tuning(tuning, "results", workers=2)   # results/tuning/<name>/, tuned.toml
 
-Modules: :mod:`~ilcforce.tune.spec` (the tuning file), :mod:`~ilcforce.tune.objectives` (what a trial scores), :mod:`~ilcforce.tune.runner`
-(Optuna ask-and-tell, cells on the study engine), :mod:`ilcforce.store.tuning` (one sealed JSON record per
-trial, resumable, checked by :func:`~ilcforce.tune.runner.validate_tuning`); the ``ilcforce tune`` command is
-:mod:`ilcforce.cli.tune`.
+Modules: :mod:`~ilcforce.tune.spec` (the tuning file), :mod:`~ilcforce.tune.objectives` (what a trial
+scores), :mod:`~ilcforce.tune.trial` (a trial's cells and record), :mod:`~ilcforce.tune.check` (the stability
+check), :mod:`~ilcforce.tune.search` (one method's Optuna study and its extent), :mod:`~ilcforce.tune.front`
+(fronts, hypervolume, convergence), :mod:`~ilcforce.tune.heldout` (the held-out re-evaluation, the cap, the
+choice), :mod:`~ilcforce.tune.output` (the tuned experiment file), :mod:`~ilcforce.tune.runner` (the driver:
+rounds of cells on the study engine); :mod:`ilcforce.store.tuning` (sealed JSON records, resumable, checked
+by :func:`~ilcforce.tune.runner.validate_tuning`); the ``ilcforce tune`` command is :mod:`ilcforce.cli.tune`.
 """
 
 from ilcforce.tune.runner import TuneProgress, TuneSummary, run_tuning, tuning_dir, validate_tuning
