@@ -1,10 +1,11 @@
-"""Tuning: every method's gains searched with the same budget on one experiment, on Dask.
+"""Tuning: every method's gains searched for error and chattering, stable over a long horizon, on Dask.
 
 Python API::
 
     from ilcforce.tune import load_tuning, run_tuning
-    tuning = load_tuning("experiments/serial2r-tune.toml")
+    tuning = load_tuning("experiments/tuning/serial2r-tune.toml")
     summary = run_tuning(tuning, "results", workers=2)   # results/tuning/<name>/, tuned.toml
+    summary.chosen["c2-robust"]                          # its shipped point on the held-out seeds, or None
 
 Modules: :mod:`~ilcforce.tune.spec` (the tuning file), :mod:`~ilcforce.tune.objectives` (what a trial
 scores), :mod:`~ilcforce.tune.trial` (a trial's cells and record), :mod:`~ilcforce.tune.check` (the stability
