@@ -9,8 +9,9 @@ writes the resolved configuration back (a minimal TOML writer at the end: tomlli
 TOML layout (every table and key optional; see ``experiments/paper.toml``)::
 
     [experiment]  name, description, seed, iterations
-    [plant]       model (a key of ilcforce.plants.MODELS: "fivebar", the paper's robot, or "serial2r")
-    [plant.<model>]  each robot's nominal parameters (five-bar: L1 ... I4, Table 1; 2R arm: L1 ... I2, g)
+    [plant]       model (a key of ilcforce.plants.MODELS: "fivebar", the paper's robot, "serial2r", or "file_arm")
+    [plant.<model>]  each robot's nominal parameters (five-bar: L1 ... I4, Table 1; 2R arm: L1 ... I2, g;
+                  a model file's robot: path, end_effector, elbow, g)
     [plant.perturbation]  parameter, factor, from_iteration
     [wall]        position, stiffness, force_sign
     [reference]   duration, x_amplitude, ...
@@ -84,10 +85,15 @@ class _PlantConfigMethods:
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise ValueError(f"plant.model must be one of {', '.join(MODELS)}, got {self.model!r}")
-        names = tuple(f.name for f in dataclasses.fields(self.nominal()))
+        nominal = self.nominal()
+        check = getattr(nominal, "check", None)
+        if check is not None:  # a robot read from a file: read it now (one-line errors, before any run)
+            check()
+        names = tuple(nominal.param_names) if check is not None else tuple(f.name for f in dataclasses.fields(nominal))
         p = self.perturbation
         if p.parameter == "":  # the model's default perturbation (docs/model.md#perturbation)
-            object.__setattr__(self, "perturbation", dataclasses.replace(p, parameter=perturbed_parameter(self.model)))
+            default = perturbed_parameter(self.model) or nominal.default_perturbed()
+            object.__setattr__(self, "perturbation", dataclasses.replace(p, parameter=default))
         elif p.parameter not in names:
             raise ValueError(f"plant.perturbation.parameter must be one of {', '.join(names)} for "
                              f"plant.model = {self.model!r}, got {p.parameter!r}")

@@ -358,6 +358,45 @@ def _flat(tree: dict, prefix: str = "") -> dict[str, object]:
     return out
 
 
+def _path_keys() -> set[str]:
+    """``plant.<model>.<key>`` of every robot parameter that names a file (a model file's ``path``)."""
+    from ilcforce.plants import MODELS, params_class
+
+    return {f"plant.{model}.{key}" for model in MODELS for key in getattr(params_class(model), "path_keys", ())}
+
+
+def _is_path_key(dotted: str) -> bool:
+    return dotted.startswith("plant.") and dotted in _path_keys()
+
+
+def _absolute_path(value, folder: Path):
+    """A relative file path read relative to ``folder`` (the experiment file's, or the working
+    directory for ``--set``), made absolute so that the configuration (and a store's copy of it)
+    names the same file from anywhere; a bare name of a shipped model file (``serial2r.xml``) that is
+    not in ``folder`` is the shipped one. Anything but a non-empty string is left for validation."""
+    if not isinstance(value, str) or not value or "\0" in value:
+        return value
+    candidate = Path(value).expanduser()
+    if candidate.is_absolute():
+        return str(candidate)
+    found = folder / candidate
+    if not found.exists() and len(candidate.parts) == 1:
+        from ilcforce.plants.model_file import resolve_model
+
+        shipped = resolve_model(candidate)
+        found = shipped if shipped.is_absolute() else found
+    return str(found.absolute())
+
+
+def _absolute_paths(data: dict, folder: Path) -> None:
+    for dotted in _path_keys():
+        _, model, key = dotted.split(".")
+        plant = data.get("plant")
+        table = plant.get(model) if isinstance(plant, dict) else None
+        if isinstance(table, dict) and key in table:
+            table[key] = _absolute_path(table[key], folder)
+
+
 def load_config(path: Path | str | None = None, overrides: dict[str, object] | None = None, *,
                 note_overrides: bool = True) -> Config:
     """Load ``path`` (None: the paper's setup; a bare name such as ``"serial2r"``: the shipped file), apply dotted ``overrides``, validate everything.
@@ -374,6 +413,9 @@ def load_config(path: Path | str | None = None, overrides: dict[str, object] | N
         data, _ = read_toml(path, "config file", ConfigError)
         file_data = copy.deepcopy(data)
         _name_after_file(data, path)
+    _absolute_paths(data, path.parent if path is not None else Path.cwd())
+    overrides = {key: _absolute_path(value, Path.cwd()) if _is_path_key(key) else value
+                 for key, value in overrides.items()}
     base = copy.deepcopy(data) if note_overrides and overrides else None
     for key, value in overrides.items():
         try:

@@ -41,9 +41,12 @@ def config_unit(key: str) -> str:
         return SECTION_UNITS[key]
     section, _, name = key.rpartition(".")
     if section.startswith("plant.") and section.count(".") == 1:
-        from ilcforce.plants import MODELS, param_names
+        from ilcforce.plants import MODELS, param_names, params_class
 
         model = section.split(".")[1]
+        own = getattr(params_class(model), "units", {}) if model in MODELS else {}
+        if name in own:  # a robot whose parameters say their units (a model file's: path, ..., g)
+            return own[name]
         if model in MODELS and name in param_names(model):
             for prefix, unit in _LINK_UNITS:
                 if name.startswith(prefix):

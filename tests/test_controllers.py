@@ -322,7 +322,7 @@ def test_sl_adapt_is_slotine_li_with_the_plants_regressor(seed, model, plant_con
     g = config.gains["sl-adapt"]
     ts = config.simulation.sample_time
     controller = make_controller(config, "sl-adapt")
-    module = importlib.import_module(f"ilcforce.plants.{model}")
+    module = importlib.import_module(MODELS[model][0])  # the registry's module (its key need not be its name)
     nominal = config.plant.nominal()
     width = len(module.base_parameters(nominal))
     sigma, psi = _reference_surface(meas, ref[4], config, psi_desired=g.psi_acceleration == "desired")

@@ -94,3 +94,22 @@ def test_a_compile_is_announced_once(monkeypatch):
         assert lines == [compile_note.NOTE]
     finally:
         event.unregister("numba:compile", compile_note._installed[0])
+
+
+@pytest.mark.parametrize("ahead_of_time", ["1", "0"])
+def test_a_five_bar_run_neither_imports_mujoco_nor_compiles_the_chain_kernels(ahead_of_time):
+    """The robots read from model files (ilcforce/plants/model_plant.py) cost the paper's robot nothing:
+    no MuJoCo, and none of the chain kernels (ilcforce/plants/chain.py, planar_kernels.py) compiled or
+    loaded, with the ahead-of-time kernels and with numba's."""
+    code = ("import sys\nfrom ilcforce.config_load import load_config\n"
+            "from ilcforce.experiment import simulate_iterations\n"
+            "cfg = load_config(None, {'experiment.iterations': 1, 'reference.duration': 0.05})\n"
+            "rec = next(simulate_iterations(cfg, 'c3'))\n"
+            "from ilcforce.plants import chain, planar_kernels\n"
+            "kernels = [getattr(m, n) for m in (chain, planar_kernels) for n in dir(m)]\n"
+            "compiled = [k.py_func.__name__ for k in kernels if getattr(k, 'signatures', None)]\n"
+            "print('COMPILED', compiled, 'mujoco' in sys.modules)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "ILCFORCE_AOT": ahead_of_time})
+    assert proc.returncode == 0, proc.stderr
+    assert "COMPILED [] False" in proc.stdout, proc.stdout

@@ -58,6 +58,8 @@ def _exports():
     out = []
     for model in MODELS:
         cls = plant_class(model)
+        if not getattr(cls, "ahead_of_time", True):  # numba's kernels only (e.g. any model file's arm)
+            continue
         plant = aot.plant_key(cls)
         kernels = cls.kernels()
         for kind, kernel in zip(PlantKernels._fields, kernels):

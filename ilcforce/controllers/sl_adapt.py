@@ -152,7 +152,7 @@ class SlotineLiController(MemoryController):
         if nominal is None or not hasattr(nominal, "model"):
             raise ValueError("sl-adapt needs the nominal parameters of a plant (ilcforce.plants.MODELS)")
         code = adaptive.code(nominal.model)
-        self.base_parameter_names = adaptive.base_parameter_names(nominal.model)
+        self.base_parameter_names = adaptive.base_parameter_names(nominal.model, nominal)
         width = len(self.base_parameter_names)
         unit = adaptive.base_parameter_units(nominal.model)
         self.memory_layout = {"a_hat_change": (0, width, f"a_hat - a_hat_0, base parameters: {unit}")}

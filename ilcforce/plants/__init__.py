@@ -18,11 +18,14 @@ DEFAULT_MODEL = "fivebar"
 MODELS = {
     "fivebar": ("ilcforce.plants.fivebar", "FiveBar", "FiveBarParams", "m3"),
     "serial2r": ("ilcforce.plants.serial2r", "Serial2R", "Serial2RParams", "m2"),
+    # a 2-joint arm from a URDF or MJCF file ([plant.file_arm] path, end_effector; docs/model.md#model-file);
+    # its default perturbation is the file's last link's mass (ModelFileParams.default_perturbed)
+    "file_arm": ("ilcforce.plants.model_plant", "PlanarArm", "ModelFileParams", ""),
 }
 
 
 #: model name -> the robot's name in prose (tables, figure labels, the report's text)
-TITLES = {"fivebar": "five-bar", "serial2r": "serial 2R arm"}
+TITLES = {"fivebar": "five-bar", "serial2r": "serial 2R arm", "file_arm": "arm from a model file"}
 
 
 def plant_title(model: str) -> str:
@@ -71,7 +74,13 @@ def changed_parameter(config) -> str:
     if parameter:
         return str(parameter)
     model = str(plant.get("model", DEFAULT_MODEL))
-    return perturbed_parameter(model if model in MODELS else DEFAULT_MODEL)
+    model = model if model in MODELS else DEFAULT_MODEL
+    if not perturbed_parameter(model):  # the robot's own default, read from its table (a model file's last link)
+        try:
+            return params_class(model)(**plant.get(model, {})).default_perturbed()
+        except (TypeError, ValueError):
+            return "(the last link's mass)"
+    return perturbed_parameter(model)
 
 
 def make_plant(params) -> Plant:

@@ -5,7 +5,8 @@ robot it controls and names none.
 
 Each plant module provides its ``regressor`` (a compiled function returning Y, shape (2, 6), as a
 12-tuple, row 0 then row 1; a plant with fewer base parameters pads with zero columns),
-``base_parameters(params)``, ``BASE_PARAMETER_NAMES`` and ``BASE_PARAMETER_UNITS``. A law's packed
+``base_parameters(params)``, ``BASE_PARAMETER_NAMES`` (or ``base_parameter_names_of(params)``, for a
+robot read from a file) and ``BASE_PARAMETER_UNITS``. A law's packed
 gains carry the plant's :func:`code` (its position in ``ilcforce.plants.MODELS``); the compiled
 functions below branch on it.
 """
@@ -17,21 +18,25 @@ import importlib
 import numpy as np
 
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
-from ilcforce.plants import MODELS, fivebar, serial2r
+from ilcforce.plants import MODELS, fivebar, planar_kernels, serial2r
 
 __all__ = ["REGRESSOR_WIDTH", "PARAM_ROOM", "code", "base_parameter_names", "base_parameter_units",
            "base_parameters", "regressor", "jacobian_derivative"]
 
 #: columns of every plant's regressor tuple (the most base parameters of any plant)
 REGRESSOR_WIDTH = 6
-#: room for any plant's packed parameters in a law's gains (the most of any plant)
-PARAM_ROOM = max(len(importlib.import_module(module).PARAM_NAMES) for module, *_ in MODELS.values())
+#: room for any plant's packed parameters in a law's gains (the most of any plant that has a regressor)
+PARAM_ROOM = max(getattr(m, "PACKED_LENGTH", len(m.PARAM_NAMES))
+                 for m in (importlib.import_module(module) for module, *_ in MODELS.values()) if hasattr(m, "regressor"))
 
 
 def _module(model: str):
     if model not in MODELS:
         raise ValueError(f"no plant model {model!r}; expected one of {', '.join(MODELS)}")
-    return importlib.import_module(MODELS[model][0])
+    module = importlib.import_module(MODELS[model][0])
+    if not hasattr(module, "regressor"):
+        raise ValueError(f"sl-adapt needs the plant's regressor, which plant.model = {model!r} does not provide yet")
+    return module
 
 
 def code(model: str) -> float:
@@ -40,8 +45,12 @@ def code(model: str) -> float:
     return float(list(MODELS).index(model))
 
 
-def base_parameter_names(model: str) -> tuple[str, ...]:
-    return tuple(_module(model).BASE_PARAMETER_NAMES)
+def base_parameter_names(model: str, params=None) -> tuple[str, ...]:
+    """The base parameters' names (a plant read from a file names them from ``params``)."""
+    module = _module(model)
+    if hasattr(module, "base_parameter_names_of"):
+        return tuple(module.base_parameter_names_of(params))
+    return tuple(module.BASE_PARAMETER_NAMES)
 
 
 def base_parameter_units(model: str) -> str:
@@ -57,6 +66,8 @@ def base_parameters(params) -> np.ndarray:
 @njit(cache=True, error_model="numpy")
 def jacobian_derivative(plant, p, th1, th2, d1, d2):
     """(dJ00, dJ01, dJ10, dJ11) of the plant of code ``plant`` with packed parameters ``p``."""
+    if plant > 1.5:
+        return planar_kernels.jacobian_derivative(p, th1, th2, d1, d2)
     if plant > 0.5:
         dyn = serial2r._dynamics(p, th1, th2, d1, d2)
         return dyn[7], dyn[8], dyn[9], dyn[10]
@@ -67,6 +78,8 @@ def jacobian_derivative(plant, p, th1, th2, d1, d2):
 @njit(cache=True, error_model="numpy")
 def regressor(plant, p, th1, th2, d1, d2, r1, r2, rr1, rr2):
     """Y(q, dq, dq_r, ddq_r) of the plant of code ``plant``: (2, REGRESSOR_WIDTH) as a 12-tuple."""
+    if plant > 1.5:
+        return planar_kernels.regressor(p, th1, th2, d1, d2, r1, r2, rr1, rr2)
     if plant > 0.5:
         return serial2r.regressor(p, th1, th2, d1, d2, r1, r2, rr1, rr2)
     return fivebar.regressor(p, th1, th2, d1, d2, r1, r2, rr1, rr2)
