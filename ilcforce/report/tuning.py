@@ -45,7 +45,7 @@ def trials_frame(trials: dict[str, dict[int, dict]]) -> pd.DataFrame:
     message, elapsed (s), then one column per gain (dotted key; a vector gain holds a list)."""
     from ilcforce.tune.front import hypervolume
     from ilcforce.tune.search import point
-    from ilcforce.tune.spec import HV_REFERENCE
+    from ilcforce.tune.objectives import HV_REFERENCE
 
     rows = []
     for method, stored in trials.items():
