@@ -44,7 +44,8 @@ import numpy as np
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import intrinsic, njit, numba_global
 
-__all__ = ["UnreachableError", "PlantKernels", "Plant", "params_view", "kernel_signature", "kernel_type", "check_pair"]
+__all__ = ["UnreachableError", "PlantKernels", "Plant", "params_view", "kernel_signature", "kernel_type", "check_pair",
+           "task_space"]
 
 #: the kernels' outputs (a tuple of this many floats) and scalar inputs after ``p``, in
 #: PlantKernels order; their numba signatures are made on first use (importing this module does
@@ -93,6 +94,37 @@ def _address_to_pointer(typingctx, address):
 def params_view(address, n):
     """The packed parameter vector of length n at ``address``, as a read-only-by-convention array."""
     return carray(_address_to_pointer(address), n)
+
+
+@njit(cache=True, error_model="numpy")
+def task_space(J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11, Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11):
+    """The task-space inertia and Coriolis matrices of eq. (4) from the joint-space model, for every 2-DOF
+    plant: D = J^-T Dq J^-1 and C = J^-T (Cq - Dq J^-1 dJ) J^-1. Returns (D00, D01, D11, C00, C01, C10,
+    C11, Ji00, Ji01, Ji10, Ji11), Ji = J^-1 (G = J^-T G_q needs it)."""
+    det = J00 * J11 - J01 * J10
+    Ji00, Ji01, Ji10, Ji11 = J11 / det, -J01 / det, -J10 / det, J00 / det  # J^-1
+    # D = Ji^T Dq Ji                                                                  eq. (4)
+    T00 = Dq00 * Ji00 + Dq01 * Ji10
+    T01 = Dq00 * Ji01 + Dq01 * Ji11
+    T10 = Dq01 * Ji00 + Dq11 * Ji10
+    T11 = Dq01 * Ji01 + Dq11 * Ji11
+    D00 = Ji00 * T00 + Ji10 * T10
+    D01 = Ji00 * T01 + Ji10 * T11
+    D11 = Ji01 * T01 + Ji11 * T11
+    # C = Ji^T (Cq - Dq Ji dJ) Ji                                                     eq. (4)
+    K00 = dJ00 * Ji00 + dJ01 * Ji10  # dJ Ji
+    K01 = dJ00 * Ji01 + dJ01 * Ji11
+    K10 = dJ10 * Ji00 + dJ11 * Ji10
+    K11 = dJ10 * Ji01 + dJ11 * Ji11
+    Q00 = Cq00 * Ji00 + Cq01 * Ji10 - (T00 * K00 + T01 * K10)  # Cq Ji - Dq Ji dJ Ji
+    Q01 = Cq00 * Ji01 + Cq01 * Ji11 - (T00 * K01 + T01 * K11)
+    Q10 = Cq10 * Ji00 + Cq11 * Ji10 - (T10 * K00 + T11 * K10)
+    Q11 = Cq10 * Ji01 + Cq11 * Ji11 - (T10 * K01 + T11 * K11)
+    C00 = Ji00 * Q00 + Ji10 * Q10
+    C01 = Ji00 * Q01 + Ji10 * Q11
+    C10 = Ji01 * Q00 + Ji11 * Q10
+    C11 = Ji01 * Q01 + Ji11 * Q11
+    return D00, D01, D11, C00, C01, C10, C11, Ji00, Ji01, Ji10, Ji11
 
 
 class UnreachableError(ValueError):

@@ -49,6 +49,7 @@ import numpy as np
 
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
 from ilcforce.plants.base import (
+    task_space,
     PackedParams,
     compile_kernels,
     Plant, PlantKernels,
@@ -160,29 +161,8 @@ def _task_kernel(address, th1, th2, d1, d2):
     p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
     (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
      Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = _dynamics(p, th1, th2, d1, d2)
-    det = J00 * J11 - J01 * J10
-    Ji00, Ji01, Ji10, Ji11 = J11 / det, -J01 / det, -J10 / det, J00 / det  # J^-1
-    # D = Ji^T Dq Ji                                                                  eq. (4)
-    T00 = Dq00 * Ji00 + Dq01 * Ji10
-    T01 = Dq00 * Ji01 + Dq01 * Ji11
-    T10 = Dq01 * Ji00 + Dq11 * Ji10
-    T11 = Dq01 * Ji01 + Dq11 * Ji11
-    D00 = Ji00 * T00 + Ji10 * T10
-    D01 = Ji00 * T01 + Ji10 * T11
-    D11 = Ji01 * T01 + Ji11 * T11
-    # C = Ji^T (Cq - Dq Ji dJ) Ji                                                     eq. (4)
-    K00 = dJ00 * Ji00 + dJ01 * Ji10
-    K01 = dJ00 * Ji01 + dJ01 * Ji11
-    K10 = dJ10 * Ji00 + dJ11 * Ji10
-    K11 = dJ10 * Ji01 + dJ11 * Ji11
-    Q00 = Cq00 * Ji00 + Cq01 * Ji10 - (T00 * K00 + T01 * K10)
-    Q01 = Cq00 * Ji01 + Cq01 * Ji11 - (T00 * K01 + T01 * K11)
-    Q10 = Cq10 * Ji00 + Cq11 * Ji10 - (T10 * K00 + T11 * K10)
-    Q11 = Cq10 * Ji01 + Cq11 * Ji11 - (T10 * K01 + T11 * K11)
-    C00 = Ji00 * Q00 + Ji10 * Q10
-    C01 = Ji00 * Q01 + Ji10 * Q11
-    C10 = Ji01 * Q00 + Ji11 * Q10
-    C11 = Ji01 * Q01 + Ji11 * Q11
+    (D00, D01, D11, C00, C01, C10, C11, Ji00, Ji01, Ji10, Ji11) = task_space(
+        J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11, Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11)  # eq. (4)
     # G = Ji^T G_q                                                                    eq. (4)
     Gx = Ji00 * G1 + Ji10 * G2
     Gy = Ji01 * G1 + Ji11 * G2
