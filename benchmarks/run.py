@@ -72,8 +72,9 @@ def per_step_figures(repeat: int) -> None:
     """us per control step for each plant (ilcforce.plants.MODELS) and each registered method.
 
     Each robot runs its own experiment file (experiments/<model>.toml, the gains fitted to it; the
-    paper's setup for the five-bar). A run that diverges (a zero torque lets the 2R arm fall) is
-    timed over the steps it simulated, and marked.
+    paper's setup for the five-bar; a robot read from a model file, the first experiments/*-model.toml
+    that selects it). A run that diverges (a zero torque lets the 2R arm fall) is timed over the steps
+    it simulated, and marked.
     """
     from ilcforce.config_load import load_config
     from ilcforce.plants import MODELS
@@ -81,7 +82,9 @@ def per_step_figures(repeat: int) -> None:
     experiments = Path(__file__).resolve().parents[1] / "experiments"
     for model in MODELS:
         own = experiments / f"{model}.toml"
-        config = load_config(own, {}) if own.is_file() else load_config(None, {"plant.model": model})
+        files = [own] if own.is_file() else sorted(experiments.glob("*-model.toml"))
+        configs = [c for c in map(load_config, files) if c.plant.model == model]
+        config = configs[0] if configs else load_config(None, {"plant.model": model})
         print(f"  plant {model}:")
         rows = [("RK4 control step, zero-torque controller", ZeroController(config.n_control))]
         for method in REGISTRY:  # every registered method
