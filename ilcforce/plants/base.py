@@ -45,7 +45,7 @@ from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import intrinsic, njit, numba_global
 
 __all__ = ["UnreachableError", "PlantKernels", "Plant", "params_view", "kernel_signature", "kernel_type", "check_pair",
-           "task_space"]
+           "task_space", "task_from_dynamics"]
 
 #: the kernels' outputs (a tuple of this many floats) and scalar inputs after ``p``, in
 #: PlantKernels order; their numba signatures are made on first use (importing this module does
@@ -125,6 +125,21 @@ def task_space(J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11, Dq00, Dq01, Dq11, Cq0
     C10 = Ji01 * Q00 + Ji11 * Q10
     C11 = Ji01 * Q01 + Ji11 * Q11
     return D00, D01, D11, C00, C01, C10, C11, Ji00, Ji01, Ji10, Ji11
+
+
+@njit(cache=True, error_model="numpy")
+def task_from_dynamics(dyn, d1, d2):
+    """The TASK tuple (ok, Px, Py, vx, vy, J, D, C, G) of eq. (4) from a plant's DYN tuple at joint rates
+    (d1, d2): what a plant with gravity returns from its task kernel."""
+    (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
+     Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = dyn
+    (D00, D01, D11, C00, C01, C10, C11, Ji00, Ji01, Ji10, Ji11) = task_space(
+        J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11, Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11)  # eq. (4)
+    # G = Ji^T G_q                                                                    eq. (4)
+    Gx = Ji00 * G1 + Ji10 * G2
+    Gy = Ji01 * G1 + Ji11 * G2
+    return (ok, px, py, J00 * d1 + J01 * d2, J10 * d1 + J11 * d2, J00, J01, J10, J11,
+            D00, D01, D11, C00, C01, C10, C11, Gx, Gy)
 
 
 class UnreachableError(ValueError):

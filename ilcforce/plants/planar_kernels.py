@@ -28,7 +28,7 @@ import numpy as np
 
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
 from ilcforce.plants import chain
-from ilcforce.plants.base import PlantKernels, compile_kernels, params_view, task_space
+from ilcforce.plants.base import PlantKernels, compile_kernels, params_view, task_from_dynamics
 
 __all__ = ["PLANE", "N_PACKED", "BASE_WIDTH", "kernels", "plane", "regressor", "jacobian_derivative", "base_columns"]
 
@@ -106,15 +106,7 @@ def _accel_kernel(address, th1, th2, d1, d2):
 
 def _task_kernel(address, th1, th2, d1, d2):
     p = params_view(address, N_PACKED)
-    (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
-     Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = _dynamics(p, th1, th2, d1, d2)
-    (D00, D01, D11, C00, C01, C10, C11, Ji00, Ji01, Ji10, Ji11) = task_space(
-        J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11, Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11)  # eq. (4)
-    # G = Ji^T G_q                                                                    eq. (4)
-    Gx = Ji00 * G1 + Ji10 * G2
-    Gy = Ji01 * G1 + Ji11 * G2
-    return (ok, px, py, J00 * d1 + J01 * d2, J10 * d1 + J11 * d2, J00, J01, J10, J11,
-            D00, D01, D11, C00, C01, C10, C11, Gx, Gy)
+    return task_from_dynamics(_dynamics(p, th1, th2, d1, d2), d1, d2)  # eq. (4)
 
 
 def _dyn_kernel(address, th1, th2, d1, d2):

@@ -49,7 +49,7 @@ import numpy as np
 
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
 from ilcforce.plants.base import (
-    task_space,
+    task_from_dynamics,
     PackedParams,
     compile_kernels,
     Plant, PlantKernels,
@@ -159,15 +159,7 @@ def _accel_kernel(address, th1, th2, d1, d2):
 
 def _task_kernel(address, th1, th2, d1, d2):
     p = params_view(address, _N_PARAMS)  # the kernels take the vector's address
-    (ok, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11,
-     Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11, G1, G2) = _dynamics(p, th1, th2, d1, d2)
-    (D00, D01, D11, C00, C01, C10, C11, Ji00, Ji01, Ji10, Ji11) = task_space(
-        J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11, Dq00, Dq01, Dq11, Cq00, Cq01, Cq10, Cq11)  # eq. (4)
-    # G = Ji^T G_q                                                                    eq. (4)
-    Gx = Ji00 * G1 + Ji10 * G2
-    Gy = Ji01 * G1 + Ji11 * G2
-    return (ok, px, py, J00 * d1 + J01 * d2, J10 * d1 + J11 * d2, J00, J01, J10, J11,
-            D00, D01, D11, C00, C01, C10, C11, Gx, Gy)
+    return task_from_dynamics(_dynamics(p, th1, th2, d1, d2), d1, d2)  # eq. (4)
 
 
 def _dyn_kernel(address, th1, th2, d1, d2):
