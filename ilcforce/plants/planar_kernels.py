@@ -65,8 +65,8 @@ def _point(p, q):
 
 
 @njit(cache=True, error_model="numpy")
-def _dynamics(p, th1, th2, d1, d2):
-    """The DYN tuple of ilcforce.plants.base from the chain kernels (n = 2)."""
+def _moving(p, th1, th2, d1, d2):
+    """What the accel and dyn kernels share: the chain's parameters, q, dq, P, J, dJ and M (n = 2)."""
     cp = p[PLANE:]
     q = np.array([th1, th2])
     dq = np.array([d1, d2])
@@ -74,7 +74,13 @@ def _dynamics(p, th1, th2, d1, d2):
     dJ3 = chain.jacobian_derivative(cp, q, dq)
     dJ00, dJ10 = _project(p, dJ3[:, 0])
     dJ01, dJ11 = _project(p, dJ3[:, 1])
-    M = chain.joint_inertia(cp, q)
+    return cp, q, dq, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11, chain.joint_inertia(cp, q)
+
+
+@njit(cache=True, error_model="numpy")
+def _dynamics(p, th1, th2, d1, d2):
+    """The DYN tuple of ilcforce.plants.base from the chain kernels (n = 2)."""
+    cp, q, dq, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11, M = _moving(p, th1, th2, d1, d2)
     C = chain.joint_coriolis(cp, q, dq)
     zero = np.zeros(2)
     G = chain.inverse_dynamics(cp, q, zero, zero, True)
@@ -90,14 +96,7 @@ def _kin_kernel(address, th1, th2):
 
 def _accel_kernel(address, th1, th2, d1, d2):
     p = params_view(address, N_PACKED)
-    cp = p[PLANE:]
-    q = np.array([th1, th2])
-    dq = np.array([d1, d2])
-    px, py, J00, J01, J10, J11 = _point(p, q)
-    dJ3 = chain.jacobian_derivative(cp, q, dq)
-    dJ00, dJ10 = _project(p, dJ3[:, 0])
-    dJ01, dJ11 = _project(p, dJ3[:, 1])
-    M = chain.joint_inertia(cp, q)
+    cp, q, dq, px, py, J00, J01, J10, J11, dJ00, dJ01, dJ10, dJ11, M = _moving(p, th1, th2, d1, d2)
     b = chain.inverse_dynamics(cp, q, dq, np.zeros(2), True)  # Cq dq + G_q by recursive Newton-Euler
     det = M[0, 0] * M[1, 1] - M[0, 1] * M[0, 1]
     return (_ok(p, th2), px, py, J00, J01, J10, J11, dJ00 * d1 + dJ01 * d2, dJ10 * d1 + dJ11 * d2, b[0], b[1],
