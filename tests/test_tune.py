@@ -290,6 +290,7 @@ def test_resume_after_kill_9_repeats_no_finished_trial(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT), "ILCFORCE_TEST_CELL_SLEEP": "0.1"}
     process = subprocess.Popen([sys.executable, "-c", script], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
     trials = results / "tuning" / "tiny" / "trials"
+    # a hang guard, not a speed test: 3 trials of 0.1 s cells take about 1 s; 120 s leaves 100x for a loaded CI
     deadline = time.monotonic() + 120
     while not (trials.is_dir() and len(list(trials.glob("c1-*.json"))) >= 3):
         assert process.poll() is None, process.communicate()
