@@ -141,6 +141,9 @@ class IterationInputs:
     selection: tuple[float, float]
     first_chunk: tuple[int, np.ndarray] | None = None
     setup: IterationSetup | None = None  # made ahead (prepare_setup); run_iteration's own otherwise
+    #: which compiled loop: "auto" (the 2-D loop for a 2-joint plant, the n-joint loop otherwise) or "nd"
+    #: (the n-joint loop for any plant: how the tests check it against the 2-D loop)
+    loop: str = "auto"
 
 
 def chunk_steps_default(settings: SimulationSettings) -> int:
@@ -193,12 +196,16 @@ class IterationSetup:
     initial_state: tuple  # (theta0, dtheta0), the loop's carry made from it
     simulate_chunk: Callable
     kernels: tuple  # numba's loop: the law's and the plants' kernels, its first arguments
+    n: int = 2  # joints = task axes
+    layout: object = None  # the loop's module (its log and carry layout): ilcforce.loop or ilcforce.ndof.loop
 
 
 def _setup(inputs: IterationInputs, controller) -> IterationSetup:
     from ilcforce import loop
     from ilcforce.compiled import aot  # loop: numba's, loaded on first use only
 
+    if inputs.loop == "nd" or make_plant(inputs.true_plant).dimension != 2:
+        return _setup_nd(inputs, controller)
     s = inputs.settings
     ref = np.ascontiguousarray(inputs.reference, dtype=np.float64)
     n_control = ref.shape[0]
@@ -223,7 +230,41 @@ def _setup(inputs: IterationInputs, controller) -> IterationSetup:
         simulate_chunk, kernels = loop._simulate, (controller.law, true_k.accel, nominal_k.kin, nominal_k.task)
     return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, wall,
                           np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log, (theta0, dtheta0),
-                          simulate_chunk, kernels)
+                          simulate_chunk, kernels, 2, loop)
+
+
+def _setup_nd(inputs: IterationInputs, controller) -> IterationSetup:
+    """The set-up of the n-joint loop (``ilcforce.ndof.loop``, docs/model.md#n-dof): the same steps as the
+    2-D one, the wall's frame R packed after (y_e, K_e, w)."""
+    from ilcforce.ndof import loop as nd_loop  # numba's, loaded on first use only
+
+    s = inputs.settings
+    law = getattr(type(controller), "law_nd", None)
+    if law is None:
+        raise ValueError(f"{controller.name} has no law for a task of other than 2 axes yet (docs/model.md#n-dof)")
+    ref = np.ascontiguousarray(inputs.reference, dtype=np.float64)
+    n_control = ref.shape[0]
+    n_log = (n_control - 1) // s.log_every + 1
+    t_control = np.arange(n_control) * s.sample_time
+    true_robot = make_plant(inputs.true_plant)
+    nominal_robot = make_plant(inputs.nominal_plant)
+    n = true_robot.dimension
+    frame = inputs.wall.frame(n)
+    theta0 = true_robot.inverse_kinematics(frame.T @ np.asarray(s.initial_position, dtype=np.float64))
+    dtheta0 = np.zeros(n)
+    if s.initial_velocity == "consistent":  # dX(0) = dX_d(0) on the true plant
+        dtheta0 = np.linalg.solve(frame @ true_robot.jacobian(theta0), ref[0, n:2 * n])
+    fset = np.array([s.sample_time, 1.0 - math.exp(-2.0 * math.pi * s.filter_hz * s.sample_time), s.torque_bound])
+    iset = np.array([s.substeps, s.log_every, ACCELERATION_SCHEMES[s.acceleration],
+                     int(controller.uses_nominal_dynamics), force_axis(inputs.selection),
+                     IMPLICIT_FALLBACKS[s.implicit_fallback], true_robot.nd_width, nominal_robot.nd_width],
+                    dtype=np.int64)
+    wall = np.concatenate([[inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign], frame.ravel()])
+    kernels = (law, true_robot.nd_kernel(), nominal_robot.nd_kernel())
+    return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, np.ascontiguousarray(wall),
+                          np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log,
+                          (np.asarray(theta0, dtype=np.float64), np.asarray(dtheta0, dtype=np.float64)),
+                          nd_loop._simulate, kernels, n, nd_loop)
 
 
 def prepare_setup(inputs: IterationInputs, controller) -> IterationInputs:
@@ -257,8 +298,9 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
         setup = _setup(inputs, controller)
     ref, t_control = setup.ref, setup.t_control
     # what the loop writes is made here, for this run only: a set-up may serve several
-    log = np.full((setup.n_log, loop.LOG_WIDTH), np.nan)
-    carry = loop.new_carry(*setup.initial_state)
+    layout = setup.layout
+    log = np.full((setup.n_log, loop.LOG_WIDTH if layout is loop else layout.log_width(setup.n)), np.nan)
+    carry = layout.new_carry(*setup.initial_state)
     n_control = ref.shape[0]
     gains = np.ascontiguousarray(controller.gains(), dtype=np.float64)
     head = (*setup.kernels, setup.true_robot.address, setup.nominal_robot.address, setup.wall, gains, mem_prev,
@@ -284,7 +326,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
             break
         if stop_requested is not None and stop_requested():
             raise KeyboardInterrupt
-    fallback = int(carry[loop.CARRY_FALLBACK])
+    fallback = int(carry[loop.CARRY_FALLBACK if layout is loop else layout.carry_fallback(setup.n)])
     signals = log_signals(t_control, s.log_every, log, ref, inputs.selection)
     if status == loop.RUN_OK:
         return IterationRecord(inputs.iteration, STATUS_COMPLETE, math.nan, "", fallback, signals)
@@ -340,12 +382,17 @@ def complete_record(record: IterationRecord, desired: tuple[np.ndarray, np.ndarr
 def log_signals(t_control: np.ndarray, log_every: int, log: np.ndarray, ref: np.ndarray, selection) -> dict:
     """The log signals of an iteration from the loop's log buffer (fresh per iteration)."""
     from ilcforce import loop  # the buffer's layout
+    from ilcforce.ndof import loop as nd_loop  # (its layout only: no numba)
+
+    n = len(selection)
     out = {"time": t_control[::log_every].copy()}
-    for name, col in loop.LOG_COLUMNS.items():
-        out[name] = log[:, col:col + 2].copy()
-    out["implicit_fallbacks"] = log[:, loop.LOG_FALLBACKS].copy()
+    columns = loop.LOG_COLUMNS if n == 2 else nd_loop.log_columns(n)
+    for name, col in columns.items():
+        out[name] = log[:, col:col + n].copy()
+    out["implicit_fallbacks"] = log[:, loop.LOG_FALLBACKS if n == 2 else nd_loop.log_fallbacks(n)].copy()
     sel = np.asarray(selection, dtype=np.float64)
     ref_log = ref[::log_every]
-    out["position_error"] = (1.0 - sel) * (ref_log[:, REF_POSITION:REF_POSITION + 2] - out["position"])  # eq. (6)
-    out["force_error"] = sel * (ref_log[:, REF_FORCE:REF_FORCE + 2] - out["contact_force"])  # eq. (7)
+    out["position_error"] = (1.0 - sel) * (ref_log[:, REF_POSITION * n // 2:REF_POSITION * n // 2 + n]
+                                           - out["position"])  # eq. (6)
+    out["force_error"] = sel * (ref_log[:, REF_FORCE * n // 2:REF_FORCE * n // 2 + n] - out["contact_force"])  # eq. (7)
     return out

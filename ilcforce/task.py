@@ -49,11 +49,15 @@ def wall_stiffness(y, vy, ye, ke, w):
 
 @dataclass(frozen=True)
 class Wall:
-    """A frictionless compliant wall normal to y."""
+    """A frictionless compliant wall: normal to y for a planar robot; for a spatial one (docs/model.md#wall-plane)
+    the plane n . P = y_e with unit normal ``normal``, its first in-plane axis along ``tangent`` (projected
+    onto the plane), the second n x t."""
 
-    position: float = 0.4  # y_e, the wall's surface, m
+    position: float = 0.4  # y_e, the wall's surface along its normal, m
     stiffness: float = 1000.0  # K_e, N/m
     force_sign: str = "applied"  # "applied" (the default, docs/model.md#wall) or "paper" (literal signs of eqs. 9-14)
+    normal: tuple[float, ...] = ()  # a spatial robot's wall normal in the world frame (3 numbers); () for a planar one
+    tangent: tuple[float, ...] = ()  # the direction of the task frame's first in-plane axis (3 numbers)
 
     def __post_init__(self) -> None:
         if self.force_sign not in FORCE_SIGNS:
@@ -62,6 +66,29 @@ class Wall:
             raise ValueError(f"wall.stiffness must be finite and positive, got {self.stiffness!r}")
         if not math.isfinite(self.position):
             raise ValueError(f"wall.position must be finite, got {self.position!r}")
+        if self.normal or self.tangent:
+            self.frame(3)
+
+    def frame(self, n: int) -> np.ndarray:
+        """R (n x n): the task frame's axes as rows, X = R P (docs/model.md#wall-plane). The identity for a
+        planar robot (n = 2: the wall normal to y); for n = 3 the rows t1 = tangent projected onto the plane,
+        t2 = n x t1 and the normal n, so that the force axis is the last."""
+        if n == 2 and not (self.normal or self.tangent):
+            return np.eye(2)
+        if n != 3 or len(self.normal) != 3 or len(self.tangent) != 3:
+            raise ValueError(f"wall.normal and wall.tangent must be 3 numbers each for a robot with a task of {n} axes "
+                             f"(a planar robot's wall, normal to y, takes neither); got {list(self.normal)}, "
+                             f"{list(self.tangent)}")
+        normal = np.asarray(self.normal, dtype=np.float64)
+        if not (np.all(np.isfinite(normal)) and np.linalg.norm(normal) > 0):
+            raise ValueError(f"wall.normal must be a finite non-zero vector, got {list(self.normal)}")
+        normal = normal / np.linalg.norm(normal)
+        t1 = np.asarray(self.tangent, dtype=np.float64)
+        t1 = t1 - (t1 @ normal) * normal
+        if not (np.all(np.isfinite(t1)) and np.linalg.norm(t1) > 1e-9):
+            raise ValueError(f"wall.tangent must not be parallel to wall.normal, got {list(self.tangent)}")
+        t1 = t1 / np.linalg.norm(t1)
+        return np.array([t1, np.cross(normal, t1), normal])
 
     @property
     def sign(self) -> float:
@@ -93,8 +120,12 @@ class Reference:
     force_sine_amplitude: float = 5.0  # N
     force_sine_frequency: float = 0.5  # Hz (pi rad/s)
     force_exp_amplitude: float = 5.0  # N
+    # a spatial robot's second in-plane axis (docs/model.md#wall-plane): v_d = v_amplitude sin(2 pi v_frequency t) + v_offset
+    v_amplitude: float = 0.0  # m
+    v_offset: float = 0.0  # m
+    v_frequency: float = 0.25  # Hz
 
-    def sample(self, t: np.ndarray, wall: Wall) -> np.ndarray:
+    def sample(self, t: np.ndarray, wall: Wall, n: int = 2) -> np.ndarray:
         """Reference and its analytic derivatives at times ``t`` (s), shape (n,).
 
         Returns an (n, 12) array with column blocks (x, y) of P_d, dP_d, ddP_d, F_d, dF_d, ddF_d
@@ -102,6 +133,10 @@ class Reference:
         the wall (y_e + w F_yd / K_e); the laws use only Sbar P_d, so it serves tau_d and plots.
         """
         t = np.asarray(t, dtype=np.float64)
+        if n == 3:
+            return self._sample_spatial(t, wall)
+        if n != 2:
+            raise ValueError(f"the reference is defined for tasks of 2 or 3 axes, not {n}")
         wx = 2.0 * math.pi * self.x_frequency
         wf = 2.0 * math.pi * self.force_sine_frequency
         a, c = self.x_amplitude, self.x_offset
@@ -121,4 +156,19 @@ class Reference:
         out[:, REF_POSITION + 1] = wall.position + w * f / k
         out[:, REF_VELOCITY + 1] = w * df / k
         out[:, REF_ACCELERATION + 1] = w * ddf / k
+        return out
+
+    def _sample_spatial(self, t: np.ndarray, wall: Wall) -> np.ndarray:
+        """The task of a spatial robot in the wall's frame (docs/model.md#wall-plane), shape (n, 18), blocks of 3
+        in the order of :meth:`sample`: in-plane axes u (x_d's law) and v (v_d), the normal carrying F_d."""
+        planar = self.sample(t, wall, 2)
+        out = np.zeros((t.size, 18))
+        wv = 2.0 * math.pi * self.v_frequency
+        av = self.v_amplitude
+        v = (av * np.sin(wv * t) + self.v_offset, av * wv * np.cos(wv * t), -av * wv * wv * np.sin(wv * t))
+        for block in range(6):
+            out[:, 3 * block] = planar[:, 2 * block]  # u: the planar task's x
+            out[:, 3 * block + 2] = planar[:, 2 * block + 1]  # the normal: the planar task's y (F_d, its pose)
+        for block in range(3):
+            out[:, 3 * block + 1] = v[block]
         return out

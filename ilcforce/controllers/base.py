@@ -45,6 +45,7 @@ import numpy as np
 
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import njit
+from ilcforce.controllers.nd import G_OWN_FIRST, at_py, field_width
 
 if TYPE_CHECKING:
     from ilcforce.records import IterationRecord
@@ -176,7 +177,7 @@ def check_gravity_feedforward(section: str, value) -> None:
 def pack_common_gains(surface, wall_sign: float) -> list[float]:
     """The shared prefix of every law's gain vector (indices GAIN_SELECTION .. GAIN_OWN_FIRST - 1)."""
     values = [*surface.selection, *surface.lambda_p, *surface.lambda_f1, *surface.lambda_f2, wall_sign]
-    assert len(values) == GAIN_OWN_FIRST
+    assert len(values) == at_py(G_OWN_FIRST, len(surface.selection))
     return [float(v) for v in values]
 
 
@@ -184,17 +185,17 @@ def _field_width(value) -> int:
     return len(value) if isinstance(value, tuple) else 1
 
 
-def gain_layout(gains_cls, derived: tuple[str, ...] = ()) -> dict[str, slice]:
+def gain_layout(gains_cls, derived: tuple[str, ...] = (), n: int = 2) -> dict[str, slice]:
     """Where each gain lives in the packed vector: field name -> slice.
 
-    The fields of ``gains_cls`` (a dataclass whose defaults fix each field's width) follow the
+    The fields of ``gains_cls`` (a dataclass whose defaults fix each field's 2-D width) follow the
     shared prefix in declaration order; ``derived`` names one-number entries the controller
-    computes (e.g. the sample time) and appends after them.
+    computes (e.g. the sample time) and appends after them. For a task of ``n`` axes the prefix and
+    each field are as wide as ``ilcforce.controllers.nd`` says (the same layout for n = 2).
     """
-    default = gains_cls()
-    layout, start = {}, GAIN_OWN_FIRST
+    layout, start = {}, GAIN_OWN_FIRST if n == 2 else at_py(G_OWN_FIRST, n)
     for f in dataclasses.fields(gains_cls):
-        width = _field_width(getattr(default, f.name))
+        width = field_width(gains_cls, f.name, n)
         layout[f.name] = slice(start, start + width)
         start += width
     for name in derived:
@@ -226,7 +227,8 @@ def pack_gains(surface, wall_sign: float, gains, *, encode: Mapping[str, Mapping
     """
     encode = encode or {}
     derived = dict(derived or {})
-    layout = gain_layout(type(gains), tuple(derived))
+    n = len(surface.selection)
+    layout = gain_layout(type(gains), tuple(derived), n)
     values = pack_common_gains(surface, wall_sign)
     for f in dataclasses.fields(gains):
         value = getattr(gains, f.name)
@@ -234,7 +236,8 @@ def pack_gains(surface, wall_sign: float, gains, *, encode: Mapping[str, Mapping
             value = encode[f.name][value]
         width = layout[f.name].stop - layout[f.name].start
         if _field_width(value) != width:
-            raise ValueError(f"{f.name} must have {width} entries for this law, got {_field_width(value)}")
+            raise ValueError(f"{f.name} must have {width} entries for this law on a task of {n} axes, "
+                             f"got {_field_width(value)}")
         values += [float(v) for v in value] if isinstance(value, tuple) else [float(value)]
     values += [float(v) for v in derived.values()]
     return np.array(values, dtype=np.float64)

@@ -18,6 +18,10 @@ from ilcforce.controllers.base import (
     MEAS_TASK_INERTIA, MemoryController, check_vector, compiled_law, gain_indices, joint_torque,
     pack_gains, sgn, surface_terms,
 )
+from ilcforce.controllers.nd import (
+    D_SIGMA, D_U, G_FEEDFORWARD_SIGN, M_FORCE, at, check_widths, compiled_law_nd, gain_offsets, joint_torque_nd,
+    nominal_model_force_nd, surface_nd,
+)
 
 
 @dataclass(frozen=True)
@@ -31,12 +35,14 @@ class C1Gains:
     alpha: float = 0.1  # switching gain, N (must exceed |F_v|)
 
     def __post_init__(self) -> None:
-        check_vector("c1.k", self.k, 2)
+        check_widths("c1", self)  # k: one entry per task axis
+        check_vector("c1.k", self.k, len(self.k))
         if not (np.isfinite(self.alpha) and self.alpha >= 0):
             raise ValueError(f"c1.alpha must be finite and >= 0, got {self.alpha!r}")
 
 
 K, ALPHA = gain_indices(C1Gains, "k", "alpha")
+K_ND, ALPHA_ND = gain_offsets(C1Gains, "k", "alpha")
 
 
 @njit(cache=True, error_model="numpy")
@@ -68,9 +74,25 @@ def c1_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     return joint_torque(meas, ux, uy)
 
 
+def c1_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """eq. (26) on n task axes (docs/model.md#n-dof), C1's arithmetic axis by axis."""
+    n = tau.shape[0]
+    surface_nd(n, k, meas, ref, gains, False, diag)
+    w = gains[at(G_FEEDFORWARD_SIGN, n)]
+    alpha = gains[at(ALPHA_ND, n)]
+    for i in range(n):
+        sigma = diag[D_SIGMA[0] + i]
+        m = nominal_model_force_nd(n, meas, diag, i)
+        # eq. (26), with +w F (erratum 1)
+        diag[at(D_U, n) + i] = gains[at(K_ND, n) + i] * sigma + alpha * sgn(sigma) + m + w * meas[at(M_FORCE, n) + i]
+    joint_torque_nd(n, meas, diag, at(D_U, n), tau)
+    return 0
+
+
 class C1Controller(MemoryController):
     name = "c1"
     law = compiled_law(c1_law)
+    law_nd = compiled_law_nd(c1_law_nd)
     uses_nominal_dynamics = True
     memory_layout = {}
 

@@ -21,6 +21,10 @@ from ilcforce.controllers.base import (
     DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
     compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, surface_terms,
 )
+from ilcforce.controllers.nd import (
+    D_U, G_FEEDFORWARD_SIGN, M_FORCE, add_joint_torque_nd, at, check_widths, compiled_law_nd, gain_offsets,
+    joint_torque_nd, nominal_gravity_nd, surface_nd,
+)
 
 
 @dataclass(frozen=True)
@@ -34,11 +38,13 @@ class C2Gains:
     gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added (0: the paper's law)
 
     def __post_init__(self) -> None:
-        check_vector("c2.k", self.k, 2)
+        check_widths("c2", self)  # k: one entry per task axis
+        check_vector("c2.k", self.k, len(self.k))
         check_gravity_feedforward("c2", self.gravity_feedforward)
 
 
 K, GRAVITY_FEEDFORWARD = gain_indices(C2Gains, "k", "gravity_feedforward")
+K_ND, GRAVITY_FEEDFORWARD_ND = gain_offsets(C2Gains, "k", "gravity_feedforward")
 
 
 @njit(inline="always", error_model="numpy")
@@ -71,14 +77,45 @@ def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     return c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, True)
 
 
+@njit(inline="always", error_model="numpy")
+def c2_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, learn):
+    """Eq. (27) on n task axes (docs/model.md#n-dof), ``c2_torque``'s arithmetic axis by axis."""
+    n = tau.shape[0]
+    surface_nd(n, k, meas, ref, gains, False, diag)  # eq. (8)
+    w = gains[at(G_FEEDFORWARD_SIGN, n)]
+    u = at(D_U, n)
+    gff = gains[at(GRAVITY_FEEDFORWARD_ND, n)]
+    if learn:
+        for i in range(n):
+            diag[u + i] = gains[at(K_ND, n) + i] * diag[i]
+        joint_torque_nd(n, meas, diag, u, tau)  # J^T k sigma_j, learned
+    for j in range(n):
+        v = mem_prev[k, j] + (tau[j] if learn else 0.0)  # eq. (27), v_j = v_{j-1} + J^T k sigma_j
+        if write:
+            mem_new[k, j] = v
+        tau[j] = v
+    for i in range(n):  # +w F (erratum 1) (+ g_ff G_nom); without learning J^T k sigma as feedback
+        f = w * meas[at(M_FORCE, n) + i] + nominal_gravity_nd(n, meas, gff, i)
+        diag[u + i] = f if learn else f + gains[at(K_ND, n) + i] * diag[i]
+    add_joint_torque_nd(n, meas, diag, u, tau)  # eq. (27), tau_j = v_j + w J^T F_j
+    return 0
+
+
+def c2_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    return c2_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, True)
+
+
 class C2Controller(MemoryController):
     name = "c2"
     law = compiled_law(c2_law)
+    law_nd = compiled_law_nd(c2_law_nd)
     uses_nominal_dynamics = False
     memory_layout = {"v": (0, 2, "N m")}
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
+        if len(surface.selection) != 2:
+            self.memory_layout = {"v": (0, len(surface.selection), "N m")}
         super().__init__(n_control, sample_time)
         self.uses_nominal_dynamics = gains.gravity_feedforward != 0.0  # the simulator then fills G_nom
         self._gains = pack_gains(surface, wall_sign, gains)

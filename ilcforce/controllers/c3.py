@@ -28,6 +28,10 @@ from ilcforce.controllers.base import (
     DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
     compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, sgn, surface_terms,
 )
+from ilcforce.controllers.nd import (
+    D_U, G_FEEDFORWARD_SIGN, M_FORCE, at, check_widths, compiled_law_nd, gain_offsets, joint_torque_nd,
+    nominal_gravity_nd, surface_nd,
+)
 
 PSI_ACCELERATION = {"measured": 0.0, "desired": 1.0}
 
@@ -57,9 +61,10 @@ class C3Gains:
 
     def __post_init__(self) -> None:
         name = self.section
-        check_vector(f"{name}.k", self.k, 2)
-        check_vector(f"{name}.gamma", self.gamma, 8)
-        check_vector(f"{name}.gamma_gravity", self.gamma_gravity, 4)
+        n = check_widths(name, self)  # k: n entries, gamma: 2 n^2, gamma_gravity: n^2
+        check_vector(f"{name}.k", self.k, n)
+        check_vector(f"{name}.gamma", self.gamma, 2 * n * n)
+        check_vector(f"{name}.gamma_gravity", self.gamma_gravity, n * n)
         if min(self.gamma_gravity) < 0:
             raise ValueError(f"{name}.gamma_gravity must be non-negative (Gamma is positive semi-definite)")
         if not (np.isfinite(self.eta) and self.eta >= 0):
@@ -73,6 +78,8 @@ class C3Gains:
 
 
 K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEEDFORWARD = gain_indices(
+    C3Gains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration", "gravity_feedforward")
+K_ND, ETA_ND, GAMMA_ND, GAMMA_GRAVITY_ND, PSI_ACCELERATION_FLAG_ND, GRAVITY_FEEDFORWARD_ND = gain_offsets(
     C3Gains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration", "gravity_feedforward")
 
 
@@ -155,9 +162,62 @@ def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0, np.inf, True)
 
 
+@njit(inline="always", error_model="numpy")
+def c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, keep, alpha_max, learn):
+    """Eq. (14) on n task axes (docs/model.md#n-dof), ``c3_torque``'s arithmetic axis by axis.
+
+    Psi = [psi1; dP + sigma; 1] in R^(3n) with gravity (na = 3n entries of Theta per axis), [psi1; dP +
+    sigma] in R^(2n) without (na = 2n); the memory is Theta_hat axis by axis (n na columns), then alpha_hat.
+    Theta row r of axis i has Gamma entry gamma[2 n i + r] (r < 2n) or gamma_gravity[n i + r - 2n]."""
+    n = tau.shape[0]
+    psi_desired = gains[at(PSI_ACCELERATION_FLAG_ND, n)] > 0.5
+    surface_nd(n, k, meas, ref, gains, psi_desired, diag)
+    na = (mem_prev.shape[1] - 1) // n
+    w = gains[at(G_FEEDFORWARD_SIGN, n)]
+    u = at(D_U, n)
+    gamma = at(GAMMA_ND, n)
+    gamma_g = at(GAMMA_GRAVITY_ND, n)
+    gff = gains[at(GRAVITY_FEEDFORWARD_ND, n)]
+    a_sum = 0.0
+    for i in range(n):
+        sigma = diag[i]
+        l = sigma if learn else 0.0  # sigma as the updates of eq. (14) see it
+        m = 0.0
+        for r in range(na):
+            if r < 2 * n:
+                psi = diag[n + r]  # psi1 (r < n), then dP + sigma: diag's next block           eq. (12)
+                g = gains[gamma + 2 * n * i + r]
+            else:
+                psi = 1.0  # the G block: Psi's third block is the ones vector (eq. 12)
+                g = gains[gamma_g + n * i + r - 2 * n]
+            th = keep * mem_prev[k, na * i + r] + g * psi * l  # eq. (14), Theta update
+            m += th * psi if r < 2 * n else th
+            if write:
+                mem_new[k, na * i + r] = th
+        a_sum += l * sgn(l)
+        diag[u + i] = m
+    alpha = keep * mem_prev[k, n * na] + gains[at(ETA_ND, n)] * a_sum  # eq. (14), alpha update
+    if alpha > alpha_max:  # (a NaN stays NaN, so the watchdog still sees a divergence)
+        alpha = alpha_max
+    if write:
+        mem_new[k, n * na] = alpha
+    for i in range(n):
+        sigma = diag[i]
+        # eq. (14), control law with +w F (erratum 1)
+        diag[u + i] = (gains[at(K_ND, n) + i] * sigma + diag[u + i] + w * meas[at(M_FORCE, n) + i] + alpha * sgn(sigma)
+                       + nominal_gravity_nd(n, meas, gff, i))
+    joint_torque_nd(n, meas, diag, u, tau)
+    return 0
+
+
+def c3_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    return c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0, np.inf, True)
+
+
 class C3Controller(MemoryController):
     name = "c3"
     law = compiled_law(c3_law)
+    law_nd = compiled_law_nd(c3_law_nd)
     uses_nominal_dynamics = False
     memory_layout = {"theta_hat": (0, 8, "mixed: kg (D entries), kg/s (C entries)"), "alpha_hat": (8, 9, "N")}
     #: Theta's entries in memory order (G = 0)
@@ -170,7 +230,14 @@ class C3Controller(MemoryController):
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
-        if gravity:  # the full Theta of eq. (13), decided by the plant (docs/model.md#serial2r); the law reads na from the memory width
+        n = len(surface.selection)
+        if n != 2:  # Theta in R^(2 n^2) or R^(3 n^2) (docs/model.md#n-dof): n axes of na entries, then alpha_hat
+            na = 3 * n if gravity else 2 * n
+            blocks = ("D", "C", "G") if gravity else ("D", "C")
+            self.memory_layout = {"theta_hat": (0, n * na, "mixed: kg (D entries), kg/s (C entries), N (G entries)"),
+                                  "alpha_hat": (n * na, n * na + 1, "N")}
+            self.theta_names = tuple(f"{b}{i + 1}{j + 1}" for i in range(n) for b in blocks for j in range(n))
+        elif gravity:  # the full Theta of eq. (13), decided by the plant (docs/model.md#serial2r); the law reads na from the memory width
             self.memory_layout = {"theta_hat": (0, 12, "mixed: kg (D entries), kg/s (C entries), N (G entries)"),
                                   "alpha_hat": (12, 13, "N")}
             self.theta_names = ("D11", "D12", "C11", "C12", "G11", "G12", "D21", "D22", "C21", "C22", "G21", "G22")

@@ -34,7 +34,9 @@ from typing import ClassVar
 from ilcforce.controllers.base import compiled_law, gain_indices
 from ilcforce.controllers.c3 import (
     ETA, GAMMA, GAMMA_GRAVITY, GRAVITY_FEEDFORWARD, K, PSI_ACCELERATION_FLAG, C3Controller, C3Gains, c3_torque,
+    c3_torque_nd,
 )
+from ilcforce.controllers.nd import at, compiled_law_nd, gain_offsets
 
 
 @dataclass(frozen=True)
@@ -60,6 +62,16 @@ _C3_INDICES = (K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEED
 assert tuple(_SHARED) == _C3_INDICES, "C3-leak packs C3's gains at C3's indices (the shared kernel reads them)"
 
 
+*_SHARED_ND, LEAKAGE_ND, ALPHA_MAX_ND = gain_offsets(
+    C3LeakGains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration", "gravity_feedforward", "leakage", "alpha_max")
+
+
+def c3_leak_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    n = tau.shape[0]
+    return c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0 - gains[at(LEAKAGE_ND, n)],
+                        gains[at(ALPHA_MAX_ND, n)], True)
+
+
 def c3_leak_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     # eq. (14) with (1 - lambda) on the previous iteration's memory and alpha_hat <= alpha_max
     return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0 - gains[LEAKAGE], gains[ALPHA_MAX], True)
@@ -70,3 +82,4 @@ class C3LeakController(C3Controller):
 
     name = "c3-leak"
     law = compiled_law(c3_leak_law)
+    law_nd = compiled_law_nd(c3_leak_law_nd)

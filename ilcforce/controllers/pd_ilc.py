@@ -34,6 +34,10 @@ from ilcforce.controllers.base import (
     DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
     compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, surface_terms,
 )
+from ilcforce.controllers.nd import (
+    D_U, G_FEEDFORWARD_SIGN, M_FORCE, add_joint_torque_nd, at, check_widths, compiled_law_nd, gain_offsets,
+    joint_torque_nd, nominal_gravity_nd, surface_nd,
+)
 
 
 @dataclass(frozen=True)
@@ -51,8 +55,9 @@ class PDILCGains:
     gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added to the feedback (0: none)
 
     def __post_init__(self) -> None:
-        check_vector("pd-ilc.k", self.k, 2)
-        check_vector("pd-ilc.learning", self.learning, 2)
+        n = check_widths("pd-ilc", self)  # k and learning: one entry per task axis
+        check_vector("pd-ilc.k", self.k, n)
+        check_vector("pd-ilc.learning", self.learning, n)
         if not (math.isfinite(self.q_cutoff) and self.q_cutoff > 0):
             raise ValueError(f"pd-ilc.q_cutoff must be a positive frequency in Hz, got {self.q_cutoff!r}")
         if not (1 <= self.q_order <= 8):
@@ -61,6 +66,8 @@ class PDILCGains:
 
 
 K, LEARNING, Q_CUTOFF, Q_ORDER, GRAVITY_FEEDFORWARD = gain_indices(
+    PDILCGains, "k", "learning", "q_cutoff", "q_order", "gravity_feedforward")
+K_ND, LEARNING_ND, _Q_CUTOFF_ND, _Q_ORDER_ND, GRAVITY_FEEDFORWARD_ND = gain_offsets(
     PDILCGains, "k", "learning", "q_cutoff", "q_order", "gravity_feedforward")
 
 
@@ -80,15 +87,43 @@ def pd_ilc_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     return mem_prev[k, 0] + fb1 + ff1, mem_prev[k, 1] + fb2 + ff2
 
 
+def pd_ilc_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """``pd_ilc_law`` on n task axes (docs/model.md#n-dof)."""
+    n = tau.shape[0]
+    surface_nd(n, k, meas, ref, gains, False, diag)  # eq. (8)
+    w = gains[at(G_FEEDFORWARD_SIGN, n)]
+    u = at(D_U, n)
+    if write:
+        # v_j + J^T L sigma_j: filtered by Q into v_{j+1} after the iteration (Bristow et al. eq. 13)
+        for i in range(n):
+            diag[u + i] = gains[at(LEARNING_ND, n) + i] * diag[i]
+        joint_torque_nd(n, meas, diag, u, tau)
+        for j in range(n):
+            mem_new[k, j] = mem_prev[k, j] + tau[j]
+    gff = gains[at(GRAVITY_FEEDFORWARD_ND, n)]
+    for i in range(n):  # PD feedback J^T k sigma
+        diag[u + i] = gains[at(K_ND, n) + i] * diag[i]
+    joint_torque_nd(n, meas, diag, u, tau)
+    for j in range(n):
+        tau[j] = mem_prev[k, j] + tau[j]
+    for i in range(n):  # + J^T (w F + g_ff G_nom)
+        diag[u + i] = w * meas[at(M_FORCE, n) + i] + nominal_gravity_nd(n, meas, gff, i)
+    add_joint_torque_nd(n, meas, diag, u, tau)
+    return 0
+
+
 class PDILCController(MemoryController):
     name = "pd-ilc"
     law = compiled_law(pd_ilc_law)
+    law_nd = compiled_law_nd(pd_ilc_law_nd)
     uses_nominal_dynamics = False
     #: v: the feed-forward iteration j + 1 applies (after Q); an unfinished iteration's is unfiltered
     memory_layout = {"v": (0, 2, "N m")}
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: PDILCGains, *,
                  gravity: bool = False, sample_time: float = float("nan")):
+        if len(surface.selection) != 2:
+            self.memory_layout = {"v": (0, len(surface.selection), "N m")}
         super().__init__(n_control, sample_time)
         if not (math.isfinite(self.sample_time) and self.sample_time > 0):
             raise ValueError("pd-ilc needs the control sample time to design its Q filter")

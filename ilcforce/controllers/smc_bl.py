@@ -28,6 +28,10 @@ from ilcforce.controllers.base import (
     gain_indices, joint_torque, pack_gains, surface_terms,
 )
 from ilcforce.controllers.c1 import nominal_model_force
+from ilcforce.controllers.nd import (
+    D_U, G_FEEDFORWARD_SIGN, M_FORCE, at, check_widths, compiled_law_nd, gain_offsets, joint_torque_nd,
+    nominal_model_force_nd, surface_nd,
+)
 
 
 @dataclass(frozen=True)
@@ -42,8 +46,9 @@ class SMCBoundaryLayerGains:
     phi: tuple[float, float] = (0.01, 0.001)  # boundary-layer thickness per axis, m/s (alpha / k)
 
     def __post_init__(self) -> None:
-        check_vector("smc-bl.k", self.k, 2)
-        check_vector("smc-bl.phi", self.phi, 2)
+        n = check_widths("smc-bl", self)  # k and phi: one entry per task axis
+        check_vector("smc-bl.k", self.k, n)
+        check_vector("smc-bl.phi", self.phi, n)
         if not (np.isfinite(self.alpha) and self.alpha >= 0):
             raise ValueError(f"smc-bl.alpha must be finite and >= 0, got {self.alpha!r}")
         if min(self.phi) <= 0:
@@ -51,6 +56,7 @@ class SMCBoundaryLayerGains:
 
 
 K, ALPHA, PHI = gain_indices(SMCBoundaryLayerGains, "k", "alpha", "phi")
+K_ND, ALPHA_ND, PHI_ND = gain_offsets(SMCBoundaryLayerGains, "k", "alpha", "phi")
 
 
 @njit(cache=True, error_model="numpy")
@@ -76,9 +82,26 @@ def smc_bl_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     return joint_torque(meas, ux, uy)
 
 
+def smc_bl_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """``smc_bl_law`` on n task axes (docs/model.md#n-dof)."""
+    n = tau.shape[0]
+    surface_nd(n, k, meas, ref, gains, False, diag)  # eqs. (8), (12)
+    w = gains[at(G_FEEDFORWARD_SIGN, n)]
+    alpha = gains[at(ALPHA_ND, n)]
+    for i in range(n):
+        sigma = diag[i]
+        m = nominal_model_force_nd(n, meas, diag, i)  # Xi_nom^T Psi, eqs. (11)-(12)
+        # eq. (26) with sgn(sigma) -> sat(sigma / phi) (Slotine & Li 1991, eq. 7.30), +w F (erratum 1)
+        diag[at(D_U, n) + i] = (gains[at(K_ND, n) + i] * sigma + alpha * sat(sigma / gains[at(PHI_ND, n) + i]) + m
+                                + w * meas[at(M_FORCE, n) + i])
+    joint_torque_nd(n, meas, diag, at(D_U, n), tau)
+    return 0
+
+
 class SMCBoundaryLayerController(MemoryController):
     name = "smc-bl"
     law = compiled_law(smc_bl_law)
+    law_nd = compiled_law_nd(smc_bl_law_nd)
     uses_nominal_dynamics = True
     memory_layout = {}
 

@@ -199,6 +199,8 @@ class Plant:
     working_mode = "the working mode"
     #: True if the plant's gravity vector G_q can be non-zero (C3 then learns Theta's G block)
     has_gravity = False
+    #: joints = task axes (docs/model.md#n-dof): a 2-DOF plant runs the 2-D loop
+    dimension = 2
 
     def __init__(self, params=None):
         self.params = params if params is not None else self.params_class()

@@ -1,0 +1,618 @@
+"""The compiled simulation loop for n joints (docs/model.md#n-dof): one chunk of control samples of one iteration.
+
+The steps of a control sample are those of the 2-D loop (``ilcforce.loop``, described in
+``ilcforce.simulate``): true plant at the sample, sensors and the nominal model, the acceleration
+estimate (implicit or filtered), the law, the watchdog and the log, then RK4 with the torque held. Here
+every quantity is an n-vector or an n x n matrix in scratch arrays made once per chunk, the plant is
+called through one kernel (``nd_dyn`` of ``ilcforce.plants.nd``: position, Jacobian, and at higher
+levels dJ dq, M, C dq + g, C, g, dJ), and the law through ``ilcforce.controllers.nd``'s signature.
+
+The task frame is the wall's (docs/model.md#wall-plane): X = R P with R's rows the frame's axes, the
+wall's normal among them at the force axis, so J_X = R J and the contact force acts along that axis.
+The 2-D robots' tasks are R = I. The plant's dimension n is its joint count and its task dimension.
+
+Layouts are the 2-D loop's with blocks n wide: ``carry`` (7 n + 3), the log (12 n + 1 columns, see
+:func:`log_columns`), the sensor noise (3 n: angles, rates, force), the disturbance (n, task frame).
+For n = 2 they are the 2-D layouts column for column.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ilcforce.compiled import jit as _jit
+from ilcforce.compiled.jit import Sig, njit
+from ilcforce.controllers.nd import (
+    M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_TASK_CORIOLIS,
+    M_TASK_GRAVITY, M_TASK_INERTIA, M_THETA, M_VELOCITY, M_WIDTH, at, law_signature_nd,
+)
+from ilcforce.task import wall_force, wall_stiffness
+
+RUN_OK, RUN_NONFINITE, RUN_TORQUE_BOUND, RUN_WORKING_MODE, RUN_CONTINUE = 0, 1, 2, 3, 4
+
+FS_TS, FS_BETA, FS_TAU_BOUND = 0, 1, 2
+IS_SUBSTEPS, IS_LOG_EVERY, IS_SCHEME, IS_NOMINAL_DYNAMICS, IS_FORCE_AXIS, IS_FALLBACK = 0, 1, 2, 3, 4, 5
+IS_WIDTH_TRUE, IS_WIDTH_NOMINAL = 6, 7  # the plants' kernel buffers (ilcforce.plants.nd.nd_width)
+IS_WIDTH = 8
+
+#: the log's signals in column-block order (block b starts at column b n), as ``ilcforce.loop.LOG_COLUMNS``
+LOG_BLOCKS = ("joint_angle", "joint_rate", "joint_angle_measured", "joint_rate_measured", "position", "velocity",
+              "contact_force", "contact_force_measured", "disturbance", "torque", "task_input", "sliding_surface")
+
+
+def log_columns(n: int) -> dict[str, int]:
+    return {name: b * n for b, name in enumerate(LOG_BLOCKS)}
+
+
+def log_fallbacks(n: int) -> int:
+    return len(LOG_BLOCKS) * n
+
+
+def log_width(n: int) -> int:
+    return len(LOG_BLOCKS) * n + 1
+
+
+def carry_width(n: int) -> int:
+    return 7 * n + 3
+
+
+def carry_fallback(n: int) -> int:
+    return 7 * n + 1
+
+
+def new_carry(theta0, dtheta0) -> np.ndarray:
+    """The carry at k = 0: state, filters zero (prev_v, prev_f, acc, dF, ddF: n each), a_prev, counters."""
+    n = len(theta0)
+    carry = np.zeros(carry_width(n))
+    carry[:n] = theta0
+    carry[n:2 * n] = dtheta0
+    return carry
+
+
+_PROBE = 1.0
+_DEGENERATE = 1e-6
+
+# offsets of the plant kernel's output (ilcforce.plants.nd)
+_P, _J = (0, 0, 0), (0, 1, 0)
+_DJV, _M, _B = (0, 1, 1), (0, 2, 1), (0, 2, 2)
+_CQ, _G, _DJ = (0, 3, 2), (0, 3, 3), (0, 4, 3)
+
+
+# --- small dense algebra on scratch arrays (no allocation) -----------------------------------------
+
+@njit(cache=True, error_model="numpy")
+def _cholesky(n, A, a0, L):
+    """L (n x n, lower, row-major in L[0:n*n]) with L L^T = A[a0:a0 + n*n]; False if not positive definite."""
+    for i in range(n):
+        for j in range(i + 1):
+            s = A[a0 + i * n + j]
+            for k in range(j):
+                s -= L[i * n + k] * L[j * n + k]
+            if i == j:
+                if not s > 0.0:
+                    return False
+                L[i * n + i] = math.sqrt(s)
+            else:
+                L[i * n + j] = s / L[j * n + j]
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _cholesky_solve(n, L, b, x):
+    """x = (L L^T)^-1 b (x may be b)."""
+    for i in range(n):
+        s = b[i]
+        for k in range(i):
+            s -= L[i * n + k] * x[k]
+        x[i] = s / L[i * n + i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= L[k * n + i] * x[k]
+        x[i] = s / L[i * n + i]
+
+
+@njit(cache=True, error_model="numpy")
+def _lu(n, A, a0, LU, piv):
+    """LU with partial pivoting of A[a0:a0 + n*n] into LU; False if singular."""
+    for i in range(n * n):
+        LU[i] = A[a0 + i]
+    for c in range(n):
+        p = c
+        for r in range(c + 1, n):
+            if abs(LU[r * n + c]) > abs(LU[p * n + c]):
+                p = r
+        piv[c] = p
+        if LU[p * n + c] == 0.0 or not math.isfinite(LU[p * n + c]):
+            return False
+        if p != c:
+            for j in range(n):
+                LU[c * n + j], LU[p * n + j] = LU[p * n + j], LU[c * n + j]
+        for r in range(c + 1, n):
+            f = LU[r * n + c] / LU[c * n + c]
+            LU[r * n + c] = f
+            for j in range(c + 1, n):
+                LU[r * n + j] -= f * LU[c * n + j]
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def _lu_solve(n, LU, piv, x):
+    """x <- A^-1 x in place."""
+    for c in range(n):
+        p = int(piv[c])
+        if p != c:
+            x[c], x[p] = x[p], x[c]
+    for i in range(n):
+        s = x[i]
+        for k in range(i):
+            s -= LU[i * n + k] * x[k]
+        x[i] = s
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= LU[i * n + k] * x[k]
+        x[i] = s / LU[i * n + i]
+
+
+@njit(cache=True, error_model="numpy")
+def _lu_solve_transposed(n, LU, piv, x):
+    """x <- A^-T x in place (A = P^T L U, so A^T y = x is U^T L^T P y = x)."""
+    for i in range(n):
+        s = x[i]
+        for k in range(i):
+            s -= LU[k * n + i] * x[k]
+        x[i] = s / LU[i * n + i]
+    for i in range(n - 1, -1, -1):
+        s = x[i]
+        for k in range(i + 1, n):
+            s -= LU[k * n + i] * x[k]
+        x[i] = s
+    for c in range(n - 1, -1, -1):
+        p = int(piv[c])
+        if p != c:
+            x[c], x[p] = x[p], x[c]
+
+
+@njit(cache=True, error_model="numpy")
+def _to_task(n, R, out, X, JX, dJv, DJ, level):
+    """Rotate the kernel's world quantities into the task frame: X = R P, J_X = R J (and R dJ dq, R dJ)."""
+    for i in range(n):
+        s = 0.0
+        for k in range(n):
+            s += R[3 + i * n + k] * out[k]
+        X[i] = s
+        for j in range(n):
+            s = 0.0
+            for k in range(n):
+                s += R[3 + i * n + k] * out[n + k * n + j]
+            JX[i * n + j] = s
+    if level >= 1:
+        d0 = at(_DJV, n)
+        for i in range(n):
+            s = 0.0
+            for k in range(n):
+                s += R[3 + i * n + k] * out[d0 + k]
+            dJv[i] = s
+    if level >= 2:
+        d0 = at(_DJ, n)
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for k in range(n):
+                    s += R[3 + i * n + k] * out[d0 + k * n + j]
+                DJ[i * n + j] = s
+
+
+@njit(cache=True, error_model="numpy")
+def _drift(dyn, p, q, dq, wall, fa, fv, fv0, out, X, JX, dJv, r, L):
+    """The true plant pressed against the wall, torque left out (eq. 1): M ddq = tau + r, r = J_X^T f - b,
+    f the force on the robot in the task frame (the disturbance and the wall's reaction). Fills X, J_X,
+    dJ_X dq, r and the Cholesky factor L of M. Returns (ok, F_wall)."""
+    n = q.shape[0]
+    ok = dyn(p, q, dq, 1, out)
+    if ok == 0.0:
+        return False, 0.0
+    _to_task(n, wall, out, X, JX, dJv, JX, 1)
+    ye, ke, w = wall[0], wall[1], wall[2]
+    f_wall = wall_force(X[fa], ye, ke, w)
+    b0 = at(_B, n)
+    for j in range(n):
+        s = 0.0
+        for i in range(n):
+            g = -fv[fv0 + i]  # the disturbance on the robot (eq. 1, tau_v = J^T F_v) ...
+            if i == fa:
+                g -= w * f_wall  # ... and the wall's reaction
+            s += JX[i * n + j] * g
+        r[j] = s - out[b0 + j]
+    if not _cholesky(n, out, at(_M, n), L):
+        return False, f_wall
+    return True, f_wall
+
+
+@njit(cache=True, error_model="numpy")
+def _stage(dyn, p, q, dq, tau, wall, fa, fv, fv0, out, X, JX, dJv, r, L, acc):
+    """Joint accelerations of the true plant under torque tau into acc. Returns ok."""
+    n = q.shape[0]
+    ok, _f = _drift(dyn, p, q, dq, wall, fa, fv, fv0, out, X, JX, dJv, r, L)
+    if not ok:
+        return False
+    for j in range(n):
+        acc[j] = tau[j] + r[j]
+    _cholesky_solve(n, L, acc, acc)
+    return True
+
+
+def nd_type():
+    """The first-class function type of a plant's n-joint kernel (ilcforce.plants.nd's contract)."""
+    types = _jit.numba().types
+    return types.FunctionType(types.float64(types.intp, types.float64[::1], types.float64[::1], types.int64,
+                                            types.float64[::1]))
+
+
+def _sim_signature():
+    types = _jit.numba().types
+    return types.UniTuple(types.int64, 2)(
+        types.FunctionType(law_signature_nd()),
+        nd_type(),  # true plant
+        nd_type(),  # nominal plant
+        types.intp, types.intp,  # their packed parameters (addresses)
+        types.float64[::1],  # wall: y_e (the wall's offset along its normal), K_e, w, then R (n x n, row-major)
+        types.float64[::1],  # gains
+        types.float64[:, ::1], types.float64[:, ::1],  # mem_prev, mem_new
+        types.float64[:, ::1],  # reference (n_control, 6 n)
+        types.float64[:, ::1],  # disturbance (task frame, n columns) on the chunk's half-step grid
+        types.float64[:, ::1],  # sensor noise (n_control, 3 n)
+        types.float64[::1], types.int64[::1],  # float and integer settings
+        types.float64[:, ::1],  # log (n_log, 12 n + 1)
+        types.float64[::1],  # carry (7 n + 3)
+        types.int64, types.int64,  # k_start, k_stop
+    )
+
+
+@njit(Sig(_sim_signature), cache=True, error_model="numpy", nogil=True)
+def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset,
+              iset, log, carry, k_start, k_stop):
+    """Control samples k_start .. k_stop - 1 of one iteration; (status, failing sample or -1)."""
+    n = (carry.shape[0] - 3) // 7
+    n_steps = ref.shape[0] - 1
+    ts = fset[FS_TS]
+    beta = fset[FS_BETA]
+    tau_bound = fset[FS_TAU_BOUND]
+    substeps = iset[IS_SUBSTEPS]
+    log_every = iset[IS_LOG_EVERY]
+    implicit = iset[IS_SCHEME] == 0
+    nominal_dyn = iset[IS_NOMINAL_DYNAMICS] != 0
+    fa = iset[IS_FORCE_AXIS]
+    least_residual = iset[IS_FALLBACK] == 1
+    ye, ke, w = wall[0], wall[1], wall[2]
+    h = ts / substeps
+    nn = n * n
+
+    # scratch, once per chunk
+    out_t = np.empty(iset[IS_WIDTH_TRUE])
+    out_n = np.empty(iset[IS_WIDTH_NOMINAL])
+    meas = np.zeros(at(M_WIDTH, n))
+    diag = np.zeros(4 * n)  # controllers.nd.diag_width
+    X = np.empty(n)
+    JX = np.empty(nn)
+    dJv = np.empty(n)
+    r = np.empty(n)
+    L = np.empty(nn)
+    a0 = np.empty(n)  # joint acceleration at zero torque
+    Xs = np.empty(n)
+    JXs = np.empty(nn)
+    dJvs = np.empty(n)
+    rs = np.empty(n)
+    Ls = np.empty(nn)
+    tau = np.empty(n)
+    t0 = np.empty(n)
+    tp = np.empty(n)
+    tn = np.empty(n)
+    qrow = np.empty(n)
+    qm = np.empty(n)
+    dqm = np.empty(n)
+    DJ = np.empty(nn)
+    LU = np.empty(nn)
+    piv = np.empty(n)
+    Ji = np.empty(nn)  # J_X^-1
+    tmp = np.empty(nn)
+    col = np.empty(n)
+    th = np.empty(n)
+    d = np.empty(n)
+    qs = np.empty(n)
+    vs = np.empty(n)
+    k1 = np.empty(n)
+    k2 = np.empty(n)
+    k3 = np.empty(n)
+    k4 = np.empty(n)
+    v2 = np.empty(n)
+    v3 = np.empty(n)
+    v4 = np.empty(n)
+    fmeas = np.empty(n)
+
+    for i in range(n):
+        th[i] = carry[i]
+        d[i] = carry[n + i]
+    f0 = 2 * n  # filters: prev_v, prev_f, acc, dF, ddF (n each)
+    a_prev = carry[7 * n]
+    fallback = int(carry[7 * n + 1])
+    fallback_logged = int(carry[7 * n + 2])
+    status = RUN_CONTINUE
+    k_fail = -1
+    M0 = at(M_THETA, n)
+    cols = n  # column blocks of the log are n wide
+
+    for k in range(k_start, min(k_stop, n_steps + 1)):
+        t = k * ts
+        base = 2 * substeps * (k - k_start)
+        # 1. true plant at the sample (reused as RK4's first stage)
+        ok, f_wall = _drift(dyn_true, p_true, th, d, wall, fa, dist[base], 0, out_t, X, JX, dJv, r, L)
+        if not ok:
+            status, k_fail = RUN_WORKING_MODE, k
+            break
+        for j in range(n):
+            a0[j] = r[j]
+        _cholesky_solve(n, L, a0, a0)
+
+        # 2. sensors, then the nominal model at the measured state
+        for j in range(n):
+            qm[j] = th[j] + noise[k, j]
+            dqm[j] = d[j] + noise[k, n + j]
+        for i in range(n):
+            fmeas[i] = (f_wall if i == fa else 0.0) + noise[k, 2 * n + i]  # the wall is frictionless
+        level = 2 if nominal_dyn else 0
+        okn = dyn_nom(p_nom, qm, dqm, level, out_n)
+        if okn == 0.0:
+            status, k_fail = RUN_WORKING_MODE, k
+            break
+        P0 = at(M_POSITION, n)
+        J0 = at(M_JACOBIAN, n)
+        _to_task(n, wall, out_n, Xs, JXs, dJvs, DJ, level)
+        for i in range(n):
+            meas[P0 + i] = Xs[i]
+            s = 0.0
+            for j in range(n):
+                meas[J0 + i * n + j] = JXs[i * n + j]
+                s += JXs[i * n + j] * dqm[j]
+            meas[at(M_VELOCITY, n) + i] = s
+            meas[M0 + i] = qm[i]
+            meas[at(M_DTHETA, n) + i] = dqm[i]
+            meas[at(M_FORCE, n) + i] = fmeas[i]
+        if nominal_dyn:
+            # D = J^-T M J^-1, C = J^-T (Cq - M J^-1 dJ) J^-1, G = J^-T g                 eq. (4)
+            if not _lu(n, JXs, 0, LU, piv):
+                status, k_fail = RUN_WORKING_MODE, k
+                break
+            for c in range(n):  # Ji = J_X^-1, column by column
+                for i in range(n):
+                    col[i] = 1.0 if i == c else 0.0
+                _lu_solve(n, LU, piv, col)
+                for i in range(n):
+                    Ji[i * n + c] = col[i]
+            m0 = at(_M, n)
+            for i in range(n):  # tmp = M Ji
+                for j in range(n):
+                    s = 0.0
+                    for k2_ in range(n):
+                        s += out_n[m0 + i * n + k2_] * Ji[k2_ * n + j]
+                    tmp[i * n + j] = s
+            D0 = at(M_TASK_INERTIA, n)
+            for i in range(n):  # D = Ji^T (M Ji)
+                for j in range(n):
+                    s = 0.0
+                    for k2_ in range(n):
+                        s += Ji[k2_ * n + i] * tmp[k2_ * n + j]
+                    meas[D0 + i * n + j] = s
+            # Q = Cq Ji - (M Ji)(dJ_X Ji); C = Ji^T Q
+            cq0 = at(_CQ, n)
+            for i in range(n):
+                for j in range(n):
+                    s = 0.0
+                    for k2_ in range(n):
+                        s += DJ[i * n + k2_] * Ji[k2_ * n + j]
+                    LU[i * n + j] = s  # dJ_X Ji (LU is free now)
+            for i in range(n):
+                for j in range(n):
+                    s = 0.0
+                    for k2_ in range(n):
+                        s += out_n[cq0 + i * n + k2_] * Ji[k2_ * n + j]
+                    e = 0.0
+                    for k2_ in range(n):
+                        e += tmp[i * n + k2_] * LU[k2_ * n + j]
+                    DJ[i * n + j] = s - e  # Q (DJ is free now)
+            C0 = at(M_TASK_CORIOLIS, n)
+            G0 = at(M_TASK_GRAVITY, n)
+            g0 = at(_G, n)
+            for i in range(n):
+                for j in range(n):
+                    s = 0.0
+                    for k2_ in range(n):
+                        s += Ji[k2_ * n + i] * DJ[k2_ * n + j]
+                    meas[C0 + i * n + j] = s
+                s = 0.0
+                for k2_ in range(n):
+                    s += Ji[k2_ * n + i] * out_n[g0 + k2_]
+                meas[G0 + i] = s
+
+        # 3. acceleration estimates, 4. the law
+        A0 = at(M_ACCEL, n)
+        FR0 = at(M_FORCE_RATE, n)
+        FA0 = at(M_FORCE_ACCEL, n)
+        if implicit:
+            vfa = meas[at(M_VELOCITY, n) + fa]
+            dfdy = wall_stiffness(Xs[fa], vfa, ye, ke, w)
+            for i in range(n):
+                meas[FR0 + i] = dfdy * vfa if i == fa else 0.0
+            # true force-axis acceleration for torque tau: p0 + q . tau, q = M^-1 J_X[fa]^T
+            p0 = 0.0
+            for j in range(n):
+                p0 += JX[fa * n + j] * a0[j]
+            p0 += dJv[fa]
+            for j in range(n):
+                qrow[j] = JX[fa * n + j]
+            _cholesky_solve(n, L, qrow, qrow)
+            for i in range(n):
+                meas[A0 + i] = 0.0
+                meas[FA0 + i] = 0.0
+            law(k, t, meas, ref, gains, mem_prev, mem_new, False, diag, t0)
+            meas[A0 + fa] = _PROBE
+            meas[FA0 + fa] = dfdy * _PROBE
+            law(k, t, meas, ref, gains, mem_prev, mem_new, False, diag, tp)
+            meas[A0 + fa] = -_PROBE
+            meas[FA0 + fa] = -dfdy * _PROBE
+            law(k, t, meas, ref, gains, mem_prev, mem_new, False, diag, tn)
+            c1 = 0.0
+            c2 = 0.0
+            c0 = p0
+            for j in range(n):
+                c1 += qrow[j] * (tp[j] - tn[j]) / (2.0 * _PROBE)
+                c2 += qrow[j] * (tp[j] + tn[j] - 2.0 * t0[j])
+                c0 += qrow[j] * t0[j]
+            c2 = c2 / (2.0 * _PROBE * _PROBE)
+            bb = c1 - 1.0
+            disc = bb * bb - 4.0 * c2 * c0
+            a = 0.0
+            use_fallback = False
+            if disc < 0.0 or not math.isfinite(disc):
+                use_fallback = True
+            else:
+                den = bb + math.copysign(math.sqrt(disc), bb)
+                if abs(den) < _DEGENERATE:
+                    use_fallback = True
+                else:
+                    a = -2.0 * c0 / den
+            if use_fallback:
+                a = a_prev
+                if least_residual and abs(c2) > _DEGENERATE:
+                    v = -bb / (2.0 * c2)
+                    if math.isfinite(v):
+                        a = v
+                fallback += 1
+            a_prev = a
+            meas[A0 + fa] = a
+            meas[FA0 + fa] = dfdy * a
+        else:
+            for i in range(n):
+                v_i = meas[at(M_VELOCITY, n) + i]
+                f_i = fmeas[i]
+                if k == 0:
+                    carry[f0 + i] = v_i
+                    carry[f0 + n + i] = f_i
+                acc = carry[f0 + 2 * n + i] + beta * ((v_i - carry[f0 + i]) / ts - carry[f0 + 2 * n + i])
+                dfo = carry[f0 + 3 * n + i]
+                dfn = dfo + beta * ((f_i - carry[f0 + n + i]) / ts - dfo)
+                ddf = carry[f0 + 4 * n + i] + beta * ((dfn - dfo) / ts - carry[f0 + 4 * n + i])
+                carry[f0 + 2 * n + i] = acc
+                carry[f0 + 3 * n + i] = dfn
+                carry[f0 + 4 * n + i] = ddf
+                carry[f0 + i] = v_i
+                carry[f0 + n + i] = f_i
+                meas[A0 + i] = acc
+                meas[FR0 + i] = dfn
+                meas[FA0 + i] = ddf
+        law(k, t, meas, ref, gains, mem_prev, mem_new, True, diag, tau)
+
+        # 5. watchdog and log
+        bad = False
+        over = False
+        for j in range(n):
+            if not math.isfinite(tau[j]):
+                bad = True
+            elif abs(tau[j]) > tau_bound:
+                over = True
+        if bad:
+            status, k_fail = RUN_NONFINITE, k
+            break
+        if over:
+            status, k_fail = RUN_TORQUE_BOUND, k
+            break
+        if k % log_every == 0:
+            row = k // log_every
+            for j in range(n):
+                log[row, j] = th[j]
+                log[row, cols + j] = d[j]
+                log[row, 2 * cols + j] = qm[j]
+                log[row, 3 * cols + j] = dqm[j]
+                log[row, 9 * cols + j] = tau[j]
+                col[j] = tau[j]
+            for i in range(n):
+                log[row, 4 * cols + i] = X[i]
+                s = 0.0
+                for j in range(n):
+                    s += JX[i * n + j] * d[j]
+                log[row, 5 * cols + i] = s
+                log[row, 6 * cols + i] = f_wall if i == fa else 0.0
+                log[row, 7 * cols + i] = fmeas[i]
+                log[row, 8 * cols + i] = dist[base, i]
+                log[row, 11 * cols + i] = diag[i]
+            # J_X^-T tau at the true pose
+            if _lu(n, JX, 0, LU, piv):
+                _lu_solve_transposed(n, LU, piv, col)
+                for i in range(n):
+                    log[row, 10 * cols + i] = col[i]
+            else:
+                for i in range(n):
+                    log[row, 10 * cols + i] = math.nan
+            log[row, 12 * cols] = fallback - fallback_logged
+            fallback_logged = fallback
+        if k == n_steps:
+            status = RUN_OK
+            break
+
+        # 6. RK4 on the true plant, torque held
+        ok1 = True
+        for st in range(substeps):
+            m = base + 2 * st
+            if st == 0:
+                for j in range(n):
+                    k1[j] = tau[j] + r[j]
+                _cholesky_solve(n, L, k1, k1)
+            else:
+                ok1 = _stage(dyn_true, p_true, th, d, tau, wall, fa, dist[m], 0, out_t, Xs, JXs, dJvs, rs, Ls, k1)
+                if not ok1:
+                    break
+            for j in range(n):
+                v2[j] = d[j] + 0.5 * h * k1[j]
+                qs[j] = th[j] + 0.5 * h * d[j]
+            ok2 = _stage(dyn_true, p_true, qs, v2, tau, wall, fa, dist[m + 1], 0, out_t, Xs, JXs, dJvs, rs, Ls, k2)
+            for j in range(n):
+                v3[j] = d[j] + 0.5 * h * k2[j]
+                qs[j] = th[j] + 0.5 * h * v2[j]
+            ok3 = ok2 and _stage(dyn_true, p_true, qs, v3, tau, wall, fa, dist[m + 1], 0, out_t, Xs, JXs, dJvs, rs,
+                                 Ls, k3)
+            for j in range(n):
+                v4[j] = d[j] + h * k3[j]
+                qs[j] = th[j] + h * v3[j]
+            ok4 = ok3 and _stage(dyn_true, p_true, qs, v4, tau, wall, fa, dist[m + 2], 0, out_t, Xs, JXs, dJvs, rs,
+                                 Ls, k4)
+            if not ok4:
+                ok1 = False
+                break
+            for j in range(n):
+                th[j] += h / 6.0 * (d[j] + 2.0 * v2[j] + 2.0 * v3[j] + v4[j])
+                d[j] += h / 6.0 * (k1[j] + 2.0 * k2[j] + 2.0 * k3[j] + k4[j])
+        if not ok1:
+            status, k_fail = RUN_WORKING_MODE, k
+            break
+        finite = True
+        for j in range(n):
+            if not (math.isfinite(th[j]) and math.isfinite(d[j])):
+                finite = False
+        if not finite:
+            status, k_fail = RUN_NONFINITE, k + 1
+            break
+
+    if status != RUN_OK and status != RUN_CONTINUE and fallback > fallback_logged:
+        row = min((k_fail + log_every - 1) // log_every, log.shape[0] - 1)
+        log[row, 12 * cols] = fallback - fallback_logged
+        fallback_logged = fallback
+    for i in range(n):
+        carry[i] = th[i]
+        carry[n + i] = d[i]
+    carry[7 * n] = a_prev
+    carry[7 * n + 1] = fallback
+    carry[7 * n + 2] = fallback_logged
+    return status, k_fail
