@@ -142,15 +142,24 @@ PlantConfig = _plant_config_class()
 class SurfaceGains:
     """Selection and sliding-surface gains of eqs. (6)-(8), shared by every method (erratum 2)."""
 
-    selection: tuple[float, float] = (0.0, 1.0)  # s: S = diag(s) selects the force axis (y)
-    lambda_p: tuple[float, float] = (2.0, 0.0)  # 1/s
-    lambda_f1: tuple[float, float] = (0.0, 1e-3)  # m/(N s)
-    lambda_f2: tuple[float, float] = (0.0, 1e-4)  # m/N
+    # one entry per task axis: 2 for a planar robot (x, y), 3 for a spatial one (u, v, n: docs/model.md#wall-plane)
+    selection: tuple[float, ...] = (0.0, 1.0)  # s: S = diag(s) selects the force axis (y)
+    lambda_p: tuple[float, ...] = (2.0, 0.0)  # 1/s
+    lambda_f1: tuple[float, ...] = (0.0, 1e-3)  # m/(N s)
+    lambda_f2: tuple[float, ...] = (0.0, 1e-4)  # m/N
 
     def __post_init__(self) -> None:
+        n = len(self.selection)
+        if n not in (2, 3):
+            raise ValueError(f"surface.selection must have 2 entries (a planar task) or 3 (a spatial one), got {n}")
         for name in ("selection", "lambda_p", "lambda_f1", "lambda_f2"):
-            check_vector(f"surface.{name}", getattr(self, name), 2)
+            check_vector(f"surface.{name}", getattr(self, name), n)
         force_axis(self.selection)
+
+    @property
+    def dimension(self) -> int:
+        """The task's axes: 2 or 3."""
+        return len(self.selection)
 
 
 @dataclass(frozen=True)
@@ -229,9 +238,14 @@ class Config:
     def control_times(self) -> np.ndarray:
         return np.arange(self.n_control) * self.simulation.sample_time
 
+    @property
+    def dimension(self) -> int:
+        """The task's axes (= the robot's joints): 2, or 3 for a spatial arm (docs/model.md#n-dof)."""
+        return self.surface.dimension
+
     def reference_samples(self) -> np.ndarray:
-        """(n_control, 12) reference on the control grid (``ilcforce.task`` layout)."""
-        return self.reference.sample(self.control_times(), self.wall)
+        """(n_control, 6 n) reference on the control grid (``ilcforce.task`` layout, n = :attr:`dimension`)."""
+        return self.reference.sample(self.control_times(), self.wall, self.dimension)
 
     def to_dict(self) -> dict:
         """Plain nested dict in the TOML layout (round-trips through

@@ -217,20 +217,34 @@ def _check_consistency(config: Config) -> None:
         config.n_log  # Ts divides the horizon, log_every divides the step count
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
-    # the reference must stay in the reachable, elbows-out workspace of the nominal and true plants
+    # the task has as many axes as the robot has joints (docs/model.md#n-dof)
+    n = config.dimension
+    robot_n = make_plant(config.plant.nominal()).dimension
+    if robot_n != n:
+        raise ConfigError(f"the robot of plant.model = {config.plant.model!r} has {robot_n} joints, so its task needs "
+                          f"{robot_n} axes; surface.selection has {n} entries")
+    if len(config.simulation.initial_position) != n:
+        raise ConfigError(f"simulation.initial_position must have {n} entries (the task's axes), got "
+                          f"{len(config.simulation.initial_position)}")
+    try:
+        frame = config.wall.frame(n)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+    # the reference must stay in the reachable workspace (the working mode) of the nominal and true plants
     t = np.linspace(0.0, config.reference.duration, 401)
-    poses = config.reference.sample(t, config.wall)[:, 0:2]
+    poses = config.reference.sample(t, config.wall, n)[:, 0:n]
     start = np.asarray(config.simulation.initial_position)
     for label, params in (("nominal", config.plant.nominal()),
                           ("perturbed", config.plant.true_plant(config.plant.perturbation.from_iteration))):
         robot = make_plant(params)
         for pos in (start, *poses):
             try:
-                robot.inverse_kinematics(pos)
+                robot.inverse_kinematics(frame.T @ pos if n != 2 else pos)  # world P = R^T X
             except UnreachableError:
                 where = "simulation.initial_position" if pos is start else "the reference"
+                shown_pos = ", ".join(f"{v:.4g}" for v in pos)
                 raise ConfigError(f"{where} leaves the reachable workspace of the {label} plant at "
-                                  f"({pos[0]:.4g}, {pos[1]:.4g}) m") from None
+                                  f"({shown_pos}) m") from None
 
 
 def default_config() -> Config:

@@ -30,6 +30,7 @@ import numpy as np
 from ilcforce import pipeline, samerun
 from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY, MethodNameError, canonical_method
+from ilcforce.controllers.nd import dimension_of
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.simulate import (IterationInputs, complete_record, desired_inputs, prepare_first_chunk, prepare_setup,
@@ -72,6 +73,12 @@ def make_controller(config: Config, method: str):
     if refusal:
         raise ConfigError(refusal)
     cls = REGISTRY[method].controller_class
+    written_for = dimension_of(config.gains[method])
+    if written_for not in (0, config.dimension):
+        raise ConfigError(f"[{method}] gains are written for a task of {written_for} axes; this robot's task has "
+                          f"{config.dimension}: give them per axis (docs/model.md#n-dof)")
+    if config.dimension != 2 and getattr(cls, "law_nd", None) is None:
+        raise ConfigError(f"{method} has no law for a task of {config.dimension} axes yet (docs/model.md#n-dof)")
     try:
         # a law with the plant's own regressor (sl-adapt) also takes the nominal plant's parameters
         extra = {"nominal": config.plant.nominal()} if getattr(cls, "needs_nominal_plant", False) else {}
@@ -84,12 +91,18 @@ def make_controller(config: Config, method: str):
 def reference_log(config: Config) -> dict[str, np.ndarray]:
     """The /reference datasets of the store (records.REFERENCE_SIGNALS) on the log grid."""
     ref = config.reference_samples()[:: config.simulation.log_every]
+    n = config.dimension  # the reference's blocks are n wide (ilcforce.task)
+
+    def block(first_column_2d):
+        start = first_column_2d // 2 * n
+        return ref[:, start:start + n]
+
     out = {
         "time": config.control_times()[:: config.simulation.log_every],
-        "position_desired": ref[:, REF_POSITION:REF_POSITION + 2],
-        "velocity_desired": ref[:, REF_VELOCITY:REF_VELOCITY + 2],
-        "acceleration_desired": ref[:, REF_ACCELERATION:REF_ACCELERATION + 2],
-        "force_desired": ref[:, REF_FORCE:REF_FORCE + 2],
+        "position_desired": block(REF_POSITION),
+        "velocity_desired": block(REF_VELOCITY),
+        "acceleration_desired": block(REF_ACCELERATION),
+        "force_desired": block(REF_FORCE),
     }
     assert set(out) == set(REFERENCE_SIGNALS)
     return {k: np.ascontiguousarray(v) for k, v in out.items()}
@@ -111,7 +124,7 @@ def iteration_inputs(config: Config, j: int, reference: np.ndarray, chunk_steps:
     inputs = IterationInputs(
         iteration=j, true_plant=config.plant.true_plant(j), nominal_plant=config.plant.links(), wall=config.wall,
         reference=reference, settings=config.simulation, noise=config.noise,
-        draws=draw_iteration(config.experiment.seed, j, config.n_control, config.noise),
+        draws=draw_iteration(config.experiment.seed, j, config.n_control, config.noise, config.dimension),
         selection=config.surface.selection,
     )
     return prepare_first_chunk(inputs, chunk_steps) if ahead else inputs

@@ -65,15 +65,15 @@ class IterationDraws:
     sensor: np.ndarray
 
 
-def draw_iteration(seed: int, iteration: int, n_control: int, model: NoiseModel) -> IterationDraws:
-    """Draw the disturbance parameters and sensor noise of iteration ``iteration``."""
+def draw_iteration(seed: int, iteration: int, n_control: int, model: NoiseModel, n: int = 2) -> IterationDraws:
+    """Draw the disturbance parameters and sensor noise of iteration ``iteration`` for a task of ``n`` axes
+    and n joints (n = 2: the draws of every 2-D experiment; otherwise the same laws, n wide)."""
     rng_d = np.random.default_rng([seed, iteration, _DISTURBANCE_STREAM])
-    frequency = rng_d.uniform(model.disturbance_min_frequency, model.disturbance_max_frequency, size=2)
-    phase = rng_d.uniform(0.0, 2.0 * math.pi, size=2)
+    frequency = rng_d.uniform(model.disturbance_min_frequency, model.disturbance_max_frequency, size=n)
+    phase = rng_d.uniform(0.0, 2.0 * math.pi, size=n)
     rng_n = np.random.default_rng([seed, iteration, _NOISE_STREAM])
-    unit = rng_n.uniform(-1.0, 1.0, size=(n_control, NOISE_WIDTH))
-    bounds = np.array([model.encoder, model.encoder, model.joint_rate, model.joint_rate,
-                       model.force_sensor, model.force_sensor]) * model.scale
+    unit = rng_n.uniform(-1.0, 1.0, size=(n_control, 3 * n))  # NOISE_WIDTH for n = 2
+    bounds = np.repeat([model.encoder, model.joint_rate, model.force_sensor], n) * model.scale
     return IterationDraws(frequency=frequency, phase=phase, sensor=unit * bounds)
 
 

@@ -74,7 +74,7 @@ class SimulationSettings:
     acceleration: str = "implicit"  # "implicit" (resolve the algebraic loop) or "filtered"
     filter_hz: float = 50.0  # cut-off of the first-order filters of the "filtered" scheme, Hz
     torque_bound: float = 1e3  # watchdog bound on |tau|, N m
-    initial_position: tuple[float, float] = (0.35, 0.40)  # P(0), m
+    initial_position: tuple[float, ...] = (0.35, 0.40)  # P(0), m (in the wall's frame for a spatial arm: u, v, n)
     # "rest": dP(0) = 0 (the paper says nothing); "consistent": dP(0) = dP_d(0), i.e. dx(0) = dx_d(0)
     # and dy(0) = w dF_yd(0) / K_e, removing the t = 0 mismatch of sigma
     initial_velocity: str = "rest"
@@ -173,7 +173,7 @@ def prepare_first_chunk(inputs: IterationInputs, chunk_steps: int | None = None)
 def force_axis(selection) -> int:
     """Index of the single force-controlled axis of S = diag(selection)."""
     s = [float(v) for v in selection]
-    if sorted(s) != [0.0, 1.0]:
+    if sorted(s) != [0.0] * (len(s) - 1) + [1.0]:
         raise ValueError(f"surface.selection must select exactly one force axis, e.g. [0, 1]; got {list(selection)}")
     return s.index(1.0)
 
@@ -349,6 +349,10 @@ def desired_inputs(plant, wall: Wall, reference_log: np.ndarray) -> tuple[np.nda
 
     robot = make_plant(plant)
     ref = np.ascontiguousarray(reference_log, dtype=np.float64)
+    if robot.dimension != 2:
+        from ilcforce.ndof.desired import desired_inputs_nd
+
+        return desired_inputs_nd(robot, wall.frame(robot.dimension), float(wall.sign), ref)
     tau_d = np.empty((ref.shape[0], 2))
     task_d = np.empty((ref.shape[0], 2))
     compiled = aot.desired(type(robot))  # ahead-of-time compiled, or numba's (same code, same numbers)
@@ -392,7 +396,7 @@ def log_signals(t_control: np.ndarray, log_every: int, log: np.ndarray, ref: np.
     out["implicit_fallbacks"] = log[:, loop.LOG_FALLBACKS if n == 2 else nd_loop.log_fallbacks(n)].copy()
     sel = np.asarray(selection, dtype=np.float64)
     ref_log = ref[::log_every]
-    out["position_error"] = (1.0 - sel) * (ref_log[:, REF_POSITION * n // 2:REF_POSITION * n // 2 + n]
-                                           - out["position"])  # eq. (6)
-    out["force_error"] = sel * (ref_log[:, REF_FORCE * n // 2:REF_FORCE * n // 2 + n] - out["contact_force"])  # eq. (7)
+    p0, f0 = REF_POSITION // 2 * n, REF_FORCE // 2 * n  # the reference's blocks are n wide (ilcforce.task)
+    out["position_error"] = (1.0 - sel) * (ref_log[:, p0:p0 + n] - out["position"])  # eq. (6)
+    out["force_error"] = sel * (ref_log[:, f0:f0 + n] - out["contact_force"])  # eq. (7)
     return out

@@ -21,11 +21,15 @@ MODELS = {
     # a 2-joint arm from a URDF or MJCF file ([plant.file_arm] path, end_effector; docs/model.md#model-file);
     # its default perturbation is the file's last link's mass (ModelFileParams.default_perturbed)
     "file_arm": ("ilcforce.plants.model_plant", "PlanarArm", "ModelFileParams", ""),
+    # a 3-joint arm from a model file moving in space ([plant.spatial_arm] path, end_effector, g, posture;
+    # docs/model.md#n-dof), run by the n-joint loop; its default perturbation is its last link's mass
+    "spatial_arm": ("ilcforce.plants.spatial_plant", "SpatialArm", "SpatialArmParams", ""),
 }
 
 
 #: model name -> the robot's name in prose (tables, figure labels, the report's text)
-TITLES = {"fivebar": "five-bar", "serial2r": "serial 2R arm", "file_arm": "arm from a model file"}
+TITLES = {"fivebar": "five-bar", "serial2r": "serial 2R arm", "file_arm": "arm from a model file",
+          "spatial_arm": "spatial arm from a model file"}
 
 
 def plant_title(model: str) -> str:

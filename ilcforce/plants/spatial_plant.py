@@ -1,0 +1,179 @@
+"""A spatial arm of three joints from a URDF or MJCF model file, behind the n-joint plant interface
+(docs/model.md#n-dof, docs/model.md#model-file): ``[plant] model = "spatial_arm"`` with
+``[plant.spatial_arm] path, end_effector, g, posture``.
+
+:func:`ilcforce.plants.load_model` reads the file (MuJoCo, once per file version); the simulation calls
+only the chain's compiled kernel (``nd_kernel``, allocation-free, ``ilcforce.plants.chain_nd``), which
+reads the packed parameters at :attr:`SpatialArm.address`. The task is the end effector's position in the
+world frame, three coordinates for three joints; the loop turns it into the wall's frame.
+
+The working mode is the branch of inverse kinematics reached from ``posture`` (joint angles, rad): the
+simulation starts there, and the desired motion (tau_d) is followed from it continuously.
+
+This module imports neither MuJoCo nor numba: only building a plant reads the file.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import os
+from dataclasses import dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from ilcforce.plants.base import PackedParams, UnreachableError
+
+__all__ = ["SpatialArmParams", "ScaledSpatialArmParams", "SpatialArm", "PARAM_NAMES", "load_spatial"]
+
+#: the keys of ``[plant.spatial_arm]``
+PARAM_NAMES = ("path", "end_effector", "g", "posture")
+#: what a perturbation may scale, per link: ``<link>.mass`` (kg) and ``<link>.inertia`` (the centroidal tensor)
+SCALABLE = ("mass", "inertia")
+#: joints of the arm this plant takes: as many as the task's axes (a position in space)
+JOINTS = 3
+
+
+@dataclass(frozen=True)
+class SpatialArmParams(PackedParams):
+    """The robot of a model file with three joints moving in space: the file (``path``; an experiment file's
+    relative path is relative to that file), its end effector (a link or an MJCF site), gravity g (m/s^2,
+    along the model's -z) and ``posture``, joint angles (rad) near the working pose (the working mode)."""
+
+    model: ClassVar[str] = "spatial_arm"  # the plants.MODELS key
+    units: ClassVar[dict[str, str]] = {"path": "", "end_effector": "", "g": "m/s^2", "posture": "rad"}
+    path_keys: ClassVar[tuple[str, ...]] = ("path",)
+
+    path: str = ""
+    end_effector: str = ""
+    g: float = 9.81
+    posture: tuple[float, ...] = ()
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.g, (int, float)) and math.isfinite(self.g) and self.g >= 0):
+            raise ValueError(f"plant.spatial_arm.g must be finite and >= 0, got {self.g!r}")
+        if not all(math.isfinite(v) for v in self.posture):
+            raise ValueError(f"plant.spatial_arm.posture must be finite joint angles (rad), got {list(self.posture)}")
+
+    @property
+    def param_names(self) -> tuple[str, ...]:  # type: ignore[override]
+        return tuple(f"{link}.{what}" for link in load_spatial(*self._key()).link_names for what in SCALABLE)
+
+    def check(self) -> None:
+        """Read the file now: ValueError (one line) for any problem with it."""
+        if not self.path:
+            raise ValueError("plant.spatial_arm.path must name a URDF or MJCF file (plant.model = \"spatial_arm\")")
+        if not self.end_effector:
+            raise ValueError("plant.spatial_arm.end_effector must name a link (body) or site of the model file")
+        arm = load_spatial(*self._key())
+        if arm.n != JOINTS:
+            raise ValueError(f"plant.spatial_arm: {self.path} has {arm.n} joints; a spatial arm's task (a point in "
+                             f"space) needs {JOINTS}")
+        if len(self.posture) != arm.n:
+            raise ValueError(f"plant.spatial_arm.posture must have {arm.n} joint angles (rad), got {len(self.posture)}")
+
+    def default_perturbed(self) -> str:
+        """The last link's mass."""
+        return f"{load_spatial(*self._key()).link_names[-1]}.mass"
+
+    def _key(self):
+        try:
+            stamp = os.stat(self.path).st_mtime_ns
+        except OSError:
+            stamp = None
+        return self.path, self.end_effector, float(self.g), stamp
+
+    def _changes(self) -> tuple[tuple[str, float], ...]:
+        return ()
+
+    def as_array(self) -> np.ndarray:
+        """The chain's packed vector (``ilcforce.plants.chain``), with this parameter set's changes."""
+        from ilcforce.plants import chain
+
+        arm = load_spatial(*self._key())
+        packed = arm.packed.copy()
+        for name, factor in self._changes():
+            link, _, what = name.rpartition(".")
+            start = chain.HEADER + chain.LINK * arm.link_names.index(link)
+            if what == "mass":
+                packed[start + chain._MASS] *= factor
+            else:
+                packed[start + chain._INERTIA:start + chain._INERTIA + 9] *= factor
+        return packed
+
+    def scaled(self, name: str, factor: float):
+        """A copy whose ``<link>.mass`` or ``<link>.inertia`` is multiplied by ``factor``."""
+        if name not in self.param_names:
+            raise ValueError(f"unknown plant parameter {name!r}; expected one of {', '.join(self.param_names)}")
+        return ScaledSpatialArmParams(self.path, self.end_effector, self.g, self.posture,
+                                      changes=(*self._changes(), (name, float(factor))))
+
+
+@dataclass(frozen=True)
+class ScaledSpatialArmParams(SpatialArmParams):
+    """A model file's spatial arm with link parameters scaled (the true plant of a perturbation)."""
+
+    changes: tuple[tuple[str, float], ...] = ()
+
+    def _changes(self):
+        return self.changes
+
+
+@functools.lru_cache(maxsize=32)
+def load_spatial(path: str, end_effector: str, g: float, stamp):
+    """The file's arm (``ilcforce.plants.SerialArm``), cached per file version; ValueError, one line."""
+    from ilcforce.plants.model_file import load_model
+
+    return load_model(path, end_effector=end_effector, gravity=(0.0, 0.0, -g))
+
+
+class SpatialArm:
+    """A 3-joint arm from a model file, moving in space (docs/model.md#n-dof): the n-joint interface
+    (``dimension``, ``address``, ``nd_kernel``, ``nd_width``), inverse kinematics in its working mode, and
+    the rigid-body API of :class:`ilcforce.plants.SerialArm` (``forward_kinematics``, ``jacobian``,
+    ``joint_inertia``, ``inverse_dynamics``, ...)."""
+
+    params_class = SpatialArmParams
+    ahead_of_time = False  # its kernel is numba's: any file's arm runs it
+
+    def __init__(self, params=None):
+        from ilcforce.plants.serial_arm import SerialArm
+
+        self.params = params if params is not None else SpatialArmParams()
+        self.params.check()
+        base = load_spatial(*self.params._key())
+        self.arm = SerialArm(self.params.as_array(), joint_names=base.joint_names, link_names=base.link_names,
+                             end_effector=base.end_effector, source=base.source)
+        self.dimension = self.arm.n
+        self.link_names = base.link_names
+        self.has_gravity = self.params.g != 0.0
+        self.posture = np.asarray(self.params.posture, dtype=np.float64)
+        self.working_mode = f"the working mode of posture ({', '.join(f'{v:.4g}' for v in self.posture)}) rad"
+
+    def __getattr__(self, name: str):  # the rigid-body API of the arm
+        if name.startswith("_") or name == "arm":
+            raise AttributeError(name)
+        return getattr(self.arm, name)
+
+    @property
+    def address(self) -> int:
+        return self.arm.address
+
+    @property
+    def nd_width(self) -> int:
+        return self.arm.nd_width
+
+    def nd_kernel(self):
+        return self.arm.nd_kernel()
+
+    def inverse_kinematics(self, position, guess=None) -> np.ndarray:
+        """Joint angles (rad) in the working mode for the end-effector position P (m, world frame), by
+        Newton steps from ``guess`` (default: the posture); raises UnreachableError (one line)."""
+        start = self.posture if guess is None else np.asarray(guess, dtype=np.float64)
+        q = self.arm.inverse_kinematics(position, start)
+        if guess is None and np.max(np.abs(np.angle(np.exp(1j * (q - self.posture))))) > math.pi / 2:
+            raise UnreachableError(f"point ({', '.join(f'{v:.6g}' for v in np.asarray(position))}) m is reached at "
+                                   f"q = ({', '.join(f'{v:.4g}' for v in q)}) rad, more than 90 degrees from "
+                                   f"{self.working_mode}")
+        return q
