@@ -212,6 +212,24 @@ class Plant:
         """The numba dispatchers of the five kernels (what numba-compiled code takes)."""
         raise NotImplementedError
 
+    #: the n-joint interface (ilcforce.plants.nd): joints, task dimensions, scratch floats of nd_dyn
+    nd_joints = 2
+    nd_task = 2
+    nd_scratch = 0
+
+    @staticmethod
+    def nd_kernel():
+        """The numba dispatcher of the plant's ``nd_dyn`` (``ilcforce.plants.nd``): its DYN kernel's
+        entries at the n-joint interface's offsets (n = 2), compiled or loaded on first call."""
+        raise NotImplementedError
+
+    @property
+    def nd_width(self) -> int:
+        """The length of the ``out`` array :meth:`nd_kernel` writes (``ilcforce.plants.nd.nd_width``)."""
+        from ilcforce.plants.nd import nd_width
+
+        return nd_width(self)
+
     def calls(self) -> PlantKernels:
         """The five kernels as Python calls them: the ahead-of-time compiled ones when built
         (numba is then not imported), else :meth:`kernels`."""

@@ -46,6 +46,7 @@ from ilcforce.plants.base import (
     params_view,
     UnreachableError, check_pair as _pair,
 )
+from ilcforce.plants.nd import compile_nd, from_dyn
 
 __all__ = ["FiveBarParams", "FiveBar", "UnreachableError", "PARAM_NAMES", "BASE_PARAMETER_NAMES", "BASE_PARAMETER_UNITS", "base_parameters",
            "regressor"]
@@ -340,6 +341,21 @@ def _ik_kernel(address, px, py):
     return (1.0 if ok else 0.0, th1, th2)
 
 
+#: the DYN kernel as compiled code calls it (the n-joint kernel's source; the same function, options and cache)
+_dyn_compiled = njit(cache=True, error_model="numpy")(_dyn_kernel)
+
+
+def _nd_kernel(address, q, dq, level, out):
+    """The n-joint interface's ``nd_dyn`` (ilcforce.plants.nd, n = 2) from the DYN kernel."""
+    return from_dyn(_dyn_compiled(address, q[0], q[1], dq[0], dq[1]), dq[0], dq[1], level, out)
+
+
+@functools.cache
+def nd_kernel():
+    """The five-bar's ``nd_dyn`` (compiled, or loaded from numba's cache, on first call)."""
+    return compile_nd(_nd_kernel)
+
+
 @functools.cache
 def kernels() -> PlantKernels:
     """The five-bar's interface kernels (compiled, or loaded from numba's cache, on first call)."""
@@ -362,6 +378,7 @@ class FiveBar(Plant):
     working_mode = "the elbows-out working mode"
     has_gravity = False
     kernels = staticmethod(kernels)
+    nd_kernel = staticmethod(nd_kernel)
 
     def passive_angles(self, theta) -> np.ndarray:
         """Absolute angles (phi3, phi4) of the passive links 3 and 4 (rad)."""

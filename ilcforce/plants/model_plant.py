@@ -165,6 +165,12 @@ class PlanarArm(Plant):
 
         return planar_kernels.kernels()
 
+    @staticmethod
+    def nd_kernel():
+        from ilcforce.plants import planar_kernels
+
+        return planar_kernels.nd_kernel()
+
     @property
     def task_axes(self) -> np.ndarray:
         """The task's x and y axes in the model's world frame, shape (2, 3)."""

@@ -29,8 +29,9 @@ import numpy as np
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
 from ilcforce.plants import chain
 from ilcforce.plants.base import PlantKernels, compile_kernels, params_view, task_from_dynamics
+from ilcforce.plants.nd import compile_nd, from_dyn
 
-__all__ = ["PLANE", "N_PACKED", "BASE_WIDTH", "kernels", "plane", "regressor", "jacobian_derivative", "base_columns"]
+__all__ = ["PLANE", "N_PACKED", "BASE_WIDTH", "kernels", "nd_kernel", "plane", "regressor", "jacobian_derivative", "base_columns"]
 
 #: the regressor's width: at most this many base parameters (a planar 2R arm with gravity has 6)
 BASE_WIDTH = 6
@@ -126,6 +127,23 @@ def _ik_kernel(address, px, py):
     beta = p[_ELBOW] * math.acos(c)
     phi1 = math.atan2(dy, dx) - math.atan2(L2 * math.sin(beta), L1 + L2 * c)
     return (1.0, phi1 - p[_PHI1], p[_S2] * (beta - p[_BETA0]))
+
+
+#: the DYN kernel as compiled code calls it (the n-joint kernel's source; the same function, options and cache)
+_dyn_compiled = njit(cache=True, error_model="numpy")(_dyn_kernel)
+
+
+def _nd_kernel(address, q, dq, level, out):
+    """The n-joint interface's ``nd_dyn`` (ilcforce.plants.nd, n = 2) from the DYN kernel: the chain's
+    numbers in the task plane, as the 2-joint loop sees them."""
+    return from_dyn(_dyn_compiled(address, q[0], q[1], dq[0], dq[1]), dq[0], dq[1], level, out)
+
+
+@functools.cache
+def nd_kernel():
+    """The ``nd_dyn`` of every 2-joint arm from a model file (compiled, or loaded from numba's cache, on
+    first call)."""
+    return compile_nd(_nd_kernel)
 
 
 @functools.cache

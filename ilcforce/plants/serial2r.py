@@ -55,6 +55,7 @@ from ilcforce.plants.base import (
     Plant, PlantKernels,
     params_view,
 )
+from ilcforce.plants.nd import compile_nd, from_dyn
 
 __all__ = ["Serial2RParams", "Serial2R", "PARAM_NAMES", "BASE_PARAMETER_NAMES", "BASE_PARAMETER_UNITS", "base_parameters", "regressor"]
 
@@ -179,6 +180,21 @@ def _ik_kernel(address, px, py):
     return (1.0, th1, th2)
 
 
+#: the DYN kernel as compiled code calls it (the n-joint kernel's source; the same function, options and cache)
+_dyn_compiled = njit(cache=True, error_model="numpy")(_dyn_kernel)
+
+
+def _nd_kernel(address, q, dq, level, out):
+    """The n-joint interface's ``nd_dyn`` (ilcforce.plants.nd, n = 2) from the DYN kernel."""
+    return from_dyn(_dyn_compiled(address, q[0], q[1], dq[0], dq[1]), dq[0], dq[1], level, out)
+
+
+@functools.cache
+def nd_kernel():
+    """The 2R arm's ``nd_dyn`` (compiled, or loaded from numba's cache, on first call)."""
+    return compile_nd(_nd_kernel)
+
+
 @functools.cache
 def kernels() -> PlantKernels:
     """The 2R arm's interface kernels (compiled, or loaded from numba's cache, on first call)."""
@@ -192,6 +208,7 @@ class Serial2R(Plant):
     working_mode = "the working mode theta2 in (0, pi)"
     has_gravity = True
     kernels = staticmethod(kernels)
+    nd_kernel = staticmethod(nd_kernel)
 
     def potential_energy(self, theta) -> float:
         """V = g (m1 Lc1 s1 + m2 (L1 s1 + Lc2 s12)) (J), zero at y = 0."""

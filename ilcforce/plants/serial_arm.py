@@ -12,11 +12,17 @@ from __future__ import annotations
 import numpy as np
 
 from ilcforce.plants import chain
+from ilcforce.plants.base import UnreachableError
 
 __all__ = ["SerialArm"]
 
 #: the end effector's position: the task dimension of a spatial arm
 TASK_DIMENSION = 3
+#: inverse kinematics: the position error it must reach (m), and its most Newton steps
+IK_TOLERANCE = 1e-12
+IK_STEPS = 100
+#: a Jacobian whose smallest singular value is below this fraction of its largest is singular
+SINGULAR = 1e-9
 
 
 class SerialArm:
@@ -41,6 +47,47 @@ class SerialArm:
         return self._p
 
     @property
+    def address(self) -> int:
+        """The address of :attr:`packed`, the ``p`` argument of :meth:`nd_kernel` (valid while self lives:
+        the arm holds the vector)."""
+        return self._p.ctypes.data
+
+    # --- the n-joint interface (ilcforce.plants.nd) -----------------------------------------------
+    @property
+    def nd_joints(self) -> int:
+        return self.n
+
+    nd_task = TASK_DIMENSION
+
+    @property
+    def nd_scratch(self) -> int:
+        """The scratch floats the chain kernel uses after the interface's entries."""
+        from ilcforce.plants import chain_nd
+
+        return chain_nd.scratch(self.n)
+
+    @property
+    def nd_width(self) -> int:
+        """The length of the ``out`` array :meth:`nd_kernel` writes."""
+        from ilcforce.plants.nd import nd_width
+
+        return nd_width(self)
+
+    def nd_kernel(self):
+        """The numba dispatcher of the chain's allocation-free ``nd_dyn`` (``ilcforce.plants.chain_nd``),
+        the same for every chain: it reads the arm's vector at :attr:`address`. The interface needs as
+        many joints as task dimensions (3)."""
+        self._square_task()
+        from ilcforce.plants import chain_nd
+
+        return chain_nd.kernel()
+
+    def _square_task(self) -> None:
+        if self.n != TASK_DIMENSION:
+            raise ValueError(f"the task-space model needs as many joints as task dimensions ({TASK_DIMENSION}); "
+                             f"this arm has {self.n}")
+
+    @property
     def gravity_vector(self) -> np.ndarray:
         """Gravity in the world frame (m/s^2), shape (3,)."""
         return np.array(self._p[5:8])
@@ -58,6 +105,42 @@ class SerialArm:
     def forward_kinematics(self, theta) -> np.ndarray:
         """End-effector position P (m) in the world frame, shape (3,)."""
         return chain.forward_kinematics(self._p, self._joints("theta", theta))
+
+    def inverse_kinematics(self, position, guess) -> np.ndarray:
+        """Joint values q (shape (n,)) with forward_kinematics(q) = ``position`` (m, shape (3,)) to
+        :data:`IK_TOLERANCE`, by damped Newton steps from ``guess`` (shape (n,)): the least-squares step
+        J^+ (P* - P(q)), halved until it reduces the error. Raises UnreachableError (one line) when it
+        does not converge, or when J is singular at the answer."""
+        target = np.asarray(position, dtype=np.float64)
+        if target.shape != (TASK_DIMENSION,):
+            raise ValueError(f"position must have shape ({TASK_DIMENSION},), got {target.shape}")
+        if not np.all(np.isfinite(target)):
+            raise ValueError(f"position must be finite, got {target}")
+        q = self._joints("guess", guess).copy()
+        error = target - chain.forward_kinematics(self._p, q)
+        where = f"point ({', '.join(f'{x:.6g}' for x in target)}) m"
+        for _ in range(IK_STEPS):
+            if np.linalg.norm(error) <= IK_TOLERANCE:
+                break
+            step = np.linalg.lstsq(chain.jacobian(self._p, q), error, rcond=None)[0]
+            for _halving in range(30):
+                trial = q + step
+                trial_error = target - chain.forward_kinematics(self._p, trial)
+                if np.linalg.norm(trial_error) < np.linalg.norm(error):
+                    break
+                step = 0.5 * step
+            else:  # no step along J^+ e reduces the error: a local minimum away from the point
+                break
+            q, error = trial, trial_error
+        distance = float(np.linalg.norm(error))
+        if distance > IK_TOLERANCE:
+            raise UnreachableError(f"{where} is not reachable from guess {_vec(guess)}: inverse kinematics stopped "
+                                   f"{distance:.3g} m away")
+        sv = np.linalg.svd(chain.jacobian(self._p, q), compute_uv=False)
+        if sv[-1] <= SINGULAR * sv[0]:
+            raise UnreachableError(f"{where} is reached at a singular pose q = {_vec(q)} (Jacobian's singular values "
+                                   f"{_vec(sv)})")
+        return q
 
     def jacobian(self, theta) -> np.ndarray:
         """J with dP/dt = J dtheta, shape (3, n)."""
@@ -93,9 +176,7 @@ class SerialArm:
 
     # --- task-space model (eq. 4, n = 3) -------------------------------------------------------
     def _square(self, theta):
-        if self.n != TASK_DIMENSION:
-            raise ValueError(f"the task-space model needs as many joints as task dimensions ({TASK_DIMENSION}); "
-                             f"this arm has {self.n}")
+        self._square_task()
         J = self.jacobian(theta)
         return J, np.linalg.inv(J)
 
@@ -155,3 +236,7 @@ class SerialArm:
         """Per link [m, m cx, m cy, m cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz], shape (n, 10): mass (kg), first
         moment (kg m) and inertia about the link frame's origin (kg m^2), in the link frame."""
         return chain.inertial_parameters(self._p)
+
+
+def _vec(values) -> str:
+    return "(" + ", ".join(f"{float(x):.6g}" for x in np.ravel(values)) + ")"
