@@ -165,17 +165,19 @@ def config_from_dict(data: dict) -> Config:
     default = Config()
     kwargs = {}
     gains = dict(default.gains)
+    inherited = inherited_gains(data)
     for key, value in data.items():
         if key in sections:
             kwargs[key] = _build(type(getattr(default, key)), value, key)
         elif key in REGISTRY:
-            gains[key] = _build(REGISTRY[key].gains_class, value, key)
+            if key not in inherited:  # built below with what it inherits (its own table alone may be incomplete)
+                gains[key] = _build(REGISTRY[key].gains_class, value, key)
         else:
             if key == "study":  # a study file given where an experiment file belongs
                 raise ConfigError("[study] is a study file's table, not an experiment's: run a study file with "
                                   "`ilcforce study`")
             raise ConfigError(f"unknown section [{key}]{_did_you_mean(key, [*sections, *REGISTRY])}")
-    for key, value in inherited_gains(data).items():
+    for key, value in inherited.items():
         gains[key] = _build(REGISTRY[key].gains_class, value, key)
     try:
         config = Config(**kwargs, gains=gains)

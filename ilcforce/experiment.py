@@ -73,12 +73,12 @@ def make_controller(config: Config, method: str):
     if refusal:
         raise ConfigError(refusal)
     cls = REGISTRY[method].controller_class
+    if config.dimension != 2 and getattr(cls, "law_nd", None) is None:
+        raise ConfigError(f"{method} has no law for a task of {config.dimension} axes yet (docs/model.md#n-dof)")
     written_for = dimension_of(config.gains[method])
     if written_for not in (0, config.dimension):
         raise ConfigError(f"[{method}] gains are written for a task of {written_for} axes; this robot's task has "
                           f"{config.dimension}: give them per axis (docs/model.md#n-dof)")
-    if config.dimension != 2 and getattr(cls, "law_nd", None) is None:
-        raise ConfigError(f"{method} has no law for a task of {config.dimension} axes yet (docs/model.md#n-dof)")
     try:
         # a law with the plant's own regressor (sl-adapt) also takes the nominal plant's parameters
         extra = {"nominal": config.plant.nominal()} if getattr(cls, "needs_nominal_plant", False) else {}

@@ -138,7 +138,7 @@ class IterationInputs:
     settings: SimulationSettings
     noise: NoiseModel
     draws: IterationDraws
-    selection: tuple[float, float]
+    selection: tuple[float, ...]
     first_chunk: tuple[int, np.ndarray] | None = None
     setup: IterationSetup | None = None  # made ahead (prepare_setup); run_iteration's own otherwise
     #: which compiled loop: "auto" (the 2-D loop for a 2-joint plant, the n-joint loop otherwise) or "nd"

@@ -120,10 +120,11 @@ class Reference:
     force_sine_amplitude: float = 5.0  # N
     force_sine_frequency: float = 0.5  # Hz (pi rad/s)
     force_exp_amplitude: float = 5.0  # N
-    # a spatial robot's second in-plane axis (docs/model.md#wall-plane): v_d = v_amplitude sin(2 pi v_frequency t) + v_offset
+    # a spatial robot's second in-plane axis (docs/model.md#wall-plane): v_d = v_offset + v_amplitude (1 - cos(2 pi
+    # v_frequency t)) / 2, which starts at rest as x_d does and reaches v_offset + v_amplitude
     v_amplitude: float = 0.0  # m
     v_offset: float = 0.0  # m
-    v_frequency: float = 0.25  # Hz
+    v_frequency: float = 0.5  # Hz
 
     def sample(self, t: np.ndarray, wall: Wall, n: int = 2) -> np.ndarray:
         """Reference and its analytic derivatives at times ``t`` (s), shape (n,).
@@ -165,7 +166,8 @@ class Reference:
         out = np.zeros((t.size, 18))
         wv = 2.0 * math.pi * self.v_frequency
         av = self.v_amplitude
-        v = (av * np.sin(wv * t) + self.v_offset, av * wv * np.cos(wv * t), -av * wv * wv * np.sin(wv * t))
+        v = (self.v_offset + 0.5 * av * (1.0 - np.cos(wv * t)), 0.5 * av * wv * np.sin(wv * t),
+             0.5 * av * wv * wv * np.cos(wv * t))
         for block in range(6):
             out[:, 3 * block] = planar[:, 2 * block]  # u: the planar task's x
             out[:, 3 * block + 2] = planar[:, 2 * block + 1]  # the normal: the planar task's y (F_d, its pose)

@@ -31,7 +31,7 @@ class C1Gains:
     #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
     units: ClassVar[dict[str, str]] = {"k": "N s/m", "alpha": "N"}
 
-    k: tuple[float, float] = (10.0, 100.0)  # diagonal of k, N s/m
+    k: tuple[float, ...] = (10.0, 100.0)  # diagonal of k, N s/m
     alpha: float = 0.1  # switching gain, N (must exceed |F_v|)
 
     def __post_init__(self) -> None:

@@ -34,7 +34,7 @@ class C2Gains:
     #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
     units: ClassVar[dict[str, str]] = {"k": "N s/m", "gravity_feedforward": "1"}
 
-    k: tuple[float, float] = (400.0, 400.0)  # learning gain diagonal, N s/m
+    k: tuple[float, ...] = (400.0, 400.0)  # learning gain diagonal, N s/m
     gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added (0: the paper's law)
 
     def __post_init__(self) -> None:

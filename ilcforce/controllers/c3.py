@@ -45,14 +45,14 @@ class C3Gains:
                                        "gamma": "mixed: kg s^3/m^2 (D entries), kg s/m^2 (C entries)",
                                        "gamma_gravity": "N s/m", "psi_acceleration": "", "gravity_feedforward": "1"}
 
-    k: tuple[float, float] = (10.0, 100.0)  # feedback gain diagonal, N s/m
+    k: tuple[float, ...] = (10.0, 100.0)  # feedback gain diagonal, N s/m
     eta: float = 5.0  # learning rate of the switching gain
     gamma: tuple[float, ...] = (4e3, 40.0, 1e4, 1e4, 1e3, 1e3, 1e4, 1e4)  # Gamma diagonal, Theta order
     # Gamma for Theta's G block (G11 G12 G21 G22), used only with a plant that has gravity (the paper
     # gives no value, docs/model.md#c3): the paper's D21/D22 gains. Each G entry adds gamma * sigma to the
     # current-iteration feedback: Ts * 2 gamma / lambda_min(D) = 0.67 on the 2R arm's path
     # (lambda_min(D) = 0.30 kg, Ts = 0.1 ms), below the sampled loop's limit 2; 3e3 diverges at once
-    gamma_gravity: tuple[float, float, float, float] = (1e3, 1e3, 1e3, 1e3)
+    gamma_gravity: tuple[float, ...] = (1e3, 1e3, 1e3, 1e3)
     psi_acceleration: str = "measured"  # "measured": S ddP in Psi (the paper); "desired": S ddP_d
     gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added (0: the paper's law)
 

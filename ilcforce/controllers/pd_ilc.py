@@ -48,8 +48,8 @@ class PDILCGains:
     units: ClassVar[dict[str, str]] = {"k": "N s/m", "learning": "N s/m", "q_cutoff": "Hz", "q_order": "1",
                                        "gravity_feedforward": "1"}
 
-    k: tuple[float, float] = (10.0, 100.0)  # PD feedback gain diagonal on sigma, N s/m
-    learning: tuple[float, float] = (10.0, 100.0)  # learning gain L diagonal, N s/m
+    k: tuple[float, ...] = (10.0, 100.0)  # PD feedback gain diagonal on sigma, N s/m
+    learning: tuple[float, ...] = (10.0, 100.0)  # learning gain L diagonal, N s/m
     q_cutoff: float = 5.0  # Q filter cutoff, Hz
     q_order: int = 2  # Butterworth order of Q (applied forwards and backwards)
     gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added to the feedback (0: none)

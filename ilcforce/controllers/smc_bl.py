@@ -41,9 +41,9 @@ class SMCBoundaryLayerGains:
     #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
     units: ClassVar[dict[str, str]] = {"k": "N s/m", "alpha": "N", "phi": "m/s"}
 
-    k: tuple[float, float] = (10.0, 100.0)  # diagonal of k, N s/m (C1's)
+    k: tuple[float, ...] = (10.0, 100.0)  # diagonal of k, N s/m (C1's)
     alpha: float = 0.1  # switching gain, N (C1's)
-    phi: tuple[float, float] = (0.01, 0.001)  # boundary-layer thickness per axis, m/s (alpha / k)
+    phi: tuple[float, ...] = (0.01, 0.001)  # boundary-layer thickness per axis, m/s (alpha / k)
 
     def __post_init__(self) -> None:
         n = check_widths("smc-bl", self)  # k and phi: one entry per task axis

@@ -28,6 +28,7 @@ from ilcforce.controllers.nd import (
     M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_TASK_CORIOLIS,
     M_TASK_GRAVITY, M_TASK_INERTIA, M_THETA, M_VELOCITY, M_WIDTH, at, law_signature_nd,
 )
+from ilcforce.plants.nd import nd_type
 from ilcforce.task import wall_force, wall_stiffness
 
 RUN_OK, RUN_NONFINITE, RUN_TORQUE_BOUND, RUN_WORKING_MODE, RUN_CONTINUE = 0, 1, 2, 3, 4
@@ -243,13 +244,6 @@ def _stage(dyn, p, q, dq, tau, wall, fa, fv, fv0, out, X, JX, dJv, r, L, acc):
         acc[j] = tau[j] + r[j]
     _cholesky_solve(n, L, acc, acc)
     return True
-
-
-def nd_type():
-    """The first-class function type of a plant's n-joint kernel (ilcforce.plants.nd's contract)."""
-    types = _jit.numba().types
-    return types.FunctionType(types.float64(types.intp, types.float64[::1], types.float64[::1], types.int64,
-                                            types.float64[::1]))
 
 
 def _sim_signature():
