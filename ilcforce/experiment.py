@@ -429,6 +429,13 @@ def preload_kernels(config, methods: Sequence[str]) -> None:
     from ilcforce.store import StoreWriter  # noqa: F401  (h5py and the writer, imported once for all workers)
 
     robot = make_plant(config.plant.links())
+    if robot.dimension != 2:  # the n-joint loop, the plant's kernel and each method's n-axis law (numba's)
+        from ilcforce.ndof import loop as nd_loop  # noqa: F401
+
+        robot.nd_kernel()
+        for method in methods:
+            make_controller(config, method).law_nd  # noqa: B018
+        return
     robot.calls()
     for method in methods:
         controller = make_controller(config, method)
