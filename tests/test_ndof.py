@@ -1,0 +1,149 @@
+"""The n-joint loop and laws (docs/model.md#n-dof): the same physics and the same laws as the 2-D loop, in n
+dimensions.
+
+* On both 2-joint robots, the n-joint loop (``IterationInputs.loop = "nd"``) reproduces the 2-D loop's every
+  logged signal for every method it has a law for, over three iterations (learning included): the two loops
+  share no code between the law's arithmetic and the integrator's, so agreement is a check of both. The
+  tolerance is round-off relative to each signal's own scale (an error signal is a difference of positions or
+  forces, so it is compared on the scale of the positions or forces it is a difference of).
+* On the 3-joint spatial arm (experiments/arm3.toml) the desired input tau_d equals the task-space model of
+  eq. (4) along the path, the methods learn, and the configuration refuses what cannot run in one line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ilcforce import simulate
+from ilcforce.config import ConfigError
+from ilcforce.config_load import default_config, load_config
+from ilcforce.controllers import REGISTRY
+from ilcforce.experiment import iteration_inputs, make_controller, simulate_iterations
+
+ROOT = Path(__file__).resolve().parents[1]
+ARM3 = ROOT / "experiments" / "arm3.toml"
+#: every method with an n-axis law
+ND_METHODS = tuple(name for name, spec in REGISTRY.items() if getattr(spec.controller_class, "law_nd", None))
+
+#: the scale each logged signal is compared on: itself, or what it is a difference of
+_SCALE_OF = {"position_error": "position", "force_error": "contact_force"}
+#: the tolerance: relative round-off. Why not 1e-15: the 2-D loop inverts the inertia and the Jacobian in
+#: closed form, the n-joint loop by Cholesky and LU, and over 60,000 steps of a loop that learns (C3 resolves
+#: an algebraic loop 140 times by falling back) the difference grows to about 2e-11 of a signal's scale.
+RTOL = 1e-9
+
+
+def _run(config, method, loop, iterations=3):
+    from ilcforce import loop as loop_2d
+    from ilcforce.ndof import loop as loop_nd
+
+    reference = config.reference_samples()
+    controller = make_controller(config, method)
+    setup = simulate._setup(dataclasses.replace(iteration_inputs(config, 0, reference), loop=loop), controller)
+    assert setup.layout is (loop_nd if loop == "nd" else loop_2d)  # the loop asked for is the loop that runs
+    records = []
+    for j in range(iterations):
+        inputs = dataclasses.replace(iteration_inputs(config, j, reference), loop=loop)
+        mem_prev, mem_new = controller.begin_iteration(j)
+        record = simulate.run_iteration(inputs, controller, mem_prev, mem_new)
+        controller.end_iteration(record)
+        records.append(record)
+    return records
+
+
+def _configs():
+    yield "fivebar", default_config()
+    yield "serial2r", load_config(ROOT / "experiments" / "serial2r.toml")
+
+
+@pytest.mark.parametrize("robot, config", list(_configs()), ids=lambda v: v if isinstance(v, str) else "")
+@pytest.mark.parametrize("method", ND_METHODS)
+def test_the_n_joint_loop_equals_the_2d_loop_on_a_2_joint_robot(robot, config, method):
+    two_d = _run(config, method, "auto")
+    n_d = _run(config, method, "nd")
+    for a, b in zip(two_d, n_d):
+        assert (a.status, a.fallback_count) == (b.status, b.fallback_count)
+        for name, x in a.log.items():
+            if name == "implicit_fallbacks":
+                np.testing.assert_array_equal(x, b.log[name])
+                continue
+            scale = np.max(np.abs(a.log[_SCALE_OF.get(name, name)]))
+            err = np.max(np.abs(x - b.log[name])) / max(scale, 1e-300)
+            assert err < RTOL, f"{robot} {method} j={a.iteration} {name}: {err:.3g} of its scale"
+
+
+@pytest.fixture(scope="module")
+def arm3():
+    return load_config(ARM3)
+
+
+def test_arm3_desired_input_is_the_task_space_model_along_the_path(arm3):
+    """tau_d (inverse dynamics by the chain's RNEA, ilcforce.ndof.desired) against eq. (4)'s task-space model
+    D ddX + C dX + G + w F (the chain's CRBA and Christoffel symbols), rotated into the wall's frame."""
+    from ilcforce.plants import make_plant
+
+    robot = make_plant(arm3.plant.nominal())
+    frame = arm3.wall.frame(3)
+    ref = arm3.reference_samples()[::400]
+    tau_d, task_d = simulate.desired_inputs(arm3.plant.nominal(), arm3.wall, ref)
+    q = None
+    for k in range(ref.shape[0]):
+        P = frame.T @ ref[k, 0:3]
+        q = robot.inverse_kinematics(P) if q is None else robot.inverse_kinematics(P, q)
+        dq = np.linalg.solve(robot.jacobian(q), frame.T @ ref[k, 3:6])
+        # world-frame task model, rotated: X = R P, so D_X = R D R^T, C_X = R C R^T, G_X = R G
+        D = frame @ robot.task_inertia(q) @ frame.T
+        C = frame @ robot.task_coriolis(q, dq) @ frame.T
+        G = frame @ robot.task_gravity(q)
+        expected = D @ ref[k, 6:9] + C @ ref[k, 3:6] + G + arm3.wall.sign * ref[k, 9:12]
+        np.testing.assert_allclose(task_d[k], expected, rtol=1e-9, atol=1e-9 * np.max(np.abs(expected)))
+        np.testing.assert_allclose(tau_d[k], (frame @ robot.jacobian(q)).T @ task_d[k], rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", ["c1", "c2", "c3"])
+def test_arm3_methods_complete_and_the_learning_ones_learn(arm3, method):
+    config = dataclasses.replace(arm3, experiment=dataclasses.replace(arm3.experiment, iterations=4))
+    records = list(simulate_iterations(config, method))
+    assert [r.status for r in records] == ["complete"] * 4
+    for r in records:
+        assert r.log["position"].shape == (config.n_log, 3)
+    rms = [(np.sqrt(np.mean(np.sum(r.log["position_error"] ** 2, axis=1))),
+            np.sqrt(np.mean(np.sum(r.log["force_error"] ** 2, axis=1)))) for r in records]
+    if method != "c1":  # j = 0 -> 3 (the study of experiments/full/arm3-mc.toml runs 20 iterations on 20 seeds)
+        assert rms[3][0] < rms[0][0] / 10
+        assert rms[3][1] < rms[0][1] / 2
+    # the force acts along the wall's normal only (the wall is frictionless), in the wall's frame
+    force = records[-1].log["contact_force"]
+    assert np.all(force[:, :2] == 0.0) and np.max(force[:, 2]) > 20.0
+
+
+def test_arm3_refusals_are_one_line(arm3, tmp_path):
+    text = ARM3.read_text()
+    cases = {
+        "selection": (text.replace("selection = [0.0, 0.0, 1.0]", "selection = [0.0, 1.0]")
+                      .replace("lambda_p = [2.0, 2.0, 0.0]", "lambda_p = [2.0, 0.0]")
+                      .replace("lambda_f1 = [0.0, 0.0, 1e-3]", "lambda_f1 = [0.0, 1e-3]")
+                      .replace("lambda_f2 = [0.0, 0.0, 1e-4]", "lambda_f2 = [0.0, 1e-4]"), "has 3 joints"),
+        "normal": (text.replace("normal = [0.342, 0.0, -0.940]", "normal = [0.0, 0.0]"), "wall.normal"),
+        "parallel": (text.replace("tangent = [1.0, 0.0, 0.0]", "tangent = [0.342, 0.0, -0.940]"), "parallel"),
+        "gains": (text.replace("k = [400.0, 400.0, 10000.0]", "k = [400.0, 10000.0]"), "c2"),
+        "posture": (text.replace("posture = [0.0, 0.3, -1.2]", "posture = [0.0, 0.3]"), "posture"),
+        "start": (text.replace("initial_position = [0.56, 0.0, 0.06]", "initial_position = [0.56, 0.06]"),
+                  "initial_position"),
+    }
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "arm3.xml").write_text((ARM3.parent / "models" / "arm3.xml").read_text())
+    for name, (body, words) in cases.items():
+        path = tmp_path / f"{name}.toml"
+        path.write_text(body)
+        with pytest.raises(ConfigError) as caught:
+            config = load_config(path)
+            make_controller(config, "c2")
+        message = str(caught.value)
+        assert "\n" not in message and words in message, (name, message)
+    with pytest.raises(ConfigError, match="sl-adapt has no law for a task of 3 axes"):
+        make_controller(arm3, "sl-adapt")
