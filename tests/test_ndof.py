@@ -147,3 +147,21 @@ def test_arm3_refusals_are_one_line(arm3, tmp_path):
         assert "\n" not in message and words in message, (name, message)
     with pytest.raises(ConfigError, match="sl-adapt has no law for a task of 3 axes"):
         make_controller(arm3, "sl-adapt")
+
+
+@pytest.mark.parametrize("method", ND_METHODS)
+def test_the_n_axis_gain_layout_is_the_2d_layout_at_n_2(method):
+    """Every field of every method with an n-axis law sits, for n = 2, where the 2-D law reads it."""
+    import dataclasses as dc
+
+    from ilcforce.controllers.base import gain_layout
+    from ilcforce.controllers.nd import at_py, gain_offsets
+
+    gains_cls = REGISTRY[method].gains_class
+    names = tuple(f.name for f in dc.fields(gains_cls))
+    two_d = gain_layout(gains_cls)
+    for name, offset in zip(names, gain_offsets(gains_cls, *names)):
+        assert at_py(offset, 2) == two_d[name].start, (method, name)
+    three_d = gain_layout(gains_cls, n=3)  # and for n = 3 the fields follow each other without a gap
+    starts = [three_d[name].start for name in names]
+    assert starts == [at_py(offset, 3) for offset in gain_offsets(gains_cls, *names)]
