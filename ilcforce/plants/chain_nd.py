@@ -103,6 +103,16 @@ def _put6(a, k, x):
 
 
 @njit(cache=True, error_model="numpy")
+def _put9(a, k, x):
+    a[k], a[k + 1], a[k + 2], a[k + 3], a[k + 4], a[k + 5], a[k + 6], a[k + 7], a[k + 8] = x
+
+
+@njit(cache=True, error_model="numpy")
+def _put10(a, k, x):
+    a[k], a[k + 1], a[k + 2], a[k + 3], a[k + 4], a[k + 5], a[k + 6], a[k + 7], a[k + 8], a[k + 9] = x
+
+
+@njit(cache=True, error_model="numpy")
 def _dot6(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + a[3] * b[3] + a[4] * b[4] + a[5] * b[5]
 
@@ -207,8 +217,7 @@ def terms(p, q, dq, level, out):
             Rp = Rf
             o0, o1, o2 = f0 + z0 * angle, f1 + z1 * angle, f2 + z2 * angle
             _put6(out, k + _S, (0.0, 0.0, 0.0, z0, z1, z2))
-        for r in range(9):
-            out[k + _R + r] = Rp[r]
+        _put9(out, k + _R, Rp)
         _put3(out, k + _O, (o0, o1, o2))
     # --- P and J (chain.forward_kinematics, chain.jacobian) ---
     ke = s + LINK_SCRATCH * e
@@ -239,8 +248,7 @@ def terms(p, q, dq, level, out):
         a = (a[0] + dS[0] * d, a[1] + dS[1] * d, a[2] + dS[2] * d, a[3] + dS[3] * d, a[4] + dS[4] * d,
              a[5] + dS[5] * d)
         I = _spatial_inertia(p, HEADER + LINK * i, _get9(out, k + _R), _get3(out, k + _O))
-        for r in range(10):
-            out[k + _I + r] = I[r]
+        _put10(out, k + _I, I)
         Ia = _inertia_times(I, a)
         vIv = _crf(v, _inertia_times(I, v))
         _put6(out, k + _F, (Ia[0] + vIv[0], Ia[1] + vIv[1], Ia[2] + vIv[2], Ia[3] + vIv[3], Ia[4] + vIv[4],
@@ -276,8 +284,7 @@ def terms(p, q, dq, level, out):
     for j in range(n - 1, -1, -1):
         k = s + LINK_SCRATCH * j
         Ic = _add10(Ic, _get10(out, k + _I))
-        for r in range(10):
-            out[k + _IC + r] = Ic[r]
+        _put10(out, k + _IC, Ic)
         f = _get6(out, k + _F)
         F = (F[0] + f[0], F[1] + f[1], F[2] + f[2], F[3] + f[3], F[4] + f[4], F[5] + f[5])
         S = _get6(out, k + _S)
