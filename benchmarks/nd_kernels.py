@@ -55,11 +55,14 @@ def per_call(kernel, address: int, n: int, out_width: int, level: int, loop=None
 def plants():
     """(name, kernel, address, n, width, keep-alive) of every plant with an n-joint kernel."""
     from ilcforce.config_load import load_config
-    from ilcforce.plants import load_model, make_plant
+    from ilcforce.plants import chain_nd, load_model, make_plant
 
     found = []
     arm = load_model("arm3.xml", "tool")
     found.append(("arm3.xml (chain, n = 3)", arm.nd_kernel(), arm.address, arm.n, arm.nd_width, arm))
+    # a 2-joint chain (its task is still 3-D: the chain kernel's layout with task = 3, not the interface's)
+    two = load_model("serial2r.xml", "tool")
+    found.append(("serial2r.xml (chain, n = 2, task 3)", chain_nd.kernel(), two.address, two.n, chain_nd.width(2), two))
     for name in ("paper.toml", "serial2r.toml", "serial2r-model.toml"):
         plant = make_plant(load_config(f"experiments/{name}").plant.nominal())
         found.append((f"{name} ({type(plant).__name__}, n = 2)", plant.nd_kernel(), plant.address, 2,
