@@ -83,7 +83,7 @@ _CQ, _G, _DJ = (0, 3, 2), (0, 3, 3), (0, 4, 3)
 
 # --- small dense algebra on scratch arrays (no allocation) -----------------------------------------
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _cholesky(n, A, a0, L):
     """L (n x n, lower, row-major in L[0:n*n]) with L L^T = A[a0:a0 + n*n]; False if not positive definite."""
     for i in range(n):
@@ -100,7 +100,7 @@ def _cholesky(n, A, a0, L):
     return True
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _cholesky_solve(n, L, b, x):
     """x = (L L^T)^-1 b (x may be b)."""
     for i in range(n):
@@ -115,7 +115,7 @@ def _cholesky_solve(n, L, b, x):
         x[i] = s / L[i * n + i]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _lu(n, A, a0, LU, piv):
     """LU with partial pivoting of A[a0:a0 + n*n] into LU; False if singular."""
     for i in range(n * n):
@@ -139,7 +139,7 @@ def _lu(n, A, a0, LU, piv):
     return True
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _lu_solve(n, LU, piv, x):
     """x <- A^-1 x in place."""
     for c in range(n):
@@ -158,7 +158,7 @@ def _lu_solve(n, LU, piv, x):
         x[i] = s / LU[i * n + i]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _lu_solve_transposed(n, LU, piv, x):
     """x <- A^-T x in place (A = P^T L U, so A^T y = x is U^T L^T P y = x)."""
     for i in range(n):
@@ -177,7 +177,7 @@ def _lu_solve_transposed(n, LU, piv, x):
             x[c], x[p] = x[p], x[c]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _to_task(n, R, out, X, JX, dJv, DJ, level):
     """Rotate the kernel's world quantities into the task frame: X = R P, J_X = R J (and R dJ dq, R dJ)."""
     for i in range(n):
@@ -207,7 +207,7 @@ def _to_task(n, R, out, X, JX, dJv, DJ, level):
                 DJ[i * n + j] = s
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _drift(dyn, p, q, dq, wall, fa, fv, fv0, out, X, JX, dJv, r, L):
     """The true plant pressed against the wall, torque left out (eq. 1): M ddq = tau + r, r = J_X^T f - b,
     f the force on the robot in the task frame (the disturbance and the wall's reaction). Fills X, J_X,
@@ -233,7 +233,7 @@ def _drift(dyn, p, q, dq, wall, fa, fv, fv0, out, X, JX, dJv, r, L):
     return True, f_wall
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _stage(dyn, p, q, dq, tau, wall, fa, fv, fv0, out, X, JX, dJv, r, L, acc):
     """Joint accelerations of the true plant under torque tau into acc. Returns ok."""
     n = q.shape[0]
