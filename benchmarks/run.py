@@ -21,7 +21,9 @@ from numba import njit
 from benchmarks.cold import median_seconds as _median_time
 from ilcforce.config_load import default_config
 from ilcforce.controllers import REGISTRY
+from ilcforce.config import ConfigError
 from ilcforce.controllers.base import LAW_SIGNATURE, MemoryController
+from ilcforce.controllers.nd import law_signature_nd
 from ilcforce.experiment import make_controller, run_method
 from ilcforce.noise import draw_iteration
 from ilcforce.plants.fivebar import _accel_terms
@@ -34,9 +36,17 @@ def zero_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     return 0.0, 0.0
 
 
+@njit(law_signature_nd(), cache=True, error_model="numpy")
+def zero_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """The same for n joints."""
+    tau[:] = 0.0
+    return 0
+
+
 class ZeroController(MemoryController):
     name = "zero"
     law = staticmethod(zero_law)
+    law_nd = staticmethod(zero_law_nd)
     uses_nominal_dynamics = False
     memory_layout = {}
 
@@ -73,24 +83,30 @@ def per_step_figures(repeat: int) -> None:
 
     Each robot runs its own experiment file (experiments/<model>.toml, the gains fitted to it; the
     paper's setup for the five-bar; a robot read from a model file, the first experiments/*-model.toml
-    that selects it). A run that diverges (a zero torque lets the 2R arm fall) is timed over the steps
-    it simulated, and marked.
+    that selects it, else the first experiment file that does: arm3.toml for the spatial arm). A run that
+    diverges (a zero torque lets the 2R arm fall) is timed over the steps it simulated, and marked. A method
+    the robot cannot run (SL-adapt on three axes) is named and skipped.
     """
     from ilcforce.config_load import load_config
     from ilcforce.plants import MODELS
+    from ilcforce.study.spec import is_study_file
 
     experiments = Path(__file__).resolve().parents[1] / "experiments"
     for model in MODELS:
         own = experiments / f"{model}.toml"
-        files = [own] if own.is_file() else sorted(experiments.glob("*-model.toml"))
-        configs = [c for c in map(load_config, files) if c.plant.model == model]
+        files = [own] if own.is_file() else [*sorted(experiments.glob("*-model.toml")),
+                                             *sorted(p for p in experiments.glob("*.toml") if not is_study_file(p))]
+        configs = [c for c in map(load_config, files) if c.plant.model == model][:1]
         config = configs[0] if configs else load_config(None, {"plant.model": model})
         print(f"  plant {model}:")
         rows = [("RK4 control step, zero-torque controller", ZeroController(config.n_control))]
         for method in REGISTRY:  # every registered method
-            rows.append((f"full control step, {method} (implicit scheme)", make_controller(config, method)))
+            try:
+                rows.append((f"full control step, {method} (implicit scheme)", make_controller(config, method)))
+            except ConfigError as exc:
+                print(f"    {method:<46}: not run ({exc})")
         for label, controller in rows:
-            draws = draw_iteration(config.experiment.seed, 0, config.n_control, config.noise)
+            draws = draw_iteration(config.experiment.seed, 0, config.n_control, config.noise, config.dimension)
             inputs = IterationInputs(0, config.plant.links(), config.plant.links(), config.wall,
                                      config.reference_samples(), config.simulation, config.noise, draws,
                                      config.surface.selection)
