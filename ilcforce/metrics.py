@@ -108,6 +108,17 @@ KNOWN_METRIC_COLUMNS: dict[str, tuple[str, str]] = {
     name: info for n in TASK_DIMENSIONS for name, info in metric_columns(n).items()}
 
 
+def metric_order(columns: Iterable[str]) -> list[str]:
+    """The metric columns among ``columns``, in table order: :func:`metric_columns` of the first task
+    dimension whose first task axis has its H column there (2 before 3: a 2-axis table keeps
+    :data:`METRIC_COLUMNS`' order), then every other known metric column there (a table holding rows
+    of both dimensions)."""
+    present = set(columns)
+    first = next((n for n in TASK_DIMENSIONS if f"chattering_task_{task_axes(n)[0]}" in present), TASK_DIMENSIONS[0])
+    primary = metric_columns(first)
+    return [c for c in [*primary, *(c for c in KNOWN_METRIC_COLUMNS if c not in primary)] if c in present]
+
+
 def columns_dimension(columns: Iterable[str]) -> int:
     """The task dimension whose :func:`metric_columns` are exactly ``columns`` (as a set);
     ValueError (one line) naming the difference from the nearest when none is."""
@@ -118,8 +129,8 @@ def columns_dimension(columns: Iterable[str]) -> int:
     n = 3 if any(k.startswith("chattering_task_") and k.removeprefix("chattering_task_")[:1] in ("u", "v", "n")
                  for k in keys) else 2
     expected = set(metric_columns(n))
-    raise ValueError(f"not the metric columns of a task of {n} axes: lacks {sorted(expected - keys)[:3]}, "
-                     f"has unknown {sorted(keys - expected)[:3]}")
+    raise ValueError(f"lacks {sorted(expected - keys)[:3]} or has unknown columns {sorted(keys - expected)[:3]} "
+                     f"(the metric columns of a task of {n} axes)")
 
 
 #: Start of the "settled" window of H and of the learned memories (s): after the start transient of

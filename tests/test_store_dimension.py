@@ -296,3 +296,63 @@ def test_validate_on_the_command_line(path: Path):
     text = result.output.strip()
     assert result.exit_code == 2, text
     assert len(text.splitlines()) == 1 and "task_dimension" in text and "Traceback" not in text, text
+
+
+# -- study stores ------------------------------------------------------------------------------------
+
+
+def _cell_of(make):
+    """A study cell function (runner.run_study's ``cell_function``) whose rows are the metrics and
+    memory norms of ``make(j)``'s synthetic records, as run_cell makes them from simulated ones."""
+    from ilcforce.metrics import memory_norms
+
+    def cell(config, method, keep_store):
+        records = [make(j) for j in range(config.experiment.iterations)]
+        return {"rows": [{**iteration_metrics(r), **memory_norms(r.memory, settled_from_sample=2)} for r in records],
+                "elapsed": 0.01, "worker": "test:0"}
+
+    return cell
+
+
+def test_a_study_of_three_axes_carries_its_columns(tmp_path: Path):
+    """Rows of a 3-axis task go through the journal, the store and the tidy table with their own
+    columns, in metric_columns(3)'s order; a 2-axis study's columns stay METRIC_COLUMNS."""
+    from typer.testing import CliRunner
+
+    from ilcforce.cli.main import app
+    from ilcforce.study import run_study, tidy_metrics
+    from test_study import small_study
+
+    for name, make, n in (("arm3", record_3, 3), ("planar", make_record, 2)):
+        summary = run_study(small_study(name=name), tmp_path, workers=1, cell_function=_cell_of(make))
+        assert summary.failed == () and summary.ran == summary.total == 4, summary.failed
+        checked = CliRunner().invoke(app, ["validate", str(summary.path)])
+        assert checked.exit_code == 0 and "refused" not in checked.output, checked.output
+        frame = tidy_metrics(summary.path)
+        metric = [c for c in frame.columns if c in metric_columns(2) or c in metric_columns(3)]
+        assert metric == list(metric_columns(n)), name
+        assert len(frame) == 2 * 2 * 3  # seeds x methods x iterations
+        expected = iteration_metrics(make(1))
+        row = frame[(frame["seed"] == 0) & (frame["method"] == "c3") & (frame["iteration"] == 1)].iloc[0]
+        for column in metric[1:]:
+            assert row[column] == expected[column] or column == "diverged_time" and math.isnan(row[column]), \
+                (name, column)
+        units = frame.attrs["units"]
+        assert all(units[c] == metric_columns(n)[c][0] for c in metric), name
+
+
+def test_a_journal_row_holds_the_columns_of_one_dimension():
+    from ilcforce.metrics import columns_dimension
+    from ilcforce.store.study_journal import RecordError, _check_rows
+
+    good = [iteration_metrics(record_3(j)) for j in range(2)]
+    _check_rows(good, "done", 3)  # accepted
+    assert columns_dimension(good[0]) == 3 and columns_dimension(METRIC_COLUMNS) == 2
+    for change, reason in ((lambda r: r.pop("chattering_task_n_settled"), "lacks ['chattering_task_n_settled']"),
+                           (lambda r: r.update(chattering_task_x=0.1), "unknown columns ['chattering_task_x']")):
+        rows = [dict(r) for r in good]
+        for row in rows:
+            change(row)
+        with pytest.raises(RecordError, match=r"row 0 .*\(the metric columns of a task of 3 axes\)") as error:
+            _check_rows(rows, "done", 3)
+        assert reason in str(error.value)
