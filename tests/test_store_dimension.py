@@ -314,31 +314,70 @@ def _cell_of(make):
     return cell
 
 
-def test_a_study_of_three_axes_carries_its_columns(tmp_path: Path):
+@pytest.fixture(scope="module")
+def studies(tmp_path_factory) -> dict[int, Path]:
+    """A study of each task dimension (seeds 0-1, methods c1 and c3, 3 iterations) from synthetic cells."""
+    from ilcforce.study import run_study
+    from test_study import small_study
+
+    folder = tmp_path_factory.mktemp("studies")
+    out = {}
+    for name, make, n in (("arm3", record_3, 3), ("planar", make_record, 2)):
+        summary = run_study(small_study(name=name), folder, workers=1, cell_function=_cell_of(make))
+        assert summary.failed == () and summary.ran == summary.total == 4, summary.failed
+        out[n] = summary.path
+    return out
+
+
+@pytest.mark.parametrize("n", [3, 2])
+def test_a_study_of_three_axes_carries_its_columns(studies: dict[int, Path], n: int):
     """Rows of a 3-axis task go through the journal, the store and the tidy table with their own
     columns, in metric_columns(3)'s order; a 2-axis study's columns stay METRIC_COLUMNS."""
     from typer.testing import CliRunner
 
     from ilcforce.cli.main import app
-    from ilcforce.study import run_study, tidy_metrics
-    from test_study import small_study
+    from ilcforce.study import tidy_metrics
 
-    for name, make, n in (("arm3", record_3, 3), ("planar", make_record, 2)):
-        summary = run_study(small_study(name=name), tmp_path, workers=1, cell_function=_cell_of(make))
-        assert summary.failed == () and summary.ran == summary.total == 4, summary.failed
-        checked = CliRunner().invoke(app, ["validate", str(summary.path)])
-        assert checked.exit_code == 0 and "refused" not in checked.output, checked.output
-        frame = tidy_metrics(summary.path)
-        metric = [c for c in frame.columns if c in metric_columns(2) or c in metric_columns(3)]
-        assert metric == list(metric_columns(n)), name
-        assert len(frame) == 2 * 2 * 3  # seeds x methods x iterations
-        expected = iteration_metrics(make(1))
-        row = frame[(frame["seed"] == 0) & (frame["method"] == "c3") & (frame["iteration"] == 1)].iloc[0]
-        for column in metric[1:]:
-            assert row[column] == expected[column] or column == "diverged_time" and math.isnan(row[column]), \
-                (name, column)
-        units = frame.attrs["units"]
-        assert all(units[c] == metric_columns(n)[c][0] for c in metric), name
+    make = record_3 if n == 3 else make_record
+    checked = CliRunner().invoke(app, ["validate", str(studies[n])])
+    assert checked.exit_code == 0 and "refused" not in checked.output, checked.output
+    frame = tidy_metrics(studies[n])
+    metric = [c for c in frame.columns if c in metric_columns(2) or c in metric_columns(3)]
+    assert metric == list(metric_columns(n))
+    assert len(frame) == 2 * 2 * 3  # seeds x methods x iterations
+    expected = iteration_metrics(make(1))
+    row = frame[(frame["seed"] == 0) & (frame["method"] == "c3") & (frame["iteration"] == 1)].iloc[0]
+    for column in metric[1:]:
+        assert row[column] == expected[column] or column == "diverged_time" and math.isnan(row[column]), column
+    units = frame.attrs["units"]
+    assert all(units[c] == metric_columns(n)[c][0] for c in metric)
+
+
+def test_the_generic_report_tables_read_three_axes(studies: dict[int, Path], tmp_path: Path):
+    """The study's key numbers (per-method medians), its summary rows, the growth test's quantities and
+    the method comparison of a run store name the 3-axis H columns where a 2-axis study has x and y."""
+    from ilcforce import stability
+    from ilcforce.report.comparison import MethodMetrics, comparison_rows
+    from ilcforce.report.study import key_numbers
+    from ilcforce.report.study_findings import setting_rows
+    from ilcforce.study import tidy_metrics
+
+    frames = {n: tidy_metrics(path) for n, path in studies.items()}
+    for n, axes in ((3, "uvn"), (2, "xy")):
+        quantities = list(key_numbers(frames[n], ["c1", "c3"], 3)["quantity"])
+        for axis in axes:
+            assert f"H {axis} at j = 2 (N)" in quantities and f"H {axis} settled at j = 2 (N)" in quantities, quantities
+            assert f"H(C1)/H(C3) {axis} at j = 2" in quantities, quantities
+        assert not any(f"H {other} " in q for q in quantities for other in set("xyuvn") - set(axes)), quantities
+        rows = setting_rows(frames[n], perturbation_iteration=2, iterations=3)[0]
+        normal = axes[-1]
+        assert {f"H_{a} (N) at j = 2" for a in axes} | {f"H_{normal} settled (N) at j = 2"} <= set(rows[0]), rows[0]
+        judged = [c for c, j in stability.watched_columns(frames[n]) if j and c.startswith("chattering")]
+        assert judged == [f"chattering_task_{a}_settled" for a in axes]
+    run = tmp_path / "c3.h5"
+    write_3(run)
+    row = comparison_rows({"c3": MethodMetrics.from_rows(store.read_metrics_rows(run))})[0]
+    assert row["iterations"] == 3 and row["diverged_iteration"] == 2 and row["fallback_total"] == 0 + 1 + 2
 
 
 def test_a_journal_row_holds_the_columns_of_one_dimension():
