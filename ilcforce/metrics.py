@@ -5,9 +5,10 @@ Pure numpy; consumes :class:`ilcforce.records.IterationRecord` and never touches
 Every metric is computed on the **log grid** (``n_log`` samples, 2001 at 1 ms for the paper's
 setup) from ``record.log``:
 
-* error norms, for ``e`` = ``position_error`` (m) and ``force_error`` (N), shape (n_log, 2).
-  ``e`` is zero on the axis that the selection matrix does not select, so summing over both
-  columns is the same as taking the selected axis only:
+* error norms, for ``e`` = ``position_error`` (m) and ``force_error`` (N), shape (n_log, n) for a
+  task of n axes (n = 2 or 3, :func:`ilcforce.records.task_axes`). ``e`` is zero on every axis
+  that the selection matrix does not select, so summing over all n columns is the same as taking
+  the selected axes only; each norm is one column whatever n:
 
   - ``*_2norm``: the paper's "2-norm" ``sqrt(sum_k sum_i e_i(t_k)^2)``. It grows with the number
     of samples; of these norms it is the one on the scale of the paper's Table 2.
@@ -19,7 +20,7 @@ setup) from ``record.log``:
 * chattering ``H`` (Table 3): the population standard deviation (ddof = 0) over the log grid of
   ``Delta = desired - applied`` input, in task space per axis (``desired_task_input -
   task_input``, N) and in joint space per joint (``desired_torque - torque``, N m), in three
-  forms, each its own column:
+  forms, each its own column (:func:`metric_columns` of n: per axis x, y or u, v, n and per joint):
 
   - ``chattering_<axis>``: over the whole grid (docs/model.md#metrics, the paper's reading);
   - ``chattering_<axis>_no_t0``: without the t = 0 sample. Every iteration starts at rest while
@@ -41,16 +42,13 @@ with one over the full trajectory. It keeps ``status``, ``diverged_time`` and
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from ilcforce.records import JOINT_AXES, STATUS_DIVERGED, TASK_AXES, IterationRecord
+from ilcforce.records import STATUS_DIVERGED, TASK_DIMENSIONS, IterationRecord, joint_axes, record_dimension, task_axes
 
-#: Metric columns, in table order: name -> (unit, description). Units as everywhere in ilcforce:
-#: ``"1"`` for a dimensionless number (an index, a count), ``""`` for text. The store keeps one row
-#: per iteration with exactly these columns.
-METRIC_COLUMNS: dict[str, tuple[str, str]] = {
+_BASE_COLUMNS: dict[str, tuple[str, str]] = {
     "iteration": ("1", "iteration index j, counted from 0"),
     "status": ("", "'complete' or 'diverged'"),
     "fallback_count": ("1", "control samples where the implicit acceleration scheme reused the previous acceleration"),
@@ -63,19 +61,77 @@ METRIC_COLUMNS: dict[str, tuple[str, str]] = {
     "force_error_l2": ("N s^1/2", "L2 norm sqrt(dt sum_k |e_F(t_k)|^2) over the log grid (unit N s^1/2)"),
     "force_error_rms": ("N", "RMS sqrt(mean_k |e_F(t_k)|^2) over the log grid"),
     "force_error_max": ("N", "max_k |e_F(t_k)| (Euclidean norm per sample)"),
-    "chattering_task_x": ("N", "H: population std over the log grid of desired_task_input - task_input, x axis"),
-    "chattering_task_y": ("N", "H: population std over the log grid of desired_task_input - task_input, y axis"),
-    "chattering_joint_1": ("N m", "H: population std over the log grid of desired_torque - torque, joint 1"),
-    "chattering_joint_2": ("N m", "H: population std over the log grid of desired_torque - torque, joint 2"),
 }
-# The two further forms of H, same units, appended after today's columns (older stores lack them;
-# the store's /metrics is a cache recomputed from the logs).
-for _name in ("chattering_task_x", "chattering_task_y", "chattering_joint_1", "chattering_joint_2"):
-    _unit = METRIC_COLUMNS[_name][0]
-    _what = METRIC_COLUMNS[_name][1].removeprefix("H: population std over the log grid of ")
-    METRIC_COLUMNS[f"{_name}_no_t0"] = (_unit, f"H without the t = 0 sample: std over t_k > 0 of {_what}")
-    METRIC_COLUMNS[f"{_name}_settled"] = (_unit, f"H settled: std over t_k >= 20 ms (SETTLED_FROM) of {_what}")
-del _name, _unit, _what
+
+
+def _chattering_columns(n: int) -> list[tuple[str, str, str]]:
+    """(column, unit, description) of the whole-grid H of every task axis, then every joint, of n axes."""
+    task = [(f"chattering_task_{axis}", "N",
+             f"H: population std over the log grid of desired_task_input - task_input, {axis} axis")
+            for axis in task_axes(n)]
+    joint = [(f"chattering_joint_{axis}", "N m",
+              f"H: population std over the log grid of desired_torque - torque, joint {axis}")
+             for axis in joint_axes(n)]
+    return task + joint
+
+
+def metric_columns(n: int) -> dict[str, tuple[str, str]]:
+    """The metric columns of a task of ``n`` axes (n = 2 or 3), in table order: name -> (unit,
+    description); for 2 exactly :data:`METRIC_COLUMNS`.
+
+    The iteration, status, divergence and the error norms (sums over every axis, so one column each
+    whatever n), then H whole-grid per task axis (:func:`ilcforce.records.task_axes`: x, y or u, v, n)
+    and per joint, then each of those in its ``_no_t0`` and ``_settled`` forms. A fresh dict per call.
+    """
+    columns = dict(_BASE_COLUMNS)
+    chattering = _chattering_columns(n)
+    for name, unit, description in chattering:
+        columns[name] = (unit, description)
+    # The two further forms of H, same units, appended after the whole-grid ones (older 2-axis stores
+    # lack them; the store's /metrics is a cache recomputed from the logs).
+    for name, unit, description in chattering:
+        what = description.removeprefix("H: population std over the log grid of ")
+        columns[f"{name}_no_t0"] = (unit, f"H without the t = 0 sample: std over t_k > 0 of {what}")
+        columns[f"{name}_settled"] = (unit, f"H settled: std over t_k >= 20 ms (SETTLED_FROM) of {what}")
+    return columns
+
+
+#: Metric columns of a task of 2 axes (every store and study until the 3-axis arm), in table order:
+#: name -> (unit, description). Units as everywhere in ilcforce: ``"1"`` for a dimensionless number
+#: (an index, a count), ``""`` for text. A 2-axis store keeps one row per iteration with exactly these
+#: columns; :func:`metric_columns` gives them for n axes.
+METRIC_COLUMNS: dict[str, tuple[str, str]] = metric_columns(2)
+
+#: Every metric column of every task dimension, in table order (those of 2 axes first, then those
+#: only a 3-axis task has): for tables that hold rows of either (a study's tidy frame, its units).
+KNOWN_METRIC_COLUMNS: dict[str, tuple[str, str]] = {
+    name: info for n in TASK_DIMENSIONS for name, info in metric_columns(n).items()}
+
+
+def metric_order(columns: Iterable[str]) -> list[str]:
+    """The metric columns among ``columns``, in table order: :func:`metric_columns` of the first task
+    dimension whose first task axis has its H column there (2 before 3: a 2-axis table keeps
+    :data:`METRIC_COLUMNS`' order), then every other known metric column there (a table holding rows
+    of both dimensions)."""
+    present = set(columns)
+    first = next((n for n in TASK_DIMENSIONS if f"chattering_task_{task_axes(n)[0]}" in present), TASK_DIMENSIONS[0])
+    primary = metric_columns(first)
+    return [c for c in [*primary, *(c for c in KNOWN_METRIC_COLUMNS if c not in primary)] if c in present]
+
+
+def columns_dimension(columns: Iterable[str]) -> int:
+    """The task dimension whose :func:`metric_columns` are exactly ``columns`` (as a set);
+    ValueError (one line) naming the difference from the nearest when none is."""
+    keys = set(columns)
+    for n in TASK_DIMENSIONS:
+        if keys == set(metric_columns(n)):
+            return n
+    n = 3 if any(k.startswith("chattering_task_") and k.removeprefix("chattering_task_")[:1] in ("u", "v", "n")
+                 for k in keys) else 2
+    expected = set(metric_columns(n))
+    raise ValueError(f"lacks {sorted(expected - keys)[:3]} or has unknown columns {sorted(keys - expected)[:3]} "
+                     f"(the metric columns of a task of {n} axes)")
+
 
 #: Start of the "settled" window of H and of the learned memories (s): after the start transient of
 #: every iteration. The one constant for every settled form (H, memory norms, the claims, the
@@ -85,7 +141,7 @@ SETTLED_FROM = 0.02
 
 #: Version of the metric definitions. The store's ``/metrics`` is a cache of
 #: :func:`iteration_metrics` tagged with this version: a store whose cache has another version, or
-#: lacks a column of :data:`METRIC_COLUMNS`, has its table recomputed from the stored logs on read.
+#: lacks a column of its :func:`metric_columns`, has its table recomputed from the stored logs on read.
 #: Bump it when the definition of an existing column changes; adding a column needs no bump.
 METRICS_VERSION = 1
 
@@ -118,8 +174,8 @@ def error_norms(error: np.ndarray, dt: float) -> dict[str, float]:
 
     Parameters
     ----------
-    error : ndarray, shape (n, 2)
-        Error samples on a uniform grid, time-major (any unit U).
+    error : ndarray, shape (n_samples, n_axes)
+        Error samples on a uniform grid, time-major (any unit U); the norms sum over every axis.
     dt : float
         Grid spacing (s), > 0.
 
@@ -139,14 +195,16 @@ def error_norms(error: np.ndarray, dt: float) -> dict[str, float]:
 
 
 def iteration_metrics(record: IterationRecord, *, settled_from: float = SETTLED_FROM) -> dict[str, object]:
-    """One metrics row for one iteration, keys and order exactly :data:`METRIC_COLUMNS`.
+    """One metrics row for one iteration, keys and order exactly :func:`metric_columns` of the
+    record's n (:data:`METRIC_COLUMNS` for 2 axes).
 
     Parameters
     ----------
     record : IterationRecord
         Its ``log`` must hold ``time`` (n_log,) and ``position_error``, ``force_error``,
-        ``task_input``, ``desired_task_input``, ``torque``, ``desired_torque`` (n_log, 2), with
-        n_log >= 2 on a uniform grid.
+        ``task_input``, ``desired_task_input``, ``torque``, ``desired_torque`` (n_log, n), with
+        n_log >= 2 on a uniform grid; n (2 or 3) is the width of ``position_error`` and every other
+        of these arrays must have it too.
     settled_from : float
         Start (s, >= 0, measured from the first log sample) of the window of the ``_settled``
         form of H; a window with fewer than 2 samples gives NaN.
@@ -172,12 +230,17 @@ def iteration_metrics(record: IterationRecord, *, settled_from: float = SETTLED_
         "fallback_count": int(record.fallback_count),
         "diverged_time": float(record.diverged_time),
     }
+    try:
+        n = record_dimension(record.log)
+    except ValueError as error:
+        raise ValueError(f"{error} (iteration {record.iteration})") from None
+    columns = METRIC_COLUMNS if n == 2 else metric_columns(n)
     signals = {
-        name: _log_array(record, name, (n_log, 2))
+        name: _log_array(record, name, (n_log, n))
         for name in ("position_error", "force_error", "task_input", "desired_task_input", "torque", "desired_torque")
     }
     if record.status == STATUS_DIVERGED:
-        for column in METRIC_COLUMNS:
+        for column in columns:
             row.setdefault(column, float("nan"))
         return row
 
@@ -193,13 +256,13 @@ def iteration_metrics(record: IterationRecord, *, settled_from: float = SETTLED_
     if not (math.isfinite(settled_from) and settled_from >= 0):
         raise ValueError(f"settled_from must be a finite time >= 0 s, got {settled_from!r}")
     settled = (time - time[0]) >= settled_from - 1e-9 * dt  # grid times carry rounding; dt-relative slack
-    for name, delta, axes in (("task", task_delta, TASK_AXES), ("joint", joint_delta, JOINT_AXES)):
+    for name, delta, axes in (("task", task_delta, task_axes(n)), ("joint", joint_delta, joint_axes(n))):
         for column, axis in enumerate(axes):
             row[f"chattering_{name}_{axis}"] = float(np.std(delta[:, column]))
             row[f"chattering_{name}_{axis}_no_t0"] = float(np.std(delta[1:, column]))
             row[f"chattering_{name}_{axis}_settled"] = (
                 float(np.std(delta[settled, column])) if np.count_nonzero(settled) >= 2 else float("nan"))
-    return {name: row[name] for name in METRIC_COLUMNS}
+    return {name: row[name] for name in columns}
 
 
 def settled_sample(sample_time: float, settled_from: float = SETTLED_FROM) -> int:

@@ -10,8 +10,11 @@ Grids
 * log grid: every ``log_every``-th control sample (``n_log = (n_control - 1) / log_every + 1``,
   2001 for the paper's setup, i.e. 1 ms). Trajectories live here.
 
-Axis conventions: task-space arrays have columns (x, y); joint-space arrays have columns
-(joint 1, joint 2) = (theta1, theta2), the two actuated joints.
+Axis conventions: a task of n axes (n = 2 or 3, :data:`TASK_DIMENSIONS`) has task-space arrays of
+shape (n_log, n) with the columns :func:`task_axes` and joint-space arrays (n_log, n) with the columns
+:func:`joint_axes`. n = 2, the planar robots: (x, y), x along the wall and y normal to it, and
+(joint 1, joint 2) = (theta1, theta2), the two actuated joints. n = 3, a spatial arm pressing on a
+plane: the wall's frame (u, v, n), u and v in the plane and n its normal, and joints (1, 2, 3).
 """
 
 from __future__ import annotations
@@ -23,12 +26,42 @@ import numpy as np
 STATUS_COMPLETE = "complete"
 STATUS_DIVERGED = "diverged"
 
-TASK_AXES = ("x", "y")
+#: The task dimensions a record, a store and a metrics row know: n task axes and n joints.
+TASK_DIMENSIONS = (2, 3)
+_TASK_AXES = {2: ("x", "y"), 3: ("u", "v", "n")}
+
+TASK_AXES = _TASK_AXES[2]
 JOINT_AXES = ("1", "2")
+
+
+def _dimension(n: object) -> int:
+    """``n`` checked to be one of :data:`TASK_DIMENSIONS`; ValueError names it otherwise."""
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or int(n) not in TASK_DIMENSIONS:
+        raise ValueError(f"a task has {' or '.join(map(str, TASK_DIMENSIONS))} axes, got {n!r}")
+    return int(n)
+
+
+def task_axes(n: int) -> tuple[str, ...]:
+    """The column labels of a task-space array of a task of ``n`` axes: ("x", "y") or ("u", "v", "n")."""
+    return _TASK_AXES[_dimension(n)]
+
+
+def joint_axes(n: int) -> tuple[str, ...]:
+    """The column labels of a joint-space array of a robot of ``n`` joints: ("1", "2") or ("1", "2", "3")."""
+    return tuple(str(k) for k in range(1, _dimension(n) + 1))
+
+
+def _with_axes(table: dict[str, tuple[tuple[str, ...] | None, str, str]], n: int
+               ) -> dict[str, tuple[tuple[str, ...] | None, str, str]]:
+    """``table`` (a signal table of n = 2) with the axes of a task of ``n`` axes."""
+    swap = {TASK_AXES: task_axes(n), JOINT_AXES: joint_axes(n), None: None}
+    return {name: (swap[axes], unit, description) for name, (axes, unit, description) in table.items()}
+
 
 #: Logged signals: name -> (axes, unit, description). ``axes`` is None for a scalar per sample,
 #: otherwise the column labels of the trailing dimension. Every array is (n_log,) or (n_log, 2),
-#: time-major. After a divergence the remaining samples are NaN.
+#: time-major. After a divergence the remaining samples are NaN. This is the table of a task of 2
+#: axes; :func:`log_signals` gives it for n axes.
 LOG_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
     "time": (None, "s", "time of the log sample"),
     "joint_angle": (JOINT_AXES, "rad", "true actuated joint angles theta"),
@@ -54,7 +87,8 @@ LOG_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
                            "the signal sums to the iteration's fallback_count"),
 }
 
-#: Reference signals stored once per file under /reference, on the log grid.
+#: Reference signals stored once per file under /reference, on the log grid (a task of 2 axes;
+#: :func:`reference_signals` gives them for n axes).
 REFERENCE_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
     "time": (None, "s", "time of the log sample"),
     "position_desired": (TASK_AXES, "m", "P_d; x is position-controlled, y is y_e + F_yd / K_e (the pose that produces F_d)"),
@@ -62,6 +96,37 @@ REFERENCE_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
     "acceleration_desired": (TASK_AXES, "m/s^2", "d2P_d/dt2"),
     "force_desired": (TASK_AXES, "N", "F_d"),
 }
+
+_POSITION_DESIRED_ND = "P_d; the in-plane axes are position-controlled, the normal one is the pose that produces F_d"
+
+
+def log_signals(n: int) -> dict[str, tuple[tuple[str, ...] | None, str, str]]:
+    """The logged signals of a task of ``n`` axes: :data:`LOG_SIGNALS` with (n_log, n) arrays whose
+    columns are :func:`task_axes` or :func:`joint_axes` of ``n``; exactly :data:`LOG_SIGNALS` for 2."""
+    return LOG_SIGNALS if _dimension(n) == 2 else _with_axes(LOG_SIGNALS, n)
+
+
+def reference_signals(n: int) -> dict[str, tuple[tuple[str, ...] | None, str, str]]:
+    """The reference signals of a task of ``n`` axes, (n_log, n) each but ``time``; exactly
+    :data:`REFERENCE_SIGNALS` for 2 (whose P_d description names x and y)."""
+    if _dimension(n) == 2:
+        return REFERENCE_SIGNALS
+    table = _with_axes(REFERENCE_SIGNALS, n)
+    axes, unit, _description = table["position_desired"]
+    table["position_desired"] = (axes, unit, _POSITION_DESIRED_ND)
+    return table
+
+
+def record_dimension(log: dict[str, np.ndarray]) -> int:
+    """The task dimension n of a record's ``log``: the width of its ``position_error``, checked to be
+    one of :data:`TASK_DIMENSIONS`. ValueError (one line) when it is missing or of another shape."""
+    if "position_error" not in log:
+        raise ValueError("record.log is missing signal 'position_error'")
+    shape = np.shape(log["position_error"])
+    if len(shape) != 2 or shape[1] not in TASK_DIMENSIONS:
+        raise ValueError(f"record.log['position_error'] has shape {shape}, expected (n_log, n) with n in "
+                         f"{TASK_DIMENSIONS}")
+    return int(shape[1])
 
 
 @dataclass(frozen=True)
@@ -82,7 +147,8 @@ class IterationRecord:
         Control samples where the implicit acceleration scheme found no real solution and
         reused the previous sample's acceleration (docs/model.md#acceleration). 0 for other schemes.
     log : dict[str, ndarray]
-        Every entry of :data:`LOG_SIGNALS`, on the log grid, shape (n_log,) or (n_log, 2).
+        Every entry of :func:`log_signals` of the task's n axes, on the log grid, shape (n_log,) or
+        (n_log, n); n = 2 (:data:`LOG_SIGNALS`) or 3, the same n for every array.
     memory : dict[str, ndarray]
         The controller's learned memory *after* this iteration, i.e. the memory iteration j + 1
         starts from (Theta_hat_j, alpha_hat_j for C3; v_j for C2; empty for C1). Each array is

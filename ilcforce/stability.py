@@ -53,6 +53,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
+from ilcforce.records import task_axes
 from ilcforce.stats import growth_rate, median_interval
 
 #: A quantity grows in a seed when the lower end of its rate's 95% interval exceeds this (1%/iteration).
@@ -66,11 +67,14 @@ SHORT_RUN = 30
 FIRST = 3
 #: Iterations from the perturbation on left to re-learning (bounded by design, never judged).
 RELEARN = 5
-#: Quantities judged (metric columns); every learned-memory norm is added when present.
-WATCHED = ("chattering_task_x_settled", "chattering_task_y_settled")
+#: Quantities judged (metric columns, those a frame has); every learned-memory norm is added when present.
+#: Settled H per task axis: x, y of a 2-axis task, u, v, n of a 3-axis one (records.task_axes).
+WATCHED = ("chattering_task_x_settled", "chattering_task_y_settled",
+           *(f"chattering_task_{axis}_settled" for axis in task_axes(3)))
 #: Shown beside the judged quantities, never judged: H over the whole grid (the t = 0 sample included) and
 #: the error 2-norms (module docstring: at the noise floor their scatter swamps a short fit).
-SHOWN = ("chattering_task_x", "chattering_task_y", "position_error_2norm", "force_error_2norm")
+SHOWN = ("chattering_task_x", "chattering_task_y", *(f"chattering_task_{axis}" for axis in task_axes(3)),
+         "position_error_2norm", "force_error_2norm")
 UNSTABLE = "unstable learning"
 #: In place of a stability verdict where no growth rate could be fitted (too few complete iterations).
 NOT_FITTED = f"not evaluable (runs too short: fewer than {MIN_WINDOW} iterations past the learning transient)"
@@ -78,7 +82,9 @@ NOT_FITTED = f"not evaluable (runs too short: fewer than {MIN_WINDOW} iterations
 MEMORY_PREFIXES = ("memory_settled_", "memory_norm_", "memory_start_")
 #: Short names for the quantities, for flags and tables.
 SHORT = {"chattering_task_x": "H_x", "chattering_task_y": "H_y", "chattering_task_x_settled": "H_x settled",
-         "chattering_task_y_settled": "H_y settled", "position_error_2norm": "|e_P|", "force_error_2norm": "|e_F|"}
+         "chattering_task_y_settled": "H_y settled", "position_error_2norm": "|e_P|", "force_error_2norm": "|e_F|",
+         **{f"chattering_task_{a}{form}": f"H_{a}{text}" for a in task_axes(3)
+            for form, text in (("", ""), ("_settled", " settled"))}}
 #: Growth towards a limit: the increments from one iteration to the next shrink by at least this factor per
 #: iteration (the whole 95% interval of their rate below it), so what is left to grow is at most 1 / (1 -
 #: 0.98) = 50 of the latest increments. A quantity growing this way is not flagged.

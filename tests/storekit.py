@@ -144,3 +144,54 @@ def assert_same_datasets(a: Path, b: Path) -> None:
     assert sorted(da) == sorted(db)
     for name in da:
         np.testing.assert_array_equal(da[name], db[name], err_msg=name)
+
+
+#: Root attributes that differ between any two writes (clock, checkout, version): left out of
+#: :func:`store_structure`, with the root's seal over them.
+VOLATILE_ROOT_ATTRS = ("created_utc", "updated_utc", "git_commit", "git_dirty", "ilcforce_version", "attrs_crc32")
+
+
+def store_structure(path: Path) -> dict:
+    """Every object of a store: kind, type, shape, chunks, filters and attributes (type name and repr),
+    as JSON-able data; the root's :data:`VOLATILE_ROOT_ATTRS` left out."""
+    import h5py
+
+    def describe(item) -> dict:
+        out: dict = {"kind": "group" if isinstance(item, h5py.Group) else "dataset"}
+        if isinstance(item, h5py.Dataset):
+            out.update(dtype=str(item.dtype), shape=list(item.shape),
+                       maxshape=[-1 if m is None else m for m in item.maxshape],
+                       chunks=None if item.chunks is None else list(item.chunks), fletcher32=bool(item.fletcher32))
+        attrs = {}
+        for name in sorted(item.attrs):
+            if item.name == "/" and name in VOLATILE_ROOT_ATTRS:
+                continue
+            value = item.attrs[name]
+            attrs[name] = [type(value).__name__, repr(value.tolist() if isinstance(value, np.ndarray) else value)]
+        out["attrs"] = attrs
+        return out
+
+    with h5py.File(path, "r") as handle:
+        found = {"/": describe(handle)}
+        handle.visititems(lambda name, item: found.__setitem__(name, describe(item)))
+    return found
+
+
+def write_structure() -> None:
+    """``python -c "import storekit; storekit.write_structure()" OUT.json``: the structure of a
+    2-iteration :func:`write_run` store as the ilcforce on ``PYTHONPATH`` writes it
+    (tests/test_store_dimension.py says when and how)."""
+    import os
+    import sys
+    import tempfile
+
+    import ilcforce
+
+    print(f"ilcforce from {ilcforce.__file__}", file=sys.stderr)
+    tree = os.environ.get("PYTHONPATH", "").split(os.pathsep)[0]
+    if tree and not ilcforce.__file__.startswith(os.path.abspath(tree)):
+        raise SystemExit(f"ilcforce was imported from {ilcforce.__file__}, not from {tree}")
+    with tempfile.TemporaryDirectory() as folder:
+        target = Path(folder) / "results" / "paper" / "c3.h5"
+        write_run(target, 2)
+        Path(sys.argv[1]).write_text(json.dumps(store_structure(target), indent=0, sort_keys=True) + "\n")

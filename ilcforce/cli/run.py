@@ -41,12 +41,16 @@ def simulate(
     from rich.text import Text
 
     grid = table(f"{cfg.experiment.name} / {names[0]}  ->  {path}")
-    for col in ("j", "|e_P|_2 (m)", "|e_F|_2 (N)", "H_x (N)", "H_y (N)", "loop fallbacks", "status"):
+    from ilcforce.metrics import columns_dimension
+    from ilcforce.records import task_axes
+
+    axes = task_axes(columns_dimension(summary.rows[0]) if summary.rows else 2)  # H per task axis: x, y or u, v, n
+    for col in ("j", "|e_P|_2 (m)", "|e_F|_2 (N)", *(f"H_{axis} (N)" for axis in axes), "loop fallbacks", "status"):
         grid.add_column(col, justify="right", no_wrap=True)
     for row in summary.rows:
         status = row["status"] if row["status"] == "complete" else Text(f"diverged at t = {row['diverged_time']:.4f} s", "red")
         grid.add_row(str(row["iteration"]), _g(row["position_error_2norm"]), _g(row["force_error_2norm"]),
-                      _g(row["chattering_task_x"]), _g(row["chattering_task_y"]), str(row["fallback_count"]), status)
+                      *(_g(row[f"chattering_task_{axis}"]) for axis in axes), str(row["fallback_count"]), status)
     if summary.rows:
         show(grid)
     else:

@@ -20,7 +20,7 @@ from functools import cached_property
 import numpy as np
 
 from ilcforce.controllers import REGISTRY
-from ilcforce.metrics import METRIC_COLUMNS, convergence_iteration
+from ilcforce.metrics import METRIC_COLUMNS, convergence_iteration, metric_order
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
 from ilcforce.report import paper
 
@@ -57,7 +57,9 @@ class MethodMetrics:
     def from_rows(cls, rows: Mapping[int, Mapping[str, object]]) -> MethodMetrics:
         """From metrics rows keyed by iteration (:func:`ilcforce.store.read_metrics_rows`)."""
         order = sorted(rows)
-        names = [c for c in METRIC_COLUMNS if c != "iteration"]
+        # the rows' own metric columns (metric_columns of the store's task dimension), in table order
+        names = [c for c in metric_order(rows[order[0]]) if c != "iteration"] if order else \
+            [c for c in METRIC_COLUMNS if c != "iteration"]
         return cls(order, {c: np.asarray([rows[j][c] for j in order], dtype=object) for c in names})
 
     @classmethod

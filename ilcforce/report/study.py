@@ -25,6 +25,7 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.metrics import convergence_iteration
+from ilcforce.records import TASK_DIMENSIONS, task_axes
 from ilcforce.report import paper, table_write, tables
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.seedframes import SeedMetrics, split_seeds
@@ -76,6 +77,12 @@ def _diverged_at(metrics: SeedMetrics) -> float:
     return float(found[0]) if found is not None else math.nan
 
 
+#: The H columns the key numbers show when a frame has them: whole grid then settled, for the task
+#: axes x, y of a 2-axis task and u, v, n of a 3-axis one (:func:`ilcforce.records.task_axes`).
+H_COLUMNS = tuple(f"chattering_task_{axis}{form}" for n in TASK_DIMENSIONS for form in ("", "_settled")
+                  for axis in task_axes(n))
+
+
 def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -> dict[str, dict[str, list[float]]]:
     """quantity -> method -> per-seed values (NaN where the number does not exist) for ONE setting."""
     last = iterations - 1
@@ -100,8 +107,7 @@ def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -
                     jb = convergence_iteration(norms)
                     put(f"j̄ {quantity}", method, math.nan if jb is None else float(jb))
             for j_h in sorted({min(paper.CHATTERING_ITERATION, last), last}):  # settled H beside the norms
-                for column in ("chattering_task_x", "chattering_task_y", "chattering_task_x_settled",
-                               "chattering_task_y_settled"):
+                for column in H_COLUMNS:
                     if column in metrics.columns:
                         put(f"H {column.removeprefix('chattering_task_').replace('_', ' ')} at j = {j_h} (N)", method,
                             _value(metrics, column, j_h))
@@ -114,7 +120,10 @@ def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -
                           lambda m, c=column: _window_mean(m, c, 5, 9)))
     if "c1" in methods and "c3" in methods:
         j_h = min(paper.CHATTERING_ITERATION, last)
-        for axis in ("x", "y"):
+        # the task axes the frame has H of: x, y (2 axes), else u, v, n (3 axes)
+        axes = next((task_axes(n) for n in TASK_DIMENSIONS if f"chattering_task_{task_axes(n)[0]}" in frame.columns),
+                    task_axes(2))
+        for axis in axes:
             pairs.append((f"H(C1)/H(C3) {axis} at j = {j_h}", "c1", "c3",
                           lambda m, a=axis: _value(m, f"chattering_task_{a}", j_h)))
             pairs.append((f"H(C1)/H(C3) {axis} settled (judged by claim 5) at j = {j_h}", "c1", "c3",

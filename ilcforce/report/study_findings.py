@@ -18,7 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from ilcforce.config_units import axis_label
-from ilcforce.records import STATUS_DIVERGED
+from ilcforce.records import STATUS_DIVERGED, task_axes
 from ilcforce import stability
 from ilcforce.report import calibration, claim_map, claim_parts, equal_chattering
 from ilcforce.report import claims as claims_module
@@ -30,11 +30,15 @@ from ilcforce.report.table_write import markdown_table, write_csv, write_table
 from ilcforce.stats import format_interval, median_interval
 
 #: Key numbers per setting and method, read at the paper's Table 3 iteration (j = 19, or the setting's
-#: last iteration when it runs fewer): grid-independent error norms (comparable across sample times) and H.
+#: last iteration when it runs fewer): grid-independent error norms (comparable across sample times) and H,
+#: those of them a study's frame has: H per task axis (x, y of a 2-axis task; u, v, n of a 3-axis one) and
+#: H settled on the wall's normal (y; n).
 KEY_COLUMNS = (("position_error_l2", "|e_P| L2 (m s^1/2)"), ("force_error_l2", "|e_F| L2 (N s^1/2)"),
                ("position_error_2norm", "|e_P| 2-norm (m)"), ("force_error_2norm", "|e_F| 2-norm (N)"),
                ("chattering_task_x", "H_x (N)"), ("chattering_task_y", "H_y (N)"),
-               ("chattering_task_y_settled", "H_y settled (N)"))
+               ("chattering_task_y_settled", "H_y settled (N)"),
+               *((f"chattering_task_{axis}", f"H_{axis} (N)") for axis in task_axes(3)),
+               (f"chattering_task_{task_axes(3)[-1]}_settled", f"H_{task_axes(3)[-1]} settled (N)"))
 
 
 def first_divergence(frame: pd.DataFrame) -> pd.DataFrame:
@@ -110,7 +114,7 @@ def _setting_name(values: dict) -> str:
 #: short names: the error 2-norms, and H_y on the whole grid beside H_y settled (what the start
 #: mismatch does to H, the initial-velocity study's question).
 ERROR_LABELS = {"|e_P| 2-norm (m)": "|e_P|", "|e_F| 2-norm (N)": "|e_F|", "H_y (N)": "H_y",
-                "H_y settled (N)": "H_y settled"}
+                "H_y settled (N)": "H_y settled", "H_n (N)": "H_n", "H_n settled (N)": "H_n settled"}
 
 
 def error_table(settings: dict) -> list[str]:
@@ -131,7 +135,8 @@ def error_table(settings: dict) -> list[str]:
         return []
     # key numbers are read at j = 19, or at a shorter setting's last iteration
     at = f" at j = {ats.pop()}" if len(ats) == 1 else f" at j = {', '.join(sorted(ats, key=int))} (each setting's)"
-    return ["", f"Error 2-norms and H_y (whole grid and settled, t >= 20 ms){at} per setting (median [95% "
+    normal = "H_n" if any(str(k).endswith((" H_n", " H_n settled")) for row in rows for k in row) else "H_y"
+    return ["", f"Error 2-norms and {normal} (whole grid and settled, t >= 20 ms){at} per setting (median [95% "
             "bootstrap interval of the median] over seeds; |e_P| in m, |e_F| and H in N):", "",
             markdown_table(pd.DataFrame(rows))]
 

@@ -14,8 +14,7 @@ import numpy as np
 if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports none
     import pandas as pd
 
-from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
-from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS
+from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics, metric_columns
 from ilcforce.store import schema
 from ilcforce.store.seal import ATTRS_SEAL, attrs_state
 from ilcforce.store.read import (attr, cached_metrics, checked_data, control_length, frame_from_group, group_for,
@@ -34,27 +33,30 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
 
     Reads every byte of every dataset (so every checksum is verified) and checks the kind of
     every attribute and the type and shape of every dataset a reader uses: the header
-    (:data:`~ilcforce.store.schema.ROOT_ATTRIBUTES`), ``/reference``, every complete iteration
-    (attributes, log, memory, units) and, when current, the ``/metrics`` cache (one row per
-    complete iteration). A stale metrics cache is not an error: readers recompute it.
+    (:data:`~ilcforce.store.schema.ROOT_ATTRIBUTES`), the task dimension (``task_dimension``,
+    absent: 2) against the data, ``/reference``, every complete iteration (attributes, log,
+    memory, units, every array (n_log, n) for the store's n) and, when current, the ``/metrics``
+    cache (one row per complete iteration). A stale metrics cache is not an error: readers recompute it.
     """
     with open_store(path) as (handle, checked, major):
         layout = scan(handle, checked, major)
+        dimension = layout.dimension
         reference = require_group(handle, "reference", checked)
-        for name, (axes, _unit, _description) in REFERENCE_SIGNALS.items():
+        for name, (axes, _unit, _description) in schema.reference_datasets(dimension).items():
             require_dataset(reference, name, schema.signal_shape(axes, layout.n_log), checked)[()]
         n_control = control_length(handle, checked)
         if n_control is not None:
             handle[schema.CONTROL_TIME][()]
-        columns = cached_metrics(handle, checked)
+        columns = cached_metrics(handle, checked, dimension)
         fresh_rows: dict[int, dict] = {}  # metrics of each complete iteration, from the log read once here
         statuses: dict[int, str] = {}
         for j in layout.complete:
             group = handle[layout.groups[j]]
             statuses[j] = iteration_attrs(group, j, checked)["status"]
-            log = read_log(group, layout.n_log, checked, major)
+            log = read_log(group, layout.n_log, checked, major, dimension)
             if columns is not None:
-                fresh_rows[j] = iteration_metrics(record_from_group(group, j, layout.n_log, checked, major, log=log))
+                fresh_rows[j] = iteration_metrics(record_from_group(group, j, layout.n_log, checked, major, log=log,
+                                                                    dimension=dimension))
             for name, dataset in read_memory_group(group, checked, n_control).items():
                 checked_data(group, f"memory/{name}", dataset, checked, major)
         _check_units(handle, checked)
@@ -69,7 +71,7 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
                 fresh = fresh_rows.get(j)
                 if fresh is None:  # a cached row of an iteration that is not complete
                     fresh = iteration_metrics(record_from_group(handle[layout.groups[j]], j, layout.n_log, checked,
-                                                                major))
+                                                                major, dimension=dimension))
                 for column, value in fresh.items():
                     cached = columns[column][k]
                     same = (str(cached) == str(value) if column_kind(column) == "str"
@@ -172,6 +174,13 @@ def iterations(path: str | os.PathLike[str]) -> list[int]:
         return list(scan(handle, checked, major).complete)
 
 
+def read_task_dimension(path: str | os.PathLike[str]) -> int:
+    """The store's task dimension n (2 or 3): its task-space and joint-space arrays are (n_log, n)
+    with the axes of :func:`ilcforce.records.task_axes` / ``joint_axes`` of n."""
+    with open_store(path) as (handle, checked, major):
+        return scan(handle, checked, major).dimension
+
+
 def read_provenance(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Root attributes as python types (str, int, float, bool, list), :data:`ROOT_ATTRS` first.
 
@@ -188,28 +197,36 @@ def read_metrics(path: str | os.PathLike[str]) -> pd.DataFrame:
     Returns
     -------
     DataFrame
-        Indexed by ``iteration`` (int), ascending; columns :data:`ilcforce.metrics.METRIC_COLUMNS`
-        except ``iteration``, in that order (``status`` str, ``fallback_count`` int, the rest
+        Indexed by ``iteration`` (int), ascending; columns :func:`ilcforce.metrics.metric_columns`
+        of the store's task dimension (:data:`ilcforce.metrics.METRIC_COLUMNS` for 2 axes) except
+        ``iteration``, in that order (``status`` str, ``fallback_count`` int, the rest
         float). ``df.attrs["units"]`` maps column -> unit (``"1"`` dimensionless, ``""`` text),
         ``df.attrs["descriptions"]`` column -> description. Taken from the store's ``/metrics``
         cache when it is current, else computed from the stored logs.
     """
-    return metrics_frame(read_metrics_rows(path))
+    with open_store(path) as (handle, checked, major):
+        layout = scan(handle, checked, major)
+        rows = metrics_rows(handle, checked, layout)
+    return metrics_frame(rows, layout.dimension)
 
 
 def read_metrics_rows(path: str | os.PathLike[str]) -> dict[int, dict[str, object]]:
     """The rows of :func:`read_metrics` without pandas: iteration -> {column: value} for the
-    complete iterations (every column of :data:`ilcforce.metrics.METRIC_COLUMNS`)."""
+    complete iterations (every column of :func:`ilcforce.metrics.metric_columns` of the store's
+    task dimension)."""
     with open_store(path) as (handle, checked, major):
         layout = scan(handle, checked, major)
         return metrics_rows(handle, checked, layout)
 
 
-def metrics_frame(rows: dict[int, dict[str, object]]) -> pd.DataFrame:
-    """The metrics DataFrame of :func:`read_metrics` from rows keyed by iteration."""
+def metrics_frame(rows: dict[int, dict[str, object]], dimension: int = schema.DEFAULT_TASK_DIMENSION
+                  ) -> pd.DataFrame:
+    """The metrics DataFrame of :func:`read_metrics` from rows keyed by iteration, of a task of
+    ``dimension`` axes."""
     order = sorted(rows)
     data = {}
-    for column in METRIC_COLUMNS:
+    table = METRIC_COLUMNS if dimension == 2 else metric_columns(dimension)
+    for column in table:
         if column == "iteration":
             continue
         values = [rows[j][column] for j in order]
@@ -221,8 +238,8 @@ def metrics_frame(rows: dict[int, dict[str, object]]) -> pd.DataFrame:
     frame = pd.DataFrame(data, index=pd.Index(np.asarray(order, dtype=np.int64), name="iteration"))
     if "status" in frame:
         frame["status"] = frame["status"].astype(str)
-    frame.attrs["units"] = {c: METRIC_COLUMNS[c][0] for c in frame.columns}
-    frame.attrs["descriptions"] = {c: METRIC_COLUMNS[c][1] for c in frame.columns}
+    frame.attrs["units"] = {c: table[c][0] for c in frame.columns}
+    frame.attrs["descriptions"] = {c: table[c][1] for c in frame.columns}
     frame.attrs["metrics_version"] = METRICS_VERSION
     return frame
 
@@ -235,8 +252,10 @@ def read_iteration(path: str | os.PathLike[str], j: int) -> pd.DataFrame:
     DataFrame, shape (n_log, 32)
         Index ``time`` (s): the iteration's logged time; samples after a divergence (NaN in the
         log) take the log-grid time from ``/reference/time`` so the index has no gaps. One
-        column per signal axis of :data:`~ilcforce.records.LOG_SIGNALS`, named
-        ``<signal>_<axis>`` (``position_x``, ``torque_1``) or ``<signal>`` for a scalar signal.
+        column per signal axis of :func:`~ilcforce.records.log_signals` of the store's task
+        dimension (:data:`~ilcforce.records.LOG_SIGNALS` for 2 axes; 3 axes: n_log x 44), named
+        ``<signal>_<axis>`` (``position_x``, ``position_u``, ``torque_1``) or ``<signal>`` for a
+        scalar signal.
         ``df.attrs``: ``units`` (column -> unit, including ``time``), ``iteration``,
         ``status``, ``fallback_count``, ``diverged_time`` (s), ``diverged_reason``.
     """
@@ -248,7 +267,8 @@ def read_iteration(path: str | os.PathLike[str], j: int) -> pd.DataFrame:
         time = checked_data(group, "log/time", require_dataset(log, "time", (layout.n_log,), checked), checked, major)
         reference_time = handle["reference/time"][()]
         time = np.where(np.isfinite(time), time, reference_time)
-        frame = frame_from_group(log, LOG_SIGNALS, time, layout.n_log, checked, (group, "log/", major))
+        frame = frame_from_group(log, schema.log_datasets(layout.dimension), time, layout.n_log, checked,
+                                 (group, "log/", major))
     for key in ("iteration", "status", "fallback_count", "diverged_time", "diverged_reason"):
         frame.attrs[key] = attrs[key]
     return frame
@@ -307,12 +327,14 @@ def read_memory_units(path: str | os.PathLike[str], j: int) -> dict[str, str]:
 
 def read_reference(path: str | os.PathLike[str]) -> pd.DataFrame:
     """The reference trajectories: DataFrame indexed by ``time`` (s), columns
-    ``<signal>_<axis>`` of :data:`~ilcforce.records.REFERENCE_SIGNALS` (e.g.
-    ``position_desired_x``), ``df.attrs["units"]`` column -> unit. Shape (n_log, 8)."""
+    ``<signal>_<axis>`` of :func:`~ilcforce.records.reference_signals` of the store's task
+    dimension (e.g. ``position_desired_x``; ``position_desired_u`` for 3 axes), ``df.attrs["units"]``
+    column -> unit. Shape (n_log, 8) for 2 axes, (n_log, 12) for 3."""
     with open_store(path) as (handle, checked, major):
         layout = scan(handle, checked, major)
         reference = require_group(handle, "reference", checked)
-        return frame_from_group(reference, REFERENCE_SIGNALS, reference["time"][()], layout.n_log, checked)
+        return frame_from_group(reference, schema.reference_datasets(layout.dimension), reference["time"][()],
+                                layout.n_log, checked)
 
 
 def read_control_time(path: str | os.PathLike[str]) -> np.ndarray | None:

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from ilcforce.samerun import DifferentRun
-from ilcforce.records import REFERENCE_SIGNALS
+from ilcforce.store import schema
 from ilcforce.store.provenance import SameRunCheck
 from ilcforce.store.read import open_store
 from ilcforce.store.safeio import (StoreError, check_regular_file, dead_writers_copies, is_temporary_name,
@@ -128,8 +128,13 @@ def check_resumable(path: Path, *, experiment: str, method: str, seed: int, same
         same_run(provenance)
     except (StoreError, DifferentRun) as error:
         raise StoreError(f"{path}: cannot resume: {error}; use --overwrite to start again") from None
+    stored_dimension = int(provenance.get(schema.TASK_DIMENSION_ATTR, schema.DEFAULT_TASK_DIMENSION))
+    dimension = int(np.shape(reference["force_desired"])[1])
+    if stored_dimension != dimension:
+        raise StoreError(f"{path}: cannot resume: the stored run has {stored_dimension} task axes, this run "
+                         f"{dimension}; use --overwrite to start again")
     stored_reference = read_reference(path)
-    for name, (axes, _unit, _description) in REFERENCE_SIGNALS.items():
+    for name, (axes, _unit, _description) in schema.reference_datasets(dimension).items():
         if name == "time":
             stored = stored_reference.index.to_numpy(dtype=np.float64)
         else:

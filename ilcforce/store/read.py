@@ -22,7 +22,7 @@ import numpy as np
 if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports none
     import pandas as pd
 
-from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics
+from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics, metric_columns
 from ilcforce.records import IterationRecord
 from ilcforce.store import schema
 from ilcforce.store.seal import ATTRS_SEAL, attrs_state
@@ -51,12 +51,14 @@ def column_names(signal: str, axes: tuple[str, ...] | None) -> list[str]:
 
 @dataclass(frozen=True)
 class Layout:
-    """What a scan learnt about an open store: log length, complete iterations and their groups."""
+    """What a scan learnt about an open store: log length, complete iterations and their groups, and
+    its task dimension (n task axes and joints: its datasets are (n_log, n))."""
 
     n_log: int
     complete: tuple[int, ...]
     groups: dict[int, str]
     major: int
+    dimension: int = schema.DEFAULT_TASK_DIMENSION
 
 
 #: Largest store a reader copies into memory under its shared lock and then reads without the lock,
@@ -223,12 +225,35 @@ def is_complete(group: h5py.Group) -> bool:
     return schema.kind_matches(flag, "bool") and bool(py(flag))
 
 
+def task_dimension(handle: h5py.File, reference: h5py.Group, n_log: int, path: Path) -> int:
+    """The store's task dimension n: its root attribute :data:`~ilcforce.store.schema.TASK_DIMENSION_ATTR`
+    (absent: 2), checked to be a known dimension and the width of ``/reference/force_desired``
+    (a shape, no data read); StoreError (one line) otherwise."""
+    value = handle.attrs.get(schema.TASK_DIMENSION_ATTR)
+    if value is None:
+        dimension, said = schema.DEFAULT_TASK_DIMENSION, f"no root attribute {schema.TASK_DIMENSION_ATTR} (2 axes)"
+    elif not schema.known_dimension(value):
+        shown = str(py(value))[:40]
+        raise StoreError(f"{path}: root attribute {schema.TASK_DIMENSION_ATTR} is {shown!r}, expected 2 or 3 "
+                         "(the number of task axes)")
+    else:
+        dimension = int(py(value))
+        said = f"root attribute {schema.TASK_DIMENSION_ATTR} = {dimension}"
+    force = require_dataset(reference, "force_desired", None, path)
+    if force.shape != (n_log, dimension):
+        raise StoreError(f"{path}: {said} but /reference/force_desired has shape {force.shape}, expected "
+                         f"{(n_log, dimension)}: the store's dimension does not match its data")
+    return dimension
+
+
 def scan(handle: h5py.File, path: Path, major: int) -> Layout:
-    """Log length and complete iterations (attributes only): what every reader needs."""
+    """Log length, task dimension and complete iterations (attributes and shapes only): what every
+    reader needs."""
     reference = require_group(handle, "reference", path)
     time = require_dataset(reference, "time", None, path)
     if time.ndim != 1 or time.shape[0] < 2:
         raise StoreError(f"{path}: dataset /reference/time has shape {time.shape}, expected (n_log,) with n_log >= 2")
+    dimension = task_dimension(handle, reference, int(time.shape[0]), path)
     iterations = require_group(handle, "iterations", path)
     complete: dict[int, str] = {}
     for name in iterations:
@@ -239,7 +264,7 @@ def scan(handle: h5py.File, path: Path, major: int) -> Layout:
             raise StoreError(f"{path}: unexpected iteration group /iterations/{name}")
         complete[int(name)] = group.name
     ordered = tuple(sorted(complete))
-    return Layout(int(time.shape[0]), ordered, {j: complete[j] for j in ordered}, major)
+    return Layout(int(time.shape[0]), ordered, {j: complete[j] for j in ordered}, major, dimension)
 
 
 def group_for(layout: Layout, j: int, path: Path) -> str:
@@ -261,11 +286,13 @@ def iteration_attrs(group: h5py.Group, j: int, path: Path) -> dict[str, Any]:
     return out
 
 
-def read_log(group: h5py.Group, n_log: int, path: Path, major: int) -> dict[str, np.ndarray]:
-    """Every log signal of an iteration group, type-, shape- and (schema >= 2) checksum-checked."""
+def read_log(group: h5py.Group, n_log: int, path: Path, major: int,
+             dimension: int = schema.DEFAULT_TASK_DIMENSION) -> dict[str, np.ndarray]:
+    """Every log signal of an iteration group of a store of ``dimension`` task axes, type-, shape-
+    and (schema >= 2) checksum-checked."""
     log = require_group(group, "log", path)
     out = {}
-    for name, (axes, _unit, _description) in schema.LOG_DATASETS.items():
+    for name, (axes, _unit, _description) in schema.log_datasets(dimension).items():
         out[name] = checked_data(group, f"log/{name}",
                                  require_dataset(log, name, schema.signal_shape(axes, n_log), path), path, major)
     return out
@@ -300,17 +327,20 @@ def control_length(handle: h5py.File, path: Path) -> int | None:
 
 
 def record_from_group(group: h5py.Group, j: int, n_log: int, path: Path, major: int,
-                      log: dict[str, np.ndarray] | None = None) -> IterationRecord:
+                      log: dict[str, np.ndarray] | None = None,
+                      dimension: int = schema.DEFAULT_TASK_DIMENSION) -> IterationRecord:
     """An :class:`IterationRecord` (without memory) rebuilt from a stored iteration (``log``: its
-    :func:`read_log`, if the caller has read it already)."""
+    :func:`read_log`, if the caller has read it already) of a store of ``dimension`` task axes."""
     a = iteration_attrs(group, j, path)
     return IterationRecord(iteration=j, status=a["status"], diverged_time=a["diverged_time"],
                            diverged_reason=a["diverged_reason"], fallback_count=a["fallback_count"],
-                           log=read_log(group, n_log, path, major) if log is None else log)
+                           log=read_log(group, n_log, path, major, dimension) if log is None else log)
 
 
-def cached_metrics(handle: h5py.File, path: Path) -> dict[str, np.ndarray] | None:
-    """The /metrics columns if the cache is current (same version, every column); else None."""
+def cached_metrics(handle: h5py.File, path: Path,
+                   dimension: int = schema.DEFAULT_TASK_DIMENSION) -> dict[str, np.ndarray] | None:
+    """The /metrics columns (:func:`ilcforce.metrics.metric_columns` of the store's ``dimension``) if
+    the cache is current (same version, every column); else None."""
     metrics = handle.get(schema.METRICS_GROUP)
     if not isinstance(metrics, h5py.Group):
         return None
@@ -318,7 +348,7 @@ def cached_metrics(handle: h5py.File, path: Path) -> dict[str, np.ndarray] | Non
     if version is None or not schema.kind_matches(version, "int") or int(version) != METRICS_VERSION:
         return None
     columns: dict[str, np.ndarray] = {}
-    for column in METRIC_COLUMNS:
+    for column in (METRIC_COLUMNS if dimension == 2 else metric_columns(dimension)):
         dataset = metrics.get(column)
         if not isinstance(dataset, h5py.Dataset) or dataset.ndim != 1:
             return None
@@ -335,7 +365,7 @@ def cached_metrics(handle: h5py.File, path: Path) -> dict[str, np.ndarray] | Non
 
 def metrics_rows(handle: h5py.File, path: Path, layout: Layout) -> dict[int, dict[str, object]]:
     """One metrics row per complete iteration: from the cache when current, else from the logs."""
-    columns = cached_metrics(handle, path)
+    columns = cached_metrics(handle, path, layout.dimension)
     rows: dict[int, dict[str, object]] = {}
     if columns is not None:
         for k, j in enumerate(columns["iteration"]):
@@ -345,7 +375,8 @@ def metrics_rows(handle: h5py.File, path: Path, layout: Layout) -> dict[int, dic
         if j in rows:
             out[j] = rows[j]
         else:  # stale or missing cache: the one definition, applied to the stored logs
-            record = record_from_group(handle[layout.groups[j]], j, layout.n_log, path, layout.major)
+            record = record_from_group(handle[layout.groups[j]], j, layout.n_log, path, layout.major,
+                                       dimension=layout.dimension)
             out[j] = iteration_metrics(record)
     return out
 

@@ -81,6 +81,12 @@ class Run:
         return str(self.provenance["experiment"])
 
     @property
+    def task_dimension(self) -> int:
+        """n, the run's task axes and joints (2 or 3): its logs are (n_log, n), its task axes
+        :func:`ilcforce.records.task_axes` of n."""
+        return self._current("task_dimension", lambda: access.read_task_dimension(self.path))
+
+    @property
     def iterations(self) -> list[int]:
         """Complete iterations, ascending."""
         return list(self._current("iterations", lambda: access.iterations(self.path)))
@@ -136,10 +142,10 @@ class Run:
         log grid), memory, status; ``.to_pandas()``."""
         j = self._number(j)
         frame = access.read_iteration(self.path, j)
-        from ilcforce.records import LOG_SIGNALS
+        from ilcforce.records import log_signals
 
         log: dict[str, np.ndarray] = {"time": frame.index.to_numpy()}
-        for signal, (axes, _unit, _description) in LOG_SIGNALS.items():
+        for signal, (axes, _unit, _description) in log_signals(self.task_dimension).items():
             if signal == "time":
                 continue
             columns = [signal] if axes is None else [f"{signal}_{a}" for a in axes]

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS
+from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, TASK_DIMENSIONS, log_signals, reference_signals
 
 SCHEMA_NAME = "ilcforce.store"
 #: The study store's schema name (ilcforce/store/study.py); here so that a run-store reader can name it.
@@ -79,6 +79,16 @@ ROOT_ATTRIBUTES: dict[str, AttrSpec] = {
 }
 ROOT_ATTRS = tuple(ROOT_ATTRIBUTES)
 
+#: Root attribute holding a run's task dimension n (int, 3): the store's task-space and joint-space
+#: datasets are (n_log, n) with axes :func:`ilcforce.records.task_axes` / ``joint_axes`` of n, and its
+#: /metrics has :func:`ilcforce.metrics.metric_columns` of n. Written only when n is not 2: a store
+#: without it is a 2-axis store (every store written before n axes, and every 2-axis store since,
+#: byte for byte as before). Not in :data:`ROOT_ATTRIBUTES`, whose names every store holds in order.
+#: Readers check it against the width of ``/reference/force_desired``.
+TASK_DIMENSION_ATTR = "task_dimension"
+#: The task dimension of a store without :data:`TASK_DIMENSION_ATTR`.
+DEFAULT_TASK_DIMENSION = 2
+
 #: Attributes of every complete iteration group ``/iterations/<jjjj>``.
 ITERATION_ATTRIBUTES: dict[str, AttrSpec] = {
     "iteration": AttrSpec("int", "j, equal to the group name"),
@@ -97,9 +107,25 @@ def signal_shape(axes: tuple[str, ...] | None, n: int) -> tuple[int, ...]:
 
 
 #: Datasets: group -> name -> (axes, unit, description); shapes from :func:`signal_shape` on the
-#: log grid (``n_log = len(/reference/time)``). All float64, Fletcher-32 checksummed.
+#: log grid (``n_log = len(/reference/time)``). All float64, Fletcher-32 checksummed. These are a
+#: 2-axis store's; :func:`reference_datasets` and :func:`log_datasets` give a store's of n axes.
 REFERENCE_DATASETS = REFERENCE_SIGNALS
 LOG_DATASETS = LOG_SIGNALS
+
+
+def reference_datasets(n: int) -> dict[str, tuple[tuple[str, ...] | None, str, str]]:
+    """The /reference datasets of a store of ``n`` task axes (:data:`REFERENCE_DATASETS` for 2)."""
+    return reference_signals(n)
+
+
+def log_datasets(n: int) -> dict[str, tuple[tuple[str, ...] | None, str, str]]:
+    """The ``log/`` datasets of an iteration of a store of ``n`` task axes (:data:`LOG_DATASETS` for 2)."""
+    return log_signals(n)
+
+
+def known_dimension(value: Any) -> bool:
+    """Whether a :data:`TASK_DIMENSION_ATTR` value is an int of :data:`ilcforce.records.TASK_DIMENSIONS`."""
+    return kind_matches(value, "int") and not isinstance(value, (bool, np.bool_)) and int(value) in TASK_DIMENSIONS
 
 #: Learned memory ``/iterations/<jjjj>/memory/<name>``: float64, (n_control,) or
 #: (n_control, width); attrs ``units``, ``description`` and, for a matrix, ``columns``

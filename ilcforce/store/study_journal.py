@@ -6,7 +6,8 @@ study's table, so a record is used only when its seal matches (:mod:`.records`),
 the ``study_id`` of the store beside it (a journal copied from another study is refused record by
 record), its ``setting_digest`` is sha256 of the study's simulation fingerprint and the stored
 setting's ``config_json``, its key is a cell some run of the study planned and is its file name,
-and every field has its type, size and range (metric rows: the study's columns, one per
+and every field has its type, size and range (metric rows: the metric columns of one task dimension,
+:func:`ilcforce.metrics.metric_columns` of 2 or 3, and memory norms, one per
 iteration ``0 .. n - 1``, ``n`` at most the setting's ``experiment.iterations``). Readers skip a
 refused record and name it (:func:`scan`); the driver moves it aside into ``.quarantine/`` and its
 cell runs again. Records of an older ilcforce (no checksum) are refused like damaged ones.
@@ -23,7 +24,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
-from ilcforce.metrics import METRIC_COLUMNS, column_kind
+from ilcforce.metrics import column_kind, columns_dimension
 from ilcforce.store import records
 from ilcforce.store.records import RecordError  # noqa: F401 - the journal's name for it
 
@@ -177,10 +178,10 @@ def _check_rows(rows, state: str, most: int) -> None:
         keys = set(row)
         if columns is None:
             columns = keys
-            missing = sorted(set(METRIC_COLUMNS) - keys)
-            extra = sorted(k for k in keys if k not in METRIC_COLUMNS and not _MEMORY_COLUMN.fullmatch(str(k)))
-            if missing or extra:
-                raise RecordError(f"row 0 lacks {missing[:3]} or has unknown columns {extra[:3]}")
+            try:  # the metric columns of one task dimension (metrics.metric_columns), then memory norms
+                columns_dimension(k for k in keys if not _MEMORY_COLUMN.fullmatch(str(k)))
+            except ValueError as error:
+                raise RecordError(f"row 0 {error}") from None
         elif keys != columns:
             raise RecordError(f"row {j} has other columns than row 0")
         if not _is_int(row["iteration"]) or row["iteration"] != j:

@@ -20,7 +20,6 @@ from collections.abc import Mapping
 import h5py
 import numpy as np
 
-from ilcforce.records import LOG_SIGNALS
 from ilcforce.store import schema
 from ilcforce.store.seal import seal_attrs
 
@@ -36,18 +35,21 @@ MemorySpec = tuple[tuple[str, tuple[int, ...], str, tuple[str, ...] | None], ...
 
 
 class IterationTemplate:
-    """An iteration group (log + memory datasets with their attributes, no data) to copy."""
+    """An iteration group (log + memory datasets with their attributes, no data) to copy; the log of
+    a task of ``dimension`` axes (:func:`ilcforce.store.schema.log_datasets`)."""
 
-    def __init__(self, n_log: int, memory: MemorySpec) -> None:
+    def __init__(self, n_log: int, memory: MemorySpec, dimension: int = schema.DEFAULT_TASK_DIMENSION) -> None:
         self.n_log = n_log
         self.memory = memory
-        self.names = [f"log/{s}" for s in LOG_SIGNALS] + [f"memory/{m[0]}" for m in memory]
+        self.dimension = dimension
+        self.signals = schema.log_datasets(dimension)
+        self.names = [f"log/{s}" for s in self.signals] + [f"memory/{m[0]}" for m in memory]
         self._file = h5py.File(f"ilcforce-template-{id(self)}", "w", driver="core", backing_store=False,
                                libver=schema.LIBVER)
         group = self._file.create_group(_NAME.decode())
         group.attrs["crc32_datasets"] = self.names
         log = group.create_group("log")
-        for signal, (axes, unit, description) in LOG_SIGNALS.items():
+        for signal, (axes, unit, description) in self.signals.items():
             self._dataset(log, signal, schema.signal_shape(axes, n_log), unit, description, "axes", axes)
         memory_group = group.create_group("memory")
         for name, shape, unit, columns in memory:
@@ -74,7 +76,7 @@ class IterationTemplate:
         group_id = h5py.h5g.open(handle.id, path.encode())
         sums = np.empty(len(self.names), dtype=np.uint32)
         k = 0
-        for folder, items in ((b"log", ((s, log[s]) for s in LOG_SIGNALS)),
+        for folder, items in ((b"log", ((s, log[s]) for s in self.signals)),
                               (b"memory", ((m[0], memory[m[0]]) for m in self.memory))):
             folder_id = h5py.h5g.open(group_id, folder)
             for name, data in items:

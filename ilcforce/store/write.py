@@ -18,7 +18,7 @@ import numpy as np
 import ilcforce
 from ilcforce import stops
 from ilcforce.metrics import iteration_metrics
-from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
+from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, TASK_DIMENSIONS, IterationRecord
 from ilcforce.store import commit, metrics_cache, schema
 from ilcforce.store.provenance import SameRunCheck, git_state, text, utc_now
 from ilcforce.store.prepare import (check_replaceable, check_resumable, clean_leftovers, existing_refusal, make_parent,
@@ -48,6 +48,18 @@ def _dataset(group: h5py.Group, name: str, data: np.ndarray, units: str, descrip
     if axes is not None:
         attrs[columns_attr] = list(axes)
     seal_attrs(dataset)
+
+
+def reference_dimension(reference: Mapping[str, np.ndarray]) -> int:
+    """The task dimension n of a run from its reference: the width of ``force_desired`` (n_log, n),
+    one of :data:`ilcforce.records.TASK_DIMENSIONS`; ValueError (one line) otherwise."""
+    if "force_desired" not in reference:
+        raise ValueError("reference is missing signal 'force_desired'")
+    shape = np.shape(reference["force_desired"])
+    if len(shape) != 2 or shape[1] not in TASK_DIMENSIONS:
+        raise ValueError(f"reference['force_desired'] has shape {shape}, expected (n_log, n) with n task axes, n in "
+                         f"{TASK_DIMENSIONS}")
+    return int(shape[1])
 
 
 class StoreWriter:
@@ -88,11 +100,14 @@ class StoreWriter:
         if "time" not in reference or np.ndim(reference["time"]) != 1 or np.shape(reference["time"])[0] < 2:
             raise ValueError("reference['time'] must have shape (n_log,) with n_log >= 2")
         self._n_log = int(np.shape(reference["time"])[0])
-        unknown = sorted(set(reference) - set(REFERENCE_SIGNALS))
+        self._dimension = reference_dimension(reference)
+        self._reference_signals = schema.reference_datasets(self._dimension)
+        self._log_signals = schema.log_datasets(self._dimension)
+        unknown = sorted(set(reference) - set(self._reference_signals))
         if unknown:
             raise ValueError(f"reference has unknown signal {unknown[0]!r} (not in records.REFERENCE_SIGNALS)")
         self._reference = {name: _signal_array(reference, "reference", name, axes, self._n_log).copy()
-                           for name, (axes, _u, _d) in REFERENCE_SIGNALS.items()}
+                           for name, (axes, _u, _d) in self._reference_signals.items()}
         self._control_time = None if control_time is None else np.ascontiguousarray(control_time, dtype=np.float64)
         self._lock_fd: int | None = None
         self._entered = self._finished = self._file_is_ours = self._appended = False
@@ -253,7 +268,7 @@ class StoreWriter:
         if self._template is None or self._template.memory != spec or self._template.n_log != self._n_log:
             if self._template is not None:
                 self._template.close()
-            self._template = IterationTemplate(self._n_log, spec)
+            self._template = IterationTemplate(self._n_log, spec, self._dimension)
         return self._template
 
     def finish(self, status: str) -> None:
@@ -308,11 +323,11 @@ class StoreWriter:
     def _check_record(self, record: IterationRecord) -> tuple[dict, dict, dict]:
         if record.status not in (STATUS_COMPLETE, STATUS_DIVERGED):
             raise ValueError(f"record.status must be {STATUS_COMPLETE!r} or {STATUS_DIVERGED!r}, got {record.status!r}")
-        unknown = sorted(set(record.log) - set(LOG_SIGNALS))
+        unknown = sorted(set(record.log) - set(self._log_signals))
         if unknown:
             raise ValueError(f"record.log has unknown signal {unknown[0]!r} (not in records.LOG_SIGNALS)")
         log = {name: _signal_array(record.log, "record.log", name, axes, self._n_log)
-               for name, (axes, _u, _d) in LOG_SIGNALS.items()}
+               for name, (axes, _u, _d) in self._log_signals.items()}
         memory: dict[str, np.ndarray] = {}
         for key, values in record.memory.items():
             if not key or "/" in key or key == "." or not key.isprintable():
@@ -340,14 +355,16 @@ class StoreWriter:
         attrs["seed"] = self._seed
         attrs["run_state"] = "running"
         self._write_invocation_attrs(handle)
+        if self._dimension != schema.DEFAULT_TASK_DIMENSION:  # a 2-axis store stays as it was: no attribute
+            attrs[schema.TASK_DIMENSION_ATTR] = self._dimension
         reference = handle.create_group("reference")
-        for name, (axes, unit, description) in REFERENCE_SIGNALS.items():
+        for name, (axes, unit, description) in self._reference_signals.items():
             _dataset(reference, name, self._reference[name], unit, description, axes)
         if self._control_time is not None:
             _dataset(handle, schema.CONTROL_TIME, self._control_time, "s",
                      "control grid t_k = k Ts: the time axis of every learned memory")
         handle.create_group("iterations")
-        metrics_cache.create(handle)
+        metrics_cache.create(handle, self._dimension)
 
     def _write_invocation_attrs(self, handle: h5py.File) -> None:
         handle.attrs["command"] = self._command

@@ -5,8 +5,9 @@ list (``[[study.settings]]``) ``setting_label`` (the setting's label), then the 
 by their config key (e.g. ``simulation.sample_time``: the swept keys, or the union of the listed
 settings' keys, each setting carrying its resolved value in every one; none for a study of one
 setting), ``seed``, ``method``,
-``iteration``, then the metric columns of :data:`ilcforce.metrics.METRIC_COLUMNS` in their order,
-then any further columns (a study's ``memory_norm_*``). A run store is the one-setting, one-seed
+``iteration``, then the metric columns in the order of :func:`ilcforce.metrics.metric_order` (a 2-axis
+study's :data:`~ilcforce.metrics.METRIC_COLUMNS`, a 3-axis one's :func:`~ilcforce.metrics.metric_columns`
+of 3), then any further columns (a study's ``memory_norm_*``). A run store is the one-setting, one-seed
 case. Failed cells have no rows (see :attr:`StudyResults.cells`).
 
 Units. The frame :func:`tidy_metrics` returns carries them as ``frame.attrs["units"]`` (column -> unit) and
@@ -27,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ilcforce.metrics import METRIC_COLUMNS
+from ilcforce.metrics import KNOWN_METRIC_COLUMNS, metric_order
 from ilcforce.store.safeio import HDF5_SIGNATURE
 from ilcforce.store.study import StudyStoreError, is_study_store, read_tables
 
@@ -104,9 +105,9 @@ class StudyResults:
 
 
 def _order(frame: pd.DataFrame, leading: list[str], methods: list[str] | None = None) -> pd.DataFrame:
-    metric_order = [c for c in METRIC_COLUMNS if c != "iteration" and c in frame.columns]
-    rest = sorted(c for c in frame.columns if c not in (*leading, "seed", "method", "iteration", *metric_order))
-    frame = frame[[*leading, "seed", "method", "iteration", *metric_order, *rest]]
+    metrics = [c for c in metric_order(frame.columns) if c != "iteration"]
+    rest = sorted(c for c in frame.columns if c not in (*leading, "seed", "method", "iteration", *metrics))
+    frame = frame[[*leading, "seed", "method", "iteration", *metrics, *rest]]
     for column in _INT_COLUMNS:
         if column in frame.columns and len(frame):
             frame[column] = frame[column].astype(np.int64)
@@ -131,8 +132,8 @@ def column_units(columns) -> tuple[dict[str, str], dict[str, str]]:
         column = str(column)
         if column in fixed:
             units[column], descriptions[column] = fixed[column]
-        elif column in METRIC_COLUMNS:
-            units[column], descriptions[column] = METRIC_COLUMNS[column]
+        elif column in KNOWN_METRIC_COLUMNS:
+            units[column], descriptions[column] = KNOWN_METRIC_COLUMNS[column]
         elif (kind := next((k for k in _MEMORY_NORMS if column.startswith(k)), None)) is not None \
                 and column.removeprefix(kind) in memory_units:
             name = column.removeprefix(kind)
