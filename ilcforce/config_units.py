@@ -17,9 +17,11 @@ SECTION_UNITS: dict[str, str] = {
     "plant.perturbation.parameter": "", "plant.perturbation.factor": "1",
     "plant.perturbation.from_iteration": "1",
     "wall.position": "m", "wall.stiffness": "N/m", "wall.force_sign": "",
+    "wall.normal": "1", "wall.tangent": "1",  # directions (normalised)
     "reference.duration": "s", "reference.x_amplitude": "m", "reference.x_offset": "m",
     "reference.x_frequency": "Hz", "reference.force_sine_amplitude": "N", "reference.force_sine_frequency": "Hz",
     "reference.force_exp_amplitude": "N",
+    "reference.v_amplitude": "m", "reference.v_offset": "m", "reference.v_frequency": "Hz",
     "simulation.sample_time": "s", "simulation.substeps": "1", "simulation.log_every": "1",
     "simulation.acceleration": "", "simulation.filter_hz": "Hz", "simulation.torque_bound": "N m",
     "simulation.initial_position": "m", "simulation.initial_velocity": "", "simulation.implicit_fallback": "",
