@@ -129,10 +129,11 @@ def _print_comparison(rows: list[dict], title: str) -> None:
     """One row per quantity, one column per method. Where the methods do not fit the output's width
     (:func:`~ilcforce.cli.base.fits`), they are shown in as many tables as it takes, each with the
     row labels: a number is never split across lines."""
-    from ilcforce.report.comparison import COMPARISON_COLUMNS
+    from ilcforce.report.comparison import comparison_columns
 
+    n = 3 if rows and "chattering_task_u" in rows[0] else 2  # the task's axes: one H row each
     quantities = [(name, f"{name} ({unit})" if unit not in ("", "-", "1") else name)
-                  for name, unit in COMPARISON_COLUMNS.items() if name != "method"]
+                  for name, unit in comparison_columns(n).items() if name != "method"]
     cells = [[_g(row[name]) for name, _ in quantities] for row in rows]
     label_width = max(len(label) for _, label in quantities)
     widths = [max(len(str(row["method"])), *(len(c) for c in col)) for row, col in zip(rows, cells)]

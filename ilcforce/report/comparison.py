@@ -21,7 +21,7 @@ import numpy as np
 
 from ilcforce.controllers import REGISTRY
 from ilcforce.metrics import METRIC_COLUMNS, convergence_iteration, metric_order
-from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
+from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, task_axes
 from ilcforce.report import paper
 
 #: Last iteration that may be the convergence iteration j̄, and the window whose median defines
@@ -124,20 +124,22 @@ class MethodMetrics:
         return int(np.nansum(numbers)) if numbers else 0
 
 
-def _comparison_columns() -> dict[str, str]:
-    """The comparison's columns in order, each with its unit ("" when it has none)."""
+def comparison_columns(n: int = 2) -> dict[str, str]:
+    """The comparison's columns in order, each with its unit ("" when it has none), for a task of ``n``
+    axes (the chattering H per task axis: x, y; or u, v, n)."""
     columns = {"method": "", "iterations": ""}
     for quantity, unit in (("position", "m"), ("force", "N")):
         columns[f"jbar_{quantity}"] = ""
         for at in ("j0", "jbar", *(f"j{j}" for j in COMPARISON_ITERATIONS[1:])):
             columns[f"{quantity}_error_2norm_{at}"] = unit
-    columns.update({"chattering_iteration": "", "chattering_task_x": "N", "chattering_task_y": "N",
-                    "divergence": "", "diverged_iteration": "", "diverged_time": "s", "fallback_total": ""})
+    columns["chattering_iteration"] = ""
+    columns.update({f"chattering_task_{axis}": "N" for axis in task_axes(n)})
+    columns.update({"divergence": "", "diverged_iteration": "", "diverged_time": "s", "fallback_total": ""})
     return columns
 
 
-#: The comparison's columns, in order: name -> unit ("" when it has none).
-COMPARISON_COLUMNS = _comparison_columns()
+#: The comparison's columns of a 2-axis task, in order: name -> unit ("" when it has none).
+COMPARISON_COLUMNS = comparison_columns()
 #: Integer columns (None where the iteration does not exist: pandas' nullable Int64 in a frame).
 INTEGER_COLUMNS = ("jbar_position", "jbar_force", "chattering_iteration", "diverged_iteration")
 
@@ -165,7 +167,7 @@ def comparison_rows(metrics_by_method: Mapping[str, MethodMetrics]) -> list[dict
                 row[f"{column}_j{j}"] = m.value_at(column, j)
         j_h = m.chattering_iteration()
         row["chattering_iteration"] = j_h
-        for axis in ("x", "y"):
+        for axis in task_axes(3 if "chattering_task_u" in m.columns else 2):
             column = f"chattering_task_{axis}"
             row[column] = math.nan if j_h is None else m.value_at(column, j_h)
         row["divergence"] = m.describe_divergence()

@@ -17,8 +17,8 @@ import numpy as np
 import pandas as pd
 
 from ilcforce.report.comparison import (COMPARISON_COLUMNS, COMPARISON_ITERATIONS, INTEGER_COLUMNS,  # noqa: F401
-                                 JBAR_FACTOR, JBAR_LAST, JBAR_WINDOW, MethodMetrics, comparison_rows,
-                                 ordered_methods)
+                                 JBAR_FACTOR, JBAR_LAST, JBAR_WINDOW, MethodMetrics, comparison_columns,
+                                 comparison_rows, ordered_methods)
 from ilcforce.controllers import PAPER_METHODS
 from ilcforce.metrics import convergence_iteration
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED
@@ -246,10 +246,11 @@ def comparison_frame(metrics_by_method: Mapping[str, pd.DataFrame]) -> pd.DataFr
     ``attrs["units"]`` names the unit of each column that has one.
     """
     rows = comparison_rows({m: MethodMetrics.from_frame(f) for m, f in metrics_by_method.items()})
-    frame = pd.DataFrame(rows, columns=list(COMPARISON_COLUMNS))
+    columns = comparison_columns(3 if rows and "chattering_task_u" in rows[0] else 2)  # H per task axis
+    frame = pd.DataFrame(rows, columns=list(columns))
     for name in INTEGER_COLUMNS:
         frame[name] = frame[name].astype("Int64")
-    frame.attrs["units"] = {name: unit for name, unit in COMPARISON_COLUMNS.items() if unit}
+    frame.attrs["units"] = {name: unit for name, unit in columns.items() if unit}
     return frame
 
 
