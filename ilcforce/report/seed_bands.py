@@ -33,7 +33,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from ilcforce.records import STATUS_DIVERGED
+from ilcforce.records import STATUS_DIVERGED, task_axes
 from ilcforce.report import paper, tables
 from ilcforce.report.figures import TRACKING_ITERATIONS, _color, _label
 from ilcforce.report.figure_files import save_figure
@@ -176,10 +176,14 @@ def figure_fig5_over_seeds(frame: pd.DataFrame, flags: Mapping[str, str] | None 
 def figure_input_over_seeds(frame: pd.DataFrame, axis: str, flags: Mapping[str, str] | None = None,
                             perturbation_iteration: int | None = None,
                             perturbation_label: str = "m3 x 1.4") -> Figure | str:
-    """Fig. 6 (``axis="x"``) or 7 (``"y"``) over seeds: H of Delta tau along ``axis`` against j, three forms."""
+    """Fig. 6 (``axis="x"``) or 7 (``"y"``) over seeds: H of Delta tau along ``axis`` against j, three forms.
+    A 3-axis task's in-plane axes ``"u"``, ``"v"`` are Fig. 6's kind, its normal ``"n"`` Fig. 7's."""
     methods = [m for m in INPUT_METHODS if m in set(frame["method"])]
     if not methods:
         return "no C1 or C3 cells in the study"
+    if f"chattering_task_{axis}" not in frame.columns:
+        return f"the study's task has no axis {axis}"
+    number = 7 if axis in ("y", "n") else 6  # the force axis: Fig. 7's; a position axis: Fig. 6's
     frame = frame[frame["method"].isin(methods)]
     n_seeds, seed = frame["seed"].nunique(), _single_seed(frame)
     last = int(frame["iteration"].max())
@@ -198,8 +202,8 @@ def figure_input_over_seeds(frame: pd.DataFrame, axis: str, flags: Mapping[str, 
     _seed_proxy(axes[0], seed, perturbation_iteration, perturbation_label)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncols=3, fontsize="small",
                title="line: median over seeds", title_fontsize="small")
-    fig.suptitle(f"Fig. {6 if axis == 'x' else 7} over {n_seeds} seeds: spread of Delta tau {axis.upper()} per "
-                 f"iteration (shaded: j = {min(paper.CHATTERING_ITERATION, last)}, drawn in Fig. {6 if axis == 'x' else 7})",
+    fig.suptitle(f"Fig. {number} over {n_seeds} seeds: spread of Delta tau {axis.upper()} per "
+                 f"iteration (shaded: j = {min(paper.CHATTERING_ITERATION, last)}, drawn in Fig. {number})",
                  fontsize="medium")
     return fig
 
@@ -213,9 +217,10 @@ def seed_band_figures(frame: pd.DataFrame, directory: Path, tag: str, formats: t
     notes: list[str] = []
     p = perturbation_iteration
     label = perturbation_label
+    axes = task_axes(3 if "chattering_task_u" in frame.columns else 2)  # one H figure per task axis
     builders = (("fig5_tracking_error_seeds", lambda: figure_fig5_over_seeds(frame, flags, p, label)),
-                ("fig6_input_x_seeds", lambda: figure_input_over_seeds(frame, "x", flags, p, label)),
-                ("fig7_input_y_seeds", lambda: figure_input_over_seeds(frame, "y", flags, p, label)))
+                *((f"fig{7 if axis in ('y', 'n') else 6}_input_{axis}_seeds",
+                   lambda axis=axis: figure_input_over_seeds(frame, axis, flags, p, label)) for axis in axes))
     for stem, build in builders:
         made = build()
         if isinstance(made, str):
