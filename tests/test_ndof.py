@@ -165,3 +165,146 @@ def test_the_n_axis_gain_layout_is_the_2d_layout_at_n_2(method):
     three_d = gain_layout(gains_cls, n=3)  # and for n = 3 the fields follow each other without a gap
     starts = [three_d[name].start for name in names]
     assert starts == [at_py(offset, 3) for offset in gain_offsets(gains_cls, *names)]
+
+
+# --- the n-axis laws' contract on the spatial arm, and C1 and C3 against readable references -----------
+
+def _measurement_nd(rng, config):
+    """A consistent n-axis measurement at a random pose near arm3's path (nominal model, wall frame)."""
+    from ilcforce.controllers import nd
+    from ilcforce.plants import make_plant
+
+    n = config.dimension
+    robot = make_plant(config.plant.nominal())
+    frame = config.wall.frame(n)
+    X = config.reference_samples()[rng.integers(0, config.n_control), 0:n] + rng.normal(0.0, 0.005, n)
+    q = robot.inverse_kinematics(frame.T @ X)
+    dq = rng.normal(0.0, 0.5, n)
+    JX = frame @ robot.jacobian(q)
+    meas = np.zeros(nd.at_py(nd.M_WIDTH, n))
+
+    def put(offset, values):
+        start = nd.at_py(offset, n)
+        meas[start:start + np.size(values)] = np.ravel(values)
+
+    put(nd.M_THETA, q)
+    put(nd.M_DTHETA, dq)
+    put(nd.M_FORCE, np.r_[rng.normal(0, 0.01, n - 1), config.wall.stiffness * max(0.0, X[-1] - config.wall.position)])
+    put(nd.M_POSITION, X)
+    put(nd.M_VELOCITY, JX @ dq)
+    put(nd.M_JACOBIAN, JX)
+    put(nd.M_ACCEL, rng.normal(0.0, 1.0, n))
+    put(nd.M_FORCE_RATE, rng.normal(0.0, 10.0, n))
+    put(nd.M_FORCE_ACCEL, rng.normal(0.0, 100.0, n))
+    put(nd.M_TASK_INERTIA, frame @ robot.task_inertia(q) @ frame.T)
+    put(nd.M_TASK_CORIOLIS, frame @ robot.task_coriolis(q, dq) @ frame.T)
+    put(nd.M_TASK_GRAVITY, frame @ robot.task_gravity(q))
+    return meas, JX
+
+
+def _law_nd_inputs(config, method, seed):
+    rng = np.random.default_rng(seed)
+    controller = make_controller(config, method)
+    width = max((stop for _a, stop, _u in controller.memory_layout.values()), default=0)
+    meas, JX = _measurement_nd(rng, config)
+    ref = np.ascontiguousarray(rng.normal(0.0, 1.0, (50, 6 * config.dimension)))
+    return controller, meas, JX, ref, rng.normal(0.0, 1.0, (50, width))
+
+
+@pytest.mark.parametrize("method", ND_METHODS)
+def test_an_n_axis_law_is_pure_unless_writing_and_quadratic_in_the_normal_acceleration(arm3, method):
+    from ilcforce.controllers import nd
+
+    n = arm3.dimension
+    controller, meas, _JX, ref, mem_prev = _law_nd_inputs(arm3, method, 1)
+    law = type(controller).law_nd
+    assert law.nopython_signatures[0].args == nd.law_signature_nd().args
+    mem_new = np.full_like(mem_prev, 7.0)
+    before = mem_prev.copy()
+    tau, tau_w = np.zeros(n), np.zeros(n)
+    law(3, 0.0003, meas, ref, controller.gains(), mem_prev, mem_new, False, np.zeros(nd.diag_width(n)), tau)
+    assert np.all(np.isfinite(tau)) and np.any(tau != 0.0)
+    np.testing.assert_array_equal(mem_new, 7.0)
+    law(3, 0.0003, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(nd.diag_width(n)), tau_w)
+    np.testing.assert_array_equal(tau_w, tau)
+    np.testing.assert_array_equal(mem_prev, before)
+    if mem_prev.shape[1]:
+        assert not np.any(mem_new[3] == 7.0)
+        np.testing.assert_array_equal(np.delete(mem_new, 3, axis=0), 7.0)
+    # the implicit scheme's premise: tau is a polynomial of degree <= 2 in the normal axis's acceleration
+    a_at, fa_at = nd.at_py(nd.M_ACCEL, n) + n - 1, nd.at_py(nd.M_FORCE_ACCEL, n) + n - 1
+    taus = []
+    for a in np.arange(-2, 3) * 0.7:
+        meas[a_at], meas[fa_at] = a, arm3.wall.stiffness * a
+        out = np.zeros(n)
+        law(5, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, False, np.zeros(nd.diag_width(n)), out)
+        taus.append(out)
+    np.testing.assert_allclose(np.diff(np.array(taus), n=3, axis=0), 0.0, atol=1e-9)
+
+
+def _reference_surface_nd(config, meas, ref_row, psi_desired):
+    """sigma (eq. 8) and Psi's blocks (eq. 12) with explicit matrices, n axes."""
+    from ilcforce.controllers import nd
+
+    n = config.dimension
+
+    def block(offset, width=n):
+        start = nd.at_py(offset, n)
+        return meas[start:start + width]
+
+    S = np.diag(config.surface.selection)
+    Sbar = np.eye(n) - S
+    lam_p, lam_f1, lam_f2 = (np.diag(getattr(config.surface, k)) for k in ("lambda_p", "lambda_f1", "lambda_f2"))
+    P, dP, ddP = block(nd.M_POSITION), block(nd.M_VELOCITY), block(nd.M_ACCEL)
+    F, dF, ddF = block(nd.M_FORCE), block(nd.M_FORCE_RATE), block(nd.M_FORCE_ACCEL)
+    Pd, dPd, ddPd, Fd, dFd, ddFd = (ref_row[b * n:(b + 1) * n] for b in range(6))
+    e_p, de_p = Sbar @ (Pd - P), Sbar @ (dPd - dP)  # eq. (6)
+    e_f, de_f, dde_f = S @ (Fd - F), S @ (dFd - dF), S @ (ddFd - ddF)  # eq. (7)
+    sigma = lam_p @ e_p + de_p + lam_f1 @ e_f + lam_f2 @ de_f  # eq. (8)
+    psi1 = lam_p @ de_p + lam_f1 @ de_f + lam_f2 @ dde_f + Sbar @ ddPd + S @ (ddPd if psi_desired else ddP)
+    return sigma, psi1, dP + sigma, F
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_c1_on_three_axes_is_eq26(arm3, seed):
+    from ilcforce.controllers import nd
+
+    n = arm3.dimension
+    controller, meas, JX, ref, _ = _law_nd_inputs(arm3, "c1", seed)
+    sigma, psi1, psi2, F = _reference_surface_nd(arm3, meas, ref[4], False)
+    D = meas[nd.at_py(nd.M_TASK_INERTIA, n):][:n * n].reshape(n, n)
+    C = meas[nd.at_py(nd.M_TASK_CORIOLIS, n):][:n * n].reshape(n, n)
+    G = meas[nd.at_py(nd.M_TASK_GRAVITY, n):][:n]
+    g = arm3.gains["c1"]
+    u = np.diag(g.k) @ sigma + g.alpha * np.sign(sigma) + D @ psi1 + C @ psi2 + G + arm3.wall.sign * F  # eq. (26)
+    tau = np.zeros(n)
+    type(controller).law_nd(4, 0.0004, meas, ref, controller.gains(), np.zeros((50, 0)), np.zeros((50, 0)), False,
+                            np.zeros(nd.diag_width(n)), tau)
+    np.testing.assert_allclose(tau, JX.T @ u, rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_c3_on_three_axes_is_eq14_with_theta_in_r_3n2(arm3, seed):
+    """Phi = blockdiag(Psi, Psi, Psi), Psi = [psi1; dX + sigma; 1] in R^9, Theta in R^27 (with gravity)."""
+    from scipy.linalg import block_diag
+
+    from ilcforce.controllers import nd
+
+    n = arm3.dimension
+    controller, meas, JX, ref, mem_prev = _law_nd_inputs(arm3, "c3", seed)
+    assert mem_prev.shape[1] == 3 * n * n + 1
+    g = arm3.gains["c3"]
+    sigma, psi1, psi2, F = _reference_surface_nd(arm3, meas, ref[4], g.psi_acceleration == "desired")
+    psi = np.concatenate([psi1, psi2, np.ones(n)])  # eq. (12)
+    Phi = block_diag(*([psi[:, None]] * n))  # (3n^2, n), eq. (13)
+    gamma = np.concatenate([np.r_[g.gamma[2 * n * i:2 * n * (i + 1)], g.gamma_gravity[n * i:n * (i + 1)]]
+                            for i in range(n)])
+    theta = mem_prev[4, :3 * n * n] + gamma * (Phi @ sigma)  # eq. (14), Theta update
+    alpha = mem_prev[4, 3 * n * n] + g.eta * sigma @ np.sign(sigma)  # eq. (14), alpha update
+    u = np.diag(g.k) @ sigma + Phi.T @ theta + arm3.wall.sign * F + alpha * np.sign(sigma)  # eq. (14)
+    tau = np.zeros(n)
+    mem_new = np.zeros_like(mem_prev)
+    type(controller).law_nd(4, 0.0004, meas, ref, controller.gains(), mem_prev, mem_new, True,
+                            np.zeros(nd.diag_width(n)), tau)
+    np.testing.assert_allclose(tau, JX.T @ u, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(mem_new[4], np.r_[theta, alpha], rtol=1e-13, atol=1e-13)

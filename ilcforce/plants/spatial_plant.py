@@ -136,6 +136,7 @@ class SpatialArm:
 
     params_class = SpatialArmParams
     ahead_of_time = False  # its kernel is numba's: any file's arm runs it
+    dimension = JOINTS  # joints = task axes (an instance checks its file's arm has as many)
 
     def __init__(self, params=None):
         from ilcforce.plants.serial_arm import SerialArm
