@@ -308,3 +308,14 @@ def test_c3_on_three_axes_is_eq14_with_theta_in_r_3n2(arm3, seed):
                             np.zeros(nd.diag_width(n)), tau)
     np.testing.assert_allclose(tau, JX.T @ u, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(mem_new[4], np.r_[theta, alpha], rtol=1e-13, atol=1e-13)
+
+
+def test_the_api_page_spatial_arm_example_runs(capsys):
+    import re
+
+    text = (ROOT / "docs" / "api.md").read_text()
+    match = re.search(r"<!-- spatial-arm-example: run by tests/test_ndof.py -->\s*```python\n(.*?)```", text, re.S)
+    assert match, "docs/api.md lost its spatial-arm example"
+    exec(compile(match.group(1), "docs/api.md", "exec"), {})
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].startswith("3 ") and [line.split()[1] for line in lines[-3:]] == ["complete"] * 3
