@@ -200,27 +200,34 @@ class IterationSetup:
     layout: object = None  # the loop's module (its log and carry layout): ilcforce.loop or ilcforce.ndof.loop
 
 
-def _setup(inputs: IterationInputs, controller) -> IterationSetup:
-    from ilcforce import loop
-    from ilcforce.compiled import aot  # loop: numba's, loaded on first use only
-
-    if inputs.loop == "nd" or make_plant(inputs.true_plant).dimension != 2:
-        return _setup_nd(inputs, controller)
+def _shared_setup(inputs: IterationInputs, controller) -> tuple:
+    """What both loops' set-ups make alike: the reference, the log grid's length, the control grid, the
+    true and nominal robots, and the packed float and integer settings (the 2-D loop's)."""
     s = inputs.settings
     ref = np.ascontiguousarray(inputs.reference, dtype=np.float64)
     n_control = ref.shape[0]
     n_log = (n_control - 1) // s.log_every + 1
     t_control = np.arange(n_control) * s.sample_time
-    true_robot = make_plant(inputs.true_plant)
-    nominal_robot = make_plant(inputs.nominal_plant)
+    fset = np.array([s.sample_time, 1.0 - math.exp(-2.0 * math.pi * s.filter_hz * s.sample_time), s.torque_bound])
+    iset = [s.substeps, s.log_every, ACCELERATION_SCHEMES[s.acceleration], int(controller.uses_nominal_dynamics),
+            force_axis(inputs.selection), IMPLICIT_FALLBACKS[s.implicit_fallback]]
+    return ref, n_log, t_control, make_plant(inputs.true_plant), make_plant(inputs.nominal_plant), fset, iset
+
+
+def _setup(inputs: IterationInputs, controller) -> IterationSetup:
+    from ilcforce import loop
+    from ilcforce.compiled import aot  # loop: numba's, loaded on first use only
+
+    shared = _shared_setup(inputs, controller)
+    ref, n_log, t_control, true_robot, nominal_robot, fset, iset = shared
+    if inputs.loop == "nd" or true_robot.dimension != 2:
+        return _setup_nd(inputs, controller, shared)
+    s = inputs.settings
     theta0 = true_robot.inverse_kinematics(s.initial_position)
     dtheta0 = (0.0, 0.0)
     if s.initial_velocity == "consistent":  # dP(0) = dP_d(0) on the true plant
         dtheta0 = tuple(np.linalg.solve(true_robot.jacobian(theta0), ref[0, REF_VELOCITY:REF_VELOCITY + 2]))
-    fset = np.array([s.sample_time, 1.0 - math.exp(-2.0 * math.pi * s.filter_hz * s.sample_time), s.torque_bound])
-    iset = np.array([s.substeps, s.log_every, ACCELERATION_SCHEMES[s.acceleration],
-                     int(controller.uses_nominal_dynamics), force_axis(inputs.selection),
-                     IMPLICIT_FALLBACKS[s.implicit_fallback]], dtype=np.int64)
+    iset = np.array(iset, dtype=np.int64)
     wall = np.array([inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign])
     # the ahead-of-time compiled loop of this law and plant (no numba in the process), or numba's
     # with the law and the plant's kernels as arguments: the same code, the same numbers
@@ -233,32 +240,23 @@ def _setup(inputs: IterationInputs, controller) -> IterationSetup:
                           simulate_chunk, kernels, 2, loop)
 
 
-def _setup_nd(inputs: IterationInputs, controller) -> IterationSetup:
+def _setup_nd(inputs: IterationInputs, controller, shared: tuple) -> IterationSetup:
     """The set-up of the n-joint loop (``ilcforce.ndof.loop``, docs/model.md#n-dof): the same steps as the
-    2-D one, the wall's frame R packed after (y_e, K_e, w)."""
+    2-D one, the wall's frame R packed after (y_e, K_e, w), the plants' kernel buffers' sizes after the settings."""
     from ilcforce.ndof import loop as nd_loop  # numba's, loaded on first use only
 
     s = inputs.settings
     law = getattr(type(controller), "law_nd", None)
     if law is None:
         raise ValueError(f"{controller.name} has no law for a task of other than 2 axes yet (docs/model.md#n-dof)")
-    ref = np.ascontiguousarray(inputs.reference, dtype=np.float64)
-    n_control = ref.shape[0]
-    n_log = (n_control - 1) // s.log_every + 1
-    t_control = np.arange(n_control) * s.sample_time
-    true_robot = make_plant(inputs.true_plant)
-    nominal_robot = make_plant(inputs.nominal_plant)
+    ref, n_log, t_control, true_robot, nominal_robot, fset, iset = shared
     n = true_robot.dimension
     frame = inputs.wall.frame(n)
     theta0 = true_robot.inverse_kinematics(frame.T @ np.asarray(s.initial_position, dtype=np.float64))
     dtheta0 = np.zeros(n)
     if s.initial_velocity == "consistent":  # dX(0) = dX_d(0) on the true plant
         dtheta0 = np.linalg.solve(frame @ true_robot.jacobian(theta0), ref[0, n:2 * n])
-    fset = np.array([s.sample_time, 1.0 - math.exp(-2.0 * math.pi * s.filter_hz * s.sample_time), s.torque_bound])
-    iset = np.array([s.substeps, s.log_every, ACCELERATION_SCHEMES[s.acceleration],
-                     int(controller.uses_nominal_dynamics), force_axis(inputs.selection),
-                     IMPLICIT_FALLBACKS[s.implicit_fallback], true_robot.nd_width, nominal_robot.nd_width],
-                    dtype=np.int64)
+    iset = np.array([*iset, true_robot.nd_width, nominal_robot.nd_width], dtype=np.int64)
     wall = np.concatenate([[inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign], frame.ravel()])
     kernels = (law, true_robot.nd_kernel(), nominal_robot.nd_kernel())
     return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, np.ascontiguousarray(wall),

@@ -173,25 +173,22 @@ def surface_nd(n, k, meas, ref, gains, psi_desired, diag):
 
 
 @njit(inline="always", error_model="numpy")
-def joint_torque_nd(n, meas, u, u0, tau):
-    """tau = J_X^T u for the task command u = u[u0:u0 + n] (N), J_X nominal at the measured angles."""
-    J = at(M_JACOBIAN, n)
-    for j in range(n):
-        s = 0.0
-        for i in range(n):
-            s += meas[J + i * n + j] * u[u0 + i]
-        tau[j] = s
-
-
-@njit(inline="always", error_model="numpy")
 def add_joint_torque_nd(n, meas, u, u0, tau):
-    """tau += J_X^T u[u0:u0 + n]."""
+    """tau += J_X^T u for the task command u = u[u0:u0 + n] (N), J_X nominal at the measured angles."""
     J = at(M_JACOBIAN, n)
     for j in range(n):
         s = 0.0
         for i in range(n):
             s += meas[J + i * n + j] * u[u0 + i]
         tau[j] += s
+
+
+@njit(inline="always", error_model="numpy")
+def joint_torque_nd(n, meas, u, u0, tau):
+    """tau = J_X^T u[u0:u0 + n] (0 + s is s: the same numbers as assigning the sum)."""
+    for j in range(n):
+        tau[j] = 0.0
+    add_joint_torque_nd(n, meas, u, u0, tau)
 
 
 @njit(inline="always", error_model="numpy")
