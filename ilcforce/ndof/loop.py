@@ -25,8 +25,11 @@ import numpy as np
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import Sig, njit
 from ilcforce.controllers.nd import (
-    M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_TASK_CORIOLIS,
-    M_TASK_GRAVITY, M_TASK_INERTIA, M_THETA, M_VELOCITY, M_WIDTH, at, law_signature_nd,
+    M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_THETA, M_VELOCITY, M_WIDTH,
+    at, law_signature_nd,
+)
+from ilcforce.ndof.algebra import (
+    OUT_B, OUT_DJ, OUT_DJV, OUT_M, cholesky, cholesky_solve, lu, lu_solve_transposed, task_model,
 )
 from ilcforce.plants.nd import nd_type
 from ilcforce.task import wall_force, wall_stiffness
@@ -75,108 +78,6 @@ def new_carry(theta0, dtheta0) -> np.ndarray:
 _PROBE = 1.0
 _DEGENERATE = 1e-6
 
-# offsets of the plant kernel's output (ilcforce.plants.nd)
-_P, _J = (0, 0, 0), (0, 1, 0)
-_DJV, _M, _B = (0, 1, 1), (0, 2, 1), (0, 2, 2)
-_CQ, _G, _DJ = (0, 3, 2), (0, 3, 3), (0, 4, 3)
-
-
-# --- small dense algebra on scratch arrays (no allocation) -----------------------------------------
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _cholesky(n, A, a0, L):
-    """L (n x n, lower, row-major in L[0:n*n]) with L L^T = A[a0:a0 + n*n]; False if not positive definite."""
-    for i in range(n):
-        for j in range(i + 1):
-            s = A[a0 + i * n + j]
-            for k in range(j):
-                s -= L[i * n + k] * L[j * n + k]
-            if i == j:
-                if not s > 0.0:
-                    return False
-                L[i * n + i] = math.sqrt(s)
-            else:
-                L[i * n + j] = s / L[j * n + j]
-    return True
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _cholesky_solve(n, L, b, x):
-    """x = (L L^T)^-1 b (x may be b)."""
-    for i in range(n):
-        s = b[i]
-        for k in range(i):
-            s -= L[i * n + k] * x[k]
-        x[i] = s / L[i * n + i]
-    for i in range(n - 1, -1, -1):
-        s = x[i]
-        for k in range(i + 1, n):
-            s -= L[k * n + i] * x[k]
-        x[i] = s / L[i * n + i]
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _lu(n, A, a0, LU, piv):
-    """LU with partial pivoting of A[a0:a0 + n*n] into LU; False if singular."""
-    for i in range(n * n):
-        LU[i] = A[a0 + i]
-    for c in range(n):
-        p = c
-        for r in range(c + 1, n):
-            if abs(LU[r * n + c]) > abs(LU[p * n + c]):
-                p = r
-        piv[c] = p
-        if LU[p * n + c] == 0.0 or not math.isfinite(LU[p * n + c]):
-            return False
-        if p != c:
-            for j in range(n):
-                LU[c * n + j], LU[p * n + j] = LU[p * n + j], LU[c * n + j]
-        for r in range(c + 1, n):
-            f = LU[r * n + c] / LU[c * n + c]
-            LU[r * n + c] = f
-            for j in range(c + 1, n):
-                LU[r * n + j] -= f * LU[c * n + j]
-    return True
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _lu_solve(n, LU, piv, x):
-    """x <- A^-1 x in place."""
-    for c in range(n):
-        p = int(piv[c])
-        if p != c:
-            x[c], x[p] = x[p], x[c]
-    for i in range(n):
-        s = x[i]
-        for k in range(i):
-            s -= LU[i * n + k] * x[k]
-        x[i] = s
-    for i in range(n - 1, -1, -1):
-        s = x[i]
-        for k in range(i + 1, n):
-            s -= LU[i * n + k] * x[k]
-        x[i] = s / LU[i * n + i]
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _lu_solve_transposed(n, LU, piv, x):
-    """x <- A^-T x in place (A = P^T L U, so A^T y = x is U^T L^T P y = x)."""
-    for i in range(n):
-        s = x[i]
-        for k in range(i):
-            s -= LU[k * n + i] * x[k]
-        x[i] = s / LU[i * n + i]
-    for i in range(n - 1, -1, -1):
-        s = x[i]
-        for k in range(i + 1, n):
-            s -= LU[k * n + i] * x[k]
-        x[i] = s
-    for c in range(n - 1, -1, -1):
-        p = int(piv[c])
-        if p != c:
-            x[c], x[p] = x[p], x[c]
-
-
 @njit(cache=True, error_model="numpy", inline="always")
 def _to_task(n, R, out, X, JX, dJv, DJ, level):
     """Rotate the kernel's world quantities into the task frame: X = R P, J_X = R J (and R dJ dq, R dJ)."""
@@ -191,14 +92,14 @@ def _to_task(n, R, out, X, JX, dJv, DJ, level):
                 s += R[3 + i * n + k] * out[n + k * n + j]
             JX[i * n + j] = s
     if level >= 1:
-        d0 = at(_DJV, n)
+        d0 = at(OUT_DJV, n)
         for i in range(n):
             s = 0.0
             for k in range(n):
                 s += R[3 + i * n + k] * out[d0 + k]
             dJv[i] = s
     if level >= 2:
-        d0 = at(_DJ, n)
+        d0 = at(OUT_DJ, n)
         for i in range(n):
             for j in range(n):
                 s = 0.0
@@ -219,7 +120,7 @@ def _drift(dyn, p, q, dq, wall, fa, fv, fv0, out, X, JX, dJv, r, L):
     _to_task(n, wall, out, X, JX, dJv, JX, 1)
     ye, ke, w = wall[0], wall[1], wall[2]
     f_wall = wall_force(X[fa], ye, ke, w)
-    b0 = at(_B, n)
+    b0 = at(OUT_B, n)
     for j in range(n):
         s = 0.0
         for i in range(n):
@@ -228,7 +129,7 @@ def _drift(dyn, p, q, dq, wall, fa, fv, fv0, out, X, JX, dJv, r, L):
                 g -= w * f_wall  # ... and the wall's reaction
             s += JX[i * n + j] * g
         r[j] = s - out[b0 + j]
-    if not _cholesky(n, out, at(_M, n), L):
+    if not cholesky(n, out, at(OUT_M, n), L):
         return False, f_wall
     return True, f_wall
 
@@ -242,7 +143,7 @@ def _stage(dyn, p, q, dq, tau, wall, fa, fv, fv0, out, X, JX, dJv, r, L, acc):
         return False
     for j in range(n):
         acc[j] = tau[j] + r[j]
-    _cholesky_solve(n, L, acc, acc)
+    cholesky_solve(n, L, acc, acc)
     return True
 
 
@@ -317,7 +218,6 @@ def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
     th = np.empty(n)
     d = np.empty(n)
     qs = np.empty(n)
-    vs = np.empty(n)
     k1 = np.empty(n)
     k2 = np.empty(n)
     k3 = np.empty(n)
@@ -349,7 +249,7 @@ def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
             break
         for j in range(n):
             a0[j] = r[j]
-        _cholesky_solve(n, L, a0, a0)
+        cholesky_solve(n, L, a0, a0)
 
         # 2. sensors, then the nominal model at the measured state
         for j in range(n):
@@ -375,61 +275,9 @@ def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
             meas[M0 + i] = qm[i]
             meas[at(M_DTHETA, n) + i] = dqm[i]
             meas[at(M_FORCE, n) + i] = fmeas[i]
-        if nominal_dyn:
-            # D = J^-T M J^-1, C = J^-T (Cq - M J^-1 dJ) J^-1, G = J^-T g                 eq. (4)
-            if not _lu(n, JXs, 0, LU, piv):
-                status, k_fail = RUN_WORKING_MODE, k
-                break
-            for c in range(n):  # Ji = J_X^-1, column by column
-                for i in range(n):
-                    col[i] = 1.0 if i == c else 0.0
-                _lu_solve(n, LU, piv, col)
-                for i in range(n):
-                    Ji[i * n + c] = col[i]
-            m0 = at(_M, n)
-            for i in range(n):  # tmp = M Ji
-                for j in range(n):
-                    s = 0.0
-                    for k2_ in range(n):
-                        s += out_n[m0 + i * n + k2_] * Ji[k2_ * n + j]
-                    tmp[i * n + j] = s
-            D0 = at(M_TASK_INERTIA, n)
-            for i in range(n):  # D = Ji^T (M Ji)
-                for j in range(n):
-                    s = 0.0
-                    for k2_ in range(n):
-                        s += Ji[k2_ * n + i] * tmp[k2_ * n + j]
-                    meas[D0 + i * n + j] = s
-            # Q = Cq Ji - (M Ji)(dJ_X Ji); C = Ji^T Q
-            cq0 = at(_CQ, n)
-            for i in range(n):
-                for j in range(n):
-                    s = 0.0
-                    for k2_ in range(n):
-                        s += DJ[i * n + k2_] * Ji[k2_ * n + j]
-                    LU[i * n + j] = s  # dJ_X Ji (LU is free now)
-            for i in range(n):
-                for j in range(n):
-                    s = 0.0
-                    for k2_ in range(n):
-                        s += out_n[cq0 + i * n + k2_] * Ji[k2_ * n + j]
-                    e = 0.0
-                    for k2_ in range(n):
-                        e += tmp[i * n + k2_] * LU[k2_ * n + j]
-                    DJ[i * n + j] = s - e  # Q (DJ is free now)
-            C0 = at(M_TASK_CORIOLIS, n)
-            G0 = at(M_TASK_GRAVITY, n)
-            g0 = at(_G, n)
-            for i in range(n):
-                for j in range(n):
-                    s = 0.0
-                    for k2_ in range(n):
-                        s += Ji[k2_ * n + i] * DJ[k2_ * n + j]
-                    meas[C0 + i * n + j] = s
-                s = 0.0
-                for k2_ in range(n):
-                    s += Ji[k2_ * n + i] * out_n[g0 + k2_]
-                meas[G0 + i] = s
+        if nominal_dyn and not task_model(n, out_n, JXs, DJ, LU, piv, col, Ji, tmp, meas):  # eq. (4)
+            status, k_fail = RUN_WORKING_MODE, k
+            break
 
         # 3. acceleration estimates, 4. the law
         A0 = at(M_ACCEL, n)
@@ -447,7 +295,7 @@ def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
             p0 += dJv[fa]
             for j in range(n):
                 qrow[j] = JX[fa * n + j]
-            _cholesky_solve(n, L, qrow, qrow)
+            cholesky_solve(n, L, qrow, qrow)
             for i in range(n):
                 meas[A0 + i] = 0.0
                 meas[FA0 + i] = 0.0
@@ -543,8 +391,8 @@ def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
                 log[row, 8 * cols + i] = dist[base, i]
                 log[row, 11 * cols + i] = diag[i]
             # J_X^-T tau at the true pose
-            if _lu(n, JX, 0, LU, piv):
-                _lu_solve_transposed(n, LU, piv, col)
+            if lu(n, JX, 0, LU, piv):
+                lu_solve_transposed(n, LU, piv, col)
                 for i in range(n):
                     log[row, 10 * cols + i] = col[i]
             else:
@@ -563,7 +411,7 @@ def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
             if st == 0:
                 for j in range(n):
                     k1[j] = tau[j] + r[j]
-                _cholesky_solve(n, L, k1, k1)
+                cholesky_solve(n, L, k1, k1)
             else:
                 ok1 = _stage(dyn_true, p_true, th, d, tau, wall, fa, dist[m], 0, out_t, Xs, JXs, dJvs, rs, Ls, k1)
                 if not ok1:
