@@ -9,6 +9,7 @@ import collections
 import contextlib
 import logging
 import os
+import threading
 import time
 import uuid
 
@@ -151,6 +152,13 @@ def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TI
                 cluster.close()
 
 
+#: held while a worker process is spawned, and by a stop that closes spawning (``_give_up``): a stop then
+#: sees every child already spawned, and no new one starts after it (a child spawned while the driver
+#: unwound read its start-up data from a closed pipe and printed an EOFError traceback on the terminal)
+_SPAWN_LOCK = threading.Lock()
+_SPAWN = {"closed": False}
+
+
 @contextlib.contextmanager
 def workers_in_their_own_process_group():
     """Within: the processes multiprocessing starts (a local cluster's workers) start in a process
@@ -169,16 +177,25 @@ def workers_in_their_own_process_group():
 
     def spawnv_passfds(path, args, passfds):
         actions = [(os.POSIX_SPAWN_DUP2, fd, fd) for fd in sorted(map(int, passfds))]
-        if any("resource_tracker" in str(arg) for arg in args):
+        tracker = any("resource_tracker" in str(arg) for arg in args)
+        if tracker:
             # its only words are warnings about the semaphores of workers killed while they started
             actions.append((os.POSIX_SPAWN_OPEN, 2, os.devnull, os.O_WRONLY, 0))
-        return os.posix_spawn(path, list(args), os.environ, file_actions=actions, setpgroup=0)
+        with _SPAWN_LOCK:
+            if _SPAWN["closed"] and not tracker:
+                raise OSError("the study is stopping: no new worker process is started")
+            return os.posix_spawn(path, list(args), os.environ, file_actions=actions, setpgroup=0)
 
+    _SPAWN["closed"] = False
     util.spawnv_passfds = spawnv_passfds
     try:
         yield
     finally:
-        util.spawnv_passfds = original
+        # after a stop during the start, spawning stays closed: Dask's threads may still try to start a
+        # worker while this process exits (with the original function back, that worker read its start-up
+        # data from a closed pipe and printed an EOFError traceback under the driver's one line)
+        if not _SPAWN["closed"]:
+            util.spawnv_passfds = original
 
 
 def start_local_cluster(make, timeout: float):
@@ -194,7 +211,6 @@ def start_local_cluster(make, timeout: float):
     children of this process started since the call; a stopped one too), so none outlives the study.
     """
     import signal
-    import threading
 
     before = _child_pids()
     box: dict = {}
@@ -229,6 +245,8 @@ def _give_up(before: set[int], thread) -> None:
     thread and unwinds (waited for up to 3 s). Not multiprocessing's resource tracker: killed, it was
     relaunched by that unwinding; it ends by itself when this process does, after unlinking the
     killed workers' semaphores."""
+    with _SPAWN_LOCK:  # no worker is being spawned now, and none will be
+        _SPAWN["closed"] = True
     _kill_new_children(before, lambda cmdline: "resource_tracker" not in cmdline)
     thread.join(3.0)
 
