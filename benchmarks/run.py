@@ -88,15 +88,17 @@ def per_step_figures(repeat: int) -> None:
     the robot cannot run (SL-adapt on three axes) is named and skipped.
     """
     from ilcforce.config_load import load_config
-    from ilcforce.plants import MODELS
+    from ilcforce.plants import DEFAULT_MODEL, MODELS
     from ilcforce.study.spec import is_study_file
 
     experiments = Path(__file__).resolve().parents[1] / "experiments"
     for model in MODELS:
         own = experiments / f"{model}.toml"
-        files = [own] if own.is_file() else [*sorted(experiments.glob("*-model.toml")),
-                                             *sorted(p for p in experiments.glob("*.toml") if not is_study_file(p))]
+        files = [own] if own.is_file() else sorted(experiments.glob("*-model.toml"))
         configs = [c for c in map(load_config, files) if c.plant.model == model][:1]
+        if not configs and model != DEFAULT_MODEL:  # a robot no such file selects: the first experiment that does
+            others = (load_config(p) for p in sorted(experiments.glob("*.toml")) if not is_study_file(p))
+            configs = [c for c in others if c.plant.model == model][:1]
         config = configs[0] if configs else load_config(None, {"plant.model": model})
         print(f"  plant {model}:")
         rows = [("RK4 control step, zero-torque controller", ZeroController(config.n_control))]
