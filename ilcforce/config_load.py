@@ -24,7 +24,7 @@ import numpy as np
 from ilcforce.config import Config, ConfigError
 from ilcforce.config_ranges import MAX_RUN_BYTES, MAX_STEPS_PER_ITERATION, MAX_STRING, range_of
 from ilcforce.controllers import REGISTRY
-from ilcforce.controllers.nd import field_growth
+from ilcforce.controllers.nd import check_widths
 from ilcforce.plants import UnreachableError, make_plant
 from ilcforce.tomlfile import parse_toml, read_toml, resolve_toml
 
@@ -188,15 +188,11 @@ def config_from_dict(data: dict) -> Config:
     for method in REGISTRY:  # a method's table, as given (or inherited), is written for this task's axes
         runs_here = config.dimension == 2 or getattr(REGISTRY[method].controller_class, "law_nd", None) is not None
         if (method in data or method in inherited) and runs_here:
-            _check_dimension(method, config.gains[method], config.dimension)
+            try:
+                check_widths(method, config.gains[method], config.dimension)
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
     return config
-
-
-def _check_dimension(method: str, gains, n: int) -> None:
-    """ConfigError (one line) unless the per-axis fields of ``gains`` have ``n`` entries."""
-    for name, growth in field_growth(type(gains)).items():
-        if growth == (0, 1, 0) and len(getattr(gains, name)) != n:
-            raise ConfigError(f"{method}.{name} must have {n} entries (one per task axis), got {len(getattr(gains, name))}")
 
 
 def run_footprint(config: Config) -> tuple[int, int]:

@@ -30,12 +30,12 @@ import numpy as np
 from ilcforce import pipeline, samerun
 from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY, MethodNameError, canonical_method
-from ilcforce.controllers.nd import dimension_of
+from ilcforce.controllers.nd import check_widths
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.simulate import (IterationInputs, complete_record, desired_inputs, prepare_first_chunk, prepare_setup,
                                run_iteration)
-from ilcforce.task import (REF_ACCELERATION, REF_FORCE, REF_POSITION, REF_VELOCITY)
+from ilcforce.task import REF_ACCELERATION, REF_FORCE, REF_POSITION, REF_VELOCITY, reference_block
 
 
 
@@ -75,10 +75,10 @@ def make_controller(config: Config, method: str):
     cls = REGISTRY[method].controller_class
     if config.dimension != 2 and getattr(cls, "law_nd", None) is None:
         raise ConfigError(f"{method} has no law for a task of {config.dimension} axes yet (docs/model.md#n-dof)")
-    written_for = dimension_of(config.gains[method])
-    if written_for not in (0, config.dimension):
-        raise ConfigError(f"[{method}] gains are written for a task of {written_for} axes; this robot's task has "
-                          f"{config.dimension}: give them per axis (docs/model.md#n-dof)")
+    try:  # a table the experiment does not give keeps the 2-D defaults: refused on a task of other axes
+        check_widths(method, config.gains[method], config.dimension)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
     try:
         # a law with the plant's own regressor (sl-adapt) also takes the nominal plant's parameters
         extra = {"nominal": config.plant.nominal()} if getattr(cls, "needs_nominal_plant", False) else {}
@@ -91,18 +91,13 @@ def make_controller(config: Config, method: str):
 def reference_log(config: Config) -> dict[str, np.ndarray]:
     """The /reference datasets of the store (records.REFERENCE_SIGNALS) on the log grid."""
     ref = config.reference_samples()[:: config.simulation.log_every]
-    n = config.dimension  # the reference's blocks are n wide (ilcforce.task)
-
-    def block(first_column_2d):
-        start = first_column_2d // 2 * n
-        return ref[:, start:start + n]
-
+    n = config.dimension
     out = {
         "time": config.control_times()[:: config.simulation.log_every],
-        "position_desired": block(REF_POSITION),
-        "velocity_desired": block(REF_VELOCITY),
-        "acceleration_desired": block(REF_ACCELERATION),
-        "force_desired": block(REF_FORCE),
+        "position_desired": reference_block(ref, REF_POSITION, n),
+        "velocity_desired": reference_block(ref, REF_VELOCITY, n),
+        "acceleration_desired": reference_block(ref, REF_ACCELERATION, n),
+        "force_desired": reference_block(ref, REF_FORCE, n),
     }
     assert set(out) == set(REFERENCE_SIGNALS)
     return {k: np.ascontiguousarray(v) for k, v in out.items()}

@@ -117,16 +117,22 @@ def reference_signals(n: int) -> dict[str, tuple[tuple[str, ...] | None, str, st
     return table
 
 
-def record_dimension(log: dict[str, np.ndarray]) -> int:
-    """The task dimension n of a record's ``log``: the width of its ``position_error``, checked to be
-    one of :data:`TASK_DIMENSIONS`. ValueError (one line) when it is missing or of another shape."""
-    if "position_error" not in log:
-        raise ValueError("record.log is missing signal 'position_error'")
-    shape = np.shape(log["position_error"])
+def signals_dimension(signals, name: str, where: str) -> int:
+    """The task dimension n of a set of signals: the width of ``signals[name]`` (n_log, n), checked to be
+    one of :data:`TASK_DIMENSIONS`. ValueError (one line, naming ``where``) when it is missing or of another
+    shape."""
+    if name not in signals:
+        raise ValueError(f"{where} is missing signal {name!r}")
+    shape = np.shape(signals[name])
     if len(shape) != 2 or shape[1] not in TASK_DIMENSIONS:
-        raise ValueError(f"record.log['position_error'] has shape {shape}, expected (n_log, n) with n in "
+        raise ValueError(f"{where}[{name!r}] has shape {shape}, expected (n_log, n) with n task axes, n in "
                          f"{TASK_DIMENSIONS}")
     return int(shape[1])
+
+
+def record_dimension(log: dict[str, np.ndarray]) -> int:
+    """The task dimension n of a record's ``log``: the width of its ``position_error``."""
+    return signals_dimension(log, "position_error", "record.log")
 
 
 @dataclass(frozen=True)

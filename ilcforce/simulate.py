@@ -42,7 +42,7 @@ from ilcforce.controllers.base import Controller
 from ilcforce.noise import IterationDraws, NoiseModel, disturbance
 from ilcforce.plants import make_plant
 from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
-from ilcforce.task import REF_FORCE, REF_POSITION, REF_VELOCITY, Wall
+from ilcforce.task import REF_FORCE, REF_POSITION, REF_VELOCITY, Wall, reference_block
 
 ACCELERATION_SCHEMES = {"implicit": 0, "filtered": 1}
 #: what the implicit scheme does where its quadratic has no usable root
@@ -255,7 +255,7 @@ def _setup_nd(inputs: IterationInputs, controller, shared: tuple) -> IterationSe
     theta0 = true_robot.inverse_kinematics(frame.T @ np.asarray(s.initial_position, dtype=np.float64))
     dtheta0 = np.zeros(n)
     if s.initial_velocity == "consistent":  # dX(0) = dX_d(0) on the true plant
-        dtheta0 = np.linalg.solve(frame @ true_robot.jacobian(theta0), ref[0, n:2 * n])
+        dtheta0 = np.linalg.solve(frame @ true_robot.jacobian(theta0), reference_block(ref, REF_VELOCITY, n)[0])
     iset = np.array([*iset, true_robot.nd_width, nominal_robot.nd_width], dtype=np.int64)
     wall = np.concatenate([[inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign], frame.ravel()])
     kernels = (law, true_robot.nd_kernel(), nominal_robot.nd_kernel())
@@ -394,7 +394,6 @@ def log_signals(t_control: np.ndarray, log_every: int, log: np.ndarray, ref: np.
     out["implicit_fallbacks"] = log[:, loop.LOG_FALLBACKS if n == 2 else nd_loop.log_fallbacks(n)].copy()
     sel = np.asarray(selection, dtype=np.float64)
     ref_log = ref[::log_every]
-    p0, f0 = REF_POSITION // 2 * n, REF_FORCE // 2 * n  # the reference's blocks are n wide (ilcforce.task)
-    out["position_error"] = (1.0 - sel) * (ref_log[:, p0:p0 + n] - out["position"])  # eq. (6)
-    out["force_error"] = sel * (ref_log[:, f0:f0 + n] - out["contact_force"])  # eq. (7)
+    out["position_error"] = (1.0 - sel) * (reference_block(ref_log, REF_POSITION, n) - out["position"])  # eq. (6)
+    out["force_error"] = sel * (reference_block(ref_log, REF_FORCE, n) - out["contact_force"])  # eq. (7)
     return out

@@ -30,6 +30,13 @@ REF_FORCE_ACCEL = 10  # d2F_d/dt2, N/s^2
 REF_WIDTH = 12
 
 
+def reference_block(ref: np.ndarray, column_2d: int, n: int) -> np.ndarray:
+    """The n columns of one quantity (``column_2d``: its REF_* constant, the planar layout's first column) of a
+    reference sampled for a task of n axes, whose blocks are n wide in the same order (shape (rows, n))."""
+    start = column_2d // 2 * n
+    return ref[:, start:start + n]
+
+
 @njit(cache=True, error_model="numpy")
 def wall_force(y, ye, ke, w):
     """The wall's contact law, its one definition: F_y = K_e max(0, w (y - y_e)) (N), the force the

@@ -111,10 +111,11 @@ def dimension_of(gains) -> int:
     return 0
 
 
-def check_widths(section: str, gains) -> int:
-    """Every field of ``gains`` as wide as its first per-axis field implies; returns n (ValueError, one
-    line, otherwise). For n = 2 this is the 2-D check."""
-    n = dimension_of(gains)
+def check_widths(section: str, gains, n: int | None = None) -> int:
+    """Every field of ``gains`` as wide as a task of ``n`` axes needs (default: the n its first per-axis field
+    implies); returns n (ValueError, one line, naming the first field that is not). For n = 2 this is the 2-D
+    check. The gains dataclasses check themselves with it, the configuration against its task's axes."""
+    n = dimension_of(gains) if n is None else n
     if n < 1:
         return n
     for name, growth in field_growth(type(gains)).items():

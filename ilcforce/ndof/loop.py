@@ -109,36 +109,34 @@ def _to_task(n, R, out, X, JX, dJv, DJ, level):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _drift(dyn, p, q, dq, wall, fa, fv, fv0, out, X, JX, dJv, r, L):
+def _drift(dyn, p, q, dq, wall, fa, fv, out, X, JX, dJv, r, L, at_sample):
     """The true plant pressed against the wall, torque left out (eq. 1): M ddq = tau + r, r = J_X^T f - b,
-    f the force on the robot in the task frame (the disturbance and the wall's reaction). Fills X, J_X,
-    dJ_X dq, r and the Cholesky factor L of M. Returns (ok, F_wall)."""
+    f the force on the robot in the task frame (the disturbance and the wall's reaction). Fills X, J_X, r,
+    the Cholesky factor L of M and, ``at_sample`` (the implicit scheme needs it, an RK4 stage does not),
+    dJ_X dq. Returns (ok, F_wall)."""
     n = q.shape[0]
     ok = dyn(p, q, dq, 1, out)
     if ok == 0.0:
         return False, 0.0
-    _to_task(n, wall, out, X, JX, dJv, JX, 1)
+    _to_task(n, wall, out, X, JX, dJv, JX, 1 if at_sample else 0)
     ye, ke, w = wall[0], wall[1], wall[2]
     f_wall = wall_force(X[fa], ye, ke, w)
     b0 = at(OUT_B, n)
     for j in range(n):
         s = 0.0
-        for i in range(n):
-            g = -fv[fv0 + i]  # the disturbance on the robot (eq. 1, tau_v = J^T F_v) ...
-            if i == fa:
-                g -= w * f_wall  # ... and the wall's reaction
-            s += JX[i * n + j] * g
-        r[j] = s - out[b0 + j]
+        for i in range(n):  # the disturbance on the robot (eq. 1, tau_v = J^T F_v) ...
+            s -= JX[i * n + j] * fv[i]
+        r[j] = s - JX[fa * n + j] * w * f_wall - out[b0 + j]  # ... and the wall's reaction
     if not cholesky(n, out, at(OUT_M, n), L):
         return False, f_wall
     return True, f_wall
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _stage(dyn, p, q, dq, tau, wall, fa, fv, fv0, out, X, JX, dJv, r, L, acc):
+def _stage(dyn, p, q, dq, tau, wall, fa, fv, out, X, JX, dJv, r, L, acc):
     """Joint accelerations of the true plant under torque tau into acc. Returns ok."""
     n = q.shape[0]
-    ok, _f = _drift(dyn, p, q, dq, wall, fa, fv, fv0, out, X, JX, dJv, r, L)
+    ok, _f = _drift(dyn, p, q, dq, wall, fa, fv, out, X, JX, dJv, r, L, False)
     if not ok:
         return False
     for j in range(n):
@@ -243,7 +241,7 @@ def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
         t = k * ts
         base = 2 * substeps * (k - k_start)
         # 1. true plant at the sample (reused as RK4's first stage)
-        ok, f_wall = _drift(dyn_true, p_true, th, d, wall, fa, dist[base], 0, out_t, X, JX, dJv, r, L)
+        ok, f_wall = _drift(dyn_true, p_true, th, d, wall, fa, dist[base], out_t, X, JX, dJv, r, L, True)
         if not ok:
             status, k_fail = RUN_WORKING_MODE, k
             break
@@ -413,22 +411,22 @@ def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
                     k1[j] = tau[j] + r[j]
                 cholesky_solve(n, L, k1, k1)
             else:
-                ok1 = _stage(dyn_true, p_true, th, d, tau, wall, fa, dist[m], 0, out_t, Xs, JXs, dJvs, rs, Ls, k1)
+                ok1 = _stage(dyn_true, p_true, th, d, tau, wall, fa, dist[m], out_t, Xs, JXs, dJvs, rs, Ls, k1)
                 if not ok1:
                     break
             for j in range(n):
                 v2[j] = d[j] + 0.5 * h * k1[j]
                 qs[j] = th[j] + 0.5 * h * d[j]
-            ok2 = _stage(dyn_true, p_true, qs, v2, tau, wall, fa, dist[m + 1], 0, out_t, Xs, JXs, dJvs, rs, Ls, k2)
+            ok2 = _stage(dyn_true, p_true, qs, v2, tau, wall, fa, dist[m + 1], out_t, Xs, JXs, dJvs, rs, Ls, k2)
             for j in range(n):
                 v3[j] = d[j] + 0.5 * h * k2[j]
                 qs[j] = th[j] + 0.5 * h * v2[j]
-            ok3 = ok2 and _stage(dyn_true, p_true, qs, v3, tau, wall, fa, dist[m + 1], 0, out_t, Xs, JXs, dJvs, rs,
+            ok3 = ok2 and _stage(dyn_true, p_true, qs, v3, tau, wall, fa, dist[m + 1], out_t, Xs, JXs, dJvs, rs,
                                  Ls, k3)
             for j in range(n):
                 v4[j] = d[j] + h * k3[j]
                 qs[j] = th[j] + h * v3[j]
-            ok4 = ok3 and _stage(dyn_true, p_true, qs, v4, tau, wall, fa, dist[m + 2], 0, out_t, Xs, JXs, dJvs, rs,
+            ok4 = ok3 and _stage(dyn_true, p_true, qs, v4, tau, wall, fa, dist[m + 2], out_t, Xs, JXs, dJvs, rs,
                                  Ls, k4)
             if not ok4:
                 ok1 = False

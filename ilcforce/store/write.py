@@ -18,7 +18,7 @@ import numpy as np
 import ilcforce
 from ilcforce import stops
 from ilcforce.metrics import iteration_metrics
-from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, TASK_DIMENSIONS, IterationRecord
+from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord, signals_dimension
 from ilcforce.store import commit, metrics_cache, schema
 from ilcforce.store.provenance import SameRunCheck, git_state, text, utc_now
 from ilcforce.store.prepare import (check_replaceable, check_resumable, clean_leftovers, existing_refusal, make_parent,
@@ -51,15 +51,8 @@ def _dataset(group: h5py.Group, name: str, data: np.ndarray, units: str, descrip
 
 
 def reference_dimension(reference: Mapping[str, np.ndarray]) -> int:
-    """The task dimension n of a run from its reference: the width of ``force_desired`` (n_log, n),
-    one of :data:`ilcforce.records.TASK_DIMENSIONS`; ValueError (one line) otherwise."""
-    if "force_desired" not in reference:
-        raise ValueError("reference is missing signal 'force_desired'")
-    shape = np.shape(reference["force_desired"])
-    if len(shape) != 2 or shape[1] not in TASK_DIMENSIONS:
-        raise ValueError(f"reference['force_desired'] has shape {shape}, expected (n_log, n) with n task axes, n in "
-                         f"{TASK_DIMENSIONS}")
-    return int(shape[1])
+    """The task dimension n of a run from its reference: the width of ``force_desired`` (n_log, n)."""
+    return signals_dimension(reference, "force_desired", "reference")
 
 
 class StoreWriter:
