@@ -67,6 +67,7 @@ def test_the_offsets_are_the_interfaces(n):
 def test_importing_the_interface_imports_no_numba():
     code = ("import sys\nimport ilcforce.plants.nd, ilcforce.plants.chain_nd, ilcforce.plants.serial_arm\n"
             "print('NUMBA', 'numba' in sys.modules)")
+    # timeout: a hang guard for a ~1 s import (no bound on speed)
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
                           env={**os.environ, "ILCFORCE_AOT": "0"})
     assert proc.returncode == 0, proc.stderr

@@ -97,6 +97,8 @@ def test_a_stop_while_the_cluster_starts_acts_within_a_second(tmp_path, signum, 
     finally:
         _stop(driver)
     assert driver.returncode == code, stderr
+    # the bound is a hang guard with a wide margin: under a busy-loop load on both of 2 cores the stop took
+    # 0.03-0.13 s (10 stops, 2026-12-05), so 3 s is over 20x that; without the stop the driver runs its cells
     assert took < 3.0, f"the stop took {took:.1f} s"
     assert len(stderr.strip().splitlines()) == 1 and "Traceback" not in stderr, stderr
     journal = tmp_path / "r" / "studies" / "tiny.h5.journal"
