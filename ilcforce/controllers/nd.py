@@ -115,15 +115,18 @@ def check_widths(section: str, gains, n: int | None = None) -> int:
     """Every field of ``gains`` as wide as a task of ``n`` axes needs (default: the n its first per-axis field
     implies); returns n (ValueError, one line, naming the first field that is not). For n = 2 this is the 2-D
     check. The gains dataclasses check themselves with it, the configuration against its task's axes."""
+    given = n is not None
     n = dimension_of(gains) if n is None else n
     if n < 1:
         return n
+    first = next(name for name, growth in field_growth(type(gains)).items() if growth == (0, 1, 0))
+    why = f"a task of {n} axes" if given else f"a task of {n} axes, as {section}.{first} has {n} entries"
     for name, growth in field_growth(type(gains)).items():
         value = getattr(gains, name)
         width = len(value) if isinstance(value, tuple) else 1
         want = at_py(growth, n)
         if width != want:
-            raise ValueError(f"{section}.{name} must have {want} entries for a task of {n} axes, got {width}")
+            raise ValueError(f"{section}.{name} must have {want} entries for {why}, got {width}")
     return n
 
 
