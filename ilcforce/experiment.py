@@ -30,7 +30,7 @@ import numpy as np
 from ilcforce import pipeline, samerun
 from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY, MethodNameError, canonical_method
-from ilcforce.controllers.nd import check_widths
+from ilcforce.controllers.nd import check_widths, has_law_nd
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.simulate import (IterationInputs, complete_record, desired_inputs, prepare_first_chunk, prepare_setup,
@@ -73,7 +73,7 @@ def make_controller(config: Config, method: str):
     if refusal:
         raise ConfigError(refusal)
     cls = REGISTRY[method].controller_class
-    if config.dimension != 2 and getattr(cls, "law_nd", None) is None:
+    if config.dimension != 2 and not has_law_nd(cls):
         raise ConfigError(f"{method} has no law for a task of {config.dimension} axes yet (docs/model.md#n-dof)")
     try:  # a table the experiment does not give keeps the 2-D defaults: refused on a task of other axes
         check_widths(method, config.gains[method], config.dimension)
@@ -81,7 +81,8 @@ def make_controller(config: Config, method: str):
         raise ConfigError(str(exc)) from None
     try:
         # a law with the plant's own regressor (sl-adapt) also takes the nominal plant's parameters
-        extra = {"nominal": config.plant.nominal()} if getattr(cls, "needs_nominal_plant", False) else {}
+        extra = ({"nominal": config.plant.nominal(), "frame": config.wall.frame(config.dimension)}
+                 if getattr(cls, "needs_nominal_plant", False) else {})
         return cls(config.n_control, config.surface, config.wall.sign, config.gains[method],
                    gravity=config.plant.has_gravity, sample_time=config.simulation.sample_time, **extra)
     except ValueError as exc:  # gains valid alone but not with this setting (e.g. a Q cutoff above Nyquist)

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcforce.controllers.base import Controller
+from ilcforce.controllers.nd import has_law_nd
 from ilcforce.noise import IterationDraws, NoiseModel, disturbance
 from ilcforce.plants import make_plant
 from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
@@ -246,9 +247,12 @@ def _setup_nd(inputs: IterationInputs, controller, shared: tuple) -> IterationSe
     from ilcforce.ndof import loop as nd_loop  # numba's, loaded on first use only
 
     s = inputs.settings
-    law = getattr(type(controller), "law_nd", None)
-    if law is None:
+    if not has_law_nd(type(controller)):
         raise ValueError(f"{controller.name} has no law for a task of other than 2 axes yet (docs/model.md#n-dof)")
+    if not getattr(controller, "runs_nd", True):
+        raise ValueError(f"{controller.name}'s n-axis law needs an n-joint plant's regressor; this plant's is a "
+                         "2-joint one, which the 2-D loop runs (loop = \"auto\")")
+    law = type(controller).law_nd
     ref, n_log, t_control, true_robot, nominal_robot, fset, iset = shared
     n = true_robot.dimension
     frame = inputs.wall.frame(n)
@@ -256,7 +260,8 @@ def _setup_nd(inputs: IterationInputs, controller, shared: tuple) -> IterationSe
     dtheta0 = np.zeros(n)
     if s.initial_velocity == "consistent":  # dX(0) = dX_d(0) on the true plant
         dtheta0 = np.linalg.solve(frame @ true_robot.jacobian(theta0), reference_block(ref, REF_VELOCITY, n)[0])
-    iset = np.array([*iset, true_robot.nd_width, nominal_robot.nd_width], dtype=np.int64)
+    iset = np.array([*iset, true_robot.nd_width, nominal_robot.nd_width, getattr(controller, "nd_scratch", 0)],
+                    dtype=np.int64)
     wall = np.concatenate([[inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign], frame.ravel()])
     kernels = (law, true_robot.nd_kernel(), nominal_robot.nd_kernel())
     return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, np.ascontiguousarray(wall),

@@ -22,12 +22,19 @@ from ilcforce import simulate
 from ilcforce.config import ConfigError
 from ilcforce.config_load import default_config, load_config
 from ilcforce.controllers import REGISTRY
+from ilcforce.controllers.nd import has_law_nd
 from ilcforce.experiment import iteration_inputs, make_controller, simulate_iterations
 
 ROOT = Path(__file__).resolve().parents[1]
 ARM3 = ROOT / "experiments" / "arm3.toml"
 #: every method with an n-axis law
-ND_METHODS = tuple(name for name, spec in REGISTRY.items() if getattr(spec.controller_class, "law_nd", None))
+ND_METHODS = tuple(name for name, spec in REGISTRY.items() if has_law_nd(spec.controller_class))
+#: the methods whose n-axis law serves a 2-joint plant too: all but sl-adapt, whose n-axis law reads an n-joint
+#: plant's chain regressor (a 2-joint plant's regressor is its closed form's, read by the 2-D law only)
+ND_ON_TWO_JOINTS = tuple(name for name in ND_METHODS if name != "sl-adapt")
+#: the methods whose gains follow the shared n-axis layout (sl-adapt's Gamma is as wide as the plant's base
+#: parameters, so its n-axis layout is its own: test_sl_adapt_on_three_axes_is_slotine_li reads it)
+SHARED_LAYOUT = ND_ON_TWO_JOINTS
 
 #: the scale each logged signal is compared on: itself, or what it is a difference of
 _SCALE_OF = {"position_error": "position", "force_error": "contact_force"}
@@ -61,7 +68,7 @@ def _configs():
 
 
 @pytest.mark.parametrize("robot, config", list(_configs()), ids=lambda v: v if isinstance(v, str) else "")
-@pytest.mark.parametrize("method", ND_METHODS)
+@pytest.mark.parametrize("method", ND_ON_TWO_JOINTS)
 def test_the_n_joint_loop_equals_the_2d_loop_on_a_2_joint_robot(robot, config, method):
     two_d = _run(config, method, "auto")
     n_d = _run(config, method, "nd")
@@ -145,11 +152,24 @@ def test_arm3_refusals_are_one_line(arm3, tmp_path):
             make_controller(config, "c2")
         message = str(caught.value)
         assert "\n" not in message and words in message, (name, message)
-    with pytest.raises(ConfigError, match="sl-adapt has no law for a task of 3 axes"):
-        make_controller(arm3, "sl-adapt")
+    # sl-adapt's Gamma: one entry per base parameter of the arm (15), not per axis
+    body = text.replace("gamma = [1.0, 10.4, 10.4, 1.0,", "gamma = [10.4, 10.4, 1.0,")
+    (tmp_path / "gamma.toml").write_text(body)
+    with pytest.raises(ConfigError, match=r"^sl-adapt.gamma must have 15 entries, one per base parameter") as caught:
+        make_controller(load_config(tmp_path / "gamma.toml"), "sl-adapt")
+    assert "\n" not in str(caught.value)
 
 
-@pytest.mark.parametrize("method", ND_METHODS)
+def test_sl_adapt_on_a_2_joint_plant_is_refused_by_the_n_joint_loop():
+    config = load_config(ROOT / "experiments" / "serial2r.toml")
+    controller = make_controller(config, "sl-adapt")
+    inputs = dataclasses.replace(iteration_inputs(config, 0, config.reference_samples()), loop="nd")
+    with pytest.raises(ValueError, match="needs an n-joint plant's regressor") as caught:
+        simulate._setup(inputs, controller)
+    assert "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize("method", SHARED_LAYOUT)
 def test_the_n_axis_gain_layout_is_the_2d_layout_at_n_2(method):
     """Every field of every method with an n-axis law sits, for n = 2, where the 2-D law reads it."""
     import dataclasses as dc
@@ -202,6 +222,13 @@ def _measurement_nd(rng, config):
     return meas, JX
 
 
+def _diag(controller, n):
+    """The diag array the n-joint loop gives the law: the shared entries, then the law's own scratch."""
+    from ilcforce.controllers import nd
+
+    return np.zeros(nd.diag_width(n) + getattr(controller, "nd_scratch", 0))
+
+
 def _law_nd_inputs(config, method, seed):
     rng = np.random.default_rng(seed)
     controller = make_controller(config, method)
@@ -222,10 +249,10 @@ def test_an_n_axis_law_is_pure_unless_writing_and_quadratic_in_the_normal_accele
     mem_new = np.full_like(mem_prev, 7.0)
     before = mem_prev.copy()
     tau, tau_w = np.zeros(n), np.zeros(n)
-    law(3, 0.0003, meas, ref, controller.gains(), mem_prev, mem_new, False, np.zeros(nd.diag_width(n)), tau)
+    law(3, 0.0003, meas, ref, controller.gains(), mem_prev, mem_new, False, _diag(controller, n), tau)
     assert np.all(np.isfinite(tau)) and np.any(tau != 0.0)
     np.testing.assert_array_equal(mem_new, 7.0)
-    law(3, 0.0003, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(nd.diag_width(n)), tau_w)
+    law(3, 0.0003, meas, ref, controller.gains(), mem_prev, mem_new, True, _diag(controller, n), tau_w)
     np.testing.assert_array_equal(tau_w, tau)
     np.testing.assert_array_equal(mem_prev, before)
     if mem_prev.shape[1]:
@@ -237,7 +264,7 @@ def test_an_n_axis_law_is_pure_unless_writing_and_quadratic_in_the_normal_accele
     for a in np.arange(-2, 3) * 0.7:
         meas[a_at], meas[fa_at] = a, arm3.wall.stiffness * a
         out = np.zeros(n)
-        law(5, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, False, np.zeros(nd.diag_width(n)), out)
+        law(5, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, False, _diag(controller, n), out)
         taus.append(out)
     np.testing.assert_allclose(np.diff(np.array(taus), n=3, axis=0), 0.0, atol=1e-9)
 
@@ -279,7 +306,7 @@ def test_c1_on_three_axes_is_eq26(arm3, seed):
     u = np.diag(g.k) @ sigma + g.alpha * np.sign(sigma) + D @ psi1 + C @ psi2 + G + arm3.wall.sign * F  # eq. (26)
     tau = np.zeros(n)
     type(controller).law_nd(4, 0.0004, meas, ref, controller.gains(), np.zeros((50, 0)), np.zeros((50, 0)), False,
-                            np.zeros(nd.diag_width(n)), tau)
+                            _diag(controller, n), tau)
     np.testing.assert_allclose(tau, JX.T @ u, rtol=1e-12, atol=1e-12)
 
 
@@ -305,9 +332,43 @@ def test_c3_on_three_axes_is_eq14_with_theta_in_r_3n2(arm3, seed):
     tau = np.zeros(n)
     mem_new = np.zeros_like(mem_prev)
     type(controller).law_nd(4, 0.0004, meas, ref, controller.gains(), mem_prev, mem_new, True,
-                            np.zeros(nd.diag_width(n)), tau)
+                            _diag(controller, n), tau)
     np.testing.assert_allclose(tau, JX.T @ u, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(mem_new[4], np.r_[theta, alpha], rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_sl_adapt_on_three_axes_is_slotine_li(arm3, seed):
+    """Slotine & Li eqs. 9.25-9.27 with explicit matrices: dq_r = J_X^-1 (dX + sigma), ddq_r = J_X^-1 (psi1 -
+    R dJ dq_r), Y the chain's regressor (chain.py, the readable one) on the base columns, a_hat = a_hat_0 + the
+    last change + Ts Gamma Y^T J_X^-1 sigma, tau = Y a_hat + J_X^T (k sigma + w F)."""
+    from ilcforce.controllers import nd
+    from ilcforce.plants import adaptive, chain
+
+    n = arm3.dimension
+    controller, meas, JX, ref, mem_prev = _law_nd_inputs(arm3, "sl-adapt", seed)
+    nominal = arm3.plant.nominal()
+    columns = adaptive.base_columns(nominal)
+    assert mem_prev.shape[1] == len(columns) == len(controller.base_parameter_names)
+    g = arm3.gains["sl-adapt"]
+    sigma, psi1, psi2, F = _reference_surface_nd(arm3, meas, ref[4], g.psi_acceleration == "desired")
+    q = meas[nd.at_py(nd.M_THETA, n):][:n]
+    dq = meas[nd.at_py(nd.M_DTHETA, n):][:n]
+    p = nominal.as_array()
+    R = arm3.wall.frame(n)
+    dq_r = np.linalg.solve(JX, psi2)
+    ddq_r = np.linalg.solve(JX, psi1 - R @ chain.jacobian_derivative(p, q, dq) @ dq_r)
+    Y = chain.slotine_li_regressor(p, q, dq, dq_r, ddq_r)[:, columns]
+    a_hat = (controller.initial_estimate() + mem_prev[3]
+             + arm3.simulation.sample_time * np.asarray(g.gamma) * (Y.T @ np.linalg.solve(JX, sigma)))
+    tau_expected = Y @ a_hat + JX.T @ (np.diag(g.k) @ sigma + arm3.wall.sign * F)
+    tau = np.zeros(n)
+    mem_new = np.zeros_like(mem_prev)
+    mem_new[3] = mem_prev[3]  # this iteration's previous sample's change, which k = 4 steps from
+    type(controller).law_nd(4, 0.0004, meas, ref, controller.gains(), mem_prev, mem_new, True, _diag(controller, n),
+                            tau)
+    np.testing.assert_allclose(tau, tau_expected, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(mem_new[4], a_hat - controller.initial_estimate(), rtol=1e-12, atol=1e-15)
 
 
 def test_the_api_page_spatial_arm_example_runs(capsys):

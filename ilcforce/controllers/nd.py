@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import njit
@@ -114,14 +115,18 @@ def dimension_of(gains) -> int:
 def check_widths(section: str, gains, n: int | None = None) -> int:
     """Every field of ``gains`` as wide as a task of ``n`` axes needs (default: the n its first per-axis field
     implies); returns n (ValueError, one line, naming the first field that is not). For n = 2 this is the 2-D
-    check. The gains dataclasses check themselves with it, the configuration against its task's axes."""
+    check. The gains dataclasses check themselves with it, the configuration against its task's axes. A field
+    the gains class lists in ``plant_sized`` is as wide as the plant says; its controller checks it."""
     given = n is not None
     n = dimension_of(gains) if n is None else n
     if n < 1:
         return n
     first = next(name for name, growth in field_growth(type(gains)).items() if growth == (0, 1, 0))
     why = f"a task of {n} axes" if given else f"a task of {n} axes, as {section}.{first} has {n} entries"
+    plant_sized = getattr(type(gains), "plant_sized", ())
     for name, growth in field_growth(type(gains)).items():
+        if name in plant_sized:  # as wide as the plant says (sl-adapt's Gamma: its base parameters)
+            continue
         value = getattr(gains, name)
         width = len(value) if isinstance(value, tuple) else 1
         want = at_py(growth, n)
@@ -150,6 +155,11 @@ class compiled_law_nd:  # noqa: N801 (a descriptor, as base.compiled_law)
         if self._dispatcher is None:
             self._dispatcher = _jit.numba().njit(law_signature_nd(), cache=True, error_model="numpy")(self.py_func)
         return self._dispatcher
+
+
+def has_law_nd(controller_class) -> bool:
+    """Whether a controller class has an n-axis law, without compiling it (reading ``law_nd`` compiles)."""
+    return isinstance(inspect.getattr_static(controller_class, "law_nd", None), compiled_law_nd)
 
 
 # --- the shared terms --------------------------------------------------------------------------------

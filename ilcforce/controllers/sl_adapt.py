@@ -42,11 +42,16 @@ from typing import ClassVar
 
 import numpy as np
 
+from ilcforce.compiled.dense import lu, lu_solve
 from ilcforce.controllers.base import (
     DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_DTHETA, MEAS_FORCE, MEAS_JACOBIAN, MEAS_THETA, MemoryController,
-    check_vector, compiled_law, gain_indices, pack_gains, surface_terms,
+    check_vector, compiled_law, gain_indices, pack_common_gains, pack_gains, surface_terms,
 )
 from ilcforce.controllers.c3 import PSI_ACCELERATION
+from ilcforce.controllers.nd import (
+    D_U, G_FEEDFORWARD_SIGN, G_OWN_FIRST, M_DTHETA, M_FORCE, M_JACOBIAN, M_THETA, add_joint_torque_nd, at, at_py,
+    check_widths, compiled_law_nd, surface_nd,
+)
 from ilcforce.plants import adaptive
 
 #: Room for the nominal plant's packed parameters in the gain vector (the most of any plant).
@@ -63,9 +68,13 @@ class SlotineLiGains:
     units: ClassVar[dict[str, str]] = {"k": "N s/m", "gamma": "mixed: per base parameter, its unit^2 per (N s)",
                                        "initial_estimate": "1", "psi_acceleration": ""}
 
-    k: tuple[float, float] = (10.0, 100.0)  # task-space feedback on sigma, N s/m (C3's): K_D = J^T k J
+    #: fields as wide as the plant says, not the task (ilcforce.controllers.nd.check_widths)
+    plant_sized: ClassVar[tuple[str, ...]] = ("gamma",)
+
+    k: tuple[float, ...] = (10.0, 100.0)  # task-space feedback on sigma, N s/m (C3's): K_D = J^T k J
     # Gamma diagonal per base parameter, in the plant's order (five-bar: M11 M22 M33 M44 k3 k4; 2R arm:
-    # a b d g1 g2, the sixth unused). Default: 0.3 for every entry, the middle of the range (0.1-1) that,
+    # a b d g1 g2, the sixth unused; an n-joint arm: one per base parameter, the controller's
+    # base_parameter_names). Default: 0.3 for every entry, the middle of the range (0.1-1) that,
     # on the paper's five-bar (seed 0), recovered from m3 x 1.4 within 2-6 iterations and did not drift
     # over 20; chosen on SL-adapt's own errors, not against C3's. The 2R arm's experiment sets its own.
     gamma: tuple[float, ...] = (0.3, 0.3, 0.3, 0.3, 0.3, 0.3)
@@ -75,8 +84,10 @@ class SlotineLiGains:
     psi_acceleration: str = "desired"
 
     def __post_init__(self) -> None:
-        check_vector("sl-adapt.k", self.k, 2)
-        check_vector("sl-adapt.gamma", self.gamma, REGRESSOR_WIDTH)
+        n = check_widths("sl-adapt", self)  # k: one entry per task axis
+        check_vector("sl-adapt.k", self.k, n)
+        # Gamma: the 2-D plants' padded regressor width; an n-joint plant's base parameters (checked by the controller)
+        check_vector("sl-adapt.gamma", self.gamma, REGRESSOR_WIDTH if n == 2 else len(self.gamma))
         if min(self.gamma) < 0:
             raise ValueError("sl-adapt.gamma must be non-negative (Gamma is positive semi-definite)")
         if self.psi_acceleration not in PSI_ACCELERATION:
@@ -139,19 +150,101 @@ def sl_adapt_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     return tau1 + J00 * ux + J10 * uy, tau2 + J01 * ux + J11 * uy
 
 
+# --- the n-axis law (docs/model.md#n-dof): its own gains layout, as Gamma is as wide as the plant's base
+# parameters P, not a function of n: the shared prefix, k (n), the sample time, the psi_acceleration flag, the
+# wall's frame R (n^2, dJ_X = R dJ), Gamma (P), the base columns of the chain's regressor (P), a_hat_0 (P),
+# then the nominal chain's packed vector (ilcforce.plants.chain) to the end
+K_ND = G_OWN_FIRST
+SAMPLE_TIME_ND = (G_OWN_FIRST[0], G_OWN_FIRST[1] + 1, 0)
+PSI_ACCELERATION_FLAG_ND = (G_OWN_FIRST[0] + 1, G_OWN_FIRST[1] + 1, 0)
+FRAME_ND = (G_OWN_FIRST[0] + 2, G_OWN_FIRST[1] + 1, 0)
+GAMMA_ND = (G_OWN_FIRST[0] + 2, G_OWN_FIRST[1] + 1, 1)
+
+
+def scratch_nd(n: int) -> int:
+    """The law's scratch after the shared diag (:func:`ilcforce.controllers.nd.diag_width`): LU of J_X (n^2),
+    its pivots, dq_r, J_X^-1 sigma and ddq_r (n each), the chain's whole regressor (n x 10 n), the chain's work."""
+    return n * n + 4 * n + 10 * n * n + adaptive.nd_work_width(n)
+
+
+def sl_adapt_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """Slotine & Li eqs. 9.25-9.27 on n task axes, the 2-D law's steps with n-wide blocks: dq_r = J_X^-1 (dX +
+    sigma), ddq_r = J_X^-1 (ddX_r - dJ_X dq_r), Y(q, dq, dq_r, ddq_r) on the chain's base columns, the estimate's
+    backward-Euler step and tau = Y a_hat + J_X^T (k sigma + w F)."""
+    n = tau.shape[0]
+    nb = mem_prev.shape[1]  # the base parameters
+    surface_nd(n, k, meas, ref, gains, gains[at(PSI_ACCELERATION_FLAG_ND, n)] > 0.5, diag)  # eqs. (8), (12)
+    frame = at(FRAME_ND, n)
+    gamma = at(GAMMA_ND, n)
+    columns = gamma + nb
+    start = columns + nb  # a_hat_0
+    p = gains[start + nb:]  # the nominal chain
+    ts = gains[at(SAMPLE_TIME_ND, n)]
+    o_lu = at(D_U, n) + n  # after the shared diag (diag_width)
+    o_piv = o_lu + n * n
+    o_r = o_piv + n  # dq_r
+    o_s = o_r + n  # J_X^-1 sigma = -s
+    o_rr = o_s + n  # ddq_r
+    o_y = o_rr + n  # Y (n x 10 n)
+    width = 10 * n
+    o_work = o_y + n * width
+    if not lu(n, meas, at(M_JACOBIAN, n), diag[o_lu:o_piv], diag[o_piv:o_r]):
+        for i in range(n):
+            tau[i] = np.nan  # a singular J_X: the watchdog stops the iteration
+        return 0
+    for i in range(n):
+        diag[o_r + i] = diag[2 * n + i]  # dX + sigma (surface_nd's third block)
+        diag[o_s + i] = diag[i]  # sigma
+    lu_solve(n, diag[o_lu:o_piv], diag[o_piv:o_r], diag[o_r:o_s])
+    lu_solve(n, diag[o_lu:o_piv], diag[o_piv:o_r], diag[o_s:o_rr])
+    q = meas[at(M_THETA, n):at(M_THETA, n) + n]
+    dq = meas[at(M_DTHETA, n):at(M_DTHETA, n) + n]
+    work = diag[o_work:]
+    adaptive.nd_frames(p, q, dq, work)
+    c0, c1, c2 = adaptive.nd_jacobian_rate_times(p, dq, diag[o_r:o_s], work)  # dJ dq_r, world frame
+    for i in range(n):  # ddq_r = J_X^-1 (ddX_r - R dJ dq_r), ddX_r = psi1 (surface_nd's second block)
+        f = frame + n * i
+        diag[o_rr + i] = diag[n + i] - (gains[f] * c0 + gains[f + 1] * c1 + gains[f + 2] * c2)
+    lu_solve(n, diag[o_lu:o_piv], diag[o_piv:o_r], diag[o_rr:o_y])
+    adaptive.nd_regressor(p, dq, diag[o_r:o_s], diag[o_rr:o_y], work, diag, o_y)
+    last = mem_prev.shape[0] - 1
+    for i in range(n):
+        tau[i] = 0.0
+    for r in range(nb):
+        col = o_y + int(gains[columns + r])
+        grad = 0.0
+        for i in range(n):
+            grad += diag[col + i * width] * diag[o_s + i]
+        before = mem_new[k - 1, r] if k > 0 else mem_prev[last, r]
+        change = before + ts * gains[gamma + r] * grad  # Slotine & Li eq. 9.27, backward Euler
+        if write:
+            mem_new[k, r] = change
+        a_hat = gains[start + r] + change
+        for i in range(n):
+            tau[i] += diag[col + i * width] * a_hat
+    # Slotine & Li eq. 9.25: Y a_hat - K_D s with K_D = J^T k J, plus w J^T F (erratum 1)
+    w = gains[at(G_FEEDFORWARD_SIGN, n)]
+    u = at(D_U, n)
+    for i in range(n):
+        diag[u + i] = gains[at(K_ND, n) + i] * diag[i] + w * meas[at(M_FORCE, n) + i]
+    add_joint_torque_nd(n, meas, diag, u, tau)
+    return 0
+
+
 class SlotineLiController(MemoryController):
     name = "sl-adapt"
     law = compiled_law(sl_adapt_law)
+    law_nd = compiled_law_nd(sl_adapt_law_nd)
     uses_nominal_dynamics = False
     memory_layout = {"a_hat_change": (0, 6, "a_hat - a_hat_0, base parameters (five-bar: kg m^2)")}
     #: make_controller passes the nominal plant's parameters (the regressor needs the lengths)
     needs_nominal_plant = True
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: SlotineLiGains, *,
-                 gravity: bool = False, sample_time: float = float("nan"), nominal=None):
+                 gravity: bool = False, sample_time: float = float("nan"), nominal=None, frame=None):
         if nominal is None or not hasattr(nominal, "model"):
             raise ValueError("sl-adapt needs the nominal parameters of a plant (ilcforce.plants.MODELS)")
-        code = adaptive.code(nominal.model)
+        n = len(surface.selection)
         self.base_parameter_names = adaptive.base_parameter_names(nominal.model, nominal)
         width = len(self.base_parameter_names)
         unit = adaptive.base_parameter_units(nominal.model)
@@ -159,6 +252,13 @@ class SlotineLiController(MemoryController):
         super().__init__(n_control, sample_time)
         if not (np.isfinite(self.sample_time) and self.sample_time > 0):
             raise ValueError("sl-adapt needs the control sample time to integrate its adaptation")
+        if n != 2:
+            self._gains = self._pack_nd(n, surface, wall_sign, gains, nominal, frame)
+            self._initial = slice(at_py(GAMMA_ND, n) + 2 * width, at_py(GAMMA_ND, n) + 3 * width)
+            self.nd_scratch = scratch_nd(n)
+            return
+        self.runs_nd = False  # a 2-joint plant's regressor: the 2-D law only (the n-joint loop refuses it)
+        code = adaptive.code(nominal.model)
         packed = np.zeros(MAX_PLANT_PARAMS)
         packed[:len(nominal.as_array())] = nominal.as_array()
         head = pack_gains(surface, wall_sign, gains, encode={"psi_acceleration": PSI_ACCELERATION}, derived={"sample_time": self.sample_time, "plant": code,
@@ -166,6 +266,27 @@ class SlotineLiController(MemoryController):
         initial = np.zeros(REGRESSOR_WIDTH)
         initial[:width] = gains.initial_estimate * adaptive.base_parameters(nominal)  # a_hat_0
         self._gains = np.concatenate([head, packed[1:], initial])
+        self._initial = slice(PARAMS + MAX_PLANT_PARAMS, PARAMS + MAX_PLANT_PARAMS + width)
+
+    def _pack_nd(self, n, surface, wall_sign, gains, nominal, frame) -> np.ndarray:
+        """The n-axis law's gains (its layout: ``K_ND`` .. ``GAMMA_ND`` and what follows)."""
+        if not adaptive.has_chain_regressor(nominal.model):
+            raise ValueError(f"sl-adapt's law for {n} task axes needs an n-joint plant's regressor, which "
+                             f"plant.model = {nominal.model!r} does not provide")
+        names = self.base_parameter_names
+        if len(gains.gamma) != len(names):
+            raise ValueError(f"sl-adapt.gamma must have {len(names)} entries, one per base parameter of the "
+                             f"{nominal.model} ({', '.join(names)}), got {len(gains.gamma)}")
+        frame = np.eye(n) if frame is None else np.asarray(frame, dtype=np.float64)
+        if frame.shape != (n, n):
+            raise ValueError(f"sl-adapt needs the wall's frame as an {n} x {n} matrix, got shape {frame.shape}")
+        columns = adaptive.base_columns(nominal)
+        values = [*pack_common_gains(surface, wall_sign), *gains.k, self.sample_time,
+                  PSI_ACCELERATION[gains.psi_acceleration], *frame.ravel()]
+        assert len(values) == at_py(GAMMA_ND, n)
+        a0 = gains.initial_estimate * adaptive.base_parameters(nominal)  # a_hat_0
+        return np.concatenate([values, gains.gamma, np.asarray(columns, dtype=np.float64), a0,
+                               nominal.as_array()]).astype(np.float64)
 
     @property
     def memory_labels(self) -> dict[str, tuple[str, ...]]:
@@ -173,8 +294,7 @@ class SlotineLiController(MemoryController):
 
     def initial_estimate(self) -> np.ndarray:
         """a_hat_0 (the base parameters iteration 0 starts from), shape (n_base,)."""
-        n = len(self.base_parameter_names)
-        return self._gains[PARAMS + MAX_PLANT_PARAMS:PARAMS + MAX_PLANT_PARAMS + n].copy()
+        return self._gains[self._initial].copy()
 
     def gains(self) -> np.ndarray:
         return self._gains

@@ -28,9 +28,8 @@ from ilcforce.controllers.nd import (
     M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_THETA, M_VELOCITY, M_WIDTH,
     at, law_signature_nd,
 )
-from ilcforce.ndof.algebra import (
-    OUT_B, OUT_DJ, OUT_DJV, OUT_M, cholesky, cholesky_solve, lu, lu_solve_transposed, task_model,
-)
+from ilcforce.compiled.dense import cholesky, cholesky_solve, lu, lu_solve_transposed
+from ilcforce.ndof.algebra import OUT_B, OUT_DJ, OUT_DJV, OUT_M, task_model
 from ilcforce.plants.nd import nd_type
 from ilcforce.task import wall_force, wall_stiffness
 
@@ -39,7 +38,8 @@ RUN_OK, RUN_NONFINITE, RUN_TORQUE_BOUND, RUN_WORKING_MODE, RUN_CONTINUE = 0, 1, 
 FS_TS, FS_BETA, FS_TAU_BOUND = 0, 1, 2
 IS_SUBSTEPS, IS_LOG_EVERY, IS_SCHEME, IS_NOMINAL_DYNAMICS, IS_FORCE_AXIS, IS_FALLBACK = 0, 1, 2, 3, 4, 5
 IS_WIDTH_TRUE, IS_WIDTH_NOMINAL = 6, 7  # the plants' kernel buffers (ilcforce.plants.nd.nd_width)
-IS_WIDTH = 8
+IS_LAW_SCRATCH = 8  # the law's scratch after its diag entries (a controller's nd_scratch, 0 for most)
+IS_WIDTH = 9
 
 #: the log's signals in column-block order (block b starts at column b n), as ``ilcforce.loop.LOG_COLUMNS``
 LOG_BLOCKS = ("joint_angle", "joint_rate", "joint_angle_measured", "joint_rate_measured", "position", "velocity",
@@ -188,7 +188,7 @@ def _simulate(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
     out_t = np.empty(iset[IS_WIDTH_TRUE])
     out_n = np.empty(iset[IS_WIDTH_NOMINAL])
     meas = np.zeros(at(M_WIDTH, n))
-    diag = np.zeros(4 * n)  # controllers.nd.diag_width
+    diag = np.zeros(4 * n + iset[IS_LAW_SCRATCH])  # controllers.nd.diag_width, then the law's scratch
     X = np.empty(n)
     JX = np.empty(nn)
     dJv = np.empty(n)

@@ -34,7 +34,8 @@ from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel r
 
 __all__ = ["HEADER", "LINK", "HINGE", "SLIDE", "N_INERTIAL", "link_count", "frames", "forward_kinematics",
            "jacobian", "jacobian_derivative", "inverse_dynamics", "joint_inertia", "joint_coriolis",
-           "regressor", "inertial_parameters", "potential_energy"]
+           "regressor", "slotine_li_regressor", "inertial_parameters", "base_columns", "base_parameters",
+           "inertial_parameter_name", "INERTIAL_NAMES", "potential_energy"]
 
 HEADER = 8
 LINK = 33
@@ -42,6 +43,8 @@ HINGE = 0.0
 SLIDE = 1.0
 #: inertial parameters per link: [m, m cx, m cy, m cz, Ixx, Ixy, Ixz, Iyy, Iyz, Izz] (I about the link frame's origin)
 N_INERTIAL = 10
+#: their names, in that order
+INERTIAL_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
 # offsets inside a link's block
 _TYPE, _Q0, _POS, _ROT, _ANCHOR, _AXIS, _MASS, _COM, _INERTIA = 0, 1, 2, 5, 14, 17, 20, 21, 24
 
@@ -367,45 +370,90 @@ def _to_link(Ri, oi, m):
 
 
 @njit(cache=True, error_model="numpy")
-def _link_regressor(v, a):
-    """A (6, 10) with I(pi) a + v x* I(pi) v = A pi for a link's inertial parameters pi (N_INERTIAL),
-    v = [w; u] and a = [al; al_lin] in link coordinates: force [Ibar al + h x al_lin + w x (Ibar w + h x u)
-    + u x (w x h); m (al_lin + w x u) + al x h + w x (w x h)], h = m c."""
+def _link_regressor(v, vr, a):
+    """A (6, 10) with I(pi) a + v x* I(pi) vr = A pi for a link's inertial parameters pi (N_INERTIAL),
+    v = [w; u], vr = [wr; ur] and a = [al; al_lin] in link coordinates (I x = [Ibar xw + h x xu; m xu + xw x h]):
+    force [Ibar al + h x al_lin + w x (Ibar wr + h x ur) + u x (m ur + wr x h); m (al_lin + w x ur) + al x h
+    + w x (wr x h)], h = m c. With vr = v it is the link's Newton-Euler force I a + v x* I v."""
     w, u = v[:3], v[3:]
+    wr, ur = vr[:3], vr[3:]
     al, alin = a[:3], a[3:]
     A = np.zeros((6, 10))
-    A[3:, 0] = alin + _cross(w, u)
+    A[:3, 0] = _cross(u, ur)
+    A[3:, 0] = alin + _cross(w, ur)
     e = np.zeros(3)
     for k in range(3):  # the columns of h = m c
         e[:] = 0.0
         e[k] = 1.0
-        A[:3, 1 + k] = _cross(e, alin) + _cross(w, _cross(e, u)) + _cross(u, _cross(w, e))
-        A[3:, 1 + k] = _cross(al, e) + _cross(w, _cross(w, e))
+        A[:3, 1 + k] = _cross(e, alin) + _cross(w, _cross(e, ur)) + _cross(u, _cross(wr, e))
+        A[3:, 1 + k] = _cross(al, e) + _cross(w, _cross(wr, e))
     # Ibar x for x = [x0, x1, x2]: rows [xx x0 + xy x1 + xz x2, xy x0 + yy x1 + yz x2, xz x0 + yz x1 + zz x2]
     L_al = np.array([[al[0], al[1], al[2], 0.0, 0.0, 0.0],
                      [0.0, al[0], 0.0, al[1], al[2], 0.0],
                      [0.0, 0.0, al[0], 0.0, al[1], al[2]]])
-    L_w = np.array([[w[0], w[1], w[2], 0.0, 0.0, 0.0],
-                    [0.0, w[0], 0.0, w[1], w[2], 0.0],
-                    [0.0, 0.0, w[0], 0.0, w[1], w[2]]])
+    L_wr = np.array([[wr[0], wr[1], wr[2], 0.0, 0.0, 0.0],
+                     [0.0, wr[0], 0.0, wr[1], wr[2], 0.0],
+                     [0.0, 0.0, wr[0], 0.0, wr[1], wr[2]]])
     for c in range(6):
-        A[:3, 4 + c] = L_al[:, c] + _cross(w, L_w[:, c])
+        A[:3, 4 + c] = L_al[:, c] + _cross(w, L_wr[:, c])
     return A
+
+
+@njit(cache=True, error_model="numpy")
+def _reference_motion(p, S, dq, dq_r, ddq_r):
+    """Each link's velocity v_i, reference velocity vr_i = sum_{l <= i} S_l dq_r,l and reference acceleration
+    ar_i = ar_{i-1} + S_i ddq_r,i + (v_i x S_i) dq_r,i (n, 6), the base accelerating at -g: the motion of
+    Slotine & Li's reference trajectory seen from the robot moving at dq (Niemeyer & Slotine 1991)."""
+    n = S.shape[0]
+    v = np.zeros((n, 6))
+    vr = np.zeros((n, 6))
+    ar = np.zeros((n, 6))
+    vp = np.zeros(6)
+    vrp = np.zeros(6)
+    ap = np.zeros(6)
+    ap[3:] = -p[5:8]
+    for i in range(n):
+        vp = vp + S[i] * dq[i]
+        vrp = vrp + S[i] * dq_r[i]
+        ap = ap + S[i] * ddq_r[i] + _crm(vp, S[i]) * dq_r[i]
+        v[i] = vp
+        vr[i] = vrp
+        ar[i] = ap
+    return v, vr, ar
+
+
+@njit(cache=True, error_model="numpy")
+def _newton_euler_regressor(p, R, o, S, dq, dq_r, ddq_r):
+    """Y_NE (n, 10 n) with Y_NE pi = M ddq_r + C_NE(q, dq) dq_r + g by Newton-Euler on the reference motion
+    (:func:`_reference_motion`): link l's force f_l = I_l ar_l + v_l x* I_l vr_l, tau_j = sum_{l >= j} S_j . f_l,
+    in link l's coordinates. Its velocity part is bilinear in (dq, dq_r) and equals C(q, dq) dq when dq_r = dq."""
+    n = S.shape[0]
+    v, vr, ar = _reference_motion(p, S, dq, dq_r, ddq_r)
+    Y = np.zeros((n, N_INERTIAL * n))
+    for l in range(n):
+        A = _link_regressor(_to_link(R[l], o[l], v[l]), _to_link(R[l], o[l], vr[l]), _to_link(R[l], o[l], ar[l]))
+        for j in range(l + 1):
+            Y[j, N_INERTIAL * l:N_INERTIAL * (l + 1)] = _mtv(A, _to_link(R[l], o[l], S[j]))
+    return Y
+
+
+@njit(cache=True, error_model="numpy")
+def slotine_li_regressor(p, q, dq, dq_r, ddq_r):
+    """Y (n, 10 n) with Y pi = M(q) ddq_r + C(q, dq) dq_r + g(q), C the Christoffel Coriolis matrix
+    (:func:`joint_coriolis`, so dM/dt - 2 C is skew-symmetric, as Slotine & Li's proof asks), for pi the links'
+    inertial parameters (:func:`inertial_parameters`). Newton-Euler's velocity part is bilinear in (dq, dq_r);
+    its symmetric half, (Y_NE(dq, dq_r) + Y_NE(dq_r, dq)) / 2, is the Christoffel form (the symmetric bilinear
+    form whose quadratic form is C(q, v) v). Being a function of M and g only, its columns keep the dependencies
+    of :func:`base_columns`. With dq_r = dq, ddq_r = ddq it is :func:`regressor`."""
+    R, o, S = frames(p, q)
+    return 0.5 * (_newton_euler_regressor(p, R, o, S, dq, dq_r, ddq_r) + _newton_euler_regressor(p, R, o, S, dq_r, dq, ddq_r))
 
 
 @njit(cache=True, error_model="numpy")
 def regressor(p, q, dq, ddq):
     """Y (n, 10 n) with Y pi = inverse_dynamics(p, q, dq, ddq, True) for pi the links' inertial
-    parameters (:func:`inertial_parameters`): tau_j = sum_{l >= j} S_j . A_l pi_l, in link l's coordinates."""
-    R, o, S = frames(p, q)
-    n = S.shape[0]
-    v, a = _velocities_accelerations(p, S, dq, ddq, True)
-    Y = np.zeros((n, N_INERTIAL * n))
-    for l in range(n):
-        A = _link_regressor(_to_link(R[l], o[l], v[l]), _to_link(R[l], o[l], a[l]))
-        for j in range(l + 1):
-            Y[j, N_INERTIAL * l:N_INERTIAL * (l + 1)] = _mtv(A, _to_link(R[l], o[l], S[j]))
-    return Y
+    parameters (:func:`inertial_parameters`): :func:`slotine_li_regressor` along the motion itself."""
+    return slotine_li_regressor(p, q, dq, dq, ddq)
 
 
 def inertial_parameters(p) -> np.ndarray:
@@ -419,6 +467,41 @@ def inertial_parameters(p) -> np.ndarray:
         Ib = np.asarray(p[b + _INERTIA:b + _INERTIA + 9]).reshape(3, 3) + m * (c @ c * np.eye(3) - np.outer(c, c))
         out[i] = [m, *(m * c), Ib[0, 0], Ib[0, 1], Ib[0, 2], Ib[1, 1], Ib[1, 2], Ib[2, 2]]
     return out
+
+
+def base_columns(chain_packed, states: int = 40, seed: int = 0):
+    """(B, beta): the chain regressor's columns B whose parameters are identifiable (the base
+    parameters a = pi_B + beta pi_D, pi_D the other columns' inertial parameters), chosen in column
+    order by their residual against the columns chosen before, on random states (a fixed seed: the
+    same columns for the nominal and the true plant, whose geometry is the same)."""
+    rng = np.random.default_rng(seed)
+    n = link_count(chain_packed)
+    rows = [regressor(chain_packed, rng.uniform(-np.pi, np.pi, n), rng.uniform(-2, 2, n), rng.uniform(-5, 5, n))
+            for _ in range(states)]
+    W = np.vstack(rows)
+    scale = np.linalg.norm(W, axis=0)
+    chosen: list[int] = []
+    for c in range(W.shape[1]):
+        if scale[c] <= 1e-12 * scale.max():
+            continue
+        trial = W[:, [*chosen, c]]
+        if np.linalg.matrix_rank(trial / np.linalg.norm(trial, axis=0), tol=1e-9) == len(chosen) + 1:
+            chosen.append(c)
+    others = [c for c in range(W.shape[1]) if c not in chosen]
+    beta = np.linalg.lstsq(W[:, chosen], W[:, others], rcond=None)[0] if others else np.zeros((len(chosen), 0))
+    return chosen, beta
+
+
+def base_parameters(p, columns, beta) -> np.ndarray:
+    """a = pi_B + beta pi_D (:func:`base_columns`), shape (len(columns),): the base parameters of the chain ``p``."""
+    pi = inertial_parameters(p).ravel()
+    others = [c for c in range(pi.size) if c not in columns]
+    return pi[columns] + (beta @ pi[others] if others else 0.0)
+
+
+def inertial_parameter_name(links, column: int) -> str:
+    """The name of the regressor's column ``column`` (``link2.mcx``), ``links`` the links' names."""
+    return f"{links[column // N_INERTIAL]}.{INERTIAL_NAMES[column % N_INERTIAL]}"
 
 
 @njit(cache=True, error_model="numpy")

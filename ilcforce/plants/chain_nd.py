@@ -26,10 +26,12 @@ import math
 
 from ilcforce.compiled.jit import njit
 from ilcforce.plants.base import params_view
-from ilcforce.plants.chain import _ANCHOR, _AXIS, _COM, _INERTIA, _MASS, _POS, _Q0, _ROT, _TYPE, HEADER, HINGE, LINK
+from ilcforce.plants.chain import (
+    _ANCHOR, _AXIS, _COM, _INERTIA, _MASS, _POS, _Q0, _ROT, _TYPE, HEADER, HINGE, LINK, N_INERTIAL,
+)
 from ilcforce.plants.nd import layout, nd_layout
 
-__all__ = ["TASK", "LINK_SCRATCH", "scratch", "width", "kernel"]
+__all__ = ["TASK", "LINK_SCRATCH", "scratch", "width", "kernel", "jacobian_rate_times", "slotine_li_regressor"]
 
 #: the task: the end effector's world position
 TASK = 3
@@ -328,6 +330,124 @@ def terms(p, q, dq, level, out):
                                 - out[od + (i * n + j) * n + k]) * dq[k]
             out[ocq + i * n + j] = total
     return 1.0
+
+
+# --- Slotine-Li's regressor (ilcforce.plants.adaptive), on the frames terms() left in ``work`` at level 0 -------
+
+@njit(cache=True, error_model="numpy")
+def jacobian_rate_times(p, dq, x, work):
+    """dJ/dt x (world, a 3-tuple) at the (q, dq) whose level-0 entries ``work`` holds, as
+    chain.jacobian_derivative: column j is dw_j x P + w_j x dP + dv_j with dS_j = v_j x S_j."""
+    n = int(p[0])
+    e = int(p[1])
+    op, oj, _, _, _, _, _, _, s = nd_layout(n, TASK)
+    P0, P1, P2 = work[op], work[op + 1], work[op + 2]
+    dP0, dP1, dP2 = 0.0, 0.0, 0.0
+    for j in range(e + 1):
+        dP0 += work[oj + j] * dq[j]
+        dP1 += work[oj + n + j] * dq[j]
+        dP2 += work[oj + 2 * n + j] * dq[j]
+    v = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    r0, r1, r2 = 0.0, 0.0, 0.0
+    for j in range(e + 1):
+        S = _get6(work, s + LINK_SCRATCH * j + _S)
+        d = dq[j]
+        v = (v[0] + S[0] * d, v[1] + S[1] * d, v[2] + S[2] * d, v[3] + S[3] * d, v[4] + S[4] * d, v[5] + S[5] * d)
+        dS = _crm(v, S)
+        a0, a1, a2 = _cross(dS[0], dS[1], dS[2], P0, P1, P2)
+        b0, b1, b2 = _cross(S[0], S[1], S[2], dP0, dP1, dP2)
+        r0 += (a0 + b0 + dS[3]) * x[j]
+        r1 += (a1 + b1 + dS[4]) * x[j]
+        r2 += (a2 + b2 + dS[5]) * x[j]
+    return r0, r1, r2
+
+
+@njit(cache=True, error_model="numpy")
+def _to_link(R, o, m):
+    """A world motion vector at the origin in link coordinates (at the link origin, in its axes), as chain._to_link."""
+    c0, c1, c2 = _cross(m[0], m[1], m[2], o[0], o[1], o[2])
+    a0, a1, a2 = R[0] * m[0] + R[3] * m[1] + R[6] * m[2], R[1] * m[0] + R[4] * m[1] + R[7] * m[2], \
+        R[2] * m[0] + R[5] * m[1] + R[8] * m[2]
+    u0, u1, u2 = m[3] + c0, m[4] + c1, m[5] + c2
+    return (a0, a1, a2, R[0] * u0 + R[3] * u1 + R[6] * u2, R[1] * u0 + R[4] * u1 + R[7] * u2,
+            R[2] * u0 + R[5] * u1 + R[8] * u2)
+
+
+@njit(cache=True, error_model="numpy")
+def _link_column(v, vr, a, c):
+    """Column c of chain._link_regressor(v, vr, a) (a 6-tuple): the link force I(pi) a + v x* I(pi) vr per unit
+    of its inertial parameter c (m, m c (3), Ixx Ixy Ixz Iyy Iyz Izz), link coordinates."""
+    w0, w1, w2, u0, u1, u2 = v
+    q0, q1, q2, r0, r1, r2 = vr  # wr, ur
+    b0, b1, b2, l0, l1, l2 = a  # al, al_lin
+    if c == 0:  # m: [u x ur; al_lin + w x ur]
+        x0, x1, x2 = _cross(u0, u1, u2, r0, r1, r2)
+        y0, y1, y2 = _cross(w0, w1, w2, r0, r1, r2)
+        return x0, x1, x2, l0 + y0, l1 + y1, l2 + y2
+    if c < 4:  # h_k: [e x al_lin + w x (e x ur) + u x (wr x e); al x e + w x (wr x e)]
+        e0, e1, e2 = (1.0 if c == 1 else 0.0), (1.0 if c == 2 else 0.0), (1.0 if c == 3 else 0.0)
+        x0, x1, x2 = _cross(e0, e1, e2, l0, l1, l2)
+        t0, t1, t2 = _cross(e0, e1, e2, r0, r1, r2)
+        y0, y1, y2 = _cross(w0, w1, w2, t0, t1, t2)
+        t0, t1, t2 = _cross(q0, q1, q2, e0, e1, e2)
+        z0, z1, z2 = _cross(u0, u1, u2, t0, t1, t2)
+        f0, f1, f2 = _cross(b0, b1, b2, e0, e1, e2)
+        g0, g1, g2 = _cross(w0, w1, w2, t0, t1, t2)
+        return x0 + y0 + z0, x1 + y1 + z1, x2 + y2 + z2, f0 + g0, f1 + g1, f2 + g2
+    # Ibar's entry: L(al) + w x L(wr), L(x) the column of Ibar x: xx (x0, 0, 0), xy (x1, x0, 0), xz (x2, 0, x0),
+    # yy (0, x1, 0), yz (0, x2, x1), zz (0, 0, x2)
+    if c == 4:
+        a0, a1, a2, s0, s1, s2 = b0, 0.0, 0.0, q0, 0.0, 0.0
+    elif c == 5:
+        a0, a1, a2, s0, s1, s2 = b1, b0, 0.0, q1, q0, 0.0
+    elif c == 6:
+        a0, a1, a2, s0, s1, s2 = b2, 0.0, b0, q2, 0.0, q0
+    elif c == 7:
+        a0, a1, a2, s0, s1, s2 = 0.0, b1, 0.0, 0.0, q1, 0.0
+    elif c == 8:
+        a0, a1, a2, s0, s1, s2 = 0.0, b2, b1, 0.0, q2, q1
+    else:
+        a0, a1, a2, s0, s1, s2 = 0.0, 0.0, b2, 0.0, 0.0, q2
+    y0, y1, y2 = _cross(w0, w1, w2, s0, s1, s2)
+    return a0 + y0, a1 + y1, a2 + y2, 0.0, 0.0, 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def slotine_li_regressor(p, dq, dq_r, ddq_r, work, Y, y0):
+    """chain.slotine_li_regressor(p, q, dq, dq_r, ddq_r) (n x 10 n, row-major, into Y[y0:]) at the (q, dq) whose
+    level-0 entries ``work`` holds: per unit of each of link l's ten parameters, the mean of Newton-Euler's link
+    force on the reference motion seen at dq (I ar + v x* I vr) and at dq_r (I ar' + vr x* I v), projected on
+    S_j (j <= l) in link l's coordinates. Allocates nothing."""
+    n = int(p[0])
+    s = nd_layout(n, TASK)[-1]
+    width = N_INERTIAL * n
+    for i in range(n * width):
+        Y[y0 + i] = 0.0
+    v = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    vr = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    ar = (0.0, 0.0, 0.0, -p[5], -p[6], -p[7])
+    ar2 = ar
+    for l in range(n):
+        k = s + LINK_SCRATCH * l
+        S = _get6(work, k + _S)
+        d, dr, ddr = dq[l], dq_r[l], ddq_r[l]
+        v = (v[0] + S[0] * d, v[1] + S[1] * d, v[2] + S[2] * d, v[3] + S[3] * d, v[4] + S[4] * d, v[5] + S[5] * d)
+        vr = (vr[0] + S[0] * dr, vr[1] + S[1] * dr, vr[2] + S[2] * dr, vr[3] + S[3] * dr, vr[4] + S[4] * dr,
+              vr[5] + S[5] * dr)
+        dS = _crm(v, S)  # reference acceleration seen at dq: ar_l = ar_{l-1} + S_l ddq_r,l + (v_l x S_l) dq_r,l
+        ar = (ar[0] + S[0] * ddr + dS[0] * dr, ar[1] + S[1] * ddr + dS[1] * dr, ar[2] + S[2] * ddr + dS[2] * dr,
+              ar[3] + S[3] * ddr + dS[3] * dr, ar[4] + S[4] * ddr + dS[4] * dr, ar[5] + S[5] * ddr + dS[5] * dr)
+        dS = _crm(vr, S)  # and at dq_r: ar'_l = ar'_{l-1} + S_l ddq_r,l + (vr_l x S_l) dq_l
+        ar2 = (ar2[0] + S[0] * ddr + dS[0] * d, ar2[1] + S[1] * ddr + dS[1] * d, ar2[2] + S[2] * ddr + dS[2] * d,
+               ar2[3] + S[3] * ddr + dS[3] * d, ar2[4] + S[4] * ddr + dS[4] * d, ar2[5] + S[5] * ddr + dS[5] * d)
+        R = _get9(work, k + _R)
+        o = _get3(work, k + _O)
+        vb, vrb, arb, ar2b = _to_link(R, o, v), _to_link(R, o, vr), _to_link(R, o, ar), _to_link(R, o, ar2)
+        for j in range(l + 1):
+            Sj = _to_link(R, o, _get6(work, s + LINK_SCRATCH * j + _S))
+            for c in range(N_INERTIAL):
+                Y[y0 + j * width + N_INERTIAL * l + c] = 0.5 * (_dot6(Sj, _link_column(vb, vrb, arb, c))
+                                                                + _dot6(Sj, _link_column(vrb, vb, ar2b, c)))
 
 
 def _nd_kernel(address, q, dq, level, out):

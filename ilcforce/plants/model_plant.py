@@ -194,10 +194,6 @@ PACKED_LENGTH = 20 + 8 + 2 * 33
 #: the base parameters' units, as an adaptive law's memory describes them
 BASE_PARAMETER_UNITS = ("each a link's inertial parameter (kg, kg m or kg m^2, link frame) plus the unidentifiable "
                         "ones it absorbs")
-#: a link's ten inertial parameters (ilcforce.plants.chain.inertial_parameters)
-_INERTIAL = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Ixz", "Iyy", "Iyz", "Izz")
-
-
 def _chain_part(params) -> np.ndarray:
     from ilcforce.plants import planar_kernels
 
@@ -206,22 +202,19 @@ def _chain_part(params) -> np.ndarray:
 
 def base_parameter_names_of(params) -> tuple[str, ...]:
     """The base parameters' names: each the inertial parameter of its column (``link2.mcx``)."""
-    from ilcforce.plants import planar_kernels
+    from ilcforce.plants import chain
 
     links = load_planar(*params._key()).link_names
-    columns, _ = planar_kernels.base_columns(_chain_part(params))
-    return tuple(f"{links[c // 10]}.{_INERTIAL[c % 10]}" for c in columns)
+    columns, _ = chain.base_columns(_chain_part(params))
+    return tuple(chain.inertial_parameter_name(links, c) for c in columns)
 
 
 def base_parameters(params) -> np.ndarray:
-    """a = pi_B + beta pi_D (ilcforce.plants.planar_kernels.base_columns), shape (n_base,)."""
-    from ilcforce.plants import chain, planar_kernels
+    """a = pi_B + beta pi_D (ilcforce.plants.chain.base_columns), shape (n_base,)."""
+    from ilcforce.plants import chain
 
     cp = _chain_part(params)
-    pi = chain.inertial_parameters(cp).ravel()
-    columns, beta = planar_kernels.base_columns(cp)
-    others = [c for c in range(pi.size) if c not in columns]
-    return pi[columns] + (beta @ pi[others] if others else 0.0)
+    return chain.base_parameters(cp, *chain.base_columns(cp))
 
 
 def __getattr__(name: str):

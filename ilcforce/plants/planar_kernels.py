@@ -10,7 +10,7 @@ The packed vector: :data:`PLANE` floats describing the task plane, then the chai
      elbow (+1 up, -1 down), A1 (2): joint 1's axis in task coordinates, L1, L2: the link lengths in the
      plane, phi1_0: link 1's angle in the plane at q = 0, beta_0: link 2's angle from link 1 at q = 0,
      s2: +1 if joint 2's axis is joint 1's, -1 if opposite, the regressor's base columns (6: indices into
-     the chain regressor's 20 columns, -1 unused; :func:`base_columns`)]
+     the chain regressor's 20 columns, -1 unused; ``chain.base_columns``)]
 
 Task coordinates are the world position's components along ex and ey; gravity is the chain's own
 (the model's -z unless the experiment sets g), so it acts in the plane only through its in-plane part.
@@ -31,7 +31,7 @@ from ilcforce.plants import chain
 from ilcforce.plants.base import PlantKernels, compile_kernels, params_view, task_from_dynamics
 from ilcforce.plants.nd import compile_nd, from_dyn
 
-__all__ = ["PLANE", "N_PACKED", "BASE_WIDTH", "kernels", "nd_kernel", "plane", "regressor", "jacobian_derivative", "base_columns"]
+__all__ = ["PLANE", "N_PACKED", "BASE_WIDTH", "kernels", "nd_kernel", "plane", "regressor", "jacobian_derivative"]
 
 #: the regressor's width: at most this many base parameters (a planar 2R arm with gravity has 6)
 BASE_WIDTH = 6
@@ -200,35 +200,12 @@ def plane(arm, elbow: float) -> np.ndarray:
     phi1 = math.atan2(A2[1] - A1[1], A2[0] - A1[0])
     beta0 = math.atan2(P[1] - A2[1], P[0] - A2[0]) - phi1
     s2 = 1.0 if a1 @ a2 > 0 else -1.0
-    columns, _ = base_columns(p)
+    columns, _ = chain.base_columns(p)
     if len(columns) > BASE_WIDTH:
         raise ValueError(f"{where}: the arm's dynamics have {len(columns)} base parameters; a planar 2-joint arm has "
                          f"at most {BASE_WIDTH}")
     base = [*columns, *([-1] * (BASE_WIDTH - len(columns)))]
     return np.array([*ex, *ey, elbow, *A1, L1, L2, phi1, beta0, s2, *base], dtype=np.float64)
-
-
-def base_columns(chain_packed, states: int = 40, seed: int = 0):
-    """(B, beta): the chain regressor's columns B whose parameters are identifiable (the base
-    parameters a = pi_B + beta pi_D, pi_D the other columns' inertial parameters), chosen in column
-    order by their residual against the columns chosen before, on random states (a fixed seed: the
-    same columns for the nominal and the true plant, whose geometry is the same)."""
-    rng = np.random.default_rng(seed)
-    n = chain.link_count(chain_packed)
-    rows = [chain.regressor(chain_packed, rng.uniform(-np.pi, np.pi, n), rng.uniform(-2, 2, n), rng.uniform(-5, 5, n))
-            for _ in range(states)]
-    W = np.vstack(rows)
-    scale = np.linalg.norm(W, axis=0)
-    chosen: list[int] = []
-    for c in range(W.shape[1]):
-        if scale[c] <= 1e-12 * scale.max():
-            continue
-        trial = W[:, [*chosen, c]]
-        if np.linalg.matrix_rank(trial / np.linalg.norm(trial, axis=0), tol=1e-9) == len(chosen) + 1:
-            chosen.append(c)
-    others = [c for c in range(W.shape[1]) if c not in chosen]
-    beta = np.linalg.lstsq(W[:, chosen], W[:, others], rcond=None)[0] if others else np.zeros((len(chosen), 0))
-    return chosen, beta
 
 
 @njit(cache=True, error_model="numpy")

@@ -178,3 +178,44 @@ class SpatialArm:
                                    f"q = ({', '.join(f'{v:.4g}' for v in q)}) rad, more than 90 degrees from "
                                    f"{self.working_mode}")
         return q
+
+
+# --------------------------------------------------------------------------------------------
+# Linear parametrisation for an adaptive law (ilcforce.plants.adaptive): M ddq_r + C(q, dq) dq_r + g = Y a,
+# a the base parameters (the identifiable combinations of the links' inertial parameters). The n-axis law
+# computes the chain's whole regressor (ilcforce.plants.chain_nd.slotine_li_regressor) and keeps its base
+# columns, which these functions name.
+# --------------------------------------------------------------------------------------------
+
+#: the base parameters' units, as an adaptive law's memory describes them
+BASE_PARAMETER_UNITS = ("each a link's inertial parameter (kg, kg m or kg m^2, link frame) plus the unidentifiable "
+                        "ones it absorbs")
+#: an n-joint chain's regressor serves the n-axis adaptive law (ilcforce.plants.adaptive.nd_regressor)
+CHAIN_REGRESSOR = True
+
+
+@functools.lru_cache(maxsize=32)
+def _base(params):
+    from ilcforce.plants import chain
+
+    return chain.base_columns(params.as_array())
+
+
+def base_columns_of(params) -> list[int]:
+    """The chain regressor's columns of the base parameters (``ilcforce.plants.chain.base_columns``)."""
+    return list(_base(params)[0])
+
+
+def base_parameter_names_of(params) -> tuple[str, ...]:
+    """The base parameters' names: each the inertial parameter of its column (``forearm.mcx``)."""
+    from ilcforce.plants import chain
+
+    links = load_spatial(*params._key()).link_names
+    return tuple(chain.inertial_parameter_name(links, c) for c in base_columns_of(params))
+
+
+def base_parameters(params) -> np.ndarray:
+    """a = pi_B + beta pi_D (``ilcforce.plants.chain.base_columns``), shape (n_base,)."""
+    from ilcforce.plants import chain
+
+    return chain.base_parameters(params.as_array(), *_base(params))
