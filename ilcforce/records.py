@@ -46,6 +46,12 @@ def task_axes(n: int) -> tuple[str, ...]:
     return _TASK_AXES[_dimension(n)]
 
 
+def axis_text(axis: str) -> str:
+    """A task axis in prose and labels: the paper's X and Y on the planar task; "along u" (v, n) on a plane,
+    where a capital N would read as the unit."""
+    return axis.upper() if axis in _TASK_AXES[2] else f"along {axis}"
+
+
 def joint_axes(n: int) -> tuple[str, ...]:
     """The column labels of a joint-space array of a robot of ``n`` joints: ("1", "2") or ("1", "2", "3")."""
     return tuple(str(k) for k in range(1, _dimension(n) + 1))

@@ -128,6 +128,26 @@ def test_arm3_methods_complete_and_the_learning_ones_learn(arm3, method):
     assert np.all(force[:, :2] == 0.0) and np.max(force[:, 2]) > 20.0
 
 
+def test_the_report_draws_a_three_axis_run_along_its_axes(arm3, tmp_path):
+    """Every single-run figure of a 3-axis run is drawn, Figs. 6 and 7 once per axis (u, v in the plane; n, the
+    force axis), and the report names them with their captions: none is "not drawn"."""
+    from ilcforce.experiment import run_method
+    from ilcforce.report.build import write_report
+    from ilcforce.report.run_figures import figure_captions
+
+    config = dataclasses.replace(arm3, experiment=dataclasses.replace(arm3.experiment, iterations=2))
+    for method in ("c1", "c3"):
+        run_method(config, method, tmp_path / "results" / "arm3" / f"{method}.h5")
+    write_report(tmp_path / "results", tmp_path / "report")
+    page = (tmp_path / "report" / "arm3" / "report.md").read_text()
+    stems = list(figure_captions({"surface": {"selection": list(arm3.surface.selection)}}))
+    assert [s for s in stems if s.startswith(("fig6", "fig7"))] == ["fig6_input_u", "fig6_input_v", "fig7_input_n"]
+    for stem in stems:
+        assert (tmp_path / "report" / "arm3" / f"{stem}.png").is_file(), stem
+    assert "Not drawn" not in page
+    assert "desired position u_d and v_d (m) and desired contact force F_nd (N) along the n axis" in page
+
+
 def test_arm3_refusals_are_one_line(arm3, tmp_path):
     text = ARM3.read_text()
     cases = {

@@ -168,6 +168,19 @@ class SpatialArm:
     def nd_kernel(self):
         return self.arm.nd_kernel()
 
+    def task_gravity_along(self, positions) -> np.ndarray:
+        """G = J^-T G_q (N, world frame) at each end-effector position of ``positions`` (samples, 3) (m), shape
+        (samples, 3): the task gravity C3's G block learns (in the wall's frame: R G), the joint angles followed
+        along the positions by inverse kinematics from the posture, as the desired motion is."""
+        positions = np.asarray(positions, dtype=np.float64)
+        if positions.ndim != 2 or positions.shape[1] != 3:
+            raise ValueError(f"positions must have shape (samples, 3), got {positions.shape}")
+        out, q = np.empty_like(positions), None
+        for k, position in enumerate(positions):
+            q = self.inverse_kinematics(position, q)
+            out[k] = self.arm.task_gravity(q)
+        return out
+
     def inverse_kinematics(self, position, guess=None) -> np.ndarray:
         """Joint angles (rad) in the working mode for the end-effector position P (m, world frame), by
         Newton steps from ``guess`` (default: the posture); raises UnreachableError (one line)."""

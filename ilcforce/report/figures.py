@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import math
+import textwrap
 from collections.abc import Iterator, Mapping, Sequence
 from importlib import resources
 
@@ -26,7 +27,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from ilcforce.controllers import REGISTRY
-from ilcforce.records import STATUS_COMPLETE
+from ilcforce.records import STATUS_COMPLETE, axis_text
 from ilcforce.report import paper
 
 #: Colours and labels come from the method registry (``MethodSpec.color``, ``.label``) and stay with
@@ -101,19 +102,27 @@ def _time(frame: pd.DataFrame) -> np.ndarray:
 # ---------------------------------------------------------------------------------------------
 
 
-def plot_desired_position(ax: Axes, reference: pd.DataFrame) -> list[Artist]:
-    """Fig. 2 (a): desired position x_d (m) against time (s)."""
-    artists: list[Artist] = list(ax.plot(_time(reference), reference["position_desired_x"], color="k", label="$x_d$"))
+def plot_desired_position(ax: Axes, reference: pd.DataFrame, axes: Sequence[str] = ("x",)) -> list[Artist]:
+    """Fig. 2 (a): desired position x_d (m) against time (s), one line per position axis (u_d, v_d on a plane)."""
+    artists: list[Artist] = []
+    styles = ("-", "--", ":")
+    for k, axis in enumerate(axes):
+        artists += ax.plot(_time(reference), reference[f"position_desired_{axis}"], color="k",
+                           linestyle=styles[k % len(styles)], label=f"${axis}_d$")
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("desired position $x_d$ (m)")
+    names = ", ".join(f"${axis}_d$" for axis in axes)
+    ax.set_ylabel(f"desired position {names} (m)")
+    if len(axes) > 1:
+        ax.legend()
     return artists
 
 
-def plot_desired_force(ax: Axes, reference: pd.DataFrame) -> list[Artist]:
-    """Fig. 2 (b): desired contact force F_yd (N) against time (s)."""
-    artists: list[Artist] = list(ax.plot(_time(reference), reference["force_desired_y"], color="k", label="$F_{yd}$"))
+def plot_desired_force(ax: Axes, reference: pd.DataFrame, axis: str = "y") -> list[Artist]:
+    """Fig. 2 (b): desired contact force F_yd (N) against time (s), along the force axis ``axis``."""
+    artists: list[Artist] = list(ax.plot(_time(reference), reference[f"force_desired_{axis}"], color="k",
+                                         label=f"$F_{{{axis}d}}$"))
     ax.set_xlabel("time (s)")
-    ax.set_ylabel("desired force $F_{yd}$ (N)")
+    ax.set_ylabel(f"desired force $F_{{{axis}d}}$ (N)")
     return artists
 
 
@@ -202,6 +211,8 @@ def iteration_colour(j: int):
     return shades[TRACKING_ITERATIONS.index(j)]
 
 
+#: Characters per line of a panel's title in Fig. 5 (a method's label, wrapped)
+TITLE_WIDTH = 30
 #: Methods side by side in Fig. 5 before it wraps to another pair of rows (seven in one row made
 #: the figure 4,200 px wide).
 TRACKING_COLUMNS = 4
@@ -227,8 +238,8 @@ def plot_tracking_error(
     ax.ticklabel_format(axis="y", style="sci", scilimits=(-2, 3), useOffset=False)
     ax.set_xlabel("time (s)")
     ax.set_ylabel(column if ylabel is None else ylabel)
-    if title:
-        ax.set_title(title)
+    if title:  # wrapped: a method's label with its law differences ran into its neighbour's
+        ax.set_title("\n".join(textwrap.wrap(title, TITLE_WIDTH)), fontsize="medium")
     if artists and legend:
         ax.legend()
     return artists
@@ -244,7 +255,7 @@ def plot_task_input(
     ax: Axes, frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None,
     labels: Mapping[str, str] | None = None,
 ) -> list[Artist]:
-    """Figs. 6 (a), 7 (a): task-space input F_E along ``axis`` ("x" or "y") against time, per method.
+    """Figs. 6 (a), 7 (a): task-space input F_E along ``axis`` ("x", "y"; "u", "v", "n") against time, per method.
 
     The desired input J^-T tau_d of the first frame is drawn dashed for reference. ``iterations``
     (method -> j), if given, labels each line with the iteration it shows.
@@ -260,7 +271,7 @@ def plot_task_input(
             _time(frame), frame[f"desired_task_input_{axis}"], color="k", linestyle="--", linewidth=0.8, label="desired"
         )
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(f"control input {axis.upper()} (N)")
+    ax.set_ylabel(f"control input {axis_text(axis)} (N)")
     if artists:
         ax.legend()
     return artists
@@ -278,7 +289,7 @@ def plot_input_deviation(
             _time(frame), delta, color=_color(method), label=_input_label(method, iterations, labels), linewidth=0.8
         )
     ax.set_xlabel("time (s)")
-    ax.set_ylabel(rf"$\Delta\tau$ {axis.upper()} (N)")
+    ax.set_ylabel(rf"$\Delta\tau$ {axis_text(axis)} (N)")
     if artists:
         ax.legend()
     return artists
@@ -352,12 +363,12 @@ def plot_switching_gain_mean(
 # ---------------------------------------------------------------------------------------------
 
 
-def figure_reference(reference: pd.DataFrame) -> Figure:
-    """Fig. 2: desired position and desired force."""
+def figure_reference(reference: pd.DataFrame, position_axes: Sequence[str] = ("x",), force_axis: str = "y") -> Figure:
+    """Fig. 2: desired position (each position axis) and desired force (the force axis)."""
     fig = Figure(figsize=(6.4, 4.4))
     ax_position, ax_force = fig.subplots(2, 1, sharex=True)
-    plot_desired_position(ax_position, reference)
-    plot_desired_force(ax_force, reference)
+    plot_desired_position(ax_position, reference, position_axes)
+    plot_desired_force(ax_force, reference, force_axis)
     ax_position.set_xlabel("")
     return fig
 
@@ -379,9 +390,21 @@ def figure_error_norm(
     return fig
 
 
+#: Fig. 5's rows on the planar task: (logged column, axis label)
+TRACKING_ROWS = (("position_error_x", "position error X (m)"), ("force_error_y", "force error Y (N)"))
+
+
+def tracking_rows(position_axes: Sequence[str], force_axis: str) -> tuple[tuple[str, str], ...]:
+    """Fig. 5's rows for a task: each position axis's error, then the force axis's (``TRACKING_ROWS`` on x, y)."""
+    return (*((f"position_error_{a}", f"position error {axis_text(a)} (m)") for a in position_axes),
+            (f"force_error_{force_axis}", f"force error {axis_text(force_axis)} (N)"))
+
+
 def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]], *,
-                          labels: Mapping[str, str] | None = None) -> Figure:
-    """Fig. 5: position error X (top row) and force error Y (bottom row), one column per method.
+                          labels: Mapping[str, str] | None = None,
+                          rows: Sequence[tuple[str, str]] = TRACKING_ROWS) -> Figure:
+    """Fig. 5: the position error X (top row) over the force error Y (bottom row), one column per method;
+    ``rows`` (column, label) for another task (on a plane: position errors U and V, then force error N).
 
     ``frames[method][j]`` is the iteration frame of iteration j (j in 0, 5, 10, 15 where run).
     Every panel has its own y scale, as the paper's had: one shared scale let a method with a 100x
@@ -390,27 +413,27 @@ def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]], *,
     """
     methods = list(frames)
     n = max(1, len(methods))
+    per = len(rows)
     columns = min(n, TRACKING_COLUMNS)
-    blocks = -(-n // columns)  # each block: a row of X panels over a row of Y panels
-    fig = Figure(figsize=(2.4 * columns + 0.4, 2.0 * 2 * blocks + 0.7), layout="constrained")
-    axes = np.atleast_2d(fig.subplots(2 * blocks, columns, sharex=True, squeeze=False))
+    blocks = -(-n // columns)  # each block: one row of panels per signal
+    fig = Figure(figsize=(2.4 * columns + 0.4, 2.0 * per * blocks + 0.7), layout="constrained")
+    axes = np.atleast_2d(fig.subplots(per * blocks, columns, sharex=True, squeeze=False))
     for k, method in enumerate(methods):
         block, column = divmod(k, columns)
-        ax_x, ax_y = axes[2 * block, column], axes[2 * block + 1, column]
-        plot_tracking_error(ax_x, frames[method], "position_error_x",
-                            ylabel="position error X (m)" if column == 0 else "", title=_label(method, labels),
-                            legend=False)
-        plot_tracking_error(ax_y, frames[method], "force_error_y", ylabel="force error Y (N)" if column == 0 else "",
-                            legend=False)
-        ax_x.set_xlabel("")
+        panels = [axes[per * block + r, column] for r in range(per)]
+        for r, (ax, (signal, label)) in enumerate(zip(panels, rows)):
+            plot_tracking_error(ax, frames[method], signal, ylabel=label if column == 0 else "",
+                                title=_label(method, labels) if r == 0 else "", legend=False)
+            if r < per - 1:
+                ax.set_xlabel("")
         if k + columns < n:  # another method below in this column: its time axis serves both
-            ax_y.set_xlabel("")
+            panels[-1].set_xlabel("")
         else:  # the lowest panel of its column: its time ticks shown (sharex hid them above the last row)
-            ax_y.xaxis.set_tick_params(labelbottom=True)
+            panels[-1].xaxis.set_tick_params(labelbottom=True)
     for k in range(n, blocks * columns):  # the empty places of the last block
         block, column = divmod(k, columns)
-        axes[2 * block, column].set_visible(False)
-        axes[2 * block + 1, column].set_visible(False)
+        for r in range(per):
+            axes[per * block + r, column].set_visible(False)
     handles = {}
     for ax in axes.ravel():
         for handle, label in zip(*ax.get_legend_handles_labels()):
@@ -425,7 +448,8 @@ def figure_input(
     frames_by_method: Mapping[str, pd.DataFrame], axis: str, *, iterations: Mapping[str, int] | None = None,
     labels: Mapping[str, str] | None = None, absent: Mapping[str, str] | None = None,
 ) -> Figure:
-    """Figs. 6 (``axis="x"``), 7 (``"y"``): (a) control input, (b) Delta tau, C1 and C3 at j = 19.
+    """Figs. 6 (``axis="x"``; on a plane "u", "v"), 7 (``"y"``; "n"): (a) control input, (b) Delta tau, C1 and
+    C3 at j = 19.
 
     One row per method (they no longer hide each other), (a) and (b) side by side, each panel on
     its own scale (C1's Delta tau is about ten times C3's; compare the values, and H in Table 3).
@@ -465,8 +489,8 @@ def figure_input(
         if k < n - 1:
             ax_input.set_xlabel("")
             ax_delta.set_xlabel("")
-    axes[0, 0].set_title(f"(a) control input, {axis.upper()}")
-    axes[0, 1].set_title(rf"(b) $\Delta\tau$, {axis.upper()}")
+    axes[0, 0].set_title(f"(a) control input, {axis_text(axis)}")
+    axes[0, 1].set_title(rf"(b) $\Delta\tau$, {axis_text(axis)}")
     if absent:  # ``absent``: method -> why it has no row here
         fig.suptitle("; ".join(f"{_label(m, labels)} not drawn: {why}" for m, why in absent.items()),
                      fontsize="small")

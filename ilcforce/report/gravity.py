@@ -1,21 +1,22 @@
 """Does C3 learn gravity? Theta_hat's G block against the plant's true task-space gravity.
 
-With a plant that has gravity, C3's Theta carries G11 G12 (x) and G21 G22 (y) (ilcforce.controllers.c3),
-multiplied by Psi's ones block, so G_i1 + G_i2 is C3's estimate of the task gravity G_i along the path.
-The truth is J^-T G_q of the iteration's true plant at the desired positions
-(:meth:`ilcforce.plants.base.Plant.task_gravity_along`). A learned G also absorbs whatever else is
+With a plant that has gravity, C3's Theta carries a G row per task axis, G11 G12 (x) and G21 G22 (y) on the
+planar task, G_i1 .. G_in on n axes (ilcforce.controllers.c3), multiplied by Psi's ones block, so the row's sum
+is C3's estimate of the task gravity G_i along the path. The truth is J_X^-T G_q of the iteration's true plant
+at the desired positions (``task_gravity_along`` of the plant, in the task frame). A learned G also absorbs whatever else is
 constant along the path (the learning law cannot tell them apart), so agreement is a finding, not
 a definition.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
 
-#: Theta_hat's G columns in the 12-entry layout (C3Controller.theta_names with gravity)
-G_COLUMNS = {"x": (4, 5), "y": (10, 11)}
+from ilcforce.records import task_axes
+
 #: Line style and width per drawn iteration, first to last: an earlier iteration is drawn wider
 #: underneath, so a later one that lies on it leaves it visible (j = 10 was hidden under j = 19).
 ITERATION_STYLES = (("-", 2.6), ("--", 1.8), ("-", 0.6), ("-.", 0.6))
@@ -30,23 +31,39 @@ def gravity_error(learned: np.ndarray, truth: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.square(learned - truth)))) / truth_rms
 
 
+def task_dimension(theta_hat: np.ndarray) -> int:
+    """n of a Theta_hat with gravity (3 n^2 columns: per axis its D, C and G rows); ValueError otherwise."""
+    columns = np.shape(theta_hat)[-1] if np.ndim(theta_hat) == 2 else 0
+    n = int(round(math.sqrt(columns / 3))) if columns else 0
+    if n < 1 or 3 * n * n != columns:
+        raise ValueError(f"Theta_hat must have 3 n^2 columns (a plant with gravity), got shape {np.shape(theta_hat)}")
+    return n
+
+
 def learned_gravity(theta_hat: np.ndarray) -> np.ndarray:
-    """(n, 2): G_x = G11 + G12, G_y = G21 + G22 from a 12-column Theta_hat (n, 12)."""
+    """(samples, n): G_i = the sum of axis i's G row (G_x = G11 + G12, G_y = G21 + G22 on the planar task) from
+    a Theta_hat with gravity (samples, 3 n^2)."""
     theta_hat = np.asarray(theta_hat, dtype=np.float64)
-    if theta_hat.ndim != 2 or theta_hat.shape[1] != 12:
-        raise ValueError(f"Theta_hat must have 12 columns (a plant with gravity), got shape {theta_hat.shape}")
-    return np.column_stack([theta_hat[:, a] + theta_hat[:, b] for a, b in G_COLUMNS.values()])
+    n = task_dimension(theta_hat)
+    return np.column_stack([theta_hat[:, 3 * n * i + 2 * n:3 * n * (i + 1)].sum(axis=1) for i in range(n)])
 
 
 def true_gravity(config, iteration: int, positions: np.ndarray) -> np.ndarray:
-    """J^-T G_q (n, 2) of iteration ``iteration``'s true plant at ``positions`` (n, 2)."""
+    """J_X^-T G_q (samples, n) in the task frame of iteration ``iteration``'s true plant at the task-frame
+    ``positions`` (samples, n); the task frame is R = I on the planar task."""
     from ilcforce.plants import make_plant
 
-    return make_plant(config.plant.true_plant(iteration)).task_gravity_along(positions)
+    robot = make_plant(config.plant.true_plant(iteration))
+    n = positions.shape[1]
+    if n == 2:
+        return robot.task_gravity_along(positions)
+    frame = config.wall.frame(n)  # X = R P, so a row P = X R, and G in the task frame R G_world
+    return robot.task_gravity_along(positions @ frame) @ frame.T
 
 
 def gravity_figure(store_path: Path, config, iterations=None):
-    """Figure: learned G_x, G_y (C3's Theta_hat) over time for some iterations, against the truth.
+    """Figure: learned G per task axis (C3's Theta_hat; G_x, G_y on the planar task) over time for some
+    iterations, against the truth.
 
     Each panel's title answers the figure's question for the last iteration drawn: how far the
     learned G is from the truth (relative RMS over t >= 20 ms, :func:`gravity_error`). The y range
@@ -68,12 +85,13 @@ def gravity_figure(store_path: Path, config, iterations=None):
         raise ValueError(f"{store_path}: no stored iteration")
     chosen = list(iterations) if iterations is not None else sorted({stored[0], stored[len(stored) // 2], stored[-1]})
     t = store.read_control_time(store_path)
-    positions = config.reference_samples()[:, 0:2]
-    fig = Figure(figsize=(9, 3.4), layout="constrained")
-    axes = fig.subplots(1, 2, sharex=True)
+    dim = config.dimension
+    positions = config.reference_samples()[:, 0:dim]
+    fig = Figure(figsize=(4.5 * dim, 3.4), layout="constrained")
+    axes = fig.subplots(1, dim, sharex=True)
     metrics = store.read_metrics(store_path)
-    shown: list[list[np.ndarray]] = [[], []]  # per axis: the values the y range is set from
-    start_peak = [0.0, 0.0]  # per axis: the largest |value| before RANGE_FROM, drawn off scale
+    shown: list[list[np.ndarray]] = [[] for _ in range(dim)]  # per axis: the values the y range is set from
+    start_peak = [0.0] * dim  # per axis: the largest |value| before RANGE_FROM, drawn off scale
     settled = t >= RANGE_FROM
     learned_last = None
     for n, j in enumerate(chosen):
@@ -96,7 +114,7 @@ def gravity_figure(store_path: Path, config, iterations=None):
                 start_peak[k] = max(start_peak[k], float(np.nanmax(np.abs(early))))
         learned_last = g_hat
     truth = true_gravity(config, chosen[-1], positions)
-    for k, (ax, axis) in enumerate(zip(axes, G_COLUMNS)):
+    for k, (ax, axis) in enumerate(zip(axes, task_axes(dim))):
         ax.plot(t, truth[:, k], "k", lw=1.0, label=f"true J^-T G_q (j = {chosen[-1]})", zorder=10)
         values = np.concatenate([*shown[k], truth[settled, k]])
         values = values[np.isfinite(values)]
@@ -107,9 +125,9 @@ def gravity_figure(store_path: Path, config, iterations=None):
             if start_peak[k] > max(abs(low), abs(high)) + pad:
                 ax.plot([], [], linestyle="none", label=f"off scale before t = {RANGE_FROM * 1e3:.0f} ms: "
                         f"|G_{axis}| up to {start_peak[k]:.3g} N")
-        i = "1" if axis == "x" else "2"
+        row = " + ".join(f"G{k + 1}{c + 1}" for c in range(dim))
         off = gravity_error(learned_last[settled, k], truth[settled, k])
-        ax.set_title(f"G_{axis} = C3's G{i}1 + G{i}2: at j = {chosen[-1]}, {off:.0%} off J^-T G_q\n"
+        ax.set_title(f"G_{axis} = C3's {row}: at j = {chosen[-1]}, {off:.0%} off J^-T G_q\n"
                      f"(relative RMS error, t >= {RANGE_FROM * 1e3:.0f} ms)", fontsize="medium")
         ax.set_xlabel("t (s)")
         ax.set_ylabel("N")

@@ -15,6 +15,7 @@ from matplotlib.figure import Figure
 from ilcforce import store
 from ilcforce import stability
 from ilcforce.report import figures, sections, tables
+from ilcforce.records import task_axes
 from ilcforce.report.figure_files import ReportWriteError, save_figure
 
 #: Figures written per experiment: file stem -> caption, the report's list of figures (what each shows).
@@ -43,6 +44,46 @@ FIGURES = {
                    "error from the truth over t >= 20 ms (0% learned exactly, 100% as far off as learning "
                    "nothing).",
 }
+
+
+def task_roles(config: Mapping) -> tuple[tuple[str, ...], str]:
+    """(the position axes, the force axis) of a stored configuration's task (:func:`ilcforce.records.task_axes`
+    named by the selection S): (x,), y on the planar task; (u, v), n on a plane."""
+    selection = list((config.get("surface") or {}).get("selection") or (0.0, 1.0))
+    axes = task_axes(len(selection))
+    force = [a for a, s in zip(axes, selection) if s]
+    return tuple(a for a, s in zip(axes, selection) if not s), (force[0] if force else axes[-1])
+
+
+def figure_captions(config: Mapping) -> dict[str, str]:
+    """:data:`FIGURES` for the stored configuration's task: the planar captions, or on another task the same
+    figures along its axes (Figs. 6 and 7 once per position axis and for the force axis)."""
+    position, force = task_roles(config)
+    if position == ("x",) and force == "y":
+        return dict(FIGURES)
+    names = " and ".join(f"{a}_d" for a in position)
+    along = "the " + " and ".join(position) + (" axes" if len(position) > 1 else " axis")
+    changed = {
+        "fig2_reference": f"Fig. 2: the reference every method tracks: desired position {names} (m) and desired "
+                          f"contact force F_{force}d (N) along the {force} axis against time.",
+        "fig3_position_error_norm": FIGURES["fig3_position_error_norm"].replace("e_P (X)", f"e_P (along {along})"),
+        "fig4_force_error_norm": FIGURES["fig4_force_error_norm"].replace("e_F (Y)", f"e_F (along the {force} axis)"),
+        "fig5_tracking_error": f"Fig. 5: the position errors along {along} (upper rows, m) over the force error along "
+                               f"the {force} axis (lowest row, N) against time at j = 0, 5, 10, 15 (dark to light), "
+                               "one column per method (four to a row); every panel has its own y scale, so compare "
+                               "sizes on the axes.",
+    }
+    captions = {}
+    for stem, caption in FIGURES.items():
+        if stem == "fig6_input_x":
+            captions.update({f"fig6_input_{a}": caption.replace("input X", f"input along {a}") for a in position})
+        elif stem == "fig7_input_y":
+            captions[f"fig7_input_{force}"] = f"Fig. 7: the same as Fig. 6 along {force}."
+        else:
+            captions[stem] = changed.get(stem, caption)
+    return captions
+
+
 #: Every figure format the report can write; by default it writes PNG only (the pages link the
 #: PNG; a PDF of each figure doubles the drawing time of a full report), PDF on request (--pdf).
 FIGURE_FORMATS = ("png", "pdf")
@@ -60,9 +101,11 @@ def _figure_builders(experiment, p: int,
         f" [{d.split(',')[0]}]" for d in sections.law_differences(m, experiment.config(m)))
         + (f" ({stability.UNSTABLE})" if m in flags else "") for m in methods}
 
+    position_axes, force_axis = task_roles(experiment.config())
+
     def reference() -> Figure | str:
         first = next(iter(methods.values()))
-        return figures.figure_reference(store.read_reference(first.path))
+        return figures.figure_reference(store.read_reference(first.path), position_axes, force_axis)
 
     def norms(column: str, ylabel: str) -> Callable[[], Figure | str]:
         return lambda: figures.figure_error_norm(experiment.metrics, column, ylabel, perturbation_iteration=p,
@@ -76,7 +119,8 @@ def _figure_builders(experiment, p: int,
             frames[name] = {
                 j: store.read_iteration(method.path, j) for j in figures.TRACKING_ITERATIONS if j in stored
             }
-        return figures.figure_tracking_error(frames, labels=labels)
+        return figures.figure_tracking_error(frames, labels=labels,
+                                             rows=figures.tracking_rows(position_axes, force_axis))
 
     def inputs(axis: str) -> Callable[[], Figure | str]:
         def build() -> Figure | str:
@@ -124,7 +168,13 @@ def _figure_builders(experiment, p: int,
 
         path = methods["c3"].path
         first = tables.complete_iterations(methods["c3"].metrics) or [int(j) for j in methods["c3"].metrics.index]
-        if not first or store.read_memory(path, first[0])["theta_hat"].shape[1] != 12:
+        from ilcforce.report.gravity import task_dimension
+
+        try:
+            task_dimension(store.read_memory(path, first[0])["theta_hat"]) if first else None
+        except ValueError:
+            first = []
+        if not first:
             return "the plant has no gravity: C3's Theta has no G entries"
         return gravity_figure(path, open_run(path).config)
 
@@ -133,8 +183,8 @@ def _figure_builders(experiment, p: int,
         "fig3_position_error_norm": norms("position_error_2norm", "position error 2-norm (m)"),
         "fig4_force_error_norm": norms("force_error_2norm", "force error 2-norm (N)"),
         "fig5_tracking_error": tracking,
-        "fig6_input_x": inputs("x"),
-        "fig7_input_y": inputs("y"),
+        **{f"fig6_input_{axis}": inputs(axis) for axis in position_axes},
+        f"fig7_input_{force_axis}": inputs(force_axis),
         "fig_alpha_hat": alpha_hat,
         "fig_gravity": gravity,
     }
@@ -144,7 +194,7 @@ def write_figures(experiment, directory: Path, p: int, formats: tuple[str, ...],
                    flags: Mapping[str, str]) -> list[Path]:
     written: list[Path] = []
     if not experiment.methods or not formats:
-        for stem in FIGURES:
+        for stem in figure_captions(experiment.config()):
             experiment.notes[stem] = "no readable store" if not experiment.methods else "no figure format requested"
         return written
     for stem, build in _figure_builders(experiment, p, flags).items():

@@ -19,7 +19,7 @@ from ilcforce.metrics import memory_norms, settled_sample
 from ilcforce.store.access import read_memories
 from ilcforce.report import claims as claims_module
 from ilcforce.report import sections, study_match, table_write, tables
-from ilcforce.report.run_figures import FIGURES
+from ilcforce.report.run_figures import figure_captions
 from ilcforce.report.run_figures import READ_ERRORS as _READ_ERRORS
 
 DEFINITIONS = """\
@@ -249,7 +249,7 @@ def report_text(
     lines.append(md(fallback_table(experiment)) if experiment.methods else "No readable store.\n")
     lines += ["## Figures", ""]
     match = _matching_study(experiment)
-    for stem, caption in FIGURES.items():
+    for stem, caption in figure_captions(experiment.config()).items():
         title, what = _first_sentence(caption)  # the first sentence heads, the rest says how to read it
         made = sorted((p.name for p in figure_files if p.stem == stem), key=lambda n: not n.endswith(".png"))
         if made:

@@ -33,7 +33,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from ilcforce.records import STATUS_DIVERGED, task_axes
+from ilcforce.records import STATUS_DIVERGED, axis_text, task_axes
 from ilcforce.report import paper, tables
 from ilcforce.report.figures import TRACKING_ITERATIONS, _color, _label
 from ilcforce.report.figure_files import save_figure
@@ -196,13 +196,13 @@ def figure_input_over_seeds(frame: pd.DataFrame, axis: str, flags: Mapping[str, 
         drawn = _draw(ax, frame, methods, column, n_seeds, seed, flags, legend=k == 0)
         _log_scale(ax, drawn)
         _finish(ax, (min(paper.CHATTERING_ITERATION, last),), last, perturbation_iteration)
-        ax.set_title(f"H {axis.upper()}, {what}", fontsize="small")
+        ax.set_title(f"H {axis_text(axis)}, {what}", fontsize="small")
         ax.set_xlabel("iteration j")
-    axes[0].set_ylabel(rf"H = std over t of $\Delta\tau$ {axis.upper()} (N)", fontsize="small")
+    axes[0].set_ylabel(rf"H = std over t of $\Delta\tau$ {axis_text(axis)} (N)", fontsize="small")
     _seed_proxy(axes[0], seed, perturbation_iteration, perturbation_label)
     fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncols=3, fontsize="small",
                title="line: median over seeds", title_fontsize="small")
-    fig.suptitle(f"Fig. {number} over {n_seeds} seeds: spread of Delta tau {axis.upper()} per "
+    fig.suptitle(f"Fig. {number} over {n_seeds} seeds: spread of Delta tau {axis_text(axis)} per "
                  f"iteration (shaded: j = {min(paper.CHATTERING_ITERATION, last)}, drawn in Fig. {number})",
                  fontsize="medium")
     return fig

@@ -16,14 +16,15 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ilcforce import samerun
+from ilcforce.records import axis_text
 
 #: A study's figures that have a single-run counterpart: single-run stem -> study stem (+ _s<k>).
 BAND_FIGURES = {
     "fig3_position_error_norm": "fig3_position_error_norm",
     "fig4_force_error_norm": "fig4_force_error_norm",
     "fig5_tracking_error": "fig5_tracking_error_seeds",
-    "fig6_input_x": "fig6_input_x_seeds",
-    "fig7_input_y": "fig7_input_y_seeds",
+    **{f"fig{7 if axis in ('y', 'n') else 6}_input_{axis}": f"fig{7 if axis in ('y', 'n') else 6}_input_{axis}_seeds"
+       for axis in ("x", "y", "u", "v", "n")},  # the task axes of records.task_axes(2) and (3)
 }
 
 
@@ -120,14 +121,13 @@ def band_lines(match: StudyMatch | None, stem: str) -> list[str]:
     """The lines under single-run figure ``stem``: the matching study's bands over seeds."""
     if match is None or stem not in BAND_FIGURES:
         return []
+    axis = axis_text(stem.rsplit("_", 1)[-1])  # Figs. 6 and 7: the task axis of their Delta tau
     what = {"fig3": "median and 95% bands of the same error 2-norm per iteration",
             "fig4": "median and 95% bands of the same error 2-norm per iteration",
             "fig5": "bands of the RMS and the peak over t of the position and force errors, per iteration (the "
-                    "iterations drawn above shaded)",
-            "fig6": "bands of H, the standard deviation over t of Delta tau X, per iteration, in its three forms "
-                    "(the iteration drawn above shaded)",
-            "fig7": "bands of H, the standard deviation over t of Delta tau Y, per iteration, in its three forms "
-                    "(the iteration drawn above shaded)"}[stem[:4]]
+                    "iterations drawn above shaded)"}.get(
+        stem[:4], f"bands of H, the standard deviation over t of Delta tau {axis}, per iteration, in its three forms "
+                  "(the iteration drawn above shaded)")
     why = "" if stem.startswith(("fig3", "fig4")) else " The study keeps per-iteration metrics, not time signals."
     seeds = f"{match.n_seeds} seeds" if match.n_seeds else "the seeds"  # a study built in code has no file
     alone = ""
