@@ -105,3 +105,22 @@ def test_claim2_threshold_is_derived_from_the_papers_ratios() -> None:
     assert parts.at["force_before", "part_verdict"] == "in part"
     assert parts.at["force_before", "margin"] < 0 and parts.at["position_before", "part_verdict"] == "holds"
     assert claims.claim_summary(claims.judge_claims(run)).set_index("claim").at[2, "verdict"] == "in part"
+
+
+def test_on_a_plane_claim_5_reads_u_for_x_and_n_for_y() -> None:
+    """A 3-axis task (a spatial arm on a plane): claim 5's parts read H along u (which carries the paper's x_d)
+    for X and along n (the force axis) for Y, judged against the same published ratios; v, with no paper
+    counterpart, is shown beside. The paper's numbers placed on those axes pass, as they do on x and y."""
+    runs = {}
+    for method, frame in paper_run().items():
+        renamed = frame.rename(columns=lambda c: c.replace("_task_x", "_task_u").replace("_task_y", "_task_n"))
+        runs[method] = renamed.assign(chattering_task_v=renamed["chattering_task_u"], chattering_joint_3=0.0)
+    parts = claims.judge_claims(runs).set_index("part")
+    five = parts[parts["claim"] == 5]
+    assert five.at["direction_u", "median"] == pytest.approx(0.06 / 0.0359, rel=1e-12)
+    assert five.at["direction_n", "median"] == pytest.approx(0.0534 / 0.0219, rel=1e-12)
+    assert "along u (the paper's X)" in five.at["direction_u", "part_text"]
+    assert five.at["direction_v", "role"] in claims.NOT_JUDGED
+    assert not any(key.endswith(("_x", "_y")) for key in five.index)
+    summary = claims.claim_summary(claims.judge_claims(runs)).set_index("claim")
+    assert summary.at[5, "verdict"] == "holds"

@@ -123,7 +123,8 @@ CLAIMS: tuple[Claim, ...] = (
           "position and force."),
     Claim(5, "Chattering at j = 20: H(C1) / H(C3) = 1.67 (X) and 2.44 (Y).",
           "Table 3: C1 0.06, 0.0534 N; C3 0.0359, 0.0219 N; ratios 1.67 (X), 2.44 (Y).",
-          "Central: direction, H(C1) / H(C3) > 1 at j = 19 on X and on Y, with H as the paper defines it: over "
+          "Central: direction, H(C1) / H(C3) > 1 at j = 19 on X and on Y (on a plane: along u and along n; v is "
+          "shown beside), with H as the paper defines it: over "
           "the whole trajectory (docs/model.md#metrics). "
           f"Secondary: magnitude, that ratio within a factor {RATIO_FACTOR:g} of the paper's 1.67 / 2.44. "
           "Shown beside: the ratio with H settled (t >= 20 ms, ilcforce.metrics.SETTLED_FROM: every iteration "
@@ -482,41 +483,61 @@ JUDGED_H = ""
 SHOWN_H = (("_settled", "settled (t >= 20 ms)"), ("_no_t0", "without t = 0"))
 
 
-def _claim5_parts() -> list[_Part]:
+#: Claim 5's axes per task dimension: (our axis, the paper's axis it stands for, the published ratio). On a plane
+#: u carries the paper's x_d and n its force axis Y (docs/model.md#wall-plane); v has no counterpart.
+CLAIM5_AXES = {2: (("x", "x", paper.CHATTERING_RATIO_X), ("y", "y", paper.CHATTERING_RATIO_Y)),
+               3: (("u", "x", paper.CHATTERING_RATIO_X), ("n", "y", paper.CHATTERING_RATIO_Y))}
+
+
+def _claim5_parts(n: int = 2) -> list[_Part]:
     parts = []
-    for axis, published in (("x", paper.CHATTERING_RATIO_X), ("y", paper.CHATTERING_RATIO_Y)):
+    for axis, theirs_axis, published in CLAIM5_AXES[n]:
+        name = axis.upper() if axis == theirs_axis else f"along {axis} (the paper's {theirs_axis.upper()})"
+
         def ratio(s: _Seed, axis=axis, form=JUDGED_H) -> float:
             column = f"chattering_task_{axis}{form}"
             c3 = s.chattering("c3", column)  # the asserted method first: its divergence settles the part
             return _ratio(s.chattering("c1", column), c3)
 
-        parts.append(_Part(5, f"direction_{axis}", f"C3 chatters less than C1, {axis.upper()}", CENTRAL,
+        parts.append(_Part(5, f"direction_{axis}", f"C3 chatters less than C1, {name}", CENTRAL,
                            "H(C1) / H(C3) at j = 19, H on the whole grid (the paper's)",
                            lambda s, f=ratio: (f(s), bool(f(s) > 1.0)), "> 1", margin=above(1.0)))
-        parts.append(_Part(5, f"magnitude_{axis}", f"ratio near the paper's {published}, {axis.upper()}", SECONDARY,
+        parts.append(_Part(5, f"magnitude_{axis}", f"ratio near the paper's {published}, {name}", SECONDARY,
                            "H(C1) / H(C3) at j = 19, H on the whole grid (the paper's)",
                            lambda s, f=ratio, pub=published: (
                                f(s), bool(abs(math.log(f(s) / pub)) <= math.log(RATIO_FACTOR))),
                            f"within x{RATIO_FACTOR:g} of {published}", margin=within(published, RATIO_FACTOR)))
         for form, what in SHOWN_H:
-            parts.append(_Part(5, f"ratio{form}_{axis}", f"H(C1) / H(C3) {what}, {axis.upper()}",
+            parts.append(_Part(5, f"ratio{form}_{axis}", f"H(C1) / H(C3) {what}, {name}",
                                SHOWN, f"ratio of H {what}", lambda s, f=ratio, form=form: (f(s, form=form), None)))
-        parts.append(_Part(5, f"before_perturbation_{axis}", f"H(C1) / H(C3) before the perturbation, {axis.upper()}",
+        parts.append(_Part(5, f"before_perturbation_{axis}", f"H(C1) / H(C3) before the perturbation, {name}",
                            SHOWN, "ratio of H at j = p - 1 (the change of the plant at p alters each law's chattering)",
                            lambda s, a=axis: (_ratio(s.chattering_before("c1", f"chattering_task_{a}{JUDGED_H}"),
                                                      s.chattering_before("c3", f"chattering_task_{a}{JUDGED_H}")),
                                               None)))
         for method in ("c1", "c3"):
             row = paper.table3_row(method)
-            theirs = getattr(row, f"task_{axis}")
+            theirs = getattr(row, f"task_{theirs_axis}")
             for form, what in (("", "whole grid"), ("_settled", "settled")):
                 key = f"absolute_{method}_{axis}" + ("" if not form else form)
-                parts.append(_Part(5, key, f"H of {method.upper()} ({what}) / Table 3, {axis.upper()}",
+                parts.append(_Part(5, key, f"H of {method.upper()} ({what}) / Table 3, {name}",
                                    SHOWN, f"our H ({what}) / the paper's {theirs} N",
                                    lambda s, m=method, a=axis, t=theirs, form=form: (
                                        s.chattering(m, f"chattering_task_{a}{form}") / t, None)))
+    if n == 3:  # the plane's second axis: no paper number, shown beside
+        parts.append(_Part(5, "direction_v", "H(C1) / H(C3) along v (no counterpart in the paper)", SHOWN,
+                           "H(C1) / H(C3) at j = 19, H on the whole grid",
+                           lambda s: (_ratio(s.chattering("c1", f"chattering_task_v{JUDGED_H}"),
+                                             s.chattering("c3", f"chattering_task_v{JUDGED_H}")), None)))
     return parts
 
 
 PARTS: tuple[_Part, ...] = tuple(_claim1_parts() + _claim2_parts() + _claim3_parts() + _claim4_parts()
                                  + _claim5_parts())
+#: the parts of a task of three axes (a spatial arm on a plane): claim 5 along u, n (and v shown)
+PARTS_3: tuple[_Part, ...] = tuple(part for part in PARTS if part.claim != 5) + tuple(_claim5_parts(3))
+
+
+def parts_for(metrics_columns) -> tuple[_Part, ...]:
+    """The parts judged on a metrics frame: :data:`PARTS`, or :data:`PARTS_3` for a 3-axis task's columns."""
+    return PARTS_3 if "chattering_task_u" in metrics_columns else PARTS

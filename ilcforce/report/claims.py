@@ -53,7 +53,7 @@ import pandas as pd
 
 from ilcforce.plants import changed_parameter
 from ilcforce.report import paper
-from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY,  # noqa: F401 (re-exported)
+from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY, parts_for,  # noqa: F401 (re-exported)
                                          SHOWN, _Part, _Seed, _Stop, statement_at)
 from ilcforce.report.seedframes import split_seeds
 from ilcforce.stats import frequency_interval, median_interval
@@ -185,12 +185,13 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
         metrics = first_seed_only(metrics)
     seeds = split_seeds(metrics)
     contexts = {seed: _Seed(frames, perturbation_iteration, config) for seed, frames in seeds.items()}
-    results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in PARTS}
-    roles = {part.key: part.role for part in PARTS}
+    all_parts = parts_for(metrics.columns)  # claim 5 along the task's axes
+    results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in all_parts}
+    roles = {part.key: part.role for part in all_parts}
     rows, claim_rows = [], {}
     parameter = changed_parameter(config or {})  # the plant's change, as claim 4 names it
     for claim in CLAIMS:
-        mine = [part for part in PARTS if part.claim == claim.number]
+        mine = [part for part in all_parts if part.claim == claim.number]
         verdicts: dict[str, str] = {}
         for part in mine:
             values = np.array([r[0] for r in results[part]])
