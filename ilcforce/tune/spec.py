@@ -342,7 +342,9 @@ def _searched_gains(method: str, table, base: Config) -> tuple[SearchedGain, ...
         if isinstance(current, tuple):
             if isinstance(spec, list):
                 if len(spec) != len(current):
-                    raise TuneError(f"{where}.{name} must list {len(current)} entries (one per element), "
+                    per = (f"task axis {', '.join(task_axes(base.dimension))} of {base.experiment.name}"
+                           if len(current) == base.dimension else "element")
+                    raise TuneError(f"{where}.{name} must list {len(current)} entries (one per {per}), "
                                     f"got {len(spec)}")
                 elements = tuple(_range(f"{where}.{name}[{i}]", s) for i, s in enumerate(spec))
             elif isinstance(spec, dict):
