@@ -123,7 +123,7 @@ def choose(tuning: Tuning, store) -> tuple[dict, tuple | None]:
     chosen = {}
     for method in tuning.methods:
         options = [summary(tuning, r) for (m, _n), r in sorted(store.heldout.items()) if m == method]
-        under = [o for o in options if cap is not None and o["error"] is not None and o["axes"] == ref["axes"]
-                 and all(o[f"h_{a}"] <= c for a, c in zip(o["axes"], cap))]
+        under = [o for o in options if cap is not None and o["error"] is not None
+                 and all(o[f"h_{a}"] <= c for a, c in zip(o["axes"], cap, strict=True))]
         chosen[method] = min(under, key=lambda o: (o["error"], o["trial"])) if under else None
     return chosen, cap
