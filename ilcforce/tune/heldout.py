@@ -10,8 +10,8 @@ iteration per task axis, and the growth test's verdict on the whole run.
 The **cap** is the reference method's trial 0 (the experiment's gains) on the same held-out seeds:
 ``factor`` x the median over seeds of its settled H at the last iteration, per task axis (x, y; or u, v,
 n). A point is **shippable** when no held-out seed diverged, the growth test flags none, and the median
-settled H at the last iteration is within the cap on every task axis; of those, the one with the lowest error objective
-(of the medians) is shipped. A method with none ships no gains.
+settled H at the last iteration is within the cap on every task axis; of those, the one with the lowest
+error objective (of the medians) is shipped. A method with none ships no gains.
 """
 
 from __future__ import annotations
