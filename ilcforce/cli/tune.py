@@ -38,15 +38,17 @@ def progress_line(name: str, p) -> str:
     return f"tune {name}: {p.method} trial {p.number + 1}/{p.trials}: {said} (front {p.front})"
 
 
-def summary_line(name: str, method: str, search: dict, point: dict | None) -> str:
-    """One method's outcome: its search (trials, converged or not) and what it ships."""
+def summary_line(name: str, method: str, search: dict, point: dict | None, axes: tuple[str, ...]) -> str:
+    """One method's outcome: its search (trials, converged or not) and what it ships (its settled H on the
+    task's ``axes``)."""
     from ilcforce.tune.heldout import NONE_UNDER_CAP
+    from ilcforce.tune.objectives import per_axis_text
 
     done = (f"{search['trials']} trials (first budget {search['first']}, at most {search['most']}), "
             + (f"converged (front grew {search['gain']:.1%} over the last quarter)" if search["converged"]
                else "NOT converged"))
     ships = (f"ships trial {point['trial']}: held-out e_P {point['e_p']:.3g} m, e_F {point['e_f']:.3g} N, "
-             f"H_x {point['h_x']:.3g} N, H_y {point['h_y']:.3g} N" if point is not None else NONE_UNDER_CAP)
+             f"{per_axis_text(axes, [point[f'h_{a}'] for a in axes])}" if point is not None else NONE_UNDER_CAP)
     return f"{name}: {method}: {done}; {ships}"
 
 
@@ -79,7 +81,7 @@ def tune_command(file: Path | str, *, scheduler: str | None = None, workers: int
     for line in summary.quarantined:
         _line(f"warning: {line}", stderr=True)
     for method in tuning.methods:
-        _line(summary_line(tuning.name, method, summary.searches[method], summary.chosen.get(method)))
+        _line(summary_line(tuning.name, method, summary.searches[method], summary.chosen.get(method), tuning.axes))
     if not quiet:
         run, planned = summary.pruned
         pruning = (f"; check runs stopped early ran {run} of {planned} iterations ({1 - run / planned:.0%} saved)"

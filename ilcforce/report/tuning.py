@@ -66,31 +66,34 @@ def trials_frame(trials: dict[str, dict[int, dict]]) -> pd.DataFrame:
 
 def pareto_frame(definition: dict, trials: dict, heldout: dict, chosen: dict, cap) -> pd.DataFrame:
     """``pareto.csv``: one row per point re-evaluated on the held-out seeds: method, trial, every gain, the
-    held-out medians e_P, e_F (RMS, last score_last iterations), H_x, H_y (settled, last iteration),
-    relative chattering max(H_x / cap_x, H_y / cap_y), feasible (in the search), front (on the search's
-    front; trial 0 is evaluated either way), stable (no held-out seed diverged or was flagged), diverged
-    iteration (first over seeds), flagged seeds, under cap, shipped."""
+    held-out medians e_P, e_F (RMS, last score_last iterations), the settled H at the last iteration per
+    task axis (H_x, H_y; or H_u, H_v, H_n), relative chattering max over the axes of H_a / cap_a, feasible
+    (in the search), front (on the search's front; trial 0 is evaluated either way), stable (no held-out
+    seed diverged or was flagged), diverged iteration (first over seeds), flagged seeds, under cap, shipped."""
     from types import SimpleNamespace
 
     from ilcforce.tune.heldout import summary
+    from ilcforce.tune.spec import definition_axes
 
     tuning = SimpleNamespace(objective=definition["objective"])
+    axes = definition_axes(definition)
     rows = []
     for (method, number), record in sorted(heldout.items(), key=lambda kv: (definition["methods"].index(kv[0][0]),
                                                                              kv[0][1])):
         s = summary(tuning, record)
         trial = trials[method][number]
-        relative = (max(s["h_x"] / cap[0], s["h_y"] / cap[1]) if cap and s["h_x"] is not None else math.nan)
+        relative = (max(s[f"h_{a}"] / c for a, c in zip(axes, cap, strict=True))
+                    if cap and s[f"h_{axes[0]}"] is not None else math.nan)
         shipped = chosen.get(method) is not None and chosen[method]["trial"] == number
         rows.append({"method": method, "trial": number, **{k: _plain(v) for k, v in trial["gains"].items()},
-                     "e_P": s["e_p"], "e_F": s["e_f"], "H_x settled": s["h_x"], "H_y settled": s["h_y"],
+                     "e_P": s["e_p"], "e_F": s["e_f"], **{f"H_{a} settled": s[f"h_{a}"] for a in axes},
                      "chattering / cap": relative, "error objective": s["error"],
                      "feasible": bool(trial["feasible"]), "stable": s["stable"],
                      "diverged iteration": s["diverged"] if s["diverged"] is not None else math.nan,
                      "flagged seeds": s["flagged"], "under cap": bool(relative <= 1.0) if relative == relative else False,
                      "shipped": shipped})
     frame = pd.DataFrame(rows)
-    frame.attrs["units"] = {"e_P": "m", "e_F": "N", "H_x settled": "N", "H_y settled": "N"}
+    frame.attrs["units"] = {"e_P": "m", "e_F": "N", **{f"H_{a} settled": "N" for a in axes}}
     return frame
 
 
@@ -191,9 +194,12 @@ def fronts_figure(pareto: pd.DataFrame, methods: list[str], title: str):
 
 def outcome_table(definition: dict, states: dict, chosen: dict, trials: dict) -> pd.DataFrame:
     """Per method: its search (trials, first budget, most, converged, last-quarter gain, feasible trials,
-    front) and what it ships (trial, held-out medians), or the words of :data:`NONE_UNDER_CAP`."""
+    front) and what it ships (trial, held-out medians: e_P, e_F, H per task axis), or the words of
+    :data:`NONE_UNDER_CAP`."""
     from ilcforce.tune.heldout import NONE_UNDER_CAP
+    from ilcforce.tune.spec import definition_axes
 
+    axes = definition_axes(definition)
     rows = []
     for method in definition["methods"]:
         s, point = states[method], chosen.get(method)
@@ -204,9 +210,9 @@ def outcome_table(definition: dict, states: dict, chosen: dict, trials: dict) ->
                      "feasible": sum(r["feasible"] for r in stored.values()), "front": s["front"],
                      "shipped": f"trial {point['trial']}" if point else NONE_UNDER_CAP,
                      "e_P": point["e_p"] if point else math.nan, "e_F": point["e_f"] if point else math.nan,
-                     "H_x": point["h_x"] if point else math.nan, "H_y": point["h_y"] if point else math.nan})
+                     **{f"H_{a}": point[f"h_{a}"] if point else math.nan for a in axes}})
     frame = pd.DataFrame(rows)
-    frame.attrs["units"] = {"e_P": "m", "e_F": "N", "H_x": "N", "H_y": "N"}
+    frame.attrs["units"] = {"e_P": "m", "e_F": "N", **{f"H_{a}": "N" for a in axes}}
     return frame
 
 
@@ -220,7 +226,9 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
     from ilcforce.report.table_write import markdown_table, write_table
     from ilcforce.store.tuning import read_header, read_heldout
     from ilcforce.tune.heldout import choose
+    from ilcforce.tune.objectives import chattering_formula, per_axis_text
     from ilcforce.tune.runner import read_trials, stored_check, validate_tuning
+    from ilcforce.tune.spec import definition_axes
 
     path, out_dir = Path(path), Path(out_dir)
     validate_tuning(path)
@@ -229,6 +237,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
     trials = read_trials(path)
     heldout = read_heldout(path, stored_check(path))
     cap_spec = definition["cap"]
+    axes = definition_axes(definition)
     view = SimpleNamespace(methods=definition["methods"], cap_reference=cap_spec["reference"],
                            cap_factor=cap_spec["factor"], objective=definition["objective"])
     chosen, cap = choose(view, SimpleNamespace(heldout=heldout))
@@ -260,7 +269,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
             *([header["description"], ""] if header.get("description") else []),
             f"Each method's gains searched for two objectives on seeds {_seeds(definition['seeds'])} x "
             f"{definition['iterations']} iterations (the last {definition['score_last']} scored): the error "
-            "log10(e_P / 1 mm) + log10(e_F / 1 N) and the chattering log10(max(H_x / cap_x, H_y / cap_y)) of the "
+            f"log10(e_P / 1 mm) + log10(e_F / 1 N) and the chattering log10({chattering_formula(axes)}) of the "
             f"settled H, relative to {cap_spec['reference']} with the experiment's gains. A trial is feasible only "
             f"when check seeds {_seeds(definition['check_seeds'])} run {definition['check_iterations']} iterations "
             "without divergence and the growth test flags neither (a check run flagged at 40 or 50 iterations "
@@ -270,7 +279,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
             f"always) and trial 0 are then re-run on held-out seeds {_seeds(definition['heldout_seeds'])} x "
             f"{definition['heldout_iterations']} iterations; the shipped point is the stable one with the lowest "
             "error whose settled H at the last iteration is within the cap"
-            + (f" (H_x {cap[0]:.3g} N, H_y {cap[1]:.3g} N: {cap_spec['factor']:g} x {cap_spec['reference']}'s "
+            + (f" ({per_axis_text(axes, cap)}: {cap_spec['factor']:g} x {cap_spec['reference']}'s "
                "held-out median)." if cap else "."), "",
             f"{sum(s['trials'] for s in states.values())} trials in all.{pruning}", "",
             f"Shipped: {', '.join(shipped) or 'none'}." + (f" No stable gains under the cap: {', '.join(withheld)}."

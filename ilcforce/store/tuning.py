@@ -27,6 +27,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from ilcforce.records import TASK_DIMENSIONS, task_axes
 from ilcforce.store import records
 from ilcforce.store.records import RecordError
 from ilcforce.store.safeio import StoreError, acquire_writer_lock, check_writer_lock, dead_copies_in
@@ -41,12 +42,32 @@ HEADER_FIELDS = frozenset({"schema", "schema_version", "name", "description", "t
 RECORD_FIELDS = frozenset({"tuning", "search", "method", "number", "params", "gains", "state", "value", "chattering",
                            "feasible", "cap", "scored", "seeds", "checks", "message", "elapsed", "in_sampler",
                            "checksum"})
-SEED_KEYS = ("seed", "value", "chattering", "iterations_run", "diverged_iteration", "position_error_rms",
-             "force_error_rms", "chattering_task_x_settled", "chattering_task_y_settled")
-CHECK_KEYS = ("seed", "iterations_run", "planned", "diverged_iteration", "verdict", "text", "h_x_last", "h_y_last")
-#: A held-out evaluation's fields, and each held-out seed's.
+
+
+def seed_keys(axes: tuple[str, ...]) -> tuple[str, ...]:
+    """A scoring seed's fields on a task of ``axes``: its settled H per axis (``chattering_task_<a>_settled``)."""
+    return ("seed", "value", "chattering", "iterations_run", "diverged_iteration", "position_error_rms",
+            "force_error_rms", *(f"chattering_task_{a}_settled" for a in axes))
+
+
+def check_keys(axes: tuple[str, ...]) -> tuple[str, ...]:
+    """A check seed's fields on a task of ``axes``: its last settled H per axis (``h_<a>_last``)."""
+    return ("seed", "iterations_run", "planned", "diverged_iteration", "verdict", "text",
+            *(f"h_{a}_last" for a in axes))
+
+
+def heldout_keys(axes: tuple[str, ...]) -> tuple[str, ...]:
+    """A held-out seed's fields on a task of ``axes``: its last settled H per axis (``h_<a>``)."""
+    return ("seed", "iterations_run", "diverged_iteration", "e_p", "e_f", *(f"h_{a}" for a in axes), "verdict", "text")
+
+
+#: Every task's axes a record may be of (the planar task's x, y; a plane's u, v, n).
+AXES = tuple(task_axes(n) for n in TASK_DIMENSIONS)
+#: The fields of a planar (x, y) task's seeds, as every store before 3-axis tasks holds them.
+SEED_KEYS, CHECK_KEYS = seed_keys(AXES[0]), check_keys(AXES[0])
+#: A held-out evaluation's fields, and each held-out seed's (planar task).
 HELDOUT_FIELDS = frozenset({"tuning", "search", "method", "number", "gains", "seeds", "checksum"})
-HELDOUT_KEYS = ("seed", "iterations_run", "diverged_iteration", "e_p", "e_f", "h_x", "h_y", "verdict", "text")
+HELDOUT_KEYS = heldout_keys(AXES[0])
 COMPLETE, FAILED = "complete", "failed"
 MAX_BYTES = 16 << 20
 _TRIAL_FILE = re.compile(r"(?P<method>[a-z0-9][a-z0-9-]{0,63})-(?P<number>\d{5})\.json")
@@ -119,9 +140,10 @@ def check_record(record, search: Search, name: tuple[str, str] | None = None, ch
         raise RecordError(f"trial {number} is beyond every budget a run of this tuning asked for ({search.most})")
     seeds, checks = record["seeds"], record["checks"]
     unrun = record["state"] == FAILED and seeds == [] and checks == []  # gains refused before any cell ran
+    axes = None
     if not unrun:
-        _check_entries(seeds, search.seeds, SEED_KEYS, "seeds")
-        _check_entries(checks, search.check_seeds, CHECK_KEYS, "check seeds")
+        axes = _check_entries(seeds, search.seeds, seed_keys, "seeds")
+        _check_entries(checks, search.check_seeds, check_keys, "check seeds", axes)
     for entry in seeds:
         for key in ("value", "chattering"):
             if entry[key] is not None and not _is_number(entry[key]):
@@ -136,8 +158,11 @@ def check_record(record, search: Search, name: tuple[str, str] | None = None, ch
     if not isinstance(record["feasible"], bool) or record["feasible"] and record["state"] != COMPLETE:
         raise RecordError("feasible is not true or false, or true for a failed trial")
     cap = record["cap"]
-    if cap is not None and not (isinstance(cap, list) and len(cap) == 2 and all(_is_number(c) and c > 0 for c in cap)):
-        raise RecordError("its cap is not two positive numbers")
+    widths = [len(axes)] if axes is not None else [len(a) for a in AXES]  # unrun: the cap of the search's task
+    if cap is not None and not (isinstance(cap, list) and len(cap) in widths and
+                                all(_is_number(c) and c > 0 for c in cap)):
+        raise RecordError(f"its cap is not {' or '.join(_WORDS[w] for w in widths)} positive numbers"
+                          + (f" (one per task axis {', '.join(axes)})" if axes is not None and axes != AXES[0] else ""))
     params = record["params"]
     if not isinstance(params, dict) or not all(map(_is_number, params.values())) or (number == 0) != (params == {}):
         raise RecordError("params is not a table of finite numbers (empty for trial 0 alone, the experiment's gains)")
@@ -148,13 +173,39 @@ def check_record(record, search: Search, name: tuple[str, str] | None = None, ch
         check(record)
 
 
-def _check_entries(entries, seeds: tuple[int, ...], keys: tuple[str, ...], what: str) -> None:
+_WORDS = {2: "two", 3: "three"}
+
+
+def entry_axes(entry: dict, keys: Callable[[tuple[str, ...]], tuple[str, ...]]) -> tuple[str, ...] | None:
+    """The task axes whose fields (``keys``: :func:`seed_keys`, :func:`check_keys` or :func:`heldout_keys`)
+    ``entry`` holds, and no others but a ``message``; None when it holds no task's."""
+    return next((axes for axes in AXES if set(keys(axes)) <= set(entry) <= {*keys(axes), "message"}), None)
+
+
+def record_axes(record: dict) -> tuple[str, ...] | None:
+    """The task axes of a checked trial (of its scoring seeds) or held-out evaluation (of its held-out seeds);
+    None for a trial whose gains were refused before any cell ran."""
+    keys = heldout_keys if "checks" not in record else seed_keys
+    return entry_axes(record["seeds"][0], keys) if record["seeds"] else None
+
+
+def _check_entries(entries, seeds: tuple[int, ...], keys: Callable[[tuple[str, ...]], tuple[str, ...]], what: str,
+                   axes: tuple[str, ...] | None = None) -> tuple[str, ...] | None:
+    """The task axes of ``entries`` (one per seed of ``seeds``), each holding the ``keys`` of the same task's
+    axes (those of ``axes`` when given: another part of the record set them); RecordError otherwise."""
     if not isinstance(entries, list) or [e.get("seed") if isinstance(e, dict) and _is_int(e.get("seed")) else None
                                          for e in entries] != list(seeds):
         raise RecordError(f"its {what} are not the tuning's {list(seeds)[:10]}")
     for entry in entries:
-        if not set(keys) <= set(entry) <= {*keys, "message"}:
-            raise RecordError(f"{what[:-1]} {entry['seed']}: its fields are not {', '.join(keys)}")
+        found = entry_axes(entry, keys)
+        if found is None:
+            raise RecordError(f"{what[:-1]} {entry['seed']}: its fields are not "
+                              f"{' or '.join(', '.join(keys(a)) for a in ([axes] if axes else AXES))}")
+        if axes is not None and found != axes:
+            raise RecordError(f"{what[:-1]} {entry['seed']}: its fields are of the task axes {', '.join(found)}, "
+                              f"the record's others of {', '.join(axes)}; a record is of one task")
+        axes = found
+    return axes
 
 
 def check_heldout(record, search: Search, trials: dict, name: tuple[str, str] | None = None) -> None:
@@ -170,9 +221,9 @@ def check_heldout(record, search: Search, trials: dict, name: tuple[str, str] | 
     if trial is None or trial["gains"] != record["gains"]:
         raise RecordError(f"it evaluates {str(method)[:64]} trial {str(number)[:10]}, which is not stored with "
                           "these gains")
-    _check_entries(record["seeds"], search.heldout_seeds, HELDOUT_KEYS, "held-out seeds")
+    axes = _check_entries(record["seeds"], search.heldout_seeds, heldout_keys, "held-out seeds", record_axes(trial))
     for entry in record["seeds"]:
-        if not all(entry[k] is None or _is_number(entry[k]) for k in ("e_p", "e_f", "h_x", "h_y")):
+        if not all(entry[k] is None or _is_number(entry[k]) for k in ("e_p", "e_f", *(f"h_{a}" for a in axes))):
             raise RecordError(f"held-out seed {entry['seed']}: a norm is not a finite number")
 
 

@@ -8,20 +8,21 @@ Each seed gives the mean RMS errors over the last ``score_last`` iterations, the
 iteration per task axis, and the growth test's verdict on the whole run.
 
 The **cap** is the reference method's trial 0 (the experiment's gains) on the same held-out seeds:
-``factor`` x the median over seeds of its settled H at the last iteration, per task axis. A point is
-**shippable** when no held-out seed diverged, the growth test flags none, and the median settled H at
-the last iteration is within the cap on both axes; of those, the one with the lowest error objective
-(of the medians) is shipped. A method with none ships no gains.
+``factor`` x the median over seeds of its settled H at the last iteration, per task axis (x, y; or u, v,
+n). A point is **shippable** when no held-out seed diverged, the growth test flags none, and the median
+settled H at the last iteration is within the cap on every task axis; of those, the one with the lowest
+error objective (of the medians) is shipped. A method with none ships no gains.
 """
 
 from __future__ import annotations
 
 import statistics
 
+from ilcforce.store.tuning import record_axes
 from ilcforce.tune import check
 from ilcforce.tune.front import pareto_indices, spread
 from ilcforce.tune.search import MethodSearch, point
-from ilcforce.tune.objectives import error_value
+from ilcforce.tune.objectives import error_value, settled_column
 from ilcforce.tune.spec import Tuning
 from ilcforce.tune.trial import TrialCell, diverged_at, json_float
 
@@ -76,8 +77,7 @@ def run(tuning: Tuning, store, searches: dict, execute) -> int:
         verdict, text = check.judge(rows, cell.method, p, configs[cell]) if rows else ("", failure or "")
         entry = {"seed": cell.seed, "iterations_run": len(rows), "diverged_iteration": diverged_at(rows),
                  "e_p": mean("position_error_rms"), "e_f": mean("force_error_rms"),
-                 "h_x": json_float(rows[-1]["chattering_task_x_settled"]) if last else None,
-                 "h_y": json_float(rows[-1]["chattering_task_y_settled"]) if last else None,
+                 **{f"h_{a}": json_float(rows[-1][settled_column(a)]) if last else None for a in tuning.axes},
                  "verdict": verdict, "text": text, **({"message": failure} if failure else {})}
         key = (cell.method, cell.number)
         pending.setdefault(key, {})[cell.seed] = entry
@@ -89,11 +89,13 @@ def run(tuning: Tuning, store, searches: dict, execute) -> int:
 
 
 def summary(tuning: Tuning, record: dict) -> dict:
-    """One held-out evaluation in numbers: medians over seeds (None where a seed did not complete),
-    whether it stayed stable (no divergence, nothing flagged), its error objective."""
+    """One held-out evaluation in numbers: medians over seeds (None where a seed did not complete) of
+    ``e_p``, ``e_f`` and the settled H per task axis (``h_x``, ``h_y`` or ``h_u``, ``h_v``, ``h_n``; ``axes``
+    names them), whether it stayed stable (no divergence, nothing flagged), its error objective."""
     from ilcforce.stability import FLAGGED
 
     seeds = record["seeds"]
+    axes = record_axes(record)
     stable = all(e["diverged_iteration"] is None and e["verdict"] != FLAGGED and "message" not in e for e in seeds)
 
     def median(key):
@@ -104,24 +106,24 @@ def summary(tuning: Tuning, record: dict) -> dict:
            "diverged": min((e["diverged_iteration"] for e in seeds if e["diverged_iteration"] is not None),
                            default=None),
            "flagged": sum(e["verdict"] == FLAGGED for e in seeds), "seeds": len(seeds),
-           **{k: median(k) for k in ("e_p", "e_f", "h_x", "h_y")}}
+           "axes": axes, **{k: median(k) for k in ("e_p", "e_f", *(f"h_{a}" for a in axes))}}
     out["error"] = error_value(out["e_p"], out["e_f"], tuning.objective) if stable and out["e_p"] is not None else None
     return out
 
 
 def choose(tuning: Tuning, store) -> tuple[dict, tuple | None]:
-    """(method -> the summary of its shipped point or None, the held-out cap (H_x, H_y) or None before
-    the reference's trial 0 was evaluated)."""
+    """(method -> the summary of its shipped point or None, the held-out cap (one per task axis: H_x, H_y,
+    or H_u, H_v, H_n) or None before the reference's trial 0 was evaluated)."""
     reference = store.heldout.get((tuning.cap_reference, 0))
     cap = None
     if reference is not None:
         ref = summary(tuning, reference)
-        if ref["h_x"] is not None:
-            cap = (tuning.cap_factor * ref["h_x"], tuning.cap_factor * ref["h_y"])
+        if ref[f"h_{ref['axes'][0]}"] is not None:
+            cap = tuple(tuning.cap_factor * ref[f"h_{a}"] for a in ref["axes"])
     chosen = {}
     for method in tuning.methods:
         options = [summary(tuning, r) for (m, _n), r in sorted(store.heldout.items()) if m == method]
-        under = [o for o in options if cap is not None and o["error"] is not None and o["h_x"] <= cap[0]
-                 and o["h_y"] <= cap[1]]
+        under = [o for o in options if cap is not None and o["error"] is not None
+                 and all(o[f"h_{a}"] <= c for a, c in zip(o["axes"], cap, strict=True))]
         chosen[method] = min(under, key=lambda o: (o["error"], o["trial"])) if under else None
     return chosen, cap

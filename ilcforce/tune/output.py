@@ -71,6 +71,7 @@ def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: d
     from ilcforce.config_load import load_config
     from ilcforce.tomlfile import dump_toml, toml_comment
     from ilcforce.tune.heldout import NONE_UNDER_CAP
+    from ilcforce.tune.objectives import per_axis_text
 
     overrides = {**tuning.fixed, "experiment.name": name or f"{tuning.name}-tuned",
                  "experiment.description": f"{tuning.base.experiment.description}; gains tuned by ilcforce tune "
@@ -84,7 +85,7 @@ def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: d
             document[method] = load_config(tuning.experiment, {**tuning.fixed, **point["gains"]}).to_dict()[method]
     withheld = [m for m in tuning.methods if chosen.get(m) is None]
     document["tuning"] = {"source": tuning.name, "withheld": withheld, "cap_reference": tuning.cap_reference,
-                          "cap": [float(c) for c in cap] if cap else []}
+                          "cap": [float(c) for c in cap] if cap else []}  # one per task axis
     source = tuning.path.name if tuning.path is not None else tuning.name
     b = tuning.budget
     lines = [f"Written by `ilcforce tune {source}`: the experiment {tuning.experiment.name} with [tune.set] "
@@ -98,12 +99,13 @@ def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: d
              f"Chosen: the front point with the lowest error over {len(tuning.heldout_seeds)} held-out seeds x "
              f"{tuning.heldout_iterations} iterations that stayed stable with settled H at the last iteration "
              f"within the cap ({tuning.cap_factor:g} x {tuning.cap_reference} with the experiment's gains"
-             + (f": H_x {cap[0]:.3g} N, H_y {cap[1]:.3g} N)." if cap else ").")]
+             + (f": {per_axis_text(tuning.axes, cap)})." if cap else ").")]
     for method in tuning.methods:
         state, point = searches.get(method, {}), chosen.get(method)
         search = (f"{state.get('trials', '?')} trials ({'converged' if state.get('converged') else 'NOT converged'}"
                   f", front {state.get('front', 0)})")
         lines.append(f"{method}: {search}; " + (
-            f"trial {point['trial']}: e_P {point['e_p']:.3g} m, e_F {point['e_f']:.3g} N, H_x {point['h_x']:.3g} N, "
-            f"H_y {point['h_y']:.3g} N (held-out medians)" if point is not None else f"{NONE_UNDER_CAP}: withheld"))
+            f"trial {point['trial']}: e_P {point['e_p']:.3g} m, e_F {point['e_f']:.3g} N, "
+            f"{per_axis_text(tuning.axes, [point[f'h_{a}'] for a in tuning.axes])} (held-out medians)"
+            if point is not None else f"{NONE_UNDER_CAP}: withheld"))
     return "\n".join(toml_comment(line) for line in lines) + "\n" + dump_toml(document)

@@ -69,7 +69,7 @@ class TuneSummary:
     skipped: int  # trials already stored
     searches: dict  # method -> {"trials", "first", "most", "converged", "gain", "front"}
     chosen: dict  # method -> held-out summary of its shipped point, or None (no stable gains under the cap)
-    cap: tuple | None  # the held-out cap (H_x, H_y), N
+    cap: tuple | None  # the held-out cap, one per task axis (H_x, H_y; or H_u, H_v, H_n), N
     tuned: Path | None  # the experiment file with the chosen gains (None: no method ships gains)
     wall_time: float
     workers: int
@@ -175,7 +175,7 @@ def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: 
                 if 0 not in reference.records:  # the cap first: every chattering value is relative to it
                     ran += _run_round(tuning, searches, _ask_round(tuning, {tuning.cap_reference: reference}),
                                       execute, store, progress, None, pruned)
-                cap = reference_cap(reference.records[0])
+                cap = reference_cap(reference.records[0], tuning.axes)
                 if cap is None:
                     raise TuneError(f"the cap's reference {tuning.cap_reference} did not complete its scored "
                                     f"iterations with the experiment's gains ({reference.records[0]['message']}); "

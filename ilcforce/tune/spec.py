@@ -33,9 +33,10 @@ File format (TOML)::
 The objectives (both minimised) of a trial, per scoring seed, over the scored iterations
 ``iterations - score_last .. iterations - 1``: the **error** ``log10(e_P / 1 mm) + log10(e_F / 1 N)``
 of the mean RMS norms ("both"; "position" or "force" keep one term), and the **chattering**
-``log10(max(H_x / cap_x, H_y / cap_y))`` of the mean settled H per task axis, where the cap is the
-reference method's settled H with the experiment's gains on the same seeds (so 0 is "as much as the
-reference"); then the median over seeds. A trial is **feasible** when every check seed runs the whole
+``log10(max over the task's axes a of H_a / cap_a)`` of the mean settled H per task axis (x, y on the
+planar task, u, v, n on a 3-axis one: :attr:`Tuning.axes`), where the cap is the reference method's settled
+H with the experiment's gains on the same seeds, one value per axis (so 0 is "as much as the reference");
+then the median over seeds. A trial is **feasible** when every check seed runs the whole
 ``check_iterations`` without divergence and the growth test (:mod:`ilcforce.stability`) flags none.
 Every problem raises :class:`TuneError` with one line naming the key.
 """
@@ -44,6 +45,7 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import json
 import math
 import typing
 from dataclasses import dataclass
@@ -51,6 +53,7 @@ from pathlib import Path
 
 from ilcforce.config import Config, ConfigError
 from ilcforce.config_load import load_config, shown
+from ilcforce.records import task_axes
 from ilcforce.store.schema import STUDY_NAME
 from ilcforce.study.spec import StudyError, parse_seeds
 from ilcforce.tomlfile import read_toml
@@ -172,6 +175,12 @@ class Tuning:
         return self.budget.most(len(self.parameters(method)))
 
     @property
+    def axes(self) -> tuple[str, ...]:
+        """The experiment's task axes (:func:`ilcforce.records.task_axes`): the chattering objective, the cap
+        and each seed's stored H are per axis."""
+        return task_axes(self.base.dimension)
+
+    @property
     def score_iterations(self) -> int:
         """The scored runs' length (the check and held-out runs are longer)."""
         return self.iterations
@@ -221,6 +230,12 @@ class Tuning:
                 "cap": {"reference": self.cap_reference, "factor": self.cap_factor},
                 "sampler_seed": self.sampler_seed,
                 "gains": {m: [dataclasses.asdict(g) for g in gs] for m, gs in self.gains.items()}}
+
+
+def definition_axes(definition: dict) -> tuple[str, ...]:
+    """The task axes of a stored search (:meth:`Tuning.definition`): its experiment's, from the selection's
+    width; ValueError when the experiment has no task of 2 or 3 axes."""
+    return task_axes(len(json.loads(definition["experiment"])["surface"]["selection"]))
 
 
 def _positive_int(table: dict, key: str, default=None, *, at_most: int | None = None, where: str = "tune") -> int:
@@ -327,7 +342,9 @@ def _searched_gains(method: str, table, base: Config) -> tuple[SearchedGain, ...
         if isinstance(current, tuple):
             if isinstance(spec, list):
                 if len(spec) != len(current):
-                    raise TuneError(f"{where}.{name} must list {len(current)} entries (one per element), "
+                    per = (f"task axis {', '.join(task_axes(base.dimension))} of {base.experiment.name}"
+                           if len(current) == base.dimension else "element")
+                    raise TuneError(f"{where}.{name} must list {len(current)} entries (one per {per}), "
                                     f"got {len(spec)}")
                 elements = tuple(_range(f"{where}.{name}[{i}]", s) for i, s in enumerate(spec))
             elif isinstance(spec, dict):

@@ -12,10 +12,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 from ilcforce.store.records import RecordError
-from ilcforce.store.tuning import COMPLETE, FAILED
+from ilcforce.store.tuning import COMPLETE, FAILED, record_axes
 from ilcforce.tune import check as stability_check
-from ilcforce.tune.objectives import chattering_value, error_value, scored_means
-from ilcforce.tune.spec import GainRange, SearchedGain, Tuning
+from ilcforce.tune.objectives import chattering_over, error_value, scored_means, settled_column
+from ilcforce.tune.spec import GainRange, SearchedGain, Tuning, definition_axes
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,8 @@ def trial_check(definition: dict) -> Callable[[dict], None]:
     names = {m: dict(p for g in gs for p in g.parameter_names()) for m, gs in gains.items()}
     integer = {m: {n for g in gs if g.integer for n, _ in g.parameter_names()} for m, gs in gains.items()}
     experiment = json.loads(definition["experiment"])
-    scoring = SimpleNamespace(iterations=definition["iterations"], score_last=definition["score_last"])
+    axes = definition_axes(definition)
+    scoring = SimpleNamespace(iterations=definition["iterations"], score_last=definition["score_last"], axes=axes)
 
     def check(record: dict) -> None:
         try:
@@ -70,13 +71,16 @@ def trial_check(definition: dict) -> Callable[[dict], None]:
         if json.loads(json.dumps(ran)) != record["gains"]:
             raise RecordError("its gains are not the ones its params give")
         cap = record["cap"]
+        held = record_axes(record)
+        if held not in (None, axes) or cap is not None and len(cap) != len(axes):
+            raise RecordError(f"its seeds or its cap are not of the task axes {', '.join(axes)} of its experiment")
         for entry in record["seeds"]:
             if "message" in entry:
                 continue
-            means = scored_means(stored_rows(entry), scoring)
+            means = scored_means(stored_rows(entry, axes), scoring)
             values = ((None, None) if means is None or cap is None else
                       (error_value(means["e_p"], means["e_f"], definition["objective"]),
-                       chattering_value(means["h_x"], means["h_y"], tuple(cap))))
+                       chattering_over([means[f"h_{a}"] for a in axes], cap)))
             if values != (entry["value"], entry["chattering"]):
                 raise RecordError(f"seed {entry['seed']}: its values are not the scores of its norms")
         checks = record["checks"]
@@ -97,10 +101,16 @@ def check_passed(entry: dict, horizon: int) -> bool:
             and entry["planned"] == horizon and entry["iterations_run"] == horizon)
 
 
-def stored_rows(entry: dict) -> list[dict]:
-    """A stored scoring seed's rows as :func:`scored_means` reads them."""
+def score_columns(axes: tuple[str, ...]) -> tuple[str, ...]:
+    """The metrics columns a scoring seed stores per iteration: the RMS error norms and the settled H per
+    task axis."""
+    return ("position_error_rms", "force_error_rms", *(settled_column(a) for a in axes))
+
+
+def stored_rows(entry: dict, axes: tuple[str, ...]) -> list[dict]:
+    """A stored scoring seed's rows (on a task of ``axes``) as :func:`scored_means` reads them."""
     diverged = entry["diverged_iteration"]
-    columns = ("position_error_rms", "force_error_rms", "chattering_task_x_settled", "chattering_task_y_settled")
+    columns = score_columns(axes)
     n = entry["iterations_run"]
     if not (isinstance(n, int) and all(len(entry[c]) == n for c in columns)):
         raise RecordError(f"seed {entry['seed']}: its norms do not cover its {n} iterations")
@@ -129,12 +139,10 @@ def score_entry(tuning: Tuning, seed: int, result: dict | None, message: str | N
     means = scored_means(rows, tuning) if result is not None else None
     values = ((None, None) if means is None or cap is None else
               (error_value(means["e_p"], means["e_f"], tuning.objective),
-               chattering_value(means["h_x"], means["h_y"], tuple(cap))))
+               chattering_over([means[f"h_{a}"] for a in tuning.axes], cap)))
     return {"seed": seed, "value": values[0], "chattering": values[1], "iterations_run": len(rows),
             "diverged_iteration": diverged_at(rows),
-            **{c: [json_float(r[c]) for r in rows] for c in ("position_error_rms", "force_error_rms",
-                                                                "chattering_task_x_settled",
-                                                                "chattering_task_y_settled")},
+            **{c: [json_float(r[c]) for r in rows] for c in score_columns(tuning.axes)},
             **({"message": message} if message else {})}
 
 
@@ -147,25 +155,25 @@ def check_entry(tuning: Tuning, method: str, seed: int, result: dict | None, mes
         verdict, text = stability_check.judge(rows, method, tuning.base.plant.perturbation.from_iteration, config)
     return {"seed": seed, "iterations_run": len(rows), "planned": tuning.check_iterations,
             "diverged_iteration": diverged_at(rows), "verdict": verdict, "text": text,
-            "h_x_last": json_float(rows[-1]["chattering_task_x_settled"]) if rows else None,
-            "h_y_last": json_float(rows[-1]["chattering_task_y_settled"]) if rows else None,
+            **{f"h_{a}_last": json_float(rows[-1][settled_column(a)]) if rows else None for a in tuning.axes},
             **({"message": message} if message else {})}
 
 
-def reference_cap(record: dict) -> tuple[float, float] | None:
-    """The search's cap (N per task axis): the median over scoring seeds of the reference trial 0's mean
-    settled H over the scored iterations (before the cap factor: the chattering objective is relative to
-    the reference itself); None when it did not complete."""
+def reference_cap(record: dict, axes: tuple[str, ...]) -> tuple[float, ...] | None:
+    """The search's cap (N per task axis, in the order of the axes): the median over scoring seeds of the
+    reference trial 0's mean settled H over the scored iterations (before the cap factor: the chattering
+    objective is relative to the reference itself); None when it did not complete."""
     if record["state"] != COMPLETE:
         return None
-    scoring = _Scoring(record)
-    means = [scored_means(stored_rows(e), scoring) for e in record["seeds"]]
-    return statistics.median(m["h_x"] for m in means), statistics.median(m["h_y"] for m in means)
+    scoring = _Scoring(record, axes)
+    means = [scored_means(stored_rows(e, axes), scoring) for e in record["seeds"]]
+    return tuple(statistics.median(m[f"h_{a}"] for m in means) for a in axes)
 
 
 @dataclass(frozen=True)
 class _Scoring:  # the scored horizon of a stored record (what scored_means reads)
     record: dict
+    axes: tuple[str, ...]  # the task's axes
 
     @property
     def iterations(self) -> int:
@@ -184,12 +192,12 @@ def trial_record(tuning: Tuning, method: str, number: int, params: dict, scores:
         probe = {"seeds": scores, "state": COMPLETE, "scored": [tuning.iterations, tuning.score_last]}
         ok = all(e.get("message") is None and e["diverged_iteration"] is None and
                  e["iterations_run"] >= tuning.iterations for e in scores)
-        cap = reference_cap(probe) if ok else None
+        cap = reference_cap(probe, tuning.axes) if ok else None
         if cap is not None:
             for e in scores:
-                means = scored_means(stored_rows(e), tuning)
+                means = scored_means(stored_rows(e, tuning.axes), tuning)
                 e["value"] = error_value(means["e_p"], means["e_f"], tuning.objective)
-                e["chattering"] = chattering_value(means["h_x"], means["h_y"], cap)
+                e["chattering"] = chattering_over([means[f"h_{a}"] for a in tuning.axes], cap)
     value = chattering = None
     if not message:
         for entry in scores:
