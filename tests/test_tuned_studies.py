@@ -102,3 +102,19 @@ def test_an_untuned_study_has_no_comparison_at_equal_chattering():
                               setting_metrics=lambda k: _frame({"c1": (1, 1, 1, 1)}))
     table, sentence = equal_chattering.comparison(results)
     assert table.empty and sentence == ""
+
+
+def test_a_three_axis_tuned_study_compares_at_equal_chattering_on_u_v_n():
+    """A tuned file of a 3-axis task has a cap per axis u, v, n: the comparison reads H along each and a method
+    over the cap on one axis alone (v) is over it."""
+    frame = _frame({"c1": (1e-4, 0.1, 0.1, 0.5), "c2": (1e-5, 0.01, 0.05, 0.2)})
+    frame = frame.rename(columns={"chattering_task_x_settled": "chattering_task_u_settled",
+                                  "chattering_task_y_settled": "chattering_task_n_settled"})
+    frame["chattering_task_v_settled"] = frame["method"].map({"c1": 0.2, "c2": 0.5})  # c2: 2.5x the cap on v
+    config = {"tuning": {"source": "t", "withheld": [], "cap_reference": "c1", "cap": [0.1, 0.2, 0.5]}}
+    results = SimpleNamespace(settings=pd.DataFrame([{"setting": 0, "config_json": json.dumps(config)}]),
+                              setting_metrics=lambda k: frame)
+    table, sentence = equal_chattering.comparison(results)
+    assert [c for c in table.columns if c.startswith("H_")] == [f"H_{a} settled, j = 59" for a in "uvn"]
+    assert table.set_index("method").loc["c2", "H / cap (max over axes)"] == "2.50"
+    assert "H_u 0.1 N, H_v 0.2 N, H_n 0.5 N" in sentence and "over the cap here: c2 (2.50x)" in sentence

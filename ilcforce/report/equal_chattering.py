@@ -7,7 +7,7 @@ cap (the cap's reference method's settled H per task axis on the tuning's held-o
 withheld. Per method: the median over seeds [95% bootstrap interval] of the RMS errors averaged over the
 last five iterations (the tuning's own error measure) and of the settled H at the last iteration, that H
 over the cap, the seeds that diverged. Methods are compared at equal chattering: the ranking by error is
-stated among the methods whose median settled H stays within the cap on both axes, and a method over it is
+stated among the methods whose median settled H stays within the cap on every task axis, and a method over it is
 named as such.
 """
 
@@ -19,6 +19,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from ilcforce.records import TASK_DIMENSIONS, task_axes
 from ilcforce.stats import median_interval
 
 #: The iterations at the end of a run whose RMS errors are averaged (the tuning's score_last).
@@ -29,7 +30,7 @@ def tuning_of(results) -> dict | None:
     """The ``[tuning]`` table of the study's (first) setting when its experiment is a tuned file with a cap."""
     config = json.loads(str(results.settings.iloc[0]["config_json"])) if len(results.settings) else {}
     tuning = config.get("tuning", {})
-    return tuning if tuning.get("source") and len(tuning.get("cap", ())) == 2 else None
+    return tuning if tuning.get("source") and len(tuning.get("cap", ())) in TASK_DIMENSIONS else None
 
 
 def _interval(values) -> str:
@@ -51,6 +52,7 @@ def comparison(results) -> tuple[pd.DataFrame, str]:
     if tuning is None:
         return pd.DataFrame(), ""
     cap = tuning["cap"]
+    axes = task_axes(len(cap))  # the cap has one value per task axis
     metrics = results.setting_metrics(int(results.settings.iloc[0]["setting"]))
     last = int(metrics["iteration"].max())
     rows, within, over = [], [], []
@@ -66,18 +68,15 @@ def comparison(results) -> tuple[pd.DataFrame, str]:
                 "diverged": not ok,
                 "e_p": float(tail["position_error_rms"].mean()) if ok else math.nan,
                 "e_f": float(tail["force_error_rms"].mean()) if ok else math.nan,
-                "h_x": float(end["chattering_task_x_settled"].iloc[0]) if ok else math.nan,
-                "h_y": float(end["chattering_task_y_settled"].iloc[0]) if ok else math.nan})
+                **{f"h_{a}": float(end[f"chattering_task_{a}_settled"].iloc[0]) if ok else math.nan for a in axes}})
         seeds = pd.DataFrame(per_seed)
-        h_x, h_y = float(np.nanmedian(seeds["h_x"])), float(np.nanmedian(seeds["h_y"]))
-        relative = max(h_x / cap[0], h_y / cap[1])
+        relative = max(float(np.nanmedian(seeds[f"h_{a}"])) / c for a, c in zip(axes, cap, strict=True))
         under = relative <= 1.0
         (within if under else over).append((method, float(np.nanmedian(seeds["e_p"])),
                                             float(np.nanmedian(seeds["e_f"])), relative))
         rows.append({"method": method, f"e_P RMS, j = {last - LAST + 1}..{last}": _interval(seeds["e_p"]),
                      f"e_F RMS, j = {last - LAST + 1}..{last}": _interval(seeds["e_f"]),
-                     f"H_x settled, j = {last}": _interval(seeds["h_x"]),
-                     f"H_y settled, j = {last}": _interval(seeds["h_y"]),
+                     **{f"H_{a} settled, j = {last}": _interval(seeds[f"h_{a}"]) for a in axes},
                      "H / cap (max over axes)": f"{relative:.2f}",
                      "diverged": f"{int(seeds['diverged'].sum())} of {len(seeds)}"})
     for method in tuning.get("withheld", ()):
@@ -85,7 +84,7 @@ def comparison(results) -> tuple[pd.DataFrame, str]:
                     {"method": method})
     table = pd.DataFrame(rows)
     cap_text = (f"{tuning.get('cap_reference', 'the reference')}'s settled H on the tuning's held-out seeds: "
-                f"H_x {cap[0]:.3g} N, H_y {cap[1]:.3g} N")
+                + ", ".join(f"H_{a} {c:.3g} N" for a, c in zip(axes, cap)))
     parts = [f"over {last + 1} iterations on {metrics['seed'].nunique()} seeds the tuning never used, "
              f"{len(within)} of {len(within) + len(over)} shipped methods keep their median settled H at j = {last} "
              f"within the cap ({cap_text})"]
