@@ -44,8 +44,11 @@ aot: $(STAMP)
 
 install: $(STAMP) aot ## create .venv, install ilcforce with its test extras and compile its kernels
 
-test: $(STAMP) aot ## run the fast test suite (slow paper-level studies excluded)
-	$(PY) -m pytest -q
+# TEST_WORKERS: pytest-xdist's worker processes (auto: one per core; 0 runs the tests in this process)
+TEST_WORKERS ?= auto
+
+test: $(STAMP) aot ## run the fast test suite (slow paper-level studies excluded) on every core
+	$(PY) -m pytest -q -n $(TEST_WORKERS)
 
 test-slow: $(STAMP) aot ## run only the slow paper-level regression studies
 	$(PY) -m pytest -q -m slow
