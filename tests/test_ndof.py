@@ -400,3 +400,19 @@ def test_the_api_page_spatial_arm_example_runs(capsys):
     exec(compile(match.group(1), "docs/api.md", "exec"), {})
     lines = capsys.readouterr().out.splitlines()
     assert lines[0].startswith("3 ") and [line.split()[1] for line in lines[-3:]] == ["complete"] * 3
+
+
+def test_has_law_nd_reads_the_class_without_compiling():
+    """A method has an n-axis law if its class holds one (a compiled_law_nd descriptor, or any function as the
+    benchmark's zero-torque controller holds it), and asking compiles nothing."""
+    from ilcforce.controllers.nd import compiled_law_nd
+
+    def law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+        return 0
+
+    descriptor = compiled_law_nd(law)
+    with_descriptor = type("WithDescriptor", (), {"law_nd": descriptor})
+    with_function = type("WithFunction", (), {"law_nd": staticmethod(law)})
+    assert has_law_nd(with_descriptor) and has_law_nd(with_function)
+    assert not has_law_nd(type("Without", (), {"law": staticmethod(law)}))
+    assert descriptor._dispatcher is None  # not compiled by the question

@@ -159,7 +159,7 @@ class compiled_law_nd:  # noqa: N801 (a descriptor, as base.compiled_law)
 
 def has_law_nd(controller_class) -> bool:
     """Whether a controller class has an n-axis law, without compiling it (reading ``law_nd`` compiles)."""
-    return isinstance(inspect.getattr_static(controller_class, "law_nd", None), compiled_law_nd)
+    return inspect.getattr_static(controller_class, "law_nd", None) is not None
 
 
 # --- the shared terms --------------------------------------------------------------------------------
