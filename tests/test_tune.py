@@ -25,7 +25,7 @@ from ilcforce.cli.main import app
 from ilcforce.config_load import load_config
 from ilcforce.tune import TuneError, TuningStoreError, build_tuning, load_tuning, run_tuning, validate_tuning
 from ilcforce.tune.runner import read_trials
-from ilcforce.tune.objectives import chattering_value, error_value, scored_means
+from ilcforce.tune.objectives import chattering_over, error_value, scored_means
 from tunekit import EXPERIMENTS, ROOT, TINY, budget, fake_cell, only_c1, tiny_file, tiny_table, tuned
 
 RANGE = {"low": 1.0, "high": 2.0}
@@ -156,9 +156,9 @@ def test_the_objectives_and_a_divergence_anywhere_in_the_horizon():
     assert error_value(means["e_p"], means["e_f"], "position") == pytest.approx(0.0)
     assert error_value(means["e_p"], means["e_f"], "force") == pytest.approx(-1.0)
     # chattering: the worse axis against the cap; 0 is the cap's own
-    assert chattering_value(0.2, 0.05, (0.2, 0.05)) == pytest.approx(0.0)
-    assert chattering_value(0.2, 0.5, (0.2, 0.05)) == pytest.approx(1.0)
-    assert chattering_value(0.02, 0.005, (0.2, 0.05)) == pytest.approx(-1.0)
+    assert chattering_over((0.2, 0.05), (0.2, 0.05)) == pytest.approx(0.0)
+    assert chattering_over((0.2, 0.5), (0.2, 0.05)) == pytest.approx(1.0)
+    assert chattering_over((0.02, 0.005), (0.2, 0.05)) == pytest.approx(-1.0)
     # only the scored iterations count
     assert scored_means([dict(ok, iteration=0, position_error_rms=1.0), *rows[1:]], tuning)["e_p"] == \
         pytest.approx(1e-3)

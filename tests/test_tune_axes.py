@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 
 from ilcforce.cli.main import app
 from ilcforce.tune import build_tuning
-from ilcforce.tune.objectives import chattering_over, chattering_value, scored_means
+from ilcforce.tune.objectives import chattering_over, scored_means
 from tunekit import EXPERIMENTS
 
 #: A tiny tuning of the spatial arm: C1 (the cap's reference) and C2, 2 scoring seeds x 3 iterations, a check
@@ -61,9 +61,6 @@ def test_the_chattering_objective_on_three_axes_is_the_worst_of_u_v_n():
     assert chattering_over((0.02, 0.05, 0.2), cap) == pytest.approx(-0.30103, abs=1e-5)  # v, the worst, at half
     with pytest.raises(ValueError, match="H has 3 axes and the cap 2"):
         chattering_over((0.2, 0.1, 2.0), cap[:2])
-    # the planar form is the same function on two axes, to the bit
-    for h_x, h_y in ((0.3, 0.07), (0.01, 0.5), (0.0, 0.2)):
-        assert chattering_value(h_x, h_y, (0.2, 0.05)) == chattering_over((h_x, h_y), (0.2, 0.05))
 
 
 def test_a_three_axis_tuning_scores_h_per_axis_u_v_n():

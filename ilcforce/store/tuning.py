@@ -63,11 +63,8 @@ def heldout_keys(axes: tuple[str, ...]) -> tuple[str, ...]:
 
 #: Every task's axes a record may be of (the planar task's x, y; a plane's u, v, n).
 AXES = tuple(task_axes(n) for n in TASK_DIMENSIONS)
-#: The fields of a planar (x, y) task's seeds, as every store before 3-axis tasks holds them.
-SEED_KEYS, CHECK_KEYS = seed_keys(AXES[0]), check_keys(AXES[0])
-#: A held-out evaluation's fields, and each held-out seed's (planar task).
+#: A held-out evaluation's fields (its seeds': :func:`heldout_keys`).
 HELDOUT_FIELDS = frozenset({"tuning", "search", "method", "number", "gains", "seeds", "checksum"})
-HELDOUT_KEYS = heldout_keys(AXES[0])
 COMPLETE, FAILED = "complete", "failed"
 MAX_BYTES = 16 << 20
 _TRIAL_FILE = re.compile(r"(?P<method>[a-z0-9][a-z0-9-]{0,63})-(?P<number>\d{5})\.json")

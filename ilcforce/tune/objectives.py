@@ -66,11 +66,6 @@ def chattering_over(h: Sequence[float], cap: Sequence[float]) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def chattering_value(h_x: float, h_y: float, cap: tuple[float, float]) -> float | None:
-    """:func:`chattering_over` on the planar task: ``log10(max(H_x / cap_x, H_y / cap_y))``."""
-    return chattering_over((h_x, h_y), cap)
-
-
 def chattering_formula(axes: tuple[str, ...]) -> str:
     """The chattering objective's ratio as text: ``max(H_x / cap_x, H_y / cap_y)`` on the planar task."""
     return f"max({', '.join(f'H_{a} / cap_{a}' for a in axes)})"
