@@ -9,7 +9,7 @@ import sys
 
 import typer
 
-from ilcforce.cli import config, report, run, study, tune  # noqa: F401 - each registers its commands on the app
+from ilcforce.cli import analyze, config, report, run, study, tune  # noqa: F401 - each registers its commands on the app
 from ilcforce.cli.base import _say, app
 from ilcforce.stops import ANNOUNCED, STOPS, announce, stop_code, stop_signals
 
