@@ -150,3 +150,15 @@ def test_run_cell_honours_the_stop(paper):
     config = load_config(EXPERIMENTS / "paper.toml", {"reference.duration": 0.2, "experiment.iterations": 9})
     result = run_cell(config, "c1", None, lambda rows: len(rows) == 2)
     assert len(result["rows"]) == 2
+
+
+def test_a_search_without_a_feasible_trial_is_never_called_converged():
+    from ilcforce.tune.search import outcome
+
+    empty = {"trials": 8, "done": True, "converged": True, "gain": 0.0, "front": 0}  # as extent() says it
+    assert outcome(empty) == outcome(empty, gain=True) == "no feasible trial"
+    grown = {**empty, "front": 3, "gain": 0.004}
+    assert outcome(grown) == "converged"
+    assert outcome(grown, gain=True) == "converged (front grew 0.4% over the last quarter)"
+    assert outcome({**grown, "converged": False}) == "NOT converged"
+    assert outcome({}) == "NOT converged"  # a search with nothing stored yet

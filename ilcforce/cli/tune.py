@@ -43,10 +43,10 @@ def summary_line(name: str, method: str, search: dict, point: dict | None, axes:
     task's ``axes``)."""
     from ilcforce.tune.heldout import NONE_UNDER_CAP
     from ilcforce.tune.objectives import per_axis_text
+    from ilcforce.tune.search import outcome
 
     done = (f"{search['trials']} trials (first budget {search['first']}, at most {search['most']}), "
-            + (f"converged (front grew {search['gain']:.1%} over the last quarter)" if search["converged"]
-               else "NOT converged"))
+            + outcome(search, gain=True))
     ships = (f"ships trial {point['trial']}: held-out e_P {point['e_p']:.3g} m, e_F {point['e_f']:.3g} N, "
              f"{per_axis_text(axes, [point[f'h_{a}'] for a in axes])}" if point is not None else NONE_UNDER_CAP)
     return f"{name}: {method}: {done}; {ships}"

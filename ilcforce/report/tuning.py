@@ -124,6 +124,8 @@ def convergence_figure(frame: pd.DataFrame, states: dict[str, dict]):
     """One panel per method (:func:`plot_convergence`), three to a row, each with its own y scale."""
     from matplotlib.figure import Figure
 
+    from ilcforce.tune.search import outcome
+
     methods = [m for m in states if (frame["method"] == m).any()]
     columns = min(3, max(1, len(methods)))
     rows = -(-len(methods) // columns)
@@ -132,8 +134,7 @@ def convergence_figure(frame: pd.DataFrame, states: dict[str, dict]):
     for ax, method in zip(axes, methods):
         plot_convergence(ax, frame, method, states[method])
         s = states[method]
-        ax.set_title(f"{_style(method)[1]}: {s['trials']} trials, " + ("no feasible trial" if not s.get("front", 1)
-                     else "converged" if s["converged"] else "NOT converged"), fontsize="small")
+        ax.set_title(f"{_style(method)[1]}: {s['trials']} trials, {outcome(s)}", fontsize="small")
         ax.set_xlabel("trial", fontsize="small")
         ax.set_ylabel("hypervolume", fontsize="small")
     for ax in axes[len(methods):]:
@@ -197,6 +198,7 @@ def outcome_table(definition: dict, states: dict, chosen: dict, trials: dict) ->
     front) and what it ships (trial, held-out medians: e_P, e_F, H per task axis), or the words of
     :data:`NONE_UNDER_CAP`."""
     from ilcforce.tune.heldout import NONE_UNDER_CAP
+    from ilcforce.tune.search import outcome
     from ilcforce.tune.spec import definition_axes
 
     axes = definition_axes(definition)
@@ -205,7 +207,7 @@ def outcome_table(definition: dict, states: dict, chosen: dict, trials: dict) ->
         s, point = states[method], chosen.get(method)
         stored = trials.get(method, {})
         rows.append({"method": method, "trials": s["trials"], "first budget": s["first"], "at most": s["most"],
-                     "converged": "yes" if s["converged"] else "NO",
+                     "converged": {"converged": "yes", "NOT converged": "NO"}.get(outcome(s), outcome(s)),
                      "front gain, last quarter": f"{s['gain']:.1%}" if math.isfinite(s["gain"]) else "-",
                      "feasible": sum(r["feasible"] for r in stored.values()), "front": s["front"],
                      "shipped": f"trial {point['trial']}" if point else NONE_UNDER_CAP,

@@ -72,6 +72,7 @@ def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: d
     from ilcforce.tomlfile import dump_toml, toml_comment
     from ilcforce.tune.heldout import NONE_UNDER_CAP
     from ilcforce.tune.objectives import per_axis_text
+    from ilcforce.tune.search import outcome
 
     overrides = {**tuning.fixed, "experiment.name": name or f"{tuning.name}-tuned",
                  "experiment.description": f"{tuning.base.experiment.description}; gains tuned by ilcforce tune "
@@ -102,8 +103,7 @@ def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: d
              + (f": {per_axis_text(tuning.axes, cap)})." if cap else ").")]
     for method in tuning.methods:
         state, point = searches.get(method, {}), chosen.get(method)
-        search = (f"{state.get('trials', '?')} trials ({'converged' if state.get('converged') else 'NOT converged'}"
-                  f", front {state.get('front', 0)})")
+        search = f"{state.get('trials', '?')} trials ({outcome(state)}, front {state.get('front', 0)})"
         lines.append(f"{method}: {search}; " + (
             f"trial {point['trial']}: e_P {point['e_p']:.3g} m, e_F {point['e_f']:.3g} N, "
             f"{per_axis_text(tuning.axes, [point[f'h_{a}'] for a in tuning.axes])} (held-out medians)"

@@ -68,6 +68,18 @@ def extent(records: dict[int, dict], first: int, most: int, stop_gain: float) ->
             "front": len(fronts.pareto_indices(points))}
 
 
+def outcome(state: dict, *, gain: bool = False) -> str:
+    """A search's outcome in words: "no feasible trial" when its front is empty (the stopping rule counts an
+    empty front as not improving, so such a search stops at its first budget: it did not converge to
+    anything), else "converged" (with the front's gain over the last quarter when ``gain``) or "NOT converged"."""
+    if state.get("done", True) and state.get("front", 1) == 0:
+        return "no feasible trial"
+    if not state.get("converged"):
+        return "NOT converged"
+    value = state.get("gain", math.nan)
+    return f"converged (front grew {value:.1%} over the last quarter)" if gain and math.isfinite(value) else "converged"
+
+
 class MethodSearch:
     """One method's Optuna study, with the stored trials replayed into it."""
 
