@@ -119,6 +119,12 @@ long: $(STAMP) aot ## run the long studies (1,000 iterations; the growth test's 
 	$(VENV)/bin/ilcforce study $(LONG_STUDIES) --results $(RESULTS) --replace-stale
 	$(PY) -m ilcforce.report.long_run --results $(RESULTS) --out docs/long-run
 
+# The lifted check against the simulation (ilcforce/theory/): each learning method's predicted band growth
+# beside the growth measured from 220-iteration runs with noise on held-out seeds, and the predicted
+# boundedness beside docs/long-run/ (see docs/lifted/validation.md for the time it took)
+lifted: $(STAMP) aot ## the lifted-system check against long runs on the five-bar and the 2R arm: writes docs/lifted/
+	$(PY) -m ilcforce.theory.validation experiments/paper.toml experiments/serial2r.toml --out docs/lifted
+
 findings: $(STAMP) ## copy the report's generated findings (results/report/findings.md) into docs/findings.md
 	$(PY) -m ilcforce.report.readme update docs/findings.md $(RESULTS)/report/findings.md
 
@@ -148,4 +154,4 @@ clean: ## remove generated results, caches and the virtual environment
 	rm -rf $(RESULTS)/*/ $(VENV) .pytest_cache build *.egg-info ilcforce/_kernels_aot*
 	find . -name __pycache__ -type d -prune -exec rm -rf {} +
 
-.PHONY: help aot install test test-slow bench stores studies calibrate claim-map reproduce long findings check-findings readme-findings check-readme tune clean
+.PHONY: help aot install test test-slow bench stores studies calibrate claim-map reproduce long lifted findings check-findings readme-findings check-readme tune clean

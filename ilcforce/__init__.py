@@ -33,6 +33,7 @@ _PUBLIC = {
     "run_method": ("ilcforce.experiment", "api_run_method"),  # refusals name overwrite=True, not --overwrite
     "simulate_iterations": ("ilcforce.experiment", "simulate_iterations"),
     "iteration_metrics": ("ilcforce.metrics", "iteration_metrics"),
+    "analyze": ("ilcforce.theory.lifted", "analyze"),  # the lifted-system check of a learning law
     "Run": ("ilcforce.store.run", "Run"),
     "StoreError": ("ilcforce.store", "StoreError"),
     "validate": ("ilcforce.store", "validate"),

@@ -351,7 +351,7 @@ def measured_band_growth(config: Config, method: str, *, iterations: int, first:
     changes = [memories[j + 1] - memories[j] for j in range(len(memories) - 1)]
     last = min(last, len(changes))
     if last - first < 3:
-        raise AnalysisError(f"{method} completes only {len(memories)} noise-free iterations: too few to measure "
+        raise AnalysisError(f"{method} completes only {len(memories)} iterations: too few to measure "
                             f"growth over j = {first}..{last}")
     nyquist = 0.5 / ts
     edges = [b for b in bands if b < nyquist] + [nyquist * (1 + 1e-12)]
