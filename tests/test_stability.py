@@ -137,3 +137,20 @@ def test_one_seed_reports_its_own_fit_interval():
     row = growth.set_index("quantity").loc["chattering_task_x_settled"]
     assert row["rate_low"] < row["rate"] < row["rate_high"] and row["fitted"] == 1
     assert row["rate_low"] > MIN_RATE and bool(row["grows"])
+
+
+def test_a_memory_of_round_off_size_is_not_judged_but_a_small_real_one_is():
+    """The referee's false alarm: C2-robust at q_cutoff = 1500 Hz, whose t = 0 memory grows x2.15 per iteration
+    from about 1e-15 N m while its settled memory stays near 0.04 N m. Below ROUNDOFF of the settled memory it is
+    numerical residue; the same growth at 1e-3 of it (a real drift) is still flagged."""
+    from ilcforce.stability import ROUNDOFF
+
+    settled = lambda j: 0.04  # noqa: E731
+    for start, flagged in ((lambda j: 1e-15 * 2.15 ** min(j, 25), False),
+                           (lambda j: 0.04 * 1e-3 * 1.3 ** j, True)):
+        frame = _frame({"c2-robust": {"chattering_task_x_settled": lambda j: 0.02,
+                                      "chattering_task_y_settled": lambda j: 0.03,
+                                      "memory_settled_v": settled, "memory_start_v": start}}, iterations=20)
+        assert (frame["memory_start_v"].iloc[-1] < ROUNDOFF * 0.04) is not flagged
+        growth = learning_growth(frame, perturbation_iteration=P)
+        assert ("c2-robust" in unstable_methods(growth)) is flagged, growth
