@@ -97,3 +97,23 @@ def test_the_findings_cite_the_committed_summary_and_leave_make_longs_studies_ou
     assert with_long == readme.findings_markdown({}, {}, **empty)
     assert "`make long`, studies run on 2026-12-05 at commit abc): C3 diverges." in with_long
     assert long_run.is_long_study("growth-validation-serial2r") and not long_run.is_long_study("long-run-mc")
+
+
+def test_heldout_rates_count_misses_false_alarms_and_not_evaluable_with_wilson_intervals():
+    """The out-of-sample page's rates: a miss is an unbounded case not flagged that had not diverged by the
+    horizon; a false alarm a bounded case flagged; "not evaluable" is its own row over every case. Each rate
+    carries its 95% Wilson interval (0 of 12 still allows up to 24%)."""
+    rows = ([{"truth": "unbounded", "diverged_at": 5.0, "verdict_20": "flagged"}]  # diverged early: not counted
+            + [{"truth": "unbounded", "diverged_at": float("nan"), "verdict_20": v}
+               for v in ("flagged", "flagged", "not evaluable")]
+            + [{"truth": "bounded", "diverged_at": float("nan"), "verdict_20": v}
+               for v in ["not flagged"] * 10 + ["flagged", "not evaluable"]])
+    table = growth_validation.rates(pd.DataFrame(rows), 20).set_index("what")
+    assert (table.loc["misses", "count"], table.loc["misses", "of"]) == (1, 3)
+    assert table.loc["  of which not evaluable", "count"] == 1
+    assert (table.loc["false alarms", "count"], table.loc["false alarms", "of"]) == (1, 12)
+    assert (table.loc["not evaluable", "count"], table.loc["not evaluable", "of"]) == (2, 16)
+    low, high = table.loc["false alarms", ["rate_low", "rate_high"]]
+    assert 0.01 < low < 1 / 12 < high < 0.36
+    none = growth_validation.rates(pd.DataFrame(rows[4:]).assign(verdict_20="not flagged"), 20).set_index("what")
+    assert none.loc["false alarms", "rate_low"] < 1e-12 and 0.2 < none.loc["false alarms", "rate_high"] < 0.3

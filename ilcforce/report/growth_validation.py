@@ -101,6 +101,42 @@ def validation_cases(studies: dict[str, object]) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+#: Studies drawn after the test's rules were frozen (``experiments/long/growth-heldout-*.toml``): the out-of-sample set.
+HELDOUT_PREFIX = "growth-heldout"
+#: The rule changes, and the cases each was made on (the in-sample set: the growth-validation studies).
+RULE_HISTORY = (
+    ("the error 2-norms shown, no longer judged", "after PD-ILC's bounded runs were flagged on them in the "
+     "growth-validation studies (seeds 71, 72)"),
+    ("the saturating rule (increments shrinking geometrically are growth towards a limit)", "on the same "
+     "growth-validation studies (C3-robust's alpha_hat and the Q-filtered memories filling as they learn)"),
+    ("a memory of round-off size (below 1e-6 of its block's settled RMS) not judged", "on C2-robust at "
+     "q_cutoff = 1500 Hz, seed 141, a case outside both sets"),
+)
+
+
+def rates(cases: pd.DataFrame, horizon: int, truth: str = "truth") -> pd.DataFrame:
+    """Misses, false alarms and "not evaluable" at ``horizon`` as counts with 95% Wilson intervals. A miss is an
+    unbounded case that had not diverged by ``horizon`` and was not flagged; a false alarm a bounded case
+    flagged; "not evaluable" is counted over every case (it is neither right nor wrong, so it is its own row)."""
+    from ilcforce.stats import frequency_interval
+
+    unbounded = cases[(cases[truth] == "unbounded") & ~(cases["diverged_at"] < horizon)]
+    bounded = cases[cases[truth] == "bounded"]
+    verdict = f"verdict_{horizon}"
+    rows = []
+    for what, hits, among, of in (
+            ("misses", int((unbounded[verdict] != FLAGGED).sum()), len(unbounded),
+             f"unbounded cases not diverged by j = {horizon}"),
+            ("  of which not evaluable", int((unbounded[verdict] == NOT_EVALUABLE).sum()), len(unbounded),
+             f"unbounded cases not diverged by j = {horizon}"),
+            ("false alarms", int((bounded[verdict] == FLAGGED).sum()), len(bounded), "bounded cases"),
+            ("not evaluable", int((cases[verdict] == NOT_EVALUABLE).sum()), len(cases), "cases")):
+        share = frequency_interval(hits, among)
+        rows.append({"horizon": horizon, "what": what, "count": hits, "of": among, "among": of,
+                     "rate": share.estimate, "rate_low": share.low, "rate_high": share.high})
+    return pd.DataFrame(rows)
+
+
 def confusion(cases: pd.DataFrame, horizon: int, truth: str = "truth") -> pd.DataFrame:
     """Counts of cases per truth (rows: unbounded, bounded) and verdict at ``horizon`` (columns); ``truth``
     names the column of the truth ("truth", or "truth_with_memories": every memory's growth counts)."""
