@@ -44,17 +44,10 @@ def _kind(mode: int) -> str:
     return f"is {next((what for test, what in kinds if test(mode)), 'a special file')}, not a regular file"
 
 
-def read_regular(path: Path | str, limit: int, *, follow_links: bool = True) -> bytes:
-    """The bytes of the regular file ``path``, at most ``limit`` of them; :class:`UnreadableFile` saying
-    why not: missing, a dangling or looping link, a link at all when not ``follow_links`` (the
-    file's own name must hold it: a store's files), a directory, a FIFO, a socket or a device, more
-    than ``limit`` bytes, or unreadable.
-
-    The kind is checked twice: by name before opening (nothing but a regular file is ever opened),
-    and on the opened descriptor (a name swapped between the two checks). The open is non-blocking,
-    so a FIFO put there meanwhile cannot hold the process, and never follows a last link when
-    ``follow_links`` is false; at most ``limit + 1`` bytes are read, so a file that grows meanwhile
-    (or a link to /dev/zero made meanwhile) cannot exhaust memory."""
+def check_regular(path: Path | str, limit: int, *, follow_links: bool = True) -> os.stat_result:
+    """The stat of ``path`` if it is a regular file of at most ``limit`` bytes (by name, without opening
+    it: for a file another library opens, such as a mesh MuJoCo reads); :class:`UnreadableFile` as
+    :func:`read_regular` says otherwise."""
     name = os.fspath(path)
     try:
         info = os.stat(name) if follow_links else os.lstat(name)
@@ -72,6 +65,22 @@ def read_regular(path: Path | str, limit: int, *, follow_links: bool = True) -> 
         raise UnreadableFile(_kind(info.st_mode))
     if info.st_size > limit:
         raise UnreadableFile(f"is larger than {_size(limit)}")
+    return info
+
+
+def read_regular(path: Path | str, limit: int, *, follow_links: bool = True) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` of them; :class:`UnreadableFile` saying
+    why not: missing, a dangling or looping link, a link at all when not ``follow_links`` (the
+    file's own name must hold it: a store's files), a directory, a FIFO, a socket or a device, more
+    than ``limit`` bytes, or unreadable.
+
+    The kind is checked twice: by name before opening (:func:`check_regular`: nothing but a regular
+    file is ever opened), and on the opened descriptor (a name swapped between the two checks). The
+    open is non-blocking, so a FIFO put there meanwhile cannot hold the process, and never follows a
+    last link when ``follow_links`` is false; at most ``limit + 1`` bytes are read, so a file that
+    grows meanwhile (or a link to /dev/zero made meanwhile) cannot exhaust memory."""
+    name = os.fspath(path)
+    check_regular(name, limit, follow_links=follow_links)
     flags = os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | (0 if follow_links else os.O_NOFOLLOW)
     try:
         fd = os.open(name, flags)
