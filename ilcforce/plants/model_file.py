@@ -81,6 +81,9 @@ def _compile(path: Path, urdf: bool | None = None):
         import mujoco
     except ImportError as exc:  # a dependency of ilcforce; missing only in a broken install
         raise ModelFileError(f"reading a model file needs the mujoco package ({exc})") from None
+    warnings: list[str] = []  # MuJoCo's parser prints them (a NaN) on stderr: kept, not printed
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(warnings.append)
     try:
         spec = mujoco.MjSpec.from_file(str(path))
         spec.compiler.fusestatic = False  # MuJoCo's URDF import fuses fixed joints by default: keep the tool link
@@ -95,7 +98,12 @@ def _compile(path: Path, urdf: bool | None = None):
         raise
     except ValueError as exc:
         raise ModelFileError(f"{path}: MuJoCo cannot read it: {_one_line(exc)}") from None
+    finally:
+        mujoco.set_mju_user_warning(previous)
     _check_model(model, path)
+    nan = [w for w in warnings if "NaN" in w]
+    if nan:  # one the checks above do not read (a damping, a colour): every number of the file is finite
+        raise ModelFileError(f"{path}: MuJoCo warns: {_one_line(nan[0])}; every number of a model file must be finite")
     return model
 
 
