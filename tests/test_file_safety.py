@@ -491,3 +491,17 @@ def test_a_nan_no_check_reads_is_refused_too_and_mujocos_warning_is_not_printed(
     assert load_model(MODELS / "arm3.xml", "tool").n == 3
     out, err = capfd.readouterr()
     assert "NaN" not in out + err
+
+
+def test_an_inertia_from_geoms_is_checked_as_compiled(tmp_path):
+    """A body without <inertial> takes its mass from its geoms: a density of 1e300 made a finite,
+    absurd mass no check of the file's own numbers sees."""
+    tool_inertial = '<inertial pos="-0.02 0 0" mass="0.25" fullinertia="1e-4 1.5e-4 1.5e-4 0 0 0"/>'
+    tool_geom = '<geom type="cylinder" fromto="-0.04 0 0 0 0 0" size="0.02" contype="0" conaffinity="0"/>'
+    assert tool_inertial in ARM3 and tool_geom in ARM3
+    bare = ARM3.replace(tool_inertial, "")
+    dense = bare.replace(tool_geom, tool_geom.replace('size="0.02"', 'size="0.02" density="1e300"'))
+    refused(model(tmp_path, dense), "body 'tool': mass 5.02655e+295 is out of bounds (finite, at least 0, at most 1e+06")
+    from ilcforce.plants.model_file import load_model
+
+    assert load_model(model(tmp_path, bare, "bare.xml"), "tool").n == 3  # a density of water: a mass, loaded

@@ -189,9 +189,10 @@ def _check_model(model, path: Path) -> None:
         for index in range(1 if kind == "body" else 0, count):
             for what, values, bound in fields:
                 if _bad_numbers(values[index], bound) or (what in ("mass", "inertia") and np.any(values[index] < 0)):
+                    limits = ", at least 0" if what in ("mass", "inertia") else ""
+                    limits += f", at most {bound:g} in size" if bound else ""
                     raise ModelFileError(f"{path}: {kind} {_name(model, kind, index)!r}: {what} {_shown(values[index])} "
-                                         "is not finite numbers" + (f" of at most {bound:g}" if bound else "")
-                                         + (" and at least 0" if what in ("mass", "inertia") else ""))
+                                         f"is out of bounds (finite{limits})")
     for j in range(model.njnt):
         value = model.qpos0[model.jnt_qposadr[j]]
         if _bad_numbers([value], MAX_LENGTH):
