@@ -243,6 +243,14 @@ def test_a_model_of_many_bodies_is_refused_before_the_parse(tmp_path):
     refused(model(tmp_path, ARM3.replace('<body name="tool" pos="0.34 0 0">',
                                          f'<body name="tool" pos="0.34 0 0">{sites}'), "sites.xml"),
             f"more than {model_refs.MAX_ELEMENTS:,} elements")
+    compilers = "".join(f'<compiler meshdir="m{i}"/>' for i in range(10_000))
+    textures = "".join(f'<texture name="t{i}" type="2d" file="t{i}.png"/>' for i in range(9_000))
+    start = time.monotonic()
+    refused(model(tmp_path, ARM3.replace("<worldbody>", f"{compilers}<asset>{textures}</asset><worldbody>"),
+                  "dirs.xml"), f"more than {model_refs.MAX_DIRS} different meshdir")
+    refused(model(tmp_path, ARM3.replace("<worldbody>", f"<asset>{textures}</asset><worldbody>"), "names.xml"),
+            f"names more than {model_refs.MAX_ASSET_NAMES:,} asset files")
+    assert time.monotonic() - start < 5.0  # 1e10 look-ups of every place an asset may be, before the bounds
     huge = tmp_path / "huge.xml"
     with huge.open("w") as handle:
         handle.write("<mujoco>" + " " * (model_refs.MAX_XML_BYTES + 1) + "</mujoco>")

@@ -52,6 +52,11 @@ MAX_ELEMENTS = 20_000
 #: Pixels of one texture or height field (a PNG's header, or a builtin's width x height, nrow x ncol):
 #: MuJoCo allocates them whole, whatever the file's size (a 1 kB PNG may say 100,000 x 100,000).
 MAX_PIXELS = 4096 * 4096
+#: Files named as assets (each looked for at up to 72 places), and different ``meshdir``, ``texturedir``
+#: and ``assetdir`` values: a robot has some dozens of meshes and one folder of them; without these
+#: bounds 10,000 compiler elements and 10,000 textures (within the element bound) made 1e10 look-ups.
+MAX_ASSET_NAMES = 2_000
+MAX_DIRS = 8
 #: The largest ``<size>`` counts: MuJoCo allocates nuser_body numbers per body (1e8: 10 s and 800 MB
 #: per body) and a state per keyframe.
 MAX_SIZE_COUNTS = {"nkey": 1_000, "nuserdata": 1_000_000}
@@ -156,7 +161,9 @@ def _scan_xml(scan: Scan, file: Path, budget: _Budget, chain: tuple[str, ...], m
         if tag == "include" and "file" in attrs:
             includes.append((attrs["file"], times))
         elif tag == "compiler":
-            scan.dirs += [attrs[d] for d in _DIRS if attrs.get(d)]
+            scan.dirs = list(dict.fromkeys(scan.dirs + [attrs[d] for d in _DIRS if attrs.get(d)]))
+            if len(scan.dirs) > MAX_DIRS:
+                raise _refuse(file, f"more than {MAX_DIRS} different meshdir, texturedir and assetdir values")
         elif tag == "model" and "file" in attrs:
             scan.models.append((attrs["file"], folder))
         elif tag == "attach":
@@ -168,6 +175,8 @@ def _scan_xml(scan: Scan, file: Path, budget: _Budget, chain: tuple[str, ...], m
                     raise _refuse(file, f"<size {key}=\"{value[:20]}\"> is more than {most:,}")
         if tag in ASSET_FILES:
             scan.assets += [(tag, name, attrs[name], folder) for name in ASSET_FILES[tag] if attrs.get(name)]
+            if len(scan.assets) > MAX_ASSET_NAMES:
+                raise _refuse(file, f"names more than {MAX_ASSET_NAMES:,} asset files")
         pixels = {"texture": ("width", "height"), "hfield": ("nrow", "ncol")}.get(tag)
         if pixels and _number(attrs.get(pixels[0]), 0) * _number(attrs.get(pixels[1]), 0) > MAX_PIXELS:
             raise _refuse(file, f"<{tag}> of {attrs[pixels[0]][:12]} x {attrs[pixels[1]][:12]} is more than "
