@@ -513,3 +513,21 @@ def test_an_inertia_from_geoms_is_checked_as_compiled(tmp_path):
     from ilcforce.plants.model_file import load_model
 
     assert load_model(model(tmp_path, bare, "bare.xml"), "tool").n == 3  # a density of water: a mass, loaded
+
+
+def test_the_scan_refuses_no_file_mujoco_reads_and_counts_a_urdf_model_asset(tmp_path):
+    """expat reads as MuJoCo does: a windows-1252 declaration over a stray byte, and an entity MuJoCo
+    leaves alone (&nbsp;), still load; a <model file> that is a URDF of 120,000 links is counted by
+    its links, not let through as an MJCF of no body."""
+    from ilcforce.plants.model_file import load_model
+
+    body = ARM3.split("-->", 1)[1]
+    latin = tmp_path / "latin.xml"
+    latin.write_bytes(b'<?xml version="1.0" encoding="windows-1252"?><!-- caf\xe9 -->' + body.encode())
+    assert load_model(latin, "tool").n == 3
+    assert load_model(model(tmp_path, body.replace('<mujoco model="arm3">', '<mujoco model="arm3&nbsp;">'),
+                            "nbsp.xml"), "tool").n == 3
+    model(tmp_path, '<robot name="r">' + "".join(f'<link name="l{i}"/>' for i in range(120_000)) + "</robot>",
+          "many.urdf")
+    refused(model(tmp_path, with_asset(f'<model name="u" file="{tmp_path / "many.urdf"}"/>'), "sub.xml"),
+            "many.urdf: more than 1,000 bodies")

@@ -121,8 +121,10 @@ def _number(value, default: int = 1) -> int:
         return default  # MuJoCo names what it cannot read
 
 
-def _scan_xml(scan: Scan, file: Path, budget: _Budget, chain: tuple[str, ...], multiplier: int, main: bool) -> None:
-    """Read one XML file of the model safely and count and collect what it holds."""
+def _scan_xml(scan: Scan, file: Path, budget: _Budget, chain: tuple[str, ...], multiplier: int, main: bool,
+              top: bool) -> None:
+    """Read one XML file of the model safely and count and collect what it holds (``main``: the model
+    file the user named; ``top``: a model, whose root element says URDF or MJCF, not an include)."""
     real = os.path.realpath(file)
     if real in chain:
         raise _refuse(chain[0], f"{file} includes itself (through <include>)")
@@ -149,7 +151,7 @@ def _scan_xml(scan: Scan, file: Path, budget: _Budget, chain: tuple[str, ...], m
         if tag == "replicate":
             times *= max(1, _number(attrs.get("count")))
         stack.append(times)
-        if main and len(stack) == 2:
+        if top and len(stack) == 2:
             scan.urdf = tag == "robot"
         _count(scan, file, "elements", times)
         if tag == ("link" if scan.urdf else "body"):
@@ -186,13 +188,16 @@ def _scan_xml(scan: Scan, file: Path, budget: _Budget, chain: tuple[str, ...], m
         raise _refuse(file, f"declares the XML entity {name!r}; a model file may not (MuJoCo does not expand "
                             "entities, and expanding them can take memory without bound)")
 
-    parser = expat.ParserCreate()
+    # as MuJoCo's parser reads it: UTF-8 whatever the declaration says, a stray byte no error, an entity
+    # it does not know (&nbsp;) skipped (a "foreign DTD" might define it; none is ever loaded)
+    parser = expat.ParserCreate(encoding="utf-8")
     parser.SetParamEntityParsing(expat.XML_PARAM_ENTITY_PARSING_NEVER)
+    parser.UseForeignDTD(True)
     parser.StartElementHandler = start
     parser.EndElementHandler = lambda tag: stack.pop()
     parser.EntityDeclHandler = entity
     try:
-        parser.Parse(data, True)
+        parser.Parse(data.decode("utf-8", errors="replace"), True)
     except expat.ExpatError as exc:
         raise _refuse(file, f"not well-formed XML ({expat.ErrorString(exc.code)}, line {exc.lineno})") from None
     root = Path(chain[0]).parent if chain else folder
@@ -201,7 +206,7 @@ def _scan_xml(scan: Scan, file: Path, budget: _Budget, chain: tuple[str, ...], m
         for candidate in (root / name, folder / name):
             if os.path.lexists(candidate) and os.path.realpath(candidate) not in seen:
                 seen.add(os.path.realpath(candidate))
-                _scan_xml(scan, candidate, budget, chain + (real,) if chain else (str(file), real), times, False)
+                _scan_xml(scan, candidate, budget, chain + (real,) if chain else (str(file), real), times, False, False)
 
 
 def _png_pixels(path: Path) -> int | None:
@@ -257,7 +262,7 @@ def _check_assets(scan: Scan, budget: _Budget) -> None:
 
 def _scan(path: Path, budget: _Budget, chain: tuple[str, ...]) -> Scan:
     scan = Scan(Path(path))
-    _scan_xml(scan, Path(path), budget, chain, 1, not chain)
+    _scan_xml(scan, Path(path), budget, chain, 1, not chain, True)
     if scan.urdf:
         return scan
     _check_assets(scan, budget)
