@@ -490,15 +490,17 @@ def test_tune_output_never_replaces_the_model_file_or_a_file_it_includes(tmp_pat
             run_tuning(tuning, tmp_path / "r", workers=1, cell_function=fake_cell, output=output, overwrite=True)
 
 
-def test_a_nan_no_check_reads_is_refused_too_and_mujocos_warning_is_not_printed(tmp_path, capfd):
-    """A NaN in a joint's damping (not part of the rigid-body model): MuJoCo printed a warning and loaded."""
+def test_a_nan_no_check_reads_is_refused_too_and_mujocos_warning_is_not_printed(tmp_path, capfd, monkeypatch):
+    """A NaN in a joint's damping (not part of the rigid-body model): MuJoCo printed a warning, wrote it
+    to MUJOCO_LOG.TXT in the working directory, and loaded."""
     from ilcforce.plants.model_file import load_model
 
+    monkeypatch.chdir(tmp_path)
     refused(model(tmp_path, ARM3.replace('name="elbow" type="hinge"', 'name="elbow" damping="nan" type="hinge"')),
             "MuJoCo warns: XML contains a 'NaN'")
     assert load_model(MODELS / "arm3.xml", "tool").n == 3
     out, err = capfd.readouterr()
-    assert "NaN" not in out + err
+    assert "NaN" not in out + err and not (tmp_path / "MUJOCO_LOG.TXT").exists()
 
 
 def test_an_inertia_from_geoms_is_checked_as_compiled(tmp_path):
