@@ -3,9 +3,9 @@
 ``ilcforce tune -o FILE`` checks FILE before any trial runs (:func:`check_output`): a new file in a folder
 this process can write (or create), or with ``--overwrite`` an existing regular file that is no store,
 no input of the run (the tuning file, its experiment, the model file and every file that names) and
-no part of a tuning store, named so that it names an experiment. The text (:func:`tuned_experiment`) is the tuning's experiment with
-each method's best gains and comments stating the budget; it is written whole or not at all
-(:func:`write_output`).
+no part of a tuning store, named so that it names an experiment. The text (:func:`tuned_experiment`) is
+the tuning's experiment with each method's best gains and comments stating the budget; it is written
+whole or not at all (:func:`write_output`).
 """
 
 from __future__ import annotations
