@@ -1,10 +1,20 @@
 """Reading a user's TOML file (an experiment or a study) with one clear line for every way it can fail;
 finding a shipped experiment file by its name (``-c serial2r``); writing a configuration back as TOML
-(``ilcforce config``)."""
+(``ilcforce config``).
+
+:func:`read_regular` is the one safe open of ilcforce for every file a command is given or finds
+(experiment, study and tuning files, a tuning store's ``tuned.toml``, model files and every file they
+name): whatever sits at the name, it returns the bytes of a regular file of bounded size or one line
+saying why not, in bounded time (a FIFO, a device, a socket or a folder is never read or waited on).
+The stores' own records are read by the same rules (:func:`ilcforce.store.records.read_json`).
+"""
 
 from __future__ import annotations
 
+import errno
+import os
 import re
+import stat
 import tomllib
 from pathlib import Path
 
@@ -16,6 +26,96 @@ MAX_TOML_BYTES = 4 * 1024 * 1024
 #: 500 tables deep parsed (tomllib builds it without recursion) and then broke every recursive walk
 #: of the result with a RecursionError traceback.
 MAX_TOML_DEPTH = 32
+
+
+class UnreadableFile(Exception):
+    """Why :func:`read_regular` refused a file: the message completes a sentence that starts with the
+    file's name ("is a FIFO (named pipe), not a regular file")."""
+
+
+def _kind(mode: int) -> str:
+    """What a file that is not a regular one is, as the end of a sentence."""
+    if stat.S_ISDIR(mode):
+        return "is a directory"
+    if stat.S_ISLNK(mode):
+        return "is a symbolic link"
+    kinds = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket"),
+             (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
+    return f"is {next((what for test, what in kinds if test(mode)), 'a special file')}, not a regular file"
+
+
+def check_regular(path: Path | str, limit: int, *, follow_links: bool = True) -> os.stat_result:
+    """The stat of ``path`` if it is a regular file of at most ``limit`` bytes (by name, without opening
+    it: for a file another library opens, such as a mesh MuJoCo reads); :class:`UnreadableFile` as
+    :func:`read_regular` says otherwise."""
+    name = os.fspath(path)
+    try:
+        info = os.stat(name) if follow_links else os.lstat(name)
+    except FileNotFoundError:
+        if os.path.islink(name):
+            raise UnreadableFile("is a symbolic link that leads nowhere (dangling or a loop)") from None
+        raise UnreadableFile("does not exist") from None
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise UnreadableFile("is a symbolic link that leads nowhere (dangling or a loop)") from None
+        if exc.errno == errno.ENOTDIR:
+            raise UnreadableFile("does not exist (a part of its path is not a folder)") from None
+        raise UnreadableFile(f"cannot be read: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise UnreadableFile(_kind(info.st_mode))
+    if info.st_size > limit:
+        raise UnreadableFile(f"is larger than {_size(limit)}")
+    return info
+
+
+def read_regular(path: Path | str, limit: int, *, follow_links: bool = True) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` of them; :class:`UnreadableFile` saying
+    why not: missing, a dangling or looping link, a link at all when not ``follow_links`` (the
+    file's own name must hold it: a store's files), a directory, a FIFO, a socket or a device, more
+    than ``limit`` bytes, or unreadable.
+
+    The kind is checked twice: by name before opening (:func:`check_regular`: nothing but a regular
+    file is ever opened), and on the opened descriptor (a name swapped between the two checks). The
+    open is non-blocking, so a FIFO put there meanwhile cannot hold the process, and never follows a
+    last link when ``follow_links`` is false; at most ``limit + 1`` bytes are read, so a file that
+    grows meanwhile (or a link to /dev/zero made meanwhile) cannot exhaust memory."""
+    name = os.fspath(path)
+    check_regular(name, limit, follow_links=follow_links)
+    flags = os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC | (0 if follow_links else os.O_NOFOLLOW)
+    try:
+        fd = os.open(name, flags)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP and not follow_links:
+            raise UnreadableFile("is a symbolic link") from None
+        if exc.errno == errno.ENXIO:  # a socket, put there after the check
+            raise UnreadableFile("is a socket, not a regular file") from None
+        raise UnreadableFile(f"cannot be read: {exc.strerror or exc}") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):  # replaced between the check and the open
+            raise UnreadableFile(_kind(mode))
+        chunks, size = [], 0
+        while size <= limit:
+            chunk = os.read(fd, min(limit + 1 - size, 1 << 24))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            size += len(chunk)
+    except OSError as exc:
+        raise UnreadableFile(f"cannot be read: {exc.strerror or exc}") from None
+    finally:
+        os.close(fd)
+    if size > limit:  # it grew meanwhile
+        raise UnreadableFile(f"is larger than {_size(limit)}")
+    return b"".join(chunks)
+
+
+def _size(limit: int) -> str:
+    """``limit`` bytes in words ("4 MB", "16 kB", "900 bytes")."""
+    for unit, scale in (("GB", 1 << 30), ("MB", 1 << 20), ("kB", 1 << 10)):
+        if limit >= scale and limit % scale == 0:
+            return f"{limit // scale} {unit}"
+    return f"{limit} bytes"
 
 
 def shipped_folder() -> Path | None:
@@ -96,24 +196,18 @@ def read_toml(path: Path, what: str, error: type[Exception]) -> tuple[dict, str]
     would block or never end), larger than :data:`MAX_TOML_BYTES`, unreadable, not UTF-8, empty or
     not TOML.
     """
-    if not path.exists():
-        if path.is_symlink():
-            raise error(f"{what} {path} is a symbolic link that leads nowhere (dangling or a loop)")
-        names = shipped_names() if len(path.parts) == 1 else []
-        hint = f" (shipped experiments, usable by name: {', '.join(names)})" if names else ""
-        raise error(f"{what} {path} does not exist{hint}")
-    if path.is_dir():
-        raise error(f"{what} {path} is a directory, not a TOML file")
-    if not path.is_file():
-        raise error(f"{what} {path} is not a regular file (a FIFO or device?)")
     try:
-        with path.open("rb") as handle:
-            raw = handle.read(MAX_TOML_BYTES + 1)
-    except OSError as exc:
-        raise error(f"{what} {path} cannot be read: {exc.strerror or exc}") from None
-    if len(raw) > MAX_TOML_BYTES:
-        raise error(f"{what} {path} is larger than {MAX_TOML_BYTES // (1024 * 1024)} MB: not an experiment "
-                    f"or study file")
+        raw = read_regular(path, MAX_TOML_BYTES)
+    except UnreadableFile as exc:
+        reason = str(exc)
+        if reason == "does not exist":
+            names = shipped_names() if len(path.parts) == 1 else []
+            reason += f" (shipped experiments, usable by name: {', '.join(names)})" if names else ""
+        elif reason == "is a directory":
+            reason += ", not a TOML file"
+        elif reason.startswith("is larger than"):
+            reason += ": not an experiment or study file"
+        raise error(f"{what} {path} {reason}") from None
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -387,7 +387,7 @@ def _one_line_error(path, ee="tool", match=""):
 
 def test_a_missing_or_unreadable_file(tmp_path):
     _one_line_error(tmp_path / "nowhere.urdf", match=r"nowhere\.urdf: no such model file")
-    _one_line_error(tmp_path, match="not a file")
+    _one_line_error(tmp_path, match="is a directory")
     locked = _write(tmp_path, "locked.xml", _mjcf(""))
     locked.chmod(0)
     try:
@@ -399,7 +399,8 @@ def test_a_missing_or_unreadable_file(tmp_path):
 
 
 def test_a_file_mujoco_cannot_parse(tmp_path):
-    _one_line_error(_write(tmp_path, "broken.xml", "<mujoco><worldbody>"), match="MuJoCo cannot read it: XML parse error")
+    # read by expat first (model_refs.py: what a file names is checked before MuJoCo opens it)
+    _one_line_error(_write(tmp_path, "broken.xml", "<mujoco><worldbody>"), match=r"not well-formed XML \(no element found")
     _one_line_error(_write(tmp_path, "odd.xml", "<mujoco><wrong/></mujoco>"), match="MuJoCo cannot read it: .*unrecognized element")
     _one_line_error(_write(tmp_path, "mesh.xml", _mjcf('<body><joint/><geom type="mesh" mesh="m"/></body>',
                                                       '<asset><mesh name="m" file="missing.stl"/></asset>')),

@@ -13,27 +13,36 @@ left out. Joint limits, damping, friction and stiffness are not part of the rigi
 not read; armature (rotor inertia added to M) is refused rather than ignored. In a URDF, the
 geometry is not read either: URDF gives the dynamics in ``<inertial>`` alone (a link without one is
 massless), which also spares loading mesh files.
+
+Before MuJoCo reads anything, :func:`ilcforce.plants.model_refs.scan_model` checks the file and every
+file it names (safe to open, bounded in size and in bodies); after parsing, every physical number of
+every body, joint and site is checked (finite, in bounds, masses and inertias physical), one line
+naming the element (docs/model.md#model-file-limits).
 """
 
 from __future__ import annotations
 
 import math
-import xml.etree.ElementTree as ElementTree
 from pathlib import Path
 
 import numpy as np
 
 from ilcforce.plants import chain
+from ilcforce.plants.model_refs import ModelFileError, scan_model
 from ilcforce.plants.serial_arm import SerialArm
 
-__all__ = ["ModelFileError", "load_model", "check_task_dimension", "shipped_models", "resolve_model"]
+__all__ = ["ModelFileError", "load_model", "check_task_dimension", "shipped_models", "resolve_model",
+           "referenced_files"]
 
 #: MuJoCo's joint types (mjtJoint)
 _FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3
 
 
-class ModelFileError(ValueError):
-    """A model file that cannot be a plant: one line naming the problem."""
+#: Largest mass of a body, kg, and longest length (a position, an anchor, a centre of mass, a slide's
+#: reference), m: an arm of metres and kilograms, with room to spare; 1e308 kg loaded and every run
+#: "diverged at t = 0". A centroidal inertia is bounded by their product, MAX_MASS x MAX_LENGTH^2.
+MAX_MASS = 1e6
+MAX_LENGTH = 1e3
 
 
 def shipped_models() -> list[str]:
@@ -62,34 +71,133 @@ def _one_line(text: str) -> str:
     return "; ".join(part.strip() for part in str(text).splitlines() if part.strip())
 
 
-def _is_urdf(path: Path) -> bool:
-    """True if the file's root element is <robot> (URDF), False otherwise (MJCF's is <mujoco>)."""
-    try:
-        for _, element in ElementTree.iterparse(path, events=("start",)):
-            return element.tag == "robot"
-    except (ElementTree.ParseError, OSError):
-        return False  # MuJoCo's parser says what is wrong
-    return False
-
-
-def _compile(path: Path):
-    """The compiled MjModel of ``path``: fixed bodies kept apart (a URDF tool link survives), a URDF's
-    geometry left out."""
+def _compile(path: Path, urdf: bool | None = None):
+    """The compiled MjModel of ``path`` (a URDF if ``urdf``; None: scan the file first, to know): fixed
+    bodies kept apart (a URDF tool link survives), a URDF's geometry left out, every physical number
+    checked before and after compiling."""
+    if urdf is None:
+        urdf = scan_model(path).urdf
     try:
         import mujoco
     except ImportError as exc:  # a dependency of ilcforce; missing only in a broken install
         raise ModelFileError(f"reading a model file needs the mujoco package ({exc})") from None
+    warnings: list[str] = []  # MuJoCo's parser prints them (a NaN) on stderr: kept, not printed
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(warnings.append)
     try:
         spec = mujoco.MjSpec.from_file(str(path))
         spec.compiler.fusestatic = False  # MuJoCo's URDF import fuses fixed joints by default: keep the tool link
-        if _is_urdf(path):
+        if urdf:
             for geom in list(spec.geoms):
                 spec.delete(geom)
             for mesh in list(spec.meshes):
                 spec.delete(mesh)
-        return spec.compile()
+        _check_spec(spec, path)
+        model = spec.compile()
+    except ModelFileError:
+        raise
     except ValueError as exc:
         raise ModelFileError(f"{path}: MuJoCo cannot read it: {_one_line(exc)}") from None
+    finally:
+        mujoco.set_mju_user_warning(previous)
+    _check_model(model, path)
+    nan = [w for w in warnings if "NaN" in w]
+    if nan:  # one the checks above do not read (a damping, a colour): every number of the file is finite
+        raise ModelFileError(f"{path}: MuJoCo warns: {_one_line(nan[0])}; every number of a model file must be finite")
+    return model
+
+
+def _bad_numbers(values, bound: float | None = None) -> bool:
+    """Whether ``values`` hold a number that is not finite, or (with ``bound``) larger than it in size."""
+    values = np.asarray(values, dtype=np.float64)
+    return not np.all(np.isfinite(values)) or (bound is not None and bool(np.any(np.abs(values) > bound)))
+
+
+def _shown(values) -> str:
+    return " ".join(f"{float(v):g}" for v in np.ravel(values))
+
+
+def _check_inertial(path: Path, name: str, mass: float, tensor: np.ndarray) -> None:
+    """A body's own mass and inertia (about its centre of mass), as the file gives them."""
+    where = f"{path}: body {name!r}"
+    if _bad_numbers([mass]) or not 0.0 <= mass <= MAX_MASS:
+        raise ModelFileError(f"{where}: mass {mass:g} kg is not a number > 0 and at most {MAX_MASS:g} kg "
+                             "(or 0 for a massless body with no inertia)")
+    if _bad_numbers(tensor, MAX_MASS * MAX_LENGTH ** 2):
+        raise ModelFileError(f"{where}: inertia {_shown(tensor)} is not finite numbers of at most "
+                             f"{MAX_MASS * MAX_LENGTH ** 2:g} kg m^2")
+    moments = np.linalg.eigvalsh(0.5 * (tensor + tensor.T))
+    if mass == 0.0:
+        if np.any(tensor != 0.0):
+            raise ModelFileError(f"{where}: mass 0 with inertia {_shown(tensor)}; a massless body has none")
+        return
+    if moments[0] <= 0.0:
+        raise ModelFileError(f"{where}: inertia {_shown(tensor)} is not positive definite (principal moments "
+                             f"{_shown(moments)} kg m^2)")
+    if moments[0] + moments[1] < moments[2] * (1.0 - 1e-9):  # the triangle inequality of a rigid body
+        raise ModelFileError(f"{where}: principal moments of inertia {_shown(moments)} kg m^2 break the triangle "
+                             "inequality (the two smaller must add up to at least the largest): no rigid body has them")
+
+
+def _check_spec(spec, path: Path) -> None:
+    """Every number the file gives a body, joint or site, as written (MuJoCo's compiler turns a fixed
+    body's negative mass into 0 and an unreadable full inertia into none): finite and in bounds, masses
+    and inertias physical (:func:`_check_inertial`). One line naming the element."""
+    for index, body in enumerate(spec.bodies[1:], start=1):
+        name = body.name or f"#{index}"
+        for what, values in (("position", body.pos), ("orientation (quat)", body.quat)):
+            if _bad_numbers(values, MAX_LENGTH if what == "position" else None):
+                raise ModelFileError(f"{path}: body {name!r}: {what} {_shown(values)} is not finite numbers"
+                                     + (f" of at most {MAX_LENGTH:g} m" if what == "position" else ""))
+        if not body.explicitinertial:
+            continue  # none given: a URDF link without <inertial> is massless; an MJCF body's comes from its geoms
+        if _bad_numbers(body.ipos, MAX_LENGTH) or _bad_numbers(body.iquat):
+            raise ModelFileError(f"{path}: body {name!r}: centre of mass {_shown(body.ipos)} or its orientation "
+                                 f"{_shown(body.iquat)} is not finite numbers (of at most {MAX_LENGTH:g} m)")
+        full = np.asarray(body.fullinertia, dtype=np.float64)
+        if math.isnan(full[0]) and not _bad_numbers(full[1:]) and not np.any(full[1:]):  # not given: the diagonal
+            tensor = np.diag(np.asarray(body.inertia, dtype=np.float64))
+        else:
+            tensor = np.array([[full[0], full[3], full[4]], [full[3], full[1], full[5]], [full[4], full[5], full[2]]])
+        _check_inertial(path, name, float(body.mass), tensor)
+    for index, joint in enumerate(spec.joints):
+        name = joint.name or f"#{index}"
+        for what, values, bound in (("anchor (pos)", joint.pos, MAX_LENGTH), ("axis", joint.axis, None),
+                                    ("reference (ref)", [joint.ref], MAX_LENGTH)):
+            if _bad_numbers(values, bound):
+                raise ModelFileError(f"{path}: joint {name!r}: {what} {_shown(values)} is not finite numbers"
+                                     + (f" of at most {bound:g}" if bound else ""))
+        if not np.any(np.asarray(joint.axis, dtype=np.float64)):
+            raise ModelFileError(f"{path}: joint {name!r}: axis 0 0 0 has no direction")
+    for index, site in enumerate(spec.sites):
+        if _bad_numbers(site.pos, MAX_LENGTH) or _bad_numbers(site.quat):
+            raise ModelFileError(f"{path}: site {site.name or f'#{index}'!r}: position {_shown(site.pos)} or "
+                                 f"orientation {_shown(site.quat)} is not finite numbers (of at most {MAX_LENGTH:g} m)")
+
+
+def _check_model(model, path: Path) -> None:
+    """The compiled numbers the plant reads (every orientation form turned into a quaternion, every
+    inertia from geoms computed), finite and in bounds; one line naming the element."""
+    checks = (("body", model.nbody, (("position", model.body_pos, MAX_LENGTH), ("orientation", model.body_quat, None),
+                                     ("centre of mass", model.body_ipos, MAX_LENGTH),
+                                     ("inertia orientation", model.body_iquat, None),
+                                     ("mass", model.body_mass, MAX_MASS),
+                                     ("inertia", model.body_inertia, MAX_MASS * MAX_LENGTH ** 2))),
+              ("joint", model.njnt, (("anchor", model.jnt_pos, MAX_LENGTH), ("axis", model.jnt_axis, None))),
+              ("site", model.nsite, (("position", model.site_pos, MAX_LENGTH), ("orientation", model.site_quat, None))))
+    for kind, count, fields in checks:
+        for index in range(1 if kind == "body" else 0, count):
+            for what, values, bound in fields:
+                if _bad_numbers(values[index], bound) or (what in ("mass", "inertia") and np.any(values[index] < 0)):
+                    limits = ", at least 0" if what in ("mass", "inertia") else ""
+                    limits += f", at most {bound:g} in size" if bound else ""
+                    raise ModelFileError(f"{path}: {kind} {_name(model, kind, index)!r}: {what} {_shown(values[index])} "
+                                         f"is out of bounds (finite{limits})")
+    for j in range(model.njnt):
+        value = model.qpos0[model.jnt_qposadr[j]]
+        if _bad_numbers([value], MAX_LENGTH):
+            raise ModelFileError(f"{path}: joint {_name(model, 'joint', j)!r}: reference {value:g} is not a finite "
+                                 f"number of at most {MAX_LENGTH:g}")
 
 
 def _quat_matrix(quat) -> np.ndarray:
@@ -228,16 +336,8 @@ def load_model(path, end_effector: str, gravity=(0.0, 0.0, -9.81)) -> SerialArm:
     for an end effector that does not exist."""
     g = _check_gravity(gravity)
     path = resolve_model(path)
-    if not path.exists():
-        raise ModelFileError(f"{path}: no such model file")
-    if not path.is_file():
-        raise ModelFileError(f"{path}: not a file")
-    try:
-        with path.open("rb") as handle:
-            handle.read(1)
-    except OSError as exc:
-        raise ModelFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    model = _compile(path)
+    scan = scan_model(path)  # the file and every file it names, safe and bounded (model_refs.py)
+    model = _compile(path, scan.urdf)
     moving = _chain(model, path)
     ee_link, ee_offset = _end_effector(model, path, str(end_effector), moving)
     n = len(moving)
@@ -262,6 +362,12 @@ def load_model(path, end_effector: str, gravity=(0.0, 0.0, -9.81)) -> SerialArm:
     return SerialArm(p, joint_names=tuple(_name(model, "joint", int(model.body_jntadr[b])) for b in moving),
                      link_names=tuple(_name(model, "body", b) for b in moving), end_effector=str(end_effector),
                      source=str(path))
+
+
+def referenced_files(path) -> list[Path]:
+    """Every file loading the model file ``path`` reads: the file, its includes and the assets that
+    exist (:func:`ilcforce.plants.model_refs.scan_model`); :class:`ModelFileError` if it is refused."""
+    return scan_model(resolve_model(path)).files
 
 
 def check_task_dimension(plant: SerialArm, task_dimension: int) -> None:

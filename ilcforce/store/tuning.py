@@ -32,6 +32,7 @@ from ilcforce.store import records
 from ilcforce.store.records import RecordError
 from ilcforce.store.safeio import StoreError, acquire_writer_lock, check_writer_lock, dead_copies_in
 from ilcforce.store.study_journal import _is_int  # an integer, not a bool
+from ilcforce.tomlfile import MAX_TOML_BYTES, UnreadableFile, read_regular
 
 SCHEMA_NAME = "ilcforce.tuning"
 SCHEMA_VERSION = 3
@@ -284,10 +285,12 @@ def validate_tuning(path: Path | str, check: Check | None) -> dict:
         raise TuningStoreError(f"{item}: refused ({why}){more}; the next `ilcforce tune` moves it aside and runs "
                                "its trial again")
     tuned, digests = path / TUNED, [s["tuned_sha256"] for s in header["sessions"] if "tuned_sha256" in s]
-    if os.path.lexists(tuned) and (tuned.is_symlink() or not tuned.is_file() or not digests
-                                   or hashlib.sha256(tuned.read_bytes()).hexdigest() != digests[-1]):
-        raise TuningStoreError(f"{tuned}: not the tuned file the last run wrote (its sha256 differs or it is not a "
-                               "plain file); rerun `ilcforce tune` to write it again")
+    if os.path.lexists(tuned):
+        why = _sealed_tuned(tuned, digests)[1]
+        if why is not None:
+            advice = "move it away" if os.path.isdir(tuned) and not os.path.islink(tuned) else \
+                "rerun `ilcforce tune` to write it again"
+            raise TuningStoreError(f"{tuned}: not the tuned file the last run wrote ({why}); {advice}")
     summary = {}
     for method, stored in trials.items():
         numbers = sorted(stored)
@@ -297,6 +300,19 @@ def validate_tuning(path: Path | str, check: Check | None) -> dict:
         values = [r["value"] for r in stored.values() if r["state"] == COMPLETE and r["feasible"]]
         summary[method] = (len(stored), sum(not r["feasible"] for r in stored.values()), min(values, default=None))
     return {"name": header["name"], "methods": summary}
+
+
+def _sealed_tuned(tuned: Path, digests: list[str]) -> tuple[bytes | None, str | None]:
+    """(the bytes of the store's ``tuned.toml``, None) if it is the one its last writer sealed, else
+    (None, why not). Read by the one safe open, never through a link: a link there may lead out of
+    the store, and a FIFO or /dev/zero would hold or exhaust the reader."""
+    try:
+        data = read_regular(tuned, MAX_TOML_BYTES, follow_links=False)
+    except UnreadableFile as exc:
+        return None, f"it {exc}"
+    if not digests or hashlib.sha256(data).hexdigest() != digests[-1]:
+        return None, "its sha256 differs"
+    return data, None
 
 
 class TuningStore:
@@ -312,8 +328,11 @@ class TuningStore:
             raise TuningStoreError(f"{self.path}: exists and is not a directory; refusing to touch it")
         if self.path.exists() and any(self.path.iterdir()) and not (self.path / HEADER).is_file():
             raise TuningStoreError(f"{self.path}: exists and is not an ilcforce tuning store; move it away")
-        if (self.path / TRIALS).is_symlink() or (self.path / TRIALS).exists() and not (self.path / TRIALS).is_dir():
-            raise TuningStoreError(f"{self.path / TRIALS}: not a folder of this store (a link or a file); move it away")
+        for folder in (TRIALS, HELDOUT):  # never written through a link, never mistaken for a folder
+            if (self.path / folder).is_symlink() or (self.path / folder).exists() and not (self.path / folder).is_dir():
+                raise TuningStoreError(f"{self.path / folder}: not a folder of this store (a link or a file); move it away")
+        if (self.path / TUNED).is_dir() and not (self.path / TUNED).is_symlink():  # anything else there is replaced
+            raise TuningStoreError(f"{self.path / TUNED}: a folder where the store keeps its tuned file; move it away")
         self.created = not self.path.exists()
         try:
             self.path.mkdir(parents=True, exist_ok=True)
@@ -396,11 +415,8 @@ class TuningStore:
     def tuned_text(self) -> str | None:
         """The tuned file this store holds, if it is the one its last writer sealed (else None)."""
         digests = [s["tuned_sha256"] for s in self.header["sessions"] if "tuned_sha256" in s]
-        try:
-            data = (self.path / TUNED).read_bytes()
-        except OSError:
-            return None
-        return data.decode() if digests and hashlib.sha256(data).hexdigest() == digests[-1] else None
+        data = _sealed_tuned(self.path / TUNED, digests)[0]  # None: a run that ships gains writes it again,
+        return data.decode() if data is not None else None   # replacing whatever is at the name
 
     def save_header(self) -> None:
         records.atomic_write(self.path / HEADER, json.dumps(records.seal(self.header)).encode())

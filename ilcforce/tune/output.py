@@ -1,10 +1,11 @@
 """The tuned experiment file: its text from the best trials, where it may be written, and the writing.
 
-``ilcforce tune -o FILE`` checks FILE before any trial runs (:func:`check_output`): a new file, or with
-``--overwrite`` an existing regular file that is no store, no tuning file and no part of a tuning store,
-named so that it names an experiment. The text (:func:`tuned_experiment`) is the tuning's experiment with
-each method's best gains and comments stating the budget; it is written whole or not at all
-(:func:`write_output`).
+``ilcforce tune -o FILE`` checks FILE before any trial runs (:func:`check_output`): a new file in a folder
+this process can write (or create), or with ``--overwrite`` an existing regular file that is no store,
+no input of the run (the tuning file, its experiment, the model file and every file that names) and
+no part of a tuning store, named so that it names an experiment. The text (:func:`tuned_experiment`) is
+the tuning's experiment with each method's best gains and comments stating the budget; it is written
+whole or not at all (:func:`write_output`).
 """
 
 from __future__ import annotations
@@ -17,10 +18,67 @@ from ilcforce.config import ConfigError
 from ilcforce.tune.spec import Tuning, TuneError
 
 
+def run_inputs(tuning: Tuning) -> list[tuple[str, Path]]:
+    """(what, path) of every file the run reads: the tuning file, its experiment, the experiment's
+    model file and every file that names (MJCF includes, meshes, ...). An output must be none of them."""
+    from ilcforce.plants import params_class
+
+    inputs = [("the tuning file itself", tuning.path)] if tuning.path is not None else []
+    inputs.append(("the tuning's experiment file (tune.experiment)", tuning.experiment))
+    model = tuning.base.plant.model
+    table = tuning.base.to_dict()["plant"].get(model, {})
+    for key in getattr(params_class(model), "path_keys", ()):
+        if isinstance(table.get(key), str):
+            from ilcforce.plants.model_file import ModelFileError, referenced_files
+
+            inputs.append((f"the experiment's model file (plant.{model}.{key})", Path(table[key])))
+            try:
+                inputs += [(f"a file the model file {table[key]} names", p) for p in referenced_files(table[key])]
+            except ModelFileError:
+                pass  # the run refuses the model itself
+    return inputs
+
+
+def _input_named(output: Path, tuning: Tuning) -> str | None:
+    """Which input of the run ``output`` is, under any of its names (a link, a hard link, ``x/../x``):
+    the same file (device and inode) as one the run reads; None if none."""
+    try:
+        target = os.stat(output)
+    except OSError:
+        return None
+    for what, path in run_inputs(tuning):
+        try:
+            if os.path.samestat(target, os.stat(path)):
+                return f"is {what}" if what.startswith("the tuning file") else f"is an input of this run: {what}"
+        except OSError:
+            continue
+    return None
+
+
+def _unwritable_folder(output: Path) -> str | None:
+    """Why the tuned file could not be written beside ``output`` (its folder, or the nearest folder that
+    exists above it, which the writer creates the rest in), or None: checked before any trial, so a
+    read-only folder is refused before the tuning, not after it."""
+    folder = output.absolute().parent
+    while not os.path.lexists(folder) and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        return f"its folder {folder} is not a folder"
+    ids = {"effective_ids": True} if os.access in os.supports_effective_ids else {}
+    if os.access(folder, os.W_OK | os.X_OK, **ids):
+        return None
+    try:
+        read_only = bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+    except OSError:
+        read_only = False
+    return f"cannot write in {folder} ({'a read-only file system' if read_only else 'permission denied'})"
+
+
 def check_output(output: Path, tuning: Tuning, *, overwrite: bool) -> None:
     """TuneError (naming ``output``) unless the tuned experiment file may be written there: a new
-    file, or with ``overwrite`` an existing regular file that is no store, no tuning file and no part
-    of a tuning store; its name must make an experiment name. Checked before any trial runs."""
+    file in a folder this process may write, or with ``overwrite`` an existing regular file that is
+    no store, no input of the run (:func:`run_inputs`) and no part of a tuning store; its name must
+    make an experiment name. Checked before any trial runs."""
     from ilcforce.store.filecheck import is_hdf5_file
     from ilcforce.store.tuning import is_tuning_store
 
@@ -34,11 +92,14 @@ def check_output(output: Path, tuning: Tuning, *, overwrite: bool) -> None:
         why = ("is a folder" if stat.S_ISDIR(info.st_mode) else "is a symbolic link" if stat.S_ISLNK(info.st_mode)
                else "is not a regular file (a FIFO, a socket or a device)" if not stat.S_ISREG(info.st_mode)
                else "is an HDF5 store" if is_hdf5_file(output)
-               else "is the tuning file itself" if tuning.path is not None and os.path.samefile(output, tuning.path)
-               else "is a file of a tuning store" if any(is_tuning_store(p) for p in list(output.parents)[:2])
-               else None if overwrite else "exists; pass --overwrite to replace it (and start the tuning over)")
+               else _input_named(output, tuning)
+               or ("is a file of a tuning store" if any(is_tuning_store(p) for p in list(output.parents)[:2])
+                   else None if overwrite else "exists; pass --overwrite to replace it (and start the tuning over)"))
         if why:
             raise TuneError(f"-o {output}: {why}; refusing to write the tuned experiment file there")
+    why = _unwritable_folder(output)
+    if why:
+        raise TuneError(f"-o {output}: {why}; refusing to run a tuning whose tuned file cannot be written")
     if output.suffix != ".toml" or not output.stem or output.stem.startswith("."):
         raise TuneError(f"-o {output}: the tuned experiment file must be named <name>.toml")
     from ilcforce.config_load import load_config
