@@ -109,13 +109,14 @@ def test_bit_flips_across_the_metadata_never_pass_as_other_content(path, tmp_pat
 
 
 def test_a_store_without_seals_is_read_and_named_unverified(path):
-    """A schema-2.0 store (written before attributes were sealed) is accepted; `validate` says its
-    metadata is unverified. A 2.1 store whose seal is gone is refused."""
+    """A schema-2.0 store (written before attributes were sealed, and records bound) is accepted;
+    `validate` says its metadata is unverified. A 2.1 store whose seal is gone is refused."""
     write_run(path, 2)
     with h5py.File(path, "a") as handle:
         def strip(name, item):
-            if ATTRS_SEAL in item.attrs:
-                del item.attrs[ATTRS_SEAL]
+            for key in (ATTRS_SEAL, "binding_sha256", "store_id", "n_iterations_stored"):
+                if key in item.attrs:
+                    del item.attrs[key]
         strip("/", handle)
         handle.visititems(strip)
         handle.attrs["schema_version"] = "2.0"

@@ -15,10 +15,10 @@ if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports n
     import pandas as pd
 
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics, metric_columns
-from ilcforce.store import schema
+from ilcforce.store import binding, schema
 from ilcforce.store.seal import ATTRS_SEAL, attrs_state
 from ilcforce.store.read import (attr, cached_metrics, checked_data, control_length, frame_from_group, group_for,
-                                 is_complete, is_sealed_schema, iteration_attrs, metrics_rows, open_store, provenance_of,
+                                 is_bound_schema, is_complete, is_sealed_schema, iteration_attrs, metrics_rows, open_store, provenance_of,
                                  py, read_log, read_memory_group, record_from_group, require_dataset, require_group, scan)
 from ilcforce.store.safeio import StoreError
 
@@ -42,11 +42,10 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
         layout = scan(handle, checked, major)
         dimension = layout.dimension
         reference = require_group(handle, "reference", checked)
-        for name, (axes, _unit, _description) in schema.reference_datasets(dimension).items():
-            require_dataset(reference, name, schema.signal_shape(axes, layout.n_log), checked)[()]
+        signals = {name: require_dataset(reference, name, schema.signal_shape(axes, layout.n_log), checked)[()]
+                   for name, (axes, _unit, _description) in schema.reference_datasets(dimension).items()}
         n_control = control_length(handle, checked)
-        if n_control is not None:
-            handle[schema.CONTROL_TIME][()]
+        control_time = handle[schema.CONTROL_TIME][()] if n_control is not None else None
         columns = cached_metrics(handle, checked, dimension)
         fresh_rows: dict[int, dict] = {}  # metrics of each complete iteration, from the log read once here
         statuses: dict[int, str] = {}
@@ -63,6 +62,7 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
         _check_consistency(handle, statuses, checked)
         _check_method(handle, checked)
         unsealed = _check_seals(handle, checked)
+        bound = _check_bindings(handle, layout, checked, binding.reference_arrays(signals, control_time))
         if columns is not None:  # a current cache must agree with the logs it was computed from
             for k, j in enumerate(columns["iteration"]):
                 j = int(j)
@@ -82,7 +82,57 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
     if unsealed:
         return [f"metadata unverified: {unsealed} object(s) without an attribute checksum (schema 2.0, written "
                 "before attributes were sealed)"]
+    if not bound:
+        return [f"records not bound to the store (schema {py(handle.attrs['schema_version'])}, written before "
+                "records were bound: an iteration copied from another store is not detected)"]
     return []
+
+
+def _check_bindings(handle: h5py.File, layout, path: Path, reference: list[tuple[str, np.ndarray]]) -> bool:
+    """Every record of a store of schema 2.2 on is bound to the store and its place
+    (:mod:`ilcforce.store.binding`): ``/reference`` and each complete iteration carry the binding their
+    content, place and the store's key give, and the iterations are 0 .. n_iterations_stored - 1.
+    Returns whether the store is bound (False: an older store, which must carry no binding at all)."""
+    version = str(py(handle.attrs["schema_version"]))
+    groups = [handle["reference"], *(handle[layout.groups[j]] for j in layout.complete)]
+    if not is_bound_schema(version):
+        carried = [g.name for g in groups if binding.BINDING in g.attrs] + (
+            ["/"] if binding.STORE_ID in handle.attrs or binding.STORED in handle.attrs else [])
+        if carried:
+            raise StoreError(f"{path}: {carried[0]} carries a binding or store identity, which its schema {version} "
+                             "does not have: altered after it was written")
+        return False
+    for name in (binding.STORE_ID, binding.STORED):
+        if name not in handle.attrs:
+            raise StoreError(f"{path}: the root lacks attribute {name!r}, which schema {version} requires")
+    store_id, stored = py(handle.attrs[binding.STORE_ID]), py(handle.attrs[binding.STORED])
+    if layout.complete != tuple(range(int(stored))):
+        shown = f"{layout.complete[0]}..{layout.complete[-1]}" if layout.complete else "none"
+        raise StoreError(f"{path}: it holds iterations {shown} ({len(layout.complete)}) but says it stored "
+                         f"0..{int(stored) - 1}: an iteration was removed or added after it was written")
+    key = binding.run_key(store_id, py(handle.attrs["seed"]), py(handle.attrs["experiment"]),
+                          py(handle.attrs["method"]), py(handle.attrs["config_json"]))
+    if py(groups[0].attrs.get(binding.BINDING)) != binding.data_binding(key, "/reference", reference):
+        raise StoreError(f"{path}: /reference or /control_time is not bound to this store (its {binding.BINDING} "
+                         "does not match: copied from another store, or changed after it was written)")
+    for j in layout.complete:
+        group = handle[layout.groups[j]]
+        names = [str(n) for n in py(group.attrs["crc32_datasets"])]
+        held = []
+        group.visititems(lambda name, item: held.append(name) if isinstance(item, h5py.Dataset) else None)
+        if sorted(held) != sorted(names):
+            extra = sorted(set(held) ^ set(names))
+            raise StoreError(f"{path}: {group.name} holds other datasets than its checksums list "
+                             f"({', '.join(extra[:3])}): altered after it was written")
+        a = iteration_attrs(group, j, path)
+        expected = binding.iteration_binding(
+            key, j, a["status"], a["diverged_time"], a["diverged_reason"], a["fallback_count"],
+            zip(names, (group[n].shape for n in names), np.asarray(group.attrs["crc32"]).tolist()))
+        if py(group.attrs.get(binding.BINDING)) != expected:
+            raise StoreError(f"{path}: {group.name} is not bound to this store and place (its {binding.BINDING} "
+                             "does not match: copied from another store or iteration, or changed after it was "
+                             "written)")
+    return True
 
 
 def _check_method(handle: h5py.File, path: Path) -> None:

@@ -197,6 +197,14 @@ def is_sealed_schema(version: str) -> bool:
         return True
 
 
+def is_bound_schema(version: str) -> bool:
+    """Whether a store of schema ``version`` binds its records to itself (:mod:`.binding`)."""
+    try:
+        return schema.parse_version(version) >= schema.BOUND_FROM
+    except ValueError:
+        return True
+
+
 def require_group(parent: h5py.Group, name: str, path: Path) -> h5py.Group:
     item = parent.get(name)
     if not isinstance(item, h5py.Group):
