@@ -63,6 +63,7 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
         _check_method(handle, checked)
         unsealed = _check_seals(handle, checked)
         bound = _check_bindings(handle, layout, checked, binding.reference_arrays(signals, control_time))
+        version = py(handle.attrs["schema_version"])
         if columns is not None:  # a current cache must agree with the logs it was computed from
             for k, j in enumerate(columns["iteration"]):
                 j = int(j)
@@ -83,7 +84,7 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
         return [f"metadata unverified: {unsealed} object(s) without an attribute checksum (schema 2.0, written "
                 "before attributes were sealed)"]
     if not bound:
-        return [f"records not bound to the store (schema {py(handle.attrs['schema_version'])}, written before "
+        return [f"records not bound to the store (schema {version}, written before "
                 "records were bound: an iteration copied from another store is not detected)"]
     return []
 
@@ -113,8 +114,9 @@ def _check_bindings(handle: h5py.File, layout, path: Path, reference: list[tuple
     key = binding.run_key(store_id, py(handle.attrs["seed"]), py(handle.attrs["experiment"]),
                           py(handle.attrs["method"]), py(handle.attrs["config_json"]))
     if py(groups[0].attrs.get(binding.BINDING)) != binding.data_binding(key, "/reference", reference):
-        raise StoreError(f"{path}: /reference or /control_time is not bound to this store (its {binding.BINDING} "
-                         "does not match: copied from another store, or changed after it was written)")
+        raise StoreError(f"{path}: /reference is not bound to this store's identity, seed and configuration (its "
+                         f"{binding.BINDING} does not match: the reference or control grid copied from another "
+                         "store, or they or the root's store_id, seed or configuration changed after writing)")
     for j in layout.complete:
         group = handle[layout.groups[j]]
         names = [str(n) for n in py(group.attrs["crc32_datasets"])]

@@ -1,0 +1,265 @@
+"""Records bound to their store and their place (issue 46, items 5-8): a record spliced from another
+store with plain h5py or a JSON editor, every checksum recomputed that the docs describe (HDF5's
+Fletcher-32, the CRC-32s of the data and of the attributes, a study column's digest as schema 1.2
+made it, a JSON record's sha256), is refused by ``validate`` in one line with exit code 2.
+
+Each forger's edit here uses h5py or json and, for the checksums, the documented formulas (the seal
+module's functions compute exactly those). What none of this stops, and the docs say so, is a forger
+who recomputes the binding too (docs/store-format.md, "What protects each byte").
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import zlib
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from ilcforce.cli.main import app
+from ilcforce.store.seal import seal_attrs
+
+SHORT = ["--set", "reference.duration=0.2"]
+
+
+def run_cli(*args: str):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def refused(path: Path, *words: str) -> str:
+    """`validate path` exits 2 with one line naming the file (and ``words``); returns the line."""
+    result = run_cli("validate", path)
+    lines = result.output.strip().splitlines()
+    assert result.exit_code == 2 and len(lines) == 1 and str(path) in lines[0], result.output
+    for word in words:
+        assert word in lines[0], lines[0]
+    return lines[0]
+
+
+# -- run stores ---------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> dict[int, Path]:
+    """Two 5-iteration C3 runs of the same experiment, seeds 0 and 7, made by `ilcforce simulate`."""
+    folder = tmp_path_factory.mktemp("runs")
+    out = {}
+    for seed in (0, 7):
+        out[seed] = folder / f"seed{seed}.h5"
+        result = run_cli("simulate", "-m", "c3", "-n", "5", "--out", out[seed], "--set", f"experiment.seed={seed}",
+                         *SHORT)
+        assert result.exit_code == 0, result.output
+        assert run_cli("validate", out[seed]).exit_code == 0
+    return out
+
+
+@pytest.fixture
+def copies(runs, tmp_path) -> tuple[Path, Path]:
+    """Fresh copies of the seed-0 (the victim) and seed-7 (the donor) stores."""
+    victim, donor = tmp_path / "c3.h5", tmp_path / "donor.h5"
+    shutil.copyfile(runs[0], victim)
+    shutil.copyfile(runs[7], donor)
+    return victim, donor
+
+
+def splice_iteration(target: h5py.File, source: h5py.File, j: int) -> None:
+    """Issue 46 item 5: /iterations/<j> of ``source`` copied over the target's, and its /metrics row."""
+    name = f"iterations/{j:04d}"
+    del target[name]
+    source.copy(source[name], target["iterations"], name=f"{j:04d}")
+    rows_source = list(source["metrics/iteration"][()]).index(j)
+    rows_target = list(target["metrics/iteration"][()]).index(j)
+    for column in target["metrics"]:
+        target["metrics"][column][rows_target] = source["metrics"][column][rows_source]
+
+
+def test_an_iteration_spliced_from_another_seed_is_refused_and_not_resumed(copies):
+    """Item 5 as filed: iteration 3 and its metrics row of a seed-7 store copied into a seed-0 store
+    with plain h5py (HDF5 recomputes its own checksums, the group brings its CRC-32s along). Before,
+    `validate` said ok and `--resume` continued from the spliced memory."""
+    victim, donor = copies
+    with h5py.File(victim, "r") as handle:
+        assert int(handle.attrs["seed"]) == 0
+        assert "binding_sha256" in handle["iterations/0003"].attrs
+    with h5py.File(victim, "a") as target, h5py.File(donor, "r") as source:
+        splice_iteration(target, source, 3)
+    with h5py.File(victim, "r") as handle, h5py.File(donor, "r") as source:  # the splice took
+        np.testing.assert_array_equal(handle["iterations/0003/memory/theta_hat"][()],
+                                      source["iterations/0003/memory/theta_hat"][()])
+    refused(victim, "/iterations/0003", "not bound to this store")
+    before = victim.read_bytes()
+    result = run_cli("simulate", "-m", "c3", "-n", "6", "--out", victim, "--resume", *SHORT)
+    assert result.exit_code == 2 and "/iterations/0003" in result.output, result.output
+    assert victim.read_bytes() == before
+
+
+def _forge_crc(group: h5py.Group, relative: str) -> None:
+    """Recompute the documented CRC-32 of ``group/relative`` in the group's crc32 attribute."""
+    names = [n.decode() if isinstance(n, bytes) else str(n) for n in group.attrs["crc32_datasets"]]
+    sums = np.array(group.attrs["crc32"], dtype=np.uint32)
+    if relative not in names:
+        names.append(relative)
+        sums = np.append(sums, np.uint32(0))
+    sums[names.index(relative)] = zlib.crc32(np.ascontiguousarray(group[relative][()], dtype=np.float64).data)
+    group.attrs["crc32_datasets"] = names
+    group.attrs["crc32"] = sums
+
+
+def _memory_dataset(victim: h5py.File, donor: h5py.File) -> None:
+    """One memory dataset of the donor's iteration 3 over the victim's, its CRC-32 and seals recomputed."""
+    group = victim["iterations/0003"]
+    del group["memory/theta_hat"]
+    donor.copy(donor["iterations/0003/memory/theta_hat"], group["memory"], name="theta_hat")
+    _forge_crc(group, "memory/theta_hat")
+    seal_attrs(group)
+
+
+def _extra_dataset(victim: h5py.File, donor: h5py.File) -> None:
+    """A dataset the iteration never had, listed in its checksums."""
+    group = victim["iterations/0003"]
+    donor.copy(donor["iterations/0003/memory/alpha_hat"], group["memory"], name="alpha_hat_2")
+    _forge_crc(group, "memory/alpha_hat_2")
+    seal_attrs(group)
+
+
+def _dropped_dataset(victim: h5py.File, donor: h5py.File) -> None:
+    """A memory dataset removed (the resume would start without it)."""
+    del victim["iterations/0003/memory/alpha_hat"]
+
+
+def _moved_within(victim: h5py.File, donor: h5py.File) -> None:
+    """Iterations 3 and 4 of the same store swapped, each group's number attribute fixed and resealed."""
+    victim.move("iterations/0003", "iterations/tmp")
+    victim.move("iterations/0004", "iterations/0003")
+    victim.move("iterations/tmp", "iterations/0004")
+    for j in (3, 4):
+        group = victim[f"iterations/{j:04d}"]
+        group.attrs["iteration"] = j
+        seal_attrs(group)
+
+
+def _last_removed(victim: h5py.File, donor: h5py.File) -> None:
+    """The last iteration deleted and the run marked partial, the root's seal recomputed."""
+    del victim["iterations/0004"]
+    victim.attrs["run_state"] = "partial"
+    seal_attrs(victim)
+
+
+def _all_iterations(victim: h5py.File, donor: h5py.File) -> None:
+    """Every iteration and the whole /metrics of the donor."""
+    for name in ("iterations", "metrics"):
+        del victim[name]
+        donor.copy(donor[name], victim, name=name)
+
+
+def _identity_taken(victim: h5py.File, donor: h5py.File) -> None:
+    """The donor's store_id over the victim's, the root's seal recomputed."""
+    victim.attrs["store_id"] = donor.attrs["store_id"]
+    seal_attrs(victim)
+
+
+def _seed_claimed(victim: h5py.File, donor: h5py.File) -> None:
+    """The victim claims the donor's seed (its data stays seed 0's)."""
+    victim.attrs["seed"] = donor.attrs["seed"]
+    seal_attrs(victim)
+
+
+def _config_changed(victim: h5py.File, donor: h5py.File) -> None:
+    """A gain the results depend on changed in the stored configuration, the root's seal recomputed."""
+    config = json.loads(victim.attrs["config_json"])
+    config["c3"]["eta"] = float(config["c3"]["eta"]) * 2
+    victim.attrs["config_json"] = json.dumps(config)
+    seal_attrs(victim)
+
+
+def _reference_copied(victim: h5py.File, donor: h5py.File) -> None:
+    """/reference of another store (its data happens to be equal: same experiment)."""
+    del victim["reference"]
+    donor.copy(donor["reference"], victim, name="reference")
+
+
+def _reference_edited(victim: h5py.File, donor: h5py.File) -> None:
+    """A value of the reference changed (Fletcher-32 is recomputed by HDF5)."""
+    dataset = victim["reference/force_desired"]
+    data = dataset[()]
+    data[3, 1] *= 1.5
+    dataset[...] = data
+
+
+def _downgraded(victim: h5py.File, donor: h5py.File) -> None:
+    """The splice, then the store relabelled schema 2.1 (unbound) with its root's seal recomputed."""
+    splice_iteration(victim, donor, 3)
+    victim.attrs["schema_version"] = "2.1"
+    seal_attrs(victim)
+
+
+def _downgraded_clean(victim: h5py.File, donor: h5py.File) -> None:
+    """As _downgraded, and every binding and the identity removed, every seal recomputed: the forger has
+    then recomputed what the docs describe, binding included (out of scope): the store reads as an
+    unbound 2.1 store, and validate says so."""
+    _downgraded(victim, donor)
+    for name in ("store_id", "n_iterations_stored"):
+        del victim.attrs[name]
+    seal_attrs(victim)
+    for group in [victim["reference"], *victim["iterations"].values()]:
+        del group.attrs["binding_sha256"]
+        seal_attrs(group)
+
+
+@pytest.mark.parametrize("forge", [_memory_dataset, _extra_dataset, _dropped_dataset, _moved_within, _last_removed,
+                                   _all_iterations, _identity_taken, _seed_claimed, _config_changed, _reference_copied,
+                                   _reference_edited, _downgraded])
+def test_splice_variants_of_a_run_store_are_refused(copies, forge):
+    victim, donor = copies
+    with h5py.File(victim, "a") as target, h5py.File(donor, "r") as source:
+        forge(target, source)
+    refused(victim)
+
+
+def test_a_store_stripped_of_its_bindings_reads_as_unbound_and_says_so(copies):
+    """The limit, stated in the docs: a forger who removes every binding and recomputes every seal makes
+    a store that reads as one of schema 2.1; validate accepts it only with the note that its records are
+    not bound (no store ilcforce writes now is unbound)."""
+    victim, donor = copies
+    with h5py.File(victim, "a") as target, h5py.File(donor, "r") as source:
+        _downgraded_clean(target, source)
+    result = run_cli("validate", victim)
+    assert result.exit_code == 0 and "records not bound to the store (schema 2.1" in result.output, result.output
+
+
+def test_an_unbound_store_resumes_unbound(copies):
+    """A store of schema 2.1 (no binding: written before) is resumed as it is, its new iterations unbound,
+    and still validates with its note."""
+    victim, _donor = copies
+    with h5py.File(victim, "a") as handle:
+        del handle["iterations/0004"]
+        handle.attrs["schema_version"] = "2.1"
+        handle.attrs["run_state"] = "partial"
+        for name in ("store_id", "n_iterations_stored"):
+            del handle.attrs[name]
+        seal_attrs(handle)
+        for group in [handle["reference"], *handle["iterations"].values()]:
+            del group.attrs["binding_sha256"]
+            seal_attrs(group)
+    result = run_cli("simulate", "-m", "c3", "-n", "6", "--out", victim, "--resume", *SHORT)
+    assert result.exit_code == 0, result.output
+    result = run_cli("validate", victim)
+    assert result.exit_code == 0 and "6 iterations" in result.output and "records not bound" in result.output
+    with h5py.File(victim, "r") as handle:
+        assert "binding_sha256" not in handle["iterations/0005"].attrs
+
+
+def test_a_resumed_store_stays_bound(copies):
+    """A bound store resumed with more iterations: the new ones are bound with the same key (the
+    configuration's iteration count is not part of it)."""
+    victim, _donor = copies
+    result = run_cli("simulate", "-m", "c3", "-n", "7", "--out", victim, "--resume", *SHORT)
+    assert result.exit_code == 0, result.output
+    result = run_cli("validate", victim)
+    assert result.exit_code == 0 and "7 iterations" in result.output and "not bound" not in result.output
+    with h5py.File(victim, "r") as handle:
+        assert int(handle.attrs["n_iterations_stored"]) == 7
