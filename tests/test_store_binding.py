@@ -263,3 +263,152 @@ def test_a_resumed_store_stays_bound(copies):
     assert result.exit_code == 0 and "7 iterations" in result.output and "not bound" not in result.output
     with h5py.File(victim, "r") as handle:
         assert int(handle.attrs["n_iterations_stored"]) == 7
+
+
+# -- study stores -------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def studies(tmp_path_factory) -> dict[float, Path]:
+    """The same small study run at noise.scale 1 and at 3 (two results folders), by the study driver."""
+    from ilcforce.study import build_study, run_study
+
+    out = {}
+    for scale in (1.0, 3.0):
+        folder = tmp_path_factory.mktemp(f"scale{scale:g}")
+        table = {"name": "tiny", "seeds": "0-1", "methods": ["c1", "c3"],
+                 "set": {"experiment.iterations": 3, "reference.duration": 0.2, "noise.scale": scale}}
+        out[scale] = run_study(build_study({"study": table}), folder, workers=1).path
+        assert run_cli("validate", out[scale]).exit_code == 0
+    return out
+
+
+@pytest.fixture
+def study_copies(studies, tmp_path) -> tuple[Path, Path]:
+    victim, donor = tmp_path / "tiny.h5", tmp_path / "other.h5"
+    shutil.copyfile(studies[1.0], victim)
+    shutil.copyfile(studies[3.0], donor)
+    return victim, donor
+
+
+def _copy_groups(victim: h5py.File, donor: h5py.File, *names: str) -> None:
+    for name in names:
+        del victim[name]
+        donor.copy(donor[name], victim, name=name)
+
+
+def test_a_study_table_copied_from_another_study_is_refused(study_copies, tmp_path):
+    """Item 6 as filed: /metrics and /cells of the study at noise.scale 3 copied into the one at 1 with
+    h5py. The columns' digests named their path alone, so they held; validate said ok and export wrote
+    the other study's numbers."""
+    victim, donor = study_copies
+    with h5py.File(victim, "a") as target, h5py.File(donor, "r") as source:
+        assert not np.array_equal(target["metrics/force_error_rms"][()], source["metrics/force_error_rms"][()])
+        _copy_groups(target, source, "metrics", "cells")
+    refused(victim, "/metrics/", "not bound to this study", "copied from another study")
+    out = tmp_path / "t.csv"
+    result = run_cli("export", victim, "--out", out)
+    assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
+    assert not out.exists()
+
+
+def _digest_as_documented_before(dataset: h5py.Dataset) -> None:
+    """The column's digest as documented (sha256 over its path and values), recomputed."""
+    from ilcforce.store.seal import data_digest
+
+    dataset.attrs["data_sha256"] = data_digest(dataset.name, dataset[()])
+    seal_attrs(dataset)
+
+
+def _one_numeric_column(victim: h5py.File, donor: h5py.File) -> None:
+    del victim["metrics/force_error_rms"]
+    donor.copy(donor["metrics/force_error_rms"], victim["metrics"], name="force_error_rms")
+
+
+def _one_string_column(victim: h5py.File, donor: h5py.File) -> None:
+    """A string column whose values are the same in both studies (the methods): only its place differs."""
+    assert list(victim["metrics/method"].asstr()[()]) == list(donor["metrics/method"].asstr()[()])
+    del victim["metrics/method"]
+    donor.copy(donor["metrics/method"], victim["metrics"], name="method")
+
+
+def _cells_only(victim: h5py.File, donor: h5py.File) -> None:
+    _copy_groups(victim, donor, "cells")
+
+
+def _settings_copied(victim: h5py.File, donor: h5py.File) -> None:
+    _copy_groups(victim, donor, "settings")
+
+
+def _columns_swapped(victim: h5py.File, donor: h5py.File) -> None:
+    """Two columns of the same study swapped (each its own digest: the path is bound)."""
+    victim.move("metrics/force_error_rms", "metrics/tmp")
+    victim.move("metrics/position_error_rms", "metrics/force_error_rms")
+    victim.move("metrics/tmp", "metrics/position_error_rms")
+
+
+def _old_digests_recomputed(victim: h5py.File, donor: h5py.File) -> None:
+    """The copy, every numeric column's documented digest recomputed (it was right already: the path is
+    the same; the binding is not)."""
+    _copy_groups(victim, donor, "metrics", "cells")
+    for group in ("metrics", "cells"):
+        for dataset in victim[group].values():
+            if h5py.check_string_dtype(dataset.dtype) is None:
+                _digest_as_documented_before(dataset)
+
+
+def _study_id_taken(victim: h5py.File, donor: h5py.File) -> None:
+    """The copy, and the donor's study_id over the victim's, the root's seal recomputed: the
+    definition (noise.scale 1) still differs from the one the columns are bound to."""
+    _copy_groups(victim, donor, "metrics", "cells")
+    victim.attrs["study_id"] = donor.attrs["study_id"]
+    seal_attrs(victim)
+
+
+def _cell_rows_swapped(victim: h5py.File, donor: h5py.File) -> None:
+    """Two cells' rows exchanged within the study: the first and last metric rows of every numeric column."""
+    for dataset in victim["metrics"].values():
+        if h5py.check_string_dtype(dataset.dtype) is None and dataset.shape[0] > 1:
+            data = dataset[()]
+            data[[0, -1]] = data[[-1, 0]]
+            dataset[...] = data
+
+
+@pytest.mark.parametrize("forge", [_one_numeric_column, _one_string_column, _cells_only, _settings_copied,
+                                   _columns_swapped, _old_digests_recomputed, _study_id_taken, _cell_rows_swapped])
+def test_splice_variants_of_a_study_store_are_refused(study_copies, forge):
+    victim, donor = study_copies
+    with h5py.File(victim, "a") as target, h5py.File(donor, "r") as source:
+        forge(target, source)
+    refused(victim)
+
+
+def test_a_study_store_of_schema_1_2_is_read_unbound_and_bound_by_the_next_run(study_copies, tmp_path):
+    """A store written before bindings (schema 1.2: no binding_sha256) is read with a note; the next run
+    of its study binds it. A 1.2 store that carries bindings was altered (or continued by an older
+    ilcforce) and is refused."""
+    from ilcforce.study import build_study, run_study
+
+    victim, donor = study_copies
+    for path in (victim, donor):
+        with h5py.File(path, "a") as handle:
+            for group in ("settings", "metrics", "cells"):
+                for dataset in handle[group].values():
+                    if path == victim:
+                        del dataset.attrs["binding_sha256"]
+                        seal_attrs(dataset)
+            handle.attrs["schema_version"] = "1.2"
+            seal_attrs(handle)
+    result = run_cli("validate", victim)
+    assert result.exit_code == 0 and "columns not bound to the study (schema 1.2" in result.output, result.output
+    refused(donor, "carries a binding, which its schema 1.2 does not have")
+    results = tmp_path / "again"
+    (results / "studies").mkdir(parents=True)
+    shutil.copyfile(victim, results / "studies" / "tiny.h5")
+    table = {"name": "tiny", "seeds": "0-2", "methods": ["c1", "c3"],
+             "set": {"experiment.iterations": 3, "reference.duration": 0.2, "noise.scale": 1.0}}
+    path = run_study(build_study({"study": table}), results, workers=1).path
+    result = run_cli("validate", path)
+    assert result.exit_code == 0 and "not bound" not in result.output and "6 done" in result.output, result.output
+    with h5py.File(path, "r") as handle:
+        assert handle.attrs["schema_version"] == "1.3" and "binding_sha256" in handle["metrics/method"].attrs

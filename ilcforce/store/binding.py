@@ -12,8 +12,8 @@ written, and HDF5 copies a group with its attributes, its checksums included.
   ``n_iterations_stored`` (sealed with the root's attributes) says how many iterations the store
   holds: 0 .. n - 1, none removed.
 * A study store (schema 1.3 on): its key is sha256 of its ``study_id``, simulation fingerprint and
-  definition; each numeric column's digest and each string column's CRC-32 start from the key and
-  the column's path (:func:`study_key`, :func:`strings_start`).
+  definition; every column carries ``binding_sha256``: sha256 of the key, the column's path and its
+  seal (``data_sha256`` or ``strings_crc32``, which cover its values: :func:`column_binding`).
 
 None of this is a signature: whoever reads this module can recompute a binding for a record they
 copy. It turns a splice with plain h5py (copying groups, datasets or attributes, recomputing the
@@ -27,7 +27,6 @@ import hashlib
 import json
 import struct
 import uuid
-import zlib
 from collections.abc import Iterable
 
 import numpy as np
@@ -116,9 +115,7 @@ def study_key(study_id: str, fingerprint: str, definition_json: str) -> bytes:
     return hashlib.sha256(b"".join(map(_field, parts))).digest()
 
 
-def strings_start(key: bytes | None, path: str) -> int:
-    """Where a string column's CRC-32 (:func:`ilcforce.store.seal.strings_checksum`) starts: 0 in an
-    unbound store, else the CRC-32 of the study's key and the column's path."""
-    if key is None:
-        return 0
-    return zlib.crc32(_field(key) + _field(path.encode())) & 0xFFFFFFFF
+def column_binding(key: bytes, path: str, seal: object) -> str:
+    """``binding_sha256`` of a study column: sha256 of the study's key, the column's path and its seal
+    (its ``data_sha256``, or its ``strings_crc32``), which covers every value already."""
+    return hashlib.sha256(_field(key) + _field(path.encode()) + _field(str(seal).encode())).hexdigest()

@@ -9,8 +9,7 @@ docs/store-format.md says what each catches and what none of them does: a delibe
   length (uint32 LE) and UTF-8 bytes, continued value by value (an append costs the new values).
 * ``data_sha256`` on every numeric column of a study store: sha256 over its path and its values
   (:func:`data_digest`). An edit through h5py recomputes Fletcher-32 for free, not this; as it
-  names the path, a column hard-linked to another's data fails it too. From study schema 1.3 on it
-  starts from the study's key (:mod:`.binding`), so a column copied from another study fails it.
+  names the path, a column hard-linked to another's data fails it too.
 """
 
 from __future__ import annotations
@@ -87,9 +86,7 @@ def strings_checksum(values: Iterable[str], start: int = 0) -> int:
     return crc & 0xFFFFFFFF
 
 
-def data_digest(path: str, values: np.ndarray, key: bytes | None = None) -> str:
-    """sha256 (hex) over a numeric column's path in its file and its values (little-endian), after
-    ``key`` (the study's binding key, 32 bytes: :func:`ilcforce.store.binding.study_key`) when given."""
+def data_digest(path: str, values: np.ndarray) -> str:
+    """sha256 (hex) over a numeric column's path in its file and its values (little-endian)."""
     values = np.ascontiguousarray(values, dtype=values.dtype.newbyteorder("<"))
-    return hashlib.sha256((key or b"") + path.encode() + b"\0" + values.dtype.str.encode() + b"\0"
-                          + values.tobytes()).hexdigest()
+    return hashlib.sha256(path.encode() + b"\0" + values.dtype.str.encode() + b"\0" + values.tobytes()).hexdigest()
