@@ -35,8 +35,10 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
     every attribute and the type and shape of every dataset a reader uses: the header
     (:data:`~ilcforce.store.schema.ROOT_ATTRIBUTES`), the task dimension (``task_dimension``,
     absent: 2) against the data, ``/reference``, every complete iteration (attributes, log,
-    memory, units, every array (n_log, n) for the store's n) and, when current, the ``/metrics``
-    cache (one row per complete iteration). A stale metrics cache is not an error: readers recompute it.
+    memory, units, every array (n_log, n) for the store's n), the bindings of every record to the
+    store and its place (schema 2.2 on, :mod:`ilcforce.store.binding`; a 2.1 store gets the note
+    ``"records not bound ..."``) and, when current, the ``/metrics`` cache (one row per complete
+    iteration). A stale metrics cache is not an error: readers recompute it.
     """
     with open_store(path) as (handle, checked, major):
         layout = scan(handle, checked, major)

@@ -1,6 +1,7 @@
 """Reading and validating stores. Every reader opens through :func:`open_store`.
 
-:func:`validate` reads everything (so every Fletcher-32 checksum is verified) and checks the
+:func:`validate` reads everything (so every checksum is verified: HDF5's Fletcher-32, the iterations'
+CRC-32s, the attribute seals and the bindings of :mod:`.binding`) and checks the
 type and shape of everything a reader uses. The other readers check only what they read (cheap:
 a report reads hundreds of stores), but a wrong type or shape met while reading is still a
 one-line :class:`StoreError`, never a traceback.

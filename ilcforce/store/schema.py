@@ -115,7 +115,8 @@ def signal_shape(axes: tuple[str, ...] | None, n: int) -> tuple[int, ...]:
 
 
 #: Datasets: group -> name -> (axes, unit, description); shapes from :func:`signal_shape` on the
-#: log grid (``n_log = len(/reference/time)``). All float64, Fletcher-32 checksummed. These are a
+#: log grid (``n_log = len(/reference/time)``). All float64; the reference Fletcher-32 checksummed, an
+#: iteration's log by the CRC-32s in its group (:mod:`ilcforce.store.template`). These are a
 #: 2-axis store's; :func:`reference_datasets` and :func:`log_datasets` give a store's of n axes.
 REFERENCE_DATASETS = REFERENCE_SIGNALS
 LOG_DATASETS = LOG_SIGNALS
@@ -144,7 +145,9 @@ CONTROL_TIME = "control_time"
 #: Every dataset carries these attributes.
 DATASET_ATTRS = ("units", "description")
 
-#: Dataset creation options: one chunk per dataset, Fletcher-32 on every dataset.
+#: Dataset creation options of the datasets written once or appended to (the reference, the control grid,
+#: /metrics): one chunk per dataset, Fletcher-32. An iteration's datasets are not filtered: their
+#: checksums are CRC-32s in the iteration group (:mod:`ilcforce.store.template`).
 #: Compression: measured off (see the README's Store section: gzip cut the paper's store by
 #: a few percent for several times the write time, because the logged noise is incompressible).
 DATASET_OPTIONS: dict[str, Any] = {"fletcher32": True}
