@@ -210,9 +210,49 @@ def _downgraded_clean(victim: h5py.File, donor: h5py.File) -> None:
         seal_attrs(group)
 
 
+def _hard_linked_within(victim: h5py.File, donor: h5py.File) -> None:
+    """Iteration 3's memory made a hard link to iteration 2's, its CRC-32 and seal recomputed."""
+    group = victim["iterations/0003"]
+    del group["memory/theta_hat"]
+    group["memory/theta_hat"] = victim["iterations/0002/memory/theta_hat"]
+    _forge_crc(group, "memory/theta_hat")
+    seal_attrs(group)
+
+
+def _external_link(victim: h5py.File, donor: h5py.File) -> None:
+    """Iteration 3 an HDF5 external link to the donor's iteration 3 (read through, from the other file)."""
+    del victim["iterations/0003"]
+    victim["iterations/0003"] = h5py.ExternalLink(donor.filename, "/iterations/0003")
+
+
+def _soft_link(victim: h5py.File, donor: h5py.File) -> None:
+    """Iteration 3 a soft link to iteration 2 of the same store."""
+    del victim["iterations/0003"]
+    victim["iterations/0003"] = h5py.SoftLink("/iterations/0002")
+
+
+def _external_reference(victim: h5py.File, donor: h5py.File) -> None:
+    """One reference signal an external link to the donor's (before, validate read the other file and said ok)."""
+    del victim["reference/force_desired"]
+    victim["reference/force_desired"] = h5py.ExternalLink(donor.filename, "/reference/force_desired")
+
+
+def _appended(victim: h5py.File, donor: h5py.File) -> None:
+    """The donor's iteration 4 appended as the victim's iteration 5, the count, its number and every seal
+    recomputed (the run asked for 6)."""
+    donor.copy(donor["iterations/0004"], victim["iterations"], name="0005")
+    group = victim["iterations/0005"]
+    group.attrs["iteration"] = 5
+    seal_attrs(group)
+    victim.attrs["n_iterations_stored"] = 6
+    victim.attrs["n_iterations_requested"] = 6
+    seal_attrs(victim)
+
+
 @pytest.mark.parametrize("forge", [_memory_dataset, _extra_dataset, _dropped_dataset, _moved_within, _last_removed,
                                    _all_iterations, _identity_taken, _seed_claimed, _config_changed, _reference_copied,
-                                   _reference_edited, _downgraded])
+                                   _reference_edited, _downgraded, _hard_linked_within, _external_link, _soft_link,
+                                   _external_reference, _appended])
 def test_splice_variants_of_a_run_store_are_refused(copies, forge):
     victim, donor = copies
     with h5py.File(victim, "a") as target, h5py.File(donor, "r") as source:
@@ -374,8 +414,15 @@ def _cell_rows_swapped(victim: h5py.File, donor: h5py.File) -> None:
             dataset[...] = data
 
 
+def _external_column(victim: h5py.File, donor: h5py.File) -> None:
+    """A column an external link to the other study's (its digest, over the same path, held before)."""
+    del victim["metrics/force_error_rms"]
+    victim["metrics/force_error_rms"] = h5py.ExternalLink(donor.filename, "/metrics/force_error_rms")
+
+
 @pytest.mark.parametrize("forge", [_one_numeric_column, _one_string_column, _cells_only, _settings_copied,
-                                   _columns_swapped, _old_digests_recomputed, _study_id_taken, _cell_rows_swapped])
+                                   _columns_swapped, _old_digests_recomputed, _study_id_taken, _cell_rows_swapped,
+                                   _external_column])
 def test_splice_variants_of_a_study_store_are_refused(study_copies, forge):
     victim, donor = study_copies
     with h5py.File(victim, "a") as target, h5py.File(donor, "r") as source:

@@ -17,6 +17,7 @@ if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports n
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics, metric_columns
 from ilcforce.store import binding, schema
 from ilcforce.store.seal import ATTRS_SEAL, attrs_state
+from ilcforce.store.filecheck import check_links
 from ilcforce.store.read import (attr, cached_metrics, checked_data, control_length, frame_from_group, group_for,
                                  is_bound_schema, is_complete, is_sealed_schema, iteration_attrs, metrics_rows, open_store, provenance_of,
                                  py, read_log, read_memory_group, record_from_group, require_dataset, require_group, scan)
@@ -41,6 +42,7 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
     iteration). A stale metrics cache is not an error: readers recompute it.
     """
     with open_store(path) as (handle, checked, major):
+        check_links(handle, checked)
         layout = scan(handle, checked, major)
         dimension = layout.dimension
         reference = require_group(handle, "reference", checked)

@@ -6,6 +6,8 @@
 * Bounded time on damaged files: before h5py opens a file, :func:`probe` walks its structure in a
   forked child with a time limit (HDF5 can loop forever on a damaged block, and then ignores
   Ctrl-C). Data damage is caught by the checksums on read.
+* A file's names are its own data: :func:`check_links` refuses a soft or external link (the writers
+  make none; a reader would follow one elsewhere in the file or into another file).
 
 Both the run store's locking layer (:mod:`.safeio`) and the study store's reader
 (:mod:`.study_read`) build on this module; it imports neither.
@@ -204,3 +206,24 @@ def file_identity(path: Path) -> Path:
 def writers_lock(path: Path) -> Path:
     """The lock file every writer of ``path``, under any of its names, takes: beside its real path."""
     return file_identity(Path(path)).with_name(file_identity(Path(path)).name + ".lock")
+
+
+def check_links(handle, path: Path) -> None:
+    """StoreError (one line) if any name in the file is a soft or external link: the writers make none, and
+    a reader would follow one to another object or into another file (checked before anything is read)."""
+    import h5py
+
+    found: list[tuple[str, object]] = []
+
+    def visit(name: str, link) -> None:
+        if not isinstance(link, h5py.HardLink) and not found:
+            found.append((name, link))
+
+    handle.visititems_links(visit)
+    if found:
+        name, link = found[0]
+        target = (f"{link.filename}:{link.path}" if isinstance(link, h5py.ExternalLink)
+                  else str(getattr(link, "path", "")))
+        kind = "an external link" if isinstance(link, h5py.ExternalLink) else "a soft link"
+        raise StoreError(f"{path}: /{name[:60]} is {kind} (to {target[:80]}), not data of this store; a store "
+                         "holds its own data only")

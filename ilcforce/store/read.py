@@ -266,6 +266,9 @@ def scan(handle: h5py.File, path: Path, major: int) -> Layout:
     iterations = require_group(handle, "iterations", path)
     complete: dict[int, str] = {}
     for name in iterations:
+        if not isinstance(iterations.get(name, getlink=True), h5py.HardLink):
+            raise StoreError(f"{path}: /iterations/{name[:40]} is a link, not an iteration of this store (a store "
+                             "holds its own data only)")
         group = iterations.get(name)
         if not isinstance(group, h5py.Group) or not is_complete(group):
             continue  # an unfinished group (older stores): ignored

@@ -15,7 +15,7 @@ import pandas as pd
 
 from ilcforce.store import binding, study_journal
 from ilcforce.store.seal import ATTRS_SEAL, DATA_SEAL, STRINGS_SEAL, attrs_state, data_digest, strings_checksum
-from ilcforce.store.filecheck import StoreError, check_regular_file, is_hdf5_file, probe, writers_lock
+from ilcforce.store.filecheck import StoreError, check_links, check_regular_file, is_hdf5_file, probe, writers_lock
 from ilcforce.store.schema import STUDY_NAME, STUDY_SCHEMA_NAME
 
 SCHEMA_NAME = STUDY_SCHEMA_NAME
@@ -244,6 +244,10 @@ def read_header(path: Path, *, check: bool = True) -> dict:
             if version.split(".")[0] != SCHEMA_VERSION.split(".")[0]:
                 raise StudyStoreError(f"{path}: study store schema {version!r}; this ilcforce reads {SCHEMA_VERSION}")
             _verify_attrs(handle, is_sealed(handle))
+            try:
+                check_links(handle, Path(path))  # before any column is read: never another file's data
+            except StoreError as exc:
+                raise StudyStoreError(str(exc)) from None
             attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in handle.attrs.items()}
             name = attrs.get("name")
             if not isinstance(name, str) or not STUDY_NAME.fullmatch(name) or name in (".", ".."):
