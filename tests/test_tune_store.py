@@ -227,6 +227,22 @@ def test_hard_linked_and_symlinked_records_of_another_store_are_refused(tmp_path
     assert "a symbolic link" in validate_cli(one.path)[1]
 
 
+def test_a_trial_copied_from_another_tuning_or_to_another_number_is_refused(tmp_path):
+    """A JSON editor's splice: a trial file copied from another tuning store of the same search, its
+    checksum recomputed; a trial copied to another number of the same store, its checksum recomputed.
+    The record names its store's id and its number; neither is this place's."""
+    one, other = tuned(tmp_path, results="one"), tuned(tmp_path, results="two")
+    target = one.path / "trials" / "c1-00003.json"
+    shutil.copyfile(other.path / "trials" / "c1-00003.json", target)
+    reseal(target, lambda r: None)
+    code, output = validate_cli(one.path)
+    assert code == 2 and "another tuning store" in output and len(output.strip().splitlines()) == 1, output
+    shutil.copyfile(one.path / "trials" / "c1-00002.json", target)
+    reseal(target, lambda r: None)
+    code, output = validate_cli(one.path)
+    assert code == 2 and "not the trial of its file name" in output, output
+
+
 @pytest.mark.parametrize("where", ["record", "header"])
 def test_deep_json_is_refused_in_bounded_time(tmp_path, where):
     first = tuned(tmp_path, TINY)
