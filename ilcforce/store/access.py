@@ -53,20 +53,26 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
         columns = cached_metrics(handle, checked, dimension)
         fresh_rows: dict[int, dict] = {}  # metrics of each complete iteration, from the log read once here
         statuses: dict[int, str] = {}
+        shapes: dict[int, dict[str, tuple[int, ...]]] = {}  # per iteration, its datasets' shapes (the bindings)
+        found: dict[int, dict[str, Any]] = {}  # per iteration, its checked attributes
         for j in layout.complete:
             group = handle[layout.groups[j]]
-            statuses[j] = iteration_attrs(group, j, checked)["status"]
+            found[j] = iteration_attrs(group, j, checked)
+            statuses[j] = found[j]["status"]
             log = read_log(group, layout.n_log, checked, major, dimension)
             if columns is not None:
                 fresh_rows[j] = iteration_metrics(record_from_group(group, j, layout.n_log, checked, major, log=log,
                                                                     dimension=dimension))
+            shapes[j] = {f"log/{name}": values.shape for name, values in log.items()}
             for name, dataset in read_memory_group(group, checked, n_control).items():
                 checked_data(group, f"memory/{name}", dataset, checked, major)
+                shapes[j][f"memory/{name}"] = dataset.shape
         _check_units(handle, checked)
         _check_consistency(handle, statuses, checked)
         _check_method(handle, checked)
         unsealed = _check_seals(handle, checked)
-        bound = _check_bindings(handle, layout, checked, binding.reference_arrays(signals, control_time))
+        bound = _check_bindings(handle, layout, checked, binding.reference_arrays(signals, control_time), shapes,
+                                found)
         version = py(handle.attrs["schema_version"])
         if columns is not None:  # a current cache must agree with the logs it was computed from
             for k, j in enumerate(columns["iteration"]):
@@ -93,11 +99,14 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
     return []
 
 
-def _check_bindings(handle: h5py.File, layout, path: Path, reference: list[tuple[str, np.ndarray]]) -> bool:
+def _check_bindings(handle: h5py.File, layout, path: Path, reference: list[tuple[str, np.ndarray]],
+                    shapes: dict[int, dict[str, tuple[int, ...]]], found: dict[int, dict[str, Any]]) -> bool:
     """Every record of a store of schema 2.2 on is bound to the store and its place
     (:mod:`ilcforce.store.binding`): ``/reference`` and each complete iteration carry the binding their
     content, place and the store's key give, and the iterations are 0 .. n_iterations_stored - 1.
-    Returns whether the store is bound (False: an older store, which must carry no binding at all)."""
+    ``shapes``: per complete iteration, the shape of each dataset validate read from it (``log/<name>``,
+    ``memory/<name>``); ``found``: its checked attributes (:func:`iteration_attrs`). Returns whether the store is bound (False: an older store, which must carry no
+    binding at all)."""
     version = str(py(handle.attrs["schema_version"]))
     groups = [handle["reference"], *(handle[layout.groups[j]] for j in layout.complete)]
     if not is_bound_schema(version):
@@ -124,16 +133,15 @@ def _check_bindings(handle: h5py.File, layout, path: Path, reference: list[tuple
     for j in layout.complete:
         group = handle[layout.groups[j]]
         names = [str(n) for n in py(group.attrs["crc32_datasets"])]
-        held = []
-        group.visititems(lambda name, item: held.append(name) if isinstance(item, h5py.Dataset) else None)
-        if sorted(held) != sorted(names):
-            extra = sorted(set(held) ^ set(names))
-            raise StoreError(f"{path}: {group.name} holds other datasets than its checksums list "
+        held = {*shapes[j], *(f"log/{n}" for n in group["log"]), *(f"{n}/" for n in group if n not in ("log", "memory"))}
+        if held != set(names):
+            extra = sorted(held ^ set(names))
+            raise StoreError(f"{path}: {group.name} holds other objects than its checksums list "
                              f"({', '.join(extra[:3])}): altered after it was written")
-        a = iteration_attrs(group, j, path)
+        a = found[j]
         expected = binding.iteration_binding(
             key, j, a["status"], a["diverged_time"], a["diverged_reason"], a["fallback_count"],
-            zip(names, (group[n].shape for n in names), np.asarray(group.attrs["crc32"]).tolist()))
+            zip(names, (shapes[j][n] for n in names), np.asarray(group.attrs["crc32"]).tolist()))
         if py(group.attrs.get(binding.BINDING)) != expected:
             raise StoreError(f"{path}: {group.name} is not bound to this store and place (its {binding.BINDING} "
                              "does not match: copied from another store or iteration, or changed after it was "
