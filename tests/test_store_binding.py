@@ -231,6 +231,15 @@ def _soft_link(victim: h5py.File, donor: h5py.File) -> None:
     victim["iterations/0003"] = h5py.SoftLink("/iterations/0002")
 
 
+def _memory_edited(victim: h5py.File, donor: h5py.File) -> None:
+    """Not a splice: the learned memory of iteration 4 (the one --resume starts from) scaled in place,
+    its CRC-32 and seals recomputed as documented; the binding covers the CRC-32s."""
+    group = victim["iterations/0004"]
+    group["memory/alpha_hat"][...] = group["memory/alpha_hat"][()] * 2
+    _forge_crc(group, "memory/alpha_hat")
+    seal_attrs(group)
+
+
 def _external_reference(victim: h5py.File, donor: h5py.File) -> None:
     """One reference signal an external link to the donor's (before, validate read the other file and said ok)."""
     del victim["reference/force_desired"]
@@ -252,7 +261,7 @@ def _appended(victim: h5py.File, donor: h5py.File) -> None:
 @pytest.mark.parametrize("forge", [_memory_dataset, _extra_dataset, _dropped_dataset, _moved_within, _last_removed,
                                    _all_iterations, _identity_taken, _seed_claimed, _config_changed, _reference_copied,
                                    _reference_edited, _downgraded, _hard_linked_within, _external_link, _soft_link,
-                                   _external_reference, _appended])
+                                   _external_reference, _appended, _memory_edited])
 def test_splice_variants_of_a_run_store_are_refused(copies, forge):
     victim, donor = copies
     with h5py.File(victim, "a") as target, h5py.File(donor, "r") as source:
@@ -414,6 +423,14 @@ def _cell_rows_swapped(victim: h5py.File, donor: h5py.File) -> None:
             dataset[...] = data
 
 
+def _cell_rows_swapped_resealed(victim: h5py.File, donor: h5py.File) -> None:
+    """As _cell_rows_swapped, every column's documented digest recomputed: the binding covers the digest."""
+    _cell_rows_swapped(victim, donor)
+    for dataset in victim["metrics"].values():
+        if h5py.check_string_dtype(dataset.dtype) is None:
+            _digest_as_documented_before(dataset)
+
+
 def _external_column(victim: h5py.File, donor: h5py.File) -> None:
     """A column an external link to the other study's (its digest, over the same path, held before)."""
     del victim["metrics/force_error_rms"]
@@ -422,7 +439,7 @@ def _external_column(victim: h5py.File, donor: h5py.File) -> None:
 
 @pytest.mark.parametrize("forge", [_one_numeric_column, _one_string_column, _cells_only, _settings_copied,
                                    _columns_swapped, _old_digests_recomputed, _study_id_taken, _cell_rows_swapped,
-                                   _external_column])
+                                   _cell_rows_swapped_resealed, _external_column])
 def test_splice_variants_of_a_study_store_are_refused(study_copies, forge):
     victim, donor = study_copies
     with h5py.File(victim, "a") as target, h5py.File(donor, "r") as source:
