@@ -19,8 +19,9 @@ from ilcforce.store import binding, schema
 from ilcforce.store.seal import ATTRS_SEAL, attrs_state
 from ilcforce.store.filecheck import check_links
 from ilcforce.store.read import (attr, cached_metrics, checked_data, control_length, frame_from_group, group_for,
-                                 is_bound_schema, is_complete, is_sealed_schema, iteration_attrs, metrics_rows, open_store, provenance_of,
-                                 py, read_log, read_memory_group, record_from_group, require_dataset, require_group, scan)
+                                 is_bound_schema, is_complete, is_sealed_schema, iteration_attrs, metrics_rows,
+                                 open_store, provenance_of, py, read_log, read_memory_group, record_from_group,
+                                 require_dataset, require_group, scan)
 from ilcforce.store.safeio import StoreError
 
 
@@ -105,8 +106,8 @@ def _check_bindings(handle: h5py.File, layout, path: Path, reference: list[tuple
     (:mod:`ilcforce.store.binding`): ``/reference`` and each complete iteration carry the binding their
     content, place and the store's key give, and the iterations are 0 .. n_iterations_stored - 1.
     ``shapes``: per complete iteration, the shape of each dataset validate read from it (``log/<name>``,
-    ``memory/<name>``); ``found``: its checked attributes (:func:`iteration_attrs`). Returns whether the store is bound (False: an older store, which must carry no
-    binding at all)."""
+    ``memory/<name>``); ``found``: its checked attributes (:func:`iteration_attrs`). Returns whether the
+    store is bound (False: an older store, which must carry no binding at all)."""
     version = str(py(handle.attrs["schema_version"]))
     groups = [handle["reference"], *(handle[layout.groups[j]] for j in layout.complete)]
     if not is_bound_schema(version):
@@ -133,7 +134,8 @@ def _check_bindings(handle: h5py.File, layout, path: Path, reference: list[tuple
     for j in layout.complete:
         group = handle[layout.groups[j]]
         names = [str(n) for n in py(group.attrs["crc32_datasets"])]
-        held = {*shapes[j], *(f"log/{n}" for n in group["log"]), *(f"{n}/" for n in group if n not in ("log", "memory"))}
+        held = {*shapes[j], *(f"log/{n}" for n in group["log"]),
+                *(f"{n}/" for n in group if n not in ("log", "memory"))}
         if held != set(names):
             extra = sorted(held ^ set(names))
             raise StoreError(f"{path}: {group.name} holds other objects than its checksums list "

@@ -84,7 +84,8 @@ def iteration_binding(key: bytes, j: int, status: str, diverged_time: float, div
                   + _field(str(diverged_reason).encode("utf-8", "surrogatepass"))
                   + _field(str(int(fallback_count)).encode()))
     for name, shape, crc in datasets:
-        digest.update(_field(str(name).encode("utf-8", "surrogatepass")) + _field(str(tuple(int(n) for n in shape)).encode())
+        digest.update(_field(str(name).encode("utf-8", "surrogatepass"))
+                      + _field(str(tuple(int(n) for n in shape)).encode())
                       + struct.pack("<I", int(crc) & 0xFFFFFFFF))
     return digest.hexdigest()
 

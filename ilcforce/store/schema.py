@@ -5,7 +5,8 @@ of :mod:`ilcforce.store` explains the layout in prose.
 
 Schema ``ilcforce.store`` version ``2.2`` (2.1: no bindings; 2.0: no attribute seals either). A
 reader refuses a file whose major version is newer than its own. Version 1.x files (written before
-the rebuild: no checksums, HDF5 1.6 metadata without checksums) are still read; see :mod:`ilcforce.store.safeio` for how they are opened.
+the rebuild: no checksums, HDF5 1.6 metadata without checksums) are still read; see
+:mod:`ilcforce.store.safeio` for how they are opened.
 """
 
 from __future__ import annotations
