@@ -280,20 +280,42 @@ def test_a_store_stripped_of_its_bindings_reads_as_unbound_and_says_so(copies):
     assert result.exit_code == 0 and "records not bound to the store (schema 2.1" in result.output, result.output
 
 
+def _unbind(handle: h5py.File) -> None:
+    """Make ``handle`` a store as schema 2.1 wrote it: no identity, count or bindings, seals recomputed."""
+    handle.attrs["schema_version"] = "2.1"
+    for name in ("store_id", "n_iterations_stored"):
+        del handle.attrs[name]
+    seal_attrs(handle)
+    for group in [handle["reference"], *handle["iterations"].values()]:
+        del group.attrs["binding_sha256"]
+        seal_attrs(group)
+
+
+def test_splices_between_bound_and_unbound_stores(copies):
+    """An iteration of an unbound (2.1) store spliced into a bound one is refused (it has no binding); a
+    bound one spliced into an unbound store is refused too (it carries what 2.1 has not)."""
+    victim, donor = copies
+    with h5py.File(donor, "a") as handle:
+        _unbind(handle)
+    assert "records not bound" in run_cli("validate", donor).output
+    spliced = victim.with_name("spliced.h5")
+    shutil.copyfile(victim, spliced)
+    with h5py.File(spliced, "a") as target, h5py.File(donor, "r") as source:
+        splice_iteration(target, source, 3)
+    refused(spliced, "/iterations/0003", "has no binding_sha256")
+    with h5py.File(donor, "a") as target, h5py.File(victim, "r") as source:
+        splice_iteration(target, source, 3)
+    refused(donor, "/iterations/0003 carries a binding")
+
+
 def test_an_unbound_store_resumes_unbound(copies):
     """A store of schema 2.1 (no binding: written before) is resumed as it is, its new iterations unbound,
     and still validates with its note."""
     victim, _donor = copies
     with h5py.File(victim, "a") as handle:
         del handle["iterations/0004"]
-        handle.attrs["schema_version"] = "2.1"
         handle.attrs["run_state"] = "partial"
-        for name in ("store_id", "n_iterations_stored"):
-            del handle.attrs[name]
-        seal_attrs(handle)
-        for group in [handle["reference"], *handle["iterations"].values()]:
-            del group.attrs["binding_sha256"]
-            seal_attrs(group)
+        _unbind(handle)
     result = run_cli("simulate", "-m", "c3", "-n", "6", "--out", victim, "--resume", *SHORT)
     assert result.exit_code == 0, result.output
     result = run_cli("validate", victim)

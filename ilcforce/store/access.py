@@ -144,10 +144,12 @@ def _check_bindings(handle: h5py.File, layout, path: Path, reference: list[tuple
         expected = binding.iteration_binding(
             key, j, a["status"], a["diverged_time"], a["diverged_reason"], a["fallback_count"],
             zip(names, (shapes[j][n] for n in names), np.asarray(group.attrs["crc32"]).tolist()))
-        if py(group.attrs.get(binding.BINDING)) != expected:
-            raise StoreError(f"{path}: {group.name} is not bound to this store and place (its {binding.BINDING} "
-                             "does not match: copied from another store or iteration, or changed after it was "
-                             "written)")
+        stored_binding = py(group.attrs.get(binding.BINDING))
+        if stored_binding != expected:
+            why = (f"it has no {binding.BINDING}: copied from a store of an older schema, or altered"
+                   if stored_binding is None else f"its {binding.BINDING} does not match: copied from another store "
+                   "or iteration, or changed after it was written")
+            raise StoreError(f"{path}: {group.name} is not bound to this store and place ({why})")
     return True
 
 
