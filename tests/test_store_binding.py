@@ -498,3 +498,61 @@ def test_a_study_store_of_schema_1_2_is_read_unbound_and_bound_by_the_next_run(s
     assert result.exit_code == 0 and "not bound" not in result.output and "6 done" in result.output, result.output
     with h5py.File(path, "r") as handle:
         assert handle.attrs["schema_version"] == "1.3" and "binding_sha256" in handle["metrics/method"].attrs
+
+
+# -- what the docs say is checksummed ------------------------------------------------------------------
+
+
+def test_the_docs_say_how_each_dataset_is_checksummed(runs, studies):
+    """Item 15: docs/store-format.md said every dataset is Fletcher-32 checksummed; an iteration's log and
+    memory are not (they carry CRC-32s in their group). Every dataset of a run and a study store made
+    by the CLI and the driver is checksummed the way the docs say, and the docs say no other."""
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "store-format.md").read_text(encoding="utf-8")
+    flat = " ".join(docs.split())
+    assert "every dataset is Fletcher-32" not in flat and "every dataset | HDF5 Fletcher-32" not in flat
+    assert ("HDF5's Fletcher-32 filter on a run's reference, control grid and `/metrics` and on a study's numeric "
+            "columns" in flat)
+    assert ("a CRC-32 per dataset in the iteration group's `crc32` attribute, in the order of its "
+            "`crc32_datasets`, for a run iteration's log and memory datasets" in flat)
+    assert "`strings_crc32` on a study's string columns" in flat
+    with h5py.File(runs[0], "r") as handle:
+        seen = {"fletcher": set(), "crc": set()}
+
+        def visit(name: str, item) -> None:
+            if not isinstance(item, h5py.Dataset):
+                return
+            top = name.split("/")[0]
+            if top == "iterations":
+                group = handle["/".join(name.split("/")[:2])]
+                listed = [n.decode() if isinstance(n, bytes) else str(n) for n in group.attrs["crc32_datasets"]]
+                assert not item.fletcher32 and name.split("/", 2)[2] in listed, name
+                seen["crc"].add(name.split("/")[2])
+            else:
+                assert item.fletcher32, name
+                seen["fletcher"].add(top)
+
+        handle.visititems(visit)
+        assert seen == {"fletcher": {"reference", "control_time", "metrics"}, "crc": {"log", "memory"}}
+    with h5py.File(studies[1.0], "r") as handle:
+        for group in ("settings", "metrics", "cells"):
+            for name, dataset in handle[group].items():
+                if h5py.check_string_dtype(dataset.dtype) is None:
+                    assert dataset.fletcher32 and "data_sha256" in dataset.attrs, f"{group}/{name}"
+                else:
+                    assert not dataset.fletcher32 and "strings_crc32" in dataset.attrs, f"{group}/{name}"
+                assert "binding_sha256" in dataset.attrs, f"{group}/{name}"
+
+
+def test_the_docs_say_what_a_json_seal_covers():
+    """Item 8: the docs name the canonical form the seal covers, and it is the one the code hashes."""
+    from ilcforce.store import records
+
+    docs = " ".join((Path(__file__).resolve().parents[1] / "docs" / "store-format.md").read_text(encoding="utf-8").split())
+    formula = 'json.dumps(record, sort_keys=True, separators=(",", ":"), allow_nan=True)'
+    assert "sha256 (hex) over the canonical JSON of the record as parsed" in docs and formula in docs
+    assert "a key named twice in one object" in docs
+    sample = {"z": [1.5, float("nan"), None], "a": "é\n", "m": {"y": 1, "b": True}}
+    canonical = json.dumps(sample, sort_keys=True, separators=(",", ":"), allow_nan=True).encode()
+    import hashlib
+
+    assert records.checksum(sample) == hashlib.sha256(canonical).hexdigest()
