@@ -148,7 +148,12 @@ def assert_same_datasets(a: Path, b: Path) -> None:
 
 #: Root attributes that differ between any two writes (clock, checkout, version): left out of
 #: :func:`store_structure`, with the root's seal over them.
-VOLATILE_ROOT_ATTRS = ("created_utc", "updated_utc", "git_commit", "git_dirty", "ilcforce_version", "attrs_crc32")
+VOLATILE_ROOT_ATTRS = ("created_utc", "updated_utc", "git_commit", "git_dirty", "ilcforce_version", "attrs_crc32",
+                       "store_id")
+#: Attributes whose values differ between any two stores (the store's random identity binds them,
+#: ilcforce.store.binding): :func:`store_structure` keeps their names and types, not their values, and
+#: those of the seal over them.
+PER_STORE_ATTRS = ("binding_sha256",)
 
 
 def store_structure(path: Path) -> dict:
@@ -163,11 +168,14 @@ def store_structure(path: Path) -> dict:
                        maxshape=[-1 if m is None else m for m in item.maxshape],
                        chunks=None if item.chunks is None else list(item.chunks), fletcher32=bool(item.fletcher32))
         attrs = {}
+        per_store = any(name in PER_STORE_ATTRS for name in item.attrs)
         for name in sorted(item.attrs):
             if item.name == "/" and name in VOLATILE_ROOT_ATTRS:
                 continue
             value = item.attrs[name]
-            attrs[name] = [type(value).__name__, repr(value.tolist() if isinstance(value, np.ndarray) else value)]
+            shown = ("<per store>" if name in PER_STORE_ATTRS or (per_store and name == "attrs_crc32") else
+                     repr(value.tolist() if isinstance(value, np.ndarray) else value))
+            attrs[name] = [type(value).__name__, shown]
         out["attrs"] = attrs
         return out
 

@@ -5,8 +5,11 @@ and ("1", "2", "3"), says so in its root attribute ``task_dimension`` and keeps 
 of :func:`ilcforce.metrics.metric_columns` (3). A 2-axis store has no such attribute and is, object
 for object and attribute for attribute, the store the code wrote before n axes:
 ``tests/data/store_structure_2axis.json`` was written by that code (commit d5f0c0b) from the
-storekit run below, and a fresh one must describe the same file. To write it again (only when the
-2-axis layout changes on purpose, and said in that commit):
+storekit run below, and a fresh one must describe the same file. It was written again once, when
+schema 2.2 bound every record to its store (ilcforce.store.binding): the only differences are
+schema_version, the root's store_id and n_iterations_stored, and binding_sha256 on /reference and on
+each iteration group (values per store, shown as such). To write it again (only when the 2-axis
+layout changes on purpose, and said in that commit):
 
     mkdir /tmp/ref-tree && git archive <commit> ilcforce | tar -x -C /tmp/ref-tree
     (cd /tmp && PYTHONPATH=/tmp/ref-tree:$OLDPWD/tests $OLDPWD/.venv/bin/python -c \

@@ -109,13 +109,14 @@ def test_bit_flips_across_the_metadata_never_pass_as_other_content(path, tmp_pat
 
 
 def test_a_store_without_seals_is_read_and_named_unverified(path):
-    """A schema-2.0 store (written before attributes were sealed) is accepted; `validate` says its
-    metadata is unverified. A 2.1 store whose seal is gone is refused."""
+    """A schema-2.0 store (written before attributes were sealed, and records bound) is accepted;
+    `validate` says its metadata is unverified. A 2.1 store whose seal is gone is refused."""
     write_run(path, 2)
     with h5py.File(path, "a") as handle:
         def strip(name, item):
-            if ATTRS_SEAL in item.attrs:
-                del item.attrs[ATTRS_SEAL]
+            for key in (ATTRS_SEAL, "binding_sha256", "store_id", "n_iterations_stored"):
+                if key in item.attrs:
+                    del item.attrs[key]
         strip("/", handle)
         handle.visititems(strip)
         handle.attrs["schema_version"] = "2.0"
@@ -166,11 +167,12 @@ def test_raw_bit_flips_in_a_study_store_strings_never_export_other_names(tmp_pat
 
 
 def test_a_study_store_without_seals_is_read(tmp_path):
-    """A study store of schema 1.0 (no seals) is read; the driver's next consolidation seals it."""
+    """A study store of schema 1.0 (no seals, digests or bindings) is read; the driver's next
+    consolidation seals and binds it."""
     path = run_small(tmp_path)
     with h5py.File(path, "a") as handle:
         def strip(name, item):
-            for key in (ATTRS_SEAL, STRINGS_SEAL):
+            for key in (ATTRS_SEAL, STRINGS_SEAL, "data_sha256", "binding_sha256"):
                 if key in item.attrs:
                     del item.attrs[key]
         strip("/", handle)
@@ -183,7 +185,7 @@ def test_a_study_store_without_seals_is_read(tmp_path):
 
     run_study(small_study(seeds="0-1"), tmp_path, workers=1)  # one more seed: consolidates
     with h5py.File(path, "r") as handle:
-        assert handle.attrs["schema_version"] == "1.2" and STRINGS_SEAL in handle["metrics/method"].attrs
+        assert handle.attrs["schema_version"] == "1.3" and STRINGS_SEAL in handle["metrics/method"].attrs
         assert "data_sha256" in handle["metrics/force_error_rms"].attrs
     after = read_tables(path)[1]
     assert len(after) == 2 * len(before)

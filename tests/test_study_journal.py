@@ -178,6 +178,21 @@ def test_a_record_that_is_not_one_is_refused_in_bounded_time(tmp_path, monkeypat
     assert _invoke("export", path, "--out", tmp_path / "t.csv").exit_code == 0
 
 
+def test_a_record_naming_a_key_twice_is_refused(tmp_path, monkeypatch):
+    """Issue 46 item 8: a second "rows" key before the real one leaves the record Python parses (the last
+    wins) and its seal unchanged; a reader keeping the first would read no rows. Refused, named, never read."""
+    path = _journal_only(tmp_path, monkeypatch, seeds="0-0", methods=("c1",))
+    record = path.parent / "tiny.h5.journal" / "0-0-c1.json"
+    data = record.read_bytes()
+    record.write_bytes(data.replace(b"{", b'{"rows": [], ', 1))
+    assert json.loads(record.read_bytes()) == json.loads(data)
+    checked = _invoke("validate", path)
+    assert checked.exit_code == 0 and "0-0-c1.json: refused (the key 'rows' appears twice" in checked.output, \
+        checked.output
+    assert _invoke("export", path, "--out", tmp_path / "t.csv").exit_code == 0
+    assert len(pd.read_csv(tmp_path / "t.csv")) == 0
+
+
 def test_a_symlinked_journal_of_another_study_is_refused(tmp_path, monkeypatch):
     """Study B's journal folder a symlink to study A's: B took A's cells as its own and A lost them
     (found by an attack). B's readers and driver now refuse the folder in one line, A keeps every cell."""

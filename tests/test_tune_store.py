@@ -83,6 +83,18 @@ FORGERIES = {
     "number beyond every budget": lambda r: r.update(number=40),
     "error norms not a list": lambda r: r["seeds"][0].update(position_error_rms=5),
     "a seed's entry without its fields": lambda r: r["seeds"][0].pop("iterations_run"),
+    # issue 46 item 7: a seed carrying a "message" skipped the check of its values against its norms
+    "seeds carrying a message, values forged": lambda r: (r["seeds"][0].update(message="x", value=-99.0),
+                                                         r["seeds"][1].update(message="x", value=-99.0),
+                                                         r.update(value=-99.0)),
+    "a failed seed's entry (no norms) with a value": lambda r: (
+        r["seeds"][0].update(message="the worker died", iterations_run=0, value=-99.0,
+                             **{k: [] for k in ("position_error_rms", "force_error_rms", "chattering_task_x_settled",
+                                                "chattering_task_y_settled")}),
+        r.update(value=(r["seeds"][1]["value"] - 99.0) / 2)),  # the median of the two seeds' values
+    "a seed carrying an empty message": lambda r: r["seeds"][0].update(message=""),
+    "failed although every seed scored": lambda r: r.update(state="failed", value=None, chattering=None,
+                                                           feasible=False),
 }
 
 
@@ -162,6 +174,49 @@ def test_any_one_digit_change_in_any_file_of_a_tuning_store_is_refused(tmp_path)
     assert validate_tuning(first.path)["methods"]["c1"][0] == 2
 
 
+def _duplicate_value(data: bytes) -> bytes:
+    """Issue 46 item 8: a second "value" key before the real one (Python keeps the last, so the parsed
+    record and its seal were unchanged; a reader that keeps the first sees -99)."""
+    return data.replace(b'{', b'{"value": -99.0, ', 1)
+
+
+def _duplicate_name(data: bytes) -> bytes:
+    return data.replace(b'{', b'{"name": "other", ', 1)
+
+
+@pytest.mark.parametrize("file, change", [("trials/c1-00002.json", _duplicate_value),
+                                          ("tuning.json", _duplicate_name),
+                                          ("trials/c3-00001.json", lambda d: d.replace(b'"seeds": [{',
+                                                                                      b'"seeds": [{"seed": 5, ', 1))])
+def test_a_key_named_twice_in_a_record_is_refused(tmp_path, stored, file, change):
+    copy_of(stored, tmp_path)
+    path = tmp_path / "r" / "tuning" / "tiny"
+    target = path / file
+    data = target.read_bytes()
+    target.write_bytes(change(data))
+    assert json.loads(target.read_bytes()) == json.loads(data)  # the same to Python: the seal held before
+    code, output = validate_cli(path)
+    assert code == 2 and "appears twice in one object" in output and len(output.strip().splitlines()) == 1, output
+
+
+def test_what_the_seal_covers_is_the_parsed_record(tmp_path, stored):
+    """The seal covers the canonical JSON of the record as parsed (docs/store-format.md): whitespace, key
+    order and escapes that leave every value the same are no change to any reader and are accepted; the
+    values read are the record's."""
+    copy_of(stored, tmp_path)
+    path = tmp_path / "r" / "tuning" / "tiny"
+    target = path / "trials" / "c1-00002.json"
+    record = json.loads(target.read_bytes())
+    before = read_trials(path)["c1"][2]
+    reordered = dict(reversed(list(record.items())))
+    text = json.dumps(reordered, indent=3).replace('"complete"', '"\u0063omplete"')
+    assert '"\u0063omplete"' in text
+    target.write_text(text)
+    code, output = validate_cli(path)
+    assert code == 0, output
+    assert read_trials(path)["c1"][2] == before
+
+
 def test_hard_linked_and_symlinked_records_of_another_store_are_refused(tmp_path):
     one, other = tuned(tmp_path, results="one"), tuned(tmp_path, results="two")
     (one.path / "trials" / "c1-00003.json").unlink()
@@ -170,6 +225,22 @@ def test_hard_linked_and_symlinked_records_of_another_store_are_refused(tmp_path
     (one.path / "trials" / "c1-00003.json").unlink()
     (one.path / "trials" / "c1-00003.json").symlink_to(other.path / "trials" / "c1-00003.json")
     assert "a symbolic link" in validate_cli(one.path)[1]
+
+
+def test_a_trial_copied_from_another_tuning_or_to_another_number_is_refused(tmp_path):
+    """A JSON editor's splice: a trial file copied from another tuning store of the same search, its
+    checksum recomputed; a trial copied to another number of the same store, its checksum recomputed.
+    The record names its store's id and its number; neither is this place's."""
+    one, other = tuned(tmp_path, results="one"), tuned(tmp_path, results="two")
+    target = one.path / "trials" / "c1-00003.json"
+    shutil.copyfile(other.path / "trials" / "c1-00003.json", target)
+    reseal(target, lambda r: None)
+    code, output = validate_cli(one.path)
+    assert code == 2 and "another tuning store" in output and len(output.strip().splitlines()) == 1, output
+    shutil.copyfile(one.path / "trials" / "c1-00002.json", target)
+    reseal(target, lambda r: None)
+    code, output = validate_cli(one.path)
+    assert code == 2 and "not the trial of its file name" in output, output
 
 
 @pytest.mark.parametrize("where", ["record", "header"])

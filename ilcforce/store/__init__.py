@@ -5,6 +5,7 @@ The only package that imports h5py. Modules, one job each: :mod:`.filecheck` (er
 is, opening damaged files in bounded time), :mod:`.safeio` (the writers' lock of every store,
 interrupted commits), :mod:`.seal` (checksums over attributes, strings and numeric columns),
 :mod:`.records` (sealed JSON records: whole-or-absent writes, bounded reads, quarantine),
+:mod:`.binding` (what ties each record to its store and place, so a spliced one is refused),
 :mod:`.schema` (the run layout as data, versioned), :mod:`.journal` and :mod:`.commit` (a run's
 atomic commits), :mod:`.read` and :mod:`.access` (reading and validation), :mod:`.write` (the run
 writer) and :mod:`.prepare` (its checks of the path before the first commit), :mod:`.run` (the

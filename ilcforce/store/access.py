@@ -15,11 +15,13 @@ if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports n
     import pandas as pd
 
 from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics, metric_columns
-from ilcforce.store import schema
+from ilcforce.store import binding, schema
 from ilcforce.store.seal import ATTRS_SEAL, attrs_state
+from ilcforce.store.filecheck import check_links
 from ilcforce.store.read import (attr, cached_metrics, checked_data, control_length, frame_from_group, group_for,
-                                 is_complete, is_sealed_schema, iteration_attrs, metrics_rows, open_store, provenance_of,
-                                 py, read_log, read_memory_group, record_from_group, require_dataset, require_group, scan)
+                                 is_bound_schema, is_complete, is_sealed_schema, iteration_attrs, metrics_rows,
+                                 open_store, provenance_of, py, read_log, read_memory_group, record_from_group,
+                                 require_dataset, require_group, scan)
 from ilcforce.store.safeio import StoreError
 
 
@@ -35,34 +37,44 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
     every attribute and the type and shape of every dataset a reader uses: the header
     (:data:`~ilcforce.store.schema.ROOT_ATTRIBUTES`), the task dimension (``task_dimension``,
     absent: 2) against the data, ``/reference``, every complete iteration (attributes, log,
-    memory, units, every array (n_log, n) for the store's n) and, when current, the ``/metrics``
-    cache (one row per complete iteration). A stale metrics cache is not an error: readers recompute it.
+    memory, units, every array (n_log, n) for the store's n), the bindings of every record to the
+    store and its place (schema 2.2 on, :mod:`ilcforce.store.binding`; a 2.1 store gets the note
+    ``"records not bound ..."``) and, when current, the ``/metrics`` cache (one row per complete
+    iteration). A stale metrics cache is not an error: readers recompute it.
     """
     with open_store(path) as (handle, checked, major):
+        check_links(handle, checked)
         layout = scan(handle, checked, major)
         dimension = layout.dimension
         reference = require_group(handle, "reference", checked)
-        for name, (axes, _unit, _description) in schema.reference_datasets(dimension).items():
-            require_dataset(reference, name, schema.signal_shape(axes, layout.n_log), checked)[()]
+        signals = {name: require_dataset(reference, name, schema.signal_shape(axes, layout.n_log), checked)[()]
+                   for name, (axes, _unit, _description) in schema.reference_datasets(dimension).items()}
         n_control = control_length(handle, checked)
-        if n_control is not None:
-            handle[schema.CONTROL_TIME][()]
+        control_time = handle[schema.CONTROL_TIME][()] if n_control is not None else None
         columns = cached_metrics(handle, checked, dimension)
         fresh_rows: dict[int, dict] = {}  # metrics of each complete iteration, from the log read once here
         statuses: dict[int, str] = {}
+        shapes: dict[int, dict[str, tuple[int, ...]]] = {}  # per iteration, its datasets' shapes (the bindings)
+        found: dict[int, dict[str, Any]] = {}  # per iteration, its checked attributes
         for j in layout.complete:
             group = handle[layout.groups[j]]
-            statuses[j] = iteration_attrs(group, j, checked)["status"]
+            found[j] = iteration_attrs(group, j, checked)
+            statuses[j] = found[j]["status"]
             log = read_log(group, layout.n_log, checked, major, dimension)
             if columns is not None:
                 fresh_rows[j] = iteration_metrics(record_from_group(group, j, layout.n_log, checked, major, log=log,
                                                                     dimension=dimension))
+            shapes[j] = {f"log/{name}": values.shape for name, values in log.items()}
             for name, dataset in read_memory_group(group, checked, n_control).items():
                 checked_data(group, f"memory/{name}", dataset, checked, major)
+                shapes[j][f"memory/{name}"] = dataset.shape
         _check_units(handle, checked)
         _check_consistency(handle, statuses, checked)
         _check_method(handle, checked)
         unsealed = _check_seals(handle, checked)
+        bound = _check_bindings(handle, layout, checked, binding.reference_arrays(signals, control_time), shapes,
+                                found)
+        version = py(handle.attrs["schema_version"])
         if columns is not None:  # a current cache must agree with the logs it was computed from
             for k, j in enumerate(columns["iteration"]):
                 j = int(j)
@@ -82,7 +94,63 @@ def validate(path: str | os.PathLike[str]) -> list[str]:
     if unsealed:
         return [f"metadata unverified: {unsealed} object(s) without an attribute checksum (schema 2.0, written "
                 "before attributes were sealed)"]
+    if not bound:
+        return [f"records not bound to the store (schema {version}, written before "
+                "records were bound: an iteration copied from another store is not detected)"]
     return []
+
+
+def _check_bindings(handle: h5py.File, layout, path: Path, reference: list[tuple[str, np.ndarray]],
+                    shapes: dict[int, dict[str, tuple[int, ...]]], found: dict[int, dict[str, Any]]) -> bool:
+    """Every record of a store of schema 2.2 on is bound to the store and its place
+    (:mod:`ilcforce.store.binding`): ``/reference`` and each complete iteration carry the binding their
+    content, place and the store's key give, and the iterations are 0 .. n_iterations_stored - 1.
+    ``shapes``: per complete iteration, the shape of each dataset validate read from it (``log/<name>``,
+    ``memory/<name>``); ``found``: its checked attributes (:func:`iteration_attrs`). Returns whether the
+    store is bound (False: an older store, which must carry no binding at all)."""
+    version = str(py(handle.attrs["schema_version"]))
+    groups = [handle["reference"], *(handle[layout.groups[j]] for j in layout.complete)]
+    if not is_bound_schema(version):
+        carried = [g.name for g in groups if binding.BINDING in g.attrs] + (
+            ["/"] if binding.STORE_ID in handle.attrs or binding.STORED in handle.attrs else [])
+        if carried:
+            raise StoreError(f"{path}: {carried[0]} carries a binding or store identity, which its schema {version} "
+                             "does not have: altered after it was written")
+        return False
+    for name in (binding.STORE_ID, binding.STORED):
+        if name not in handle.attrs:
+            raise StoreError(f"{path}: the root lacks attribute {name!r}, which schema {version} requires")
+    store_id, stored = py(handle.attrs[binding.STORE_ID]), py(handle.attrs[binding.STORED])
+    if layout.complete != tuple(range(int(stored))):
+        shown = f"{layout.complete[0]}..{layout.complete[-1]}" if layout.complete else "none"
+        raise StoreError(f"{path}: it holds iterations {shown} ({len(layout.complete)}) but says it stored "
+                         f"0..{int(stored) - 1}: an iteration was removed or added after it was written")
+    key = binding.run_key(store_id, py(handle.attrs["seed"]), py(handle.attrs["experiment"]),
+                          py(handle.attrs["method"]), py(handle.attrs["config_json"]))
+    if py(groups[0].attrs.get(binding.BINDING)) != binding.data_binding(key, "/reference", reference):
+        raise StoreError(f"{path}: /reference is not bound to this store's identity, seed and configuration (its "
+                         f"{binding.BINDING} does not match: the reference or control grid copied from another "
+                         "store, or they or the root's store_id, seed or configuration changed after writing)")
+    for j in layout.complete:
+        group = handle[layout.groups[j]]
+        names = [str(n) for n in py(group.attrs["crc32_datasets"])]
+        held = {*shapes[j], *(f"log/{n}" for n in group["log"]),
+                *(f"{n}/" for n in group if n not in ("log", "memory"))}
+        if held != set(names):
+            extra = sorted(held ^ set(names))
+            raise StoreError(f"{path}: {group.name} holds other objects than its checksums list "
+                             f"({', '.join(extra[:3])}): altered after it was written")
+        a = found[j]
+        expected = binding.iteration_binding(
+            key, j, a["status"], a["diverged_time"], a["diverged_reason"], a["fallback_count"],
+            zip(names, (shapes[j][n] for n in names), np.asarray(group.attrs["crc32"]).tolist()))
+        stored_binding = py(group.attrs.get(binding.BINDING))
+        if stored_binding != expected:
+            why = (f"it has no {binding.BINDING}: copied from a store of an older schema, or altered"
+                   if stored_binding is None else f"its {binding.BINDING} does not match: copied from another store "
+                   "or iteration, or changed after it was written")
+            raise StoreError(f"{path}: {group.name} is not bound to this store and place ({why})")
+    return True
 
 
 def _check_method(handle: h5py.File, path: Path) -> None:

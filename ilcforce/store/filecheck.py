@@ -6,6 +6,8 @@
 * Bounded time on damaged files: before h5py opens a file, :func:`probe` walks its structure in a
   forked child with a time limit (HDF5 can loop forever on a damaged block, and then ignores
   Ctrl-C). Data damage is caught by the checksums on read.
+* A file's names are its own data: :func:`check_links` refuses a soft or external link (the writers
+  make none; a reader would follow one elsewhere in the file or into another file).
 
 Both the run store's locking layer (:mod:`.safeio`) and the study store's reader
 (:mod:`.study_read`) build on this module; it imports neither.
@@ -204,3 +206,28 @@ def file_identity(path: Path) -> Path:
 def writers_lock(path: Path) -> Path:
     """The lock file every writer of ``path``, under any of its names, takes: beside its real path."""
     return file_identity(Path(path)).with_name(file_identity(Path(path)).name + ".lock")
+
+
+def check_links(handle, path: Path) -> None:
+    """StoreError (one line) if any name in the file is a soft or external link: the writers make none, and
+    a reader would follow one to another object or into another file (checked before anything is read)."""
+    import h5py
+
+    found: list[bytes] = []
+
+    def visit(name: bytes, info) -> int | None:
+        if info.type != h5py.h5l.TYPE_HARD:
+            found.append(name)
+            return 1  # stop the walk at the first
+        return None
+
+    handle.id.links.visit(visit, info=True)  # low level: no Python object per link (a 150-iteration store has 4,000)
+    if found:
+        name = found[0].decode("utf-8", "replace")
+        link = handle.get(name, getlink=True)
+        target = (f"{link.filename}:{link.path}" if isinstance(link, h5py.ExternalLink)
+                  else str(getattr(link, "path", "")))
+        kind = ("an external link" if isinstance(link, h5py.ExternalLink) else
+                "a soft link" if isinstance(link, h5py.SoftLink) else "a user-defined link")
+        raise StoreError(f"{path}: /{name[:60]} is {kind} (to {target[:80]}), not data of this store; a store "
+                         "holds its own data only")

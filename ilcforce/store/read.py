@@ -1,6 +1,7 @@
 """Reading and validating stores. Every reader opens through :func:`open_store`.
 
-:func:`validate` reads everything (so every Fletcher-32 checksum is verified) and checks the
+:func:`validate` reads everything (so every checksum is verified: HDF5's Fletcher-32, the iterations'
+CRC-32s, the attribute seals and the bindings of :mod:`.binding`) and checks the
 type and shape of everything a reader uses. The other readers check only what they read (cheap:
 a report reads hundreds of stores), but a wrong type or shape met while reading is still a
 one-line :class:`StoreError`, never a traceback.
@@ -197,6 +198,14 @@ def is_sealed_schema(version: str) -> bool:
         return True
 
 
+def is_bound_schema(version: str) -> bool:
+    """Whether a store of schema ``version`` binds its records to itself (:mod:`.binding`)."""
+    try:
+        return schema.parse_version(version) >= schema.BOUND_FROM
+    except ValueError:
+        return True
+
+
 def require_group(parent: h5py.Group, name: str, path: Path) -> h5py.Group:
     item = parent.get(name)
     if not isinstance(item, h5py.Group):
@@ -257,6 +266,9 @@ def scan(handle: h5py.File, path: Path, major: int) -> Layout:
     iterations = require_group(handle, "iterations", path)
     complete: dict[int, str] = {}
     for name in iterations:
+        if not isinstance(iterations.get(name, getlink=True), h5py.HardLink):
+            raise StoreError(f"{path}: /iterations/{name[:40]} is a link, not an iteration of this store (a store "
+                             "holds its own data only)")
         group = iterations.get(name)
         if not isinstance(group, h5py.Group) or not is_complete(group):
             continue  # an unfinished group (older stores): ignored

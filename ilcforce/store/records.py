@@ -1,9 +1,11 @@
 """Sealed JSON records, the one implementation every store uses for what is not HDF5 (a study's
 journal records, a tuning's header and trials) and for any small file written whole:
 :func:`atomic_write` (whole or absent; never over a finished record with ``replace=False``),
-:func:`seal` and :func:`check_fields` (sha256 over the canonical JSON: any changed byte; no
-signature, hence each store's checks of what a record claims), :func:`read_json` (bounded time on
-hostile files: size, links, FIFOs, deep nesting) and :func:`quarantine` (a refused record kept aside).
+:func:`seal` and :func:`check_fields` (sha256 over the canonical JSON of the parsed record: any change
+of what a JSON reader reads; whitespace, key order and escapes are not part of it; no signature, hence
+each store's checks of what a record claims), :func:`read_json` (bounded time on hostile files: size,
+links, FIFOs, deep nesting; a key named twice in one object refused) and :func:`quarantine` (a refused
+record kept aside).
 """
 
 from __future__ import annotations
@@ -52,6 +54,20 @@ def check_fields(record, fields: frozenset, what: str) -> None:
         raise RecordError(f"fields differ from {what}'s ({', '.join(map(str, sorted(set(record) ^ fields)))[:120]})")
 
 
+class DuplicateKey(ValueError):
+    """A JSON object names a key twice (the key)."""
+
+
+def _object(pairs: list) -> dict:
+    """A JSON object, refused when it names a key twice: Python keeps the last value, other readers the
+    first, and the seal (over the canonical form, one value a key) would not tell them apart."""
+    found = dict(pairs)
+    if len(found) != len(pairs):
+        seen = set()
+        raise DuplicateKey(next(k for k, _ in pairs if k in seen or seen.add(k)))
+    return found
+
+
 def read_json(item: Path, limit: int):
     """The JSON value in the regular file ``item`` (at most ``limit`` bytes); RecordError saying why not."""
     try:
@@ -75,7 +91,10 @@ def read_json(item: Path, limit: int):
     except OSError as error:
         raise RecordError(f"cannot be read ({error.strerror or error})") from None
     try:
-        return json.loads(data.decode("utf-8"))
+        return json.loads(data.decode("utf-8"), object_pairs_hook=_object)
+    except DuplicateKey as error:
+        raise RecordError(f"the key {str(error)[:40]!r} appears twice in one object (readers disagree on which "
+                          "counts)") from None
     except UnicodeDecodeError:
         raise RecordError("not UTF-8 text") from None
     except RecursionError:

@@ -3,9 +3,10 @@
 Readers, :func:`ilcforce.store.validate` and the writer all use these tables; the module docstring
 of :mod:`ilcforce.store` explains the layout in prose.
 
-Schema ``ilcforce.store`` version ``2.0``. A reader refuses a file whose major version is newer
-than its own. Version 1.x files (written before the rebuild: no checksums, HDF5 1.6 metadata
-without checksums) are still read; see :mod:`ilcforce.store.safeio` for how they are opened.
+Schema ``ilcforce.store`` version ``2.2`` (2.1: no bindings; 2.0: no attribute seals either). A
+reader refuses a file whose major version is newer than its own. Version 1.x files (written before
+the rebuild: no checksums, HDF5 1.6 metadata without checksums) are still read; see
+:mod:`ilcforce.store.safeio` for how they are opened.
 """
 
 from __future__ import annotations
@@ -24,12 +25,17 @@ STUDY_SCHEMA_NAME = "ilcforce.study"
 #: A study's name, which names its store and its report folder: a plain file name (checked when a
 #: study file is read, and again when a store is read, so that a stored name never makes a path).
 STUDY_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
-SCHEMA_VERSION = "2.1"
+SCHEMA_VERSION = "2.2"
 #: From this schema version on, every object with attributes carries ``attrs_crc32``
 #: (:mod:`ilcforce.store.seal`). A 2.0 store has none: it is read, and ``validate`` says that its
 #: metadata is unverified (accepted, not refused: its data is still checksummed, and refusing it
 #: would lose every store written before the seals; a rerun with --overwrite seals it).
 SEALED_FROM = (2, 1)
+#: From this schema version on, a store has a random ``store_id`` and binds every record to it and to
+#: its place (:mod:`ilcforce.store.binding`). A 2.1 store has none: it is read, and ``validate`` says
+#: that its records are not bound (a record copied from another store is not detected in it); a
+#: 2.1 store carrying a binding, or a 2.2 store missing one, is refused.
+BOUND_FROM = (2, 2)
 #: A method name as stored (it names the store file ``<method>.h5``): never a path.
 METHOD_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 
@@ -76,6 +82,9 @@ ROOT_ATTRIBUTES: dict[str, AttrSpec] = {
     "config_json": AttrSpec("str", "resolved configuration, JSON"),
     "run_state": AttrSpec("str", "'running' | 'partial' | 'complete' | 'diverged'"),
     "n_iterations_requested": AttrSpec("int", "iterations asked for by the latest invocation"),
+    "store_id": AttrSpec("str", "random identity made with the store (schema 2.2 on): the key of its "
+                         "records' bindings", required=False),
+    "n_iterations_stored": AttrSpec("int", "iterations the store holds, 0 .. n - 1 (schema 2.2 on)", required=False),
 }
 ROOT_ATTRS = tuple(ROOT_ATTRIBUTES)
 
@@ -107,7 +116,8 @@ def signal_shape(axes: tuple[str, ...] | None, n: int) -> tuple[int, ...]:
 
 
 #: Datasets: group -> name -> (axes, unit, description); shapes from :func:`signal_shape` on the
-#: log grid (``n_log = len(/reference/time)``). All float64, Fletcher-32 checksummed. These are a
+#: log grid (``n_log = len(/reference/time)``). All float64; the reference Fletcher-32 checksummed, an
+#: iteration's log by the CRC-32s in its group (:mod:`ilcforce.store.template`). These are a
 #: 2-axis store's; :func:`reference_datasets` and :func:`log_datasets` give a store's of n axes.
 REFERENCE_DATASETS = REFERENCE_SIGNALS
 LOG_DATASETS = LOG_SIGNALS
@@ -136,7 +146,9 @@ CONTROL_TIME = "control_time"
 #: Every dataset carries these attributes.
 DATASET_ATTRS = ("units", "description")
 
-#: Dataset creation options: one chunk per dataset, Fletcher-32 on every dataset.
+#: Dataset creation options of the datasets written once or appended to (the reference, the control grid,
+#: /metrics): one chunk per dataset, Fletcher-32. An iteration's datasets are not filtered: their
+#: checksums are CRC-32s in the iteration group (:mod:`ilcforce.store.template`).
 #: Compression: measured off (see the README's Store section: gzip cut the paper's store by
 #: a few percent for several times the write time, because the logged noise is incompressible).
 DATASET_OPTIONS: dict[str, Any] = {"fletcher32": True}

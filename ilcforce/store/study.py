@@ -1,5 +1,5 @@
 """The study store's writer, ``results/studies/<name>.h5`` (readers: :mod:`.study_read`; layout,
-schema ``ilcforce.study`` 1.2, and what protects each byte: docs/store-format.md).
+schema ``ilcforce.study`` 1.3, and what protects each byte: docs/store-format.md).
 
 Only the driver writes it, never an HDF5 file in place: a finished (or failed) cell is committed at
 once as one sealed JSON record in the journal ``<name>.h5.journal/`` (:mod:`.records`, checked by
@@ -23,14 +23,15 @@ import h5py
 import numpy as np
 
 from ilcforce import stops
-from ilcforce.store import commit, records, study_journal
+from ilcforce.store import binding, commit, records, study_journal
 from ilcforce.store.seal import DATA_SEAL, STRINGS_SEAL, data_digest, seal_attrs, strings_checksum
 from ilcforce.store.filecheck import StoreError, writers_lock
 from ilcforce.store.safeio import (acquire_writer_lock, check_writer_lock, dead_copies_in, dead_writers_copies, is_hdf5_file,
                                   one_line)
 from ilcforce.store.study_read import (  # noqa: F401 - re-exported: the study layer reads through here
     CELL_COLUMNS, DONE, FAILED, KEY_COLUMNS, SCHEMA_NAME, SCHEMA_VERSION, StudyStoreError, _CHUNK, _STRING,
-    _keys, _table, fold, is_study_store, journal_dir, read_header, read_tables, scan_journal, study_facts,
+    _keys, _table, fold, is_study_store, journal_dir, read_header, read_tables, scan_journal,
+    study_facts, study_key,
 )
 
 
@@ -78,17 +79,23 @@ def _append(group: h5py.Group, rows: list[dict]) -> None:
 
 
 def _seal(handle: h5py.File) -> None:
-    """Seal the attributes of the root, every group and every column, and the strings of every string
-    column not sealed yet (a store made before seals), as the last step of every write."""
+    """Seal the attributes of the root, every group and every column, the values of every numeric column
+    and the strings of every string column not sealed yet (a store made before seals), and bind every
+    column to the study (:mod:`.binding`), as the last step of every write."""
     handle.attrs["schema_version"] = SCHEMA_VERSION
+    key = study_key(handle)
     for group_name in ("settings", "metrics", "cells"):
         group = handle[group_name]
         for name in group:
             dataset = group[name]
+            path = f"/{group_name}/{name}"
             if h5py.check_string_dtype(dataset.dtype) is None:
-                dataset.attrs[DATA_SEAL] = data_digest(f"/{group_name}/{name}", dataset[()])
-            elif STRINGS_SEAL not in dataset.attrs:
-                dataset.attrs[STRINGS_SEAL] = np.uint32(strings_checksum(dataset.asstr()[()]))
+                dataset.attrs[DATA_SEAL] = seal = data_digest(path, dataset[()])
+            else:
+                if STRINGS_SEAL not in dataset.attrs:
+                    dataset.attrs[STRINGS_SEAL] = np.uint32(strings_checksum(dataset.asstr()[()]))
+                seal = int(dataset.attrs[STRINGS_SEAL])
+            dataset.attrs[binding.BINDING] = binding.column_binding(key, path, seal)
             seal_attrs(dataset)
         seal_attrs(group)
     seal_attrs(handle)

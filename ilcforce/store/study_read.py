@@ -13,13 +13,13 @@ import h5py
 import numpy as np
 import pandas as pd
 
-from ilcforce.store import study_journal
+from ilcforce.store import binding, study_journal
 from ilcforce.store.seal import ATTRS_SEAL, DATA_SEAL, STRINGS_SEAL, attrs_state, data_digest, strings_checksum
-from ilcforce.store.filecheck import StoreError, check_regular_file, is_hdf5_file, probe, writers_lock
+from ilcforce.store.filecheck import StoreError, check_links, check_regular_file, is_hdf5_file, probe, writers_lock
 from ilcforce.store.schema import STUDY_NAME, STUDY_SCHEMA_NAME
 
 SCHEMA_NAME = STUDY_SCHEMA_NAME
-SCHEMA_VERSION = "1.2"
+SCHEMA_VERSION = "1.3"
 #: From this version on, the root, every group and every column carry attribute seals and every
 #: string column a checksum of its values (:mod:`.seal`). A 1.0 store has none: it is read and
 #: ``validate`` says its strings are unverified (accepted: its numbers are Fletcher-32 checked, and
@@ -27,6 +27,11 @@ SCHEMA_VERSION = "1.2"
 SEALED_FROM = (1, 1)
 #: The first study schema whose numeric columns carry their digest (seal.DATA_SEAL).
 DIGESTS_FROM = (1, 2)
+#: The first study schema whose columns are bound to their study (:mod:`.binding`): each numeric column's
+#: digest and each string column's CRC-32 start from the study's key (its study_id, fingerprint and
+#: definition) and the column's path. A 1.2 store is read, and ``validate`` says its columns are not bound;
+#: the driver's next consolidation binds it.
+BOUND_FROM = (1, 3)
 CELL_COLUMNS = ("setting", "seed", "method", "state", "attempts", "message", "elapsed", "worker")
 KEY_COLUMNS = ("setting", "seed", "method")
 DONE, FAILED = "done", "failed"
@@ -76,32 +81,63 @@ def _verify_attrs(obj, sealed: bool) -> None:
                               f"({ATTRS_SEAL}) or have none: damaged")
 
 
-def _column(dataset: h5py.Dataset, sealed: bool, path: str) -> np.ndarray:
+def study_key(handle: h5py.File) -> bytes | None:
+    """The binding key of the study store open as ``handle`` (:func:`.binding.study_key`); None for a
+    store of a schema before :data:`BOUND_FROM`."""
+    if not is_sealed(handle, BOUND_FROM):
+        return None
+    attrs = handle.attrs
+    study_id = attrs.get("study_id")
+    if not isinstance(study_id, str) or not study_id:
+        raise StudyStoreError(f"{handle.filename}: no study_id, which schema {attrs.get('schema_version')} requires")
+    return binding.study_key(study_id, str(attrs.get("fingerprint", "")), str(attrs.get("definition_json", "")))
+
+
+def _column(dataset: h5py.Dataset, sealed: bool, path: str, key: bytes | None = None) -> np.ndarray:
     _verify_attrs(dataset, sealed)
     if h5py.check_string_dtype(dataset.dtype) is not None:
         values = np.asarray(dataset.asstr()[()], dtype=object)
         stored = dataset.attrs.get(STRINGS_SEAL)
         if stored is None and not sealed:
+            _check_binding(dataset, path, key, None)
             return values
         if stored is None or int(stored) != strings_checksum(values):
             raise StudyStoreError(f"{dataset.file.filename}: the strings of {dataset.name} do not match their "
                                   f"checksum ({STRINGS_SEAL}): damaged")
+        _check_binding(dataset, path, key, int(stored))
         return values
     values = dataset[()]
     if DATA_SEAL in dataset.attrs or is_sealed(dataset.file, DIGESTS_FROM):
         if str(dataset.attrs.get(DATA_SEAL)) != data_digest(path, values):
             raise StudyStoreError(f"{dataset.file.filename}: the values of {path} do not match their digest "
                                   f"({DATA_SEAL}): changed after they were written")
+    _check_binding(dataset, path, key, dataset.attrs.get(DATA_SEAL))
     return values
+
+
+def _check_binding(dataset: h5py.Dataset, path: str, key: bytes | None, seal) -> None:
+    """The column is bound to its study and path (``key``: :func:`study_key`), or, in a store of a schema
+    before :data:`BOUND_FROM` (``key`` None), carries no binding."""
+    stored = dataset.attrs.get(binding.BINDING)
+    if key is None:
+        if stored is not None:
+            raise StudyStoreError(f"{dataset.file.filename}: {path} carries a binding, which its schema "
+                                  f"{dataset.file.attrs.get('schema_version')} does not have: altered after it was "
+                                  "written, or continued by an older ilcforce")
+        return
+    if seal is None or stored != binding.column_binding(key, path, seal):
+        raise StudyStoreError(f"{dataset.file.filename}: {path} is not bound to this study (its {binding.BINDING} does "
+                              "not match: copied from another study or column, or changed after it was written)")
 
 
 def _table(group: h5py.Group) -> pd.DataFrame:
     sealed = is_sealed(group.file)
     _verify_attrs(group, sealed)
+    key = study_key(group.file)
     n = int(group.attrs.get("n_rows", 0))
     data = {}
     for name in json.loads(group.attrs.get("columns_json", "[]")):
-        values = _column(group[name], sealed, f"{group.name}/{name}")
+        values = _column(group[name], sealed, f"{group.name}/{name}", key)
         if values.shape != (n,):
             raise StudyStoreError(f"{group.file.filename}: /{group.name.strip('/')}/{name} has {values.shape[0]} "
                                   f"rows, expected {n}")
@@ -208,6 +244,10 @@ def read_header(path: Path, *, check: bool = True) -> dict:
             if version.split(".")[0] != SCHEMA_VERSION.split(".")[0]:
                 raise StudyStoreError(f"{path}: study store schema {version!r}; this ilcforce reads {SCHEMA_VERSION}")
             _verify_attrs(handle, is_sealed(handle))
+            try:
+                check_links(handle, Path(path))  # before any column is read: never another file's data
+            except StoreError as exc:
+                raise StudyStoreError(str(exc)) from None
             attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in handle.attrs.items()}
             name = attrs.get("name")
             if not isinstance(name, str) or not STUDY_NAME.fullmatch(name) or name in (".", ".."):
@@ -266,8 +306,12 @@ def check_study_store(path: Path) -> dict:
     if found.quarantined:
         ignored.append(f"{study_journal.QUARANTINE}: {found.quarantined} refused record(s) moved aside earlier")
     with h5py.File(path, "r") as handle:
-        sealed = is_sealed(handle)
+        sealed, bound = is_sealed(handle), is_sealed(handle, BOUND_FROM)
+        version = str(handle.attrs.get("schema_version", ""))
     notes = [] if sealed else ["strings and attributes unverified (schema 1.0, written before they were sealed)"]
+    if not bound:
+        notes.append(f"columns not bound to the study (schema {version}, written before they were: a column copied "
+                     "from another study is not detected; the next study run binds them)")
     return {"name": str(header.get("name", "")), "cells": len(states), "done": states.count(DONE),
             "failed": states.count(FAILED), "ignored": ignored, "notes": notes}
 

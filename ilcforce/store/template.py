@@ -44,6 +44,7 @@ class IterationTemplate:
         self.dimension = dimension
         self.signals = schema.log_datasets(dimension)
         self.names = [f"log/{s}" for s in self.signals] + [f"memory/{m[0]}" for m in memory]
+        self.sums: list[int] = []
         self._file = h5py.File(f"ilcforce-template-{id(self)}", "w", driver="core", backing_store=False,
                                libver=schema.LIBVER)
         group = self._file.create_group(_NAME.decode())
@@ -90,6 +91,7 @@ class IterationTemplate:
                 k += 1
         group = handle[path]
         group.attrs["crc32"] = sums
+        self.sums = sums.tolist()  # the last stamp's, in the order of :attr:`names`
         return group
 
     def close(self) -> None:

@@ -19,7 +19,7 @@ import ilcforce
 from ilcforce import stops
 from ilcforce.metrics import iteration_metrics
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord, signals_dimension
-from ilcforce.store import commit, metrics_cache, schema
+from ilcforce.store import binding, commit, metrics_cache, schema
 from ilcforce.store.provenance import SameRunCheck, git_state, text, utc_now
 from ilcforce.store.prepare import (check_replaceable, check_resumable, clean_leftovers, existing_refusal, make_parent,
                                     refuse_foreign_target)
@@ -111,6 +111,8 @@ class StoreWriter:
         self._git = ("", False)
         self._template: IterationTemplate | None = None
         self._rows: list[dict[str, object]] = []
+        self._store_id: str | None = None  # the store's identity (None: a store of schema 2.1 or older, resumed)
+        self._key = b""
 
     # -- public ---------------------------------------------------------------------------
 
@@ -218,11 +220,15 @@ class StoreWriter:
                 del handle[name]
             group = template.stamp(handle, f"iterations/{record.iteration:04d}", log, memory)
             attrs = group.attrs
+            stored = (str(record.status), float(record.diverged_time), text(one_line(record.diverged_reason)),
+                      int(record.fallback_count))
             attrs["iteration"] = int(record.iteration)
-            attrs["status"] = str(record.status)
-            attrs["diverged_time"] = float(record.diverged_time)
-            attrs["diverged_reason"] = text(one_line(record.diverged_reason))
-            attrs["fallback_count"] = int(record.fallback_count)
+            attrs["status"], attrs["diverged_time"], attrs["diverged_reason"], attrs["fallback_count"] = stored
+            if self._store_id is not None:  # bound to this store and this place (ilcforce.store.binding)
+                shapes = [log[s].shape for s in template.signals] + [memory[m[0]].shape for m in template.memory]
+                attrs[binding.BINDING] = binding.iteration_binding(
+                    self._key, record.iteration, *stored, zip(template.names, shapes, template.sums))
+                handle.attrs[binding.STORED] = int(record.iteration) + 1
             if first_of_session:
                 self._write_invocation_attrs(handle)
             if finish is None:
@@ -304,6 +310,12 @@ class StoreWriter:
         done = iterations(self._path)
         self._file_is_ours = True
         self._stored_run_state = str(provenance["run_state"])
+        if provenance.get(binding.STORE_ID) is not None:  # a store of schema 2.1 or older stays unbound
+            if (binding.config_digest(str(provenance["config_json"]), self._method)
+                    != binding.config_digest(self._config_json, self._method)):
+                raise StoreError(f"{self._path}: cannot resume: the configuration differs from the stored one in "
+                                 "what the results depend on; use --overwrite to start again")
+            self._bind(str(provenance[binding.STORE_ID]))
         if done:
             from ilcforce.store.access import read_iteration, read_metrics_rows
             self._last = done[-1]
@@ -336,7 +348,12 @@ class StoreWriter:
             memory[key] = array
         return log, memory, iteration_metrics(record)
 
+    def _bind(self, store_id: str) -> None:
+        self._store_id = store_id
+        self._key = binding.run_key(store_id, self._seed, self._experiment, self._method, self._config_json)
+
     def _initialise(self, handle: h5py.File) -> None:
+        self._bind(binding.new_store_id())
         attrs = handle.attrs
         attrs["schema"] = schema.SCHEMA_NAME
         attrs["schema_version"] = schema.SCHEMA_VERSION
@@ -347,6 +364,8 @@ class StoreWriter:
         attrs["method"] = self._method
         attrs["seed"] = self._seed
         attrs["run_state"] = "running"
+        attrs[binding.STORE_ID] = self._store_id
+        attrs[binding.STORED] = 0
         self._write_invocation_attrs(handle)
         if self._dimension != schema.DEFAULT_TASK_DIMENSION:  # a 2-axis store stays as it was: no attribute
             attrs[schema.TASK_DIMENSION_ATTR] = self._dimension
@@ -356,6 +375,9 @@ class StoreWriter:
         if self._control_time is not None:
             _dataset(handle, schema.CONTROL_TIME, self._control_time, "s",
                      "control grid t_k = k Ts: the time axis of every learned memory")
+        reference.attrs[binding.BINDING] = binding.data_binding(self._key, "/reference", binding.reference_arrays(
+            self._reference, self._control_time))
+        seal_attrs(reference)
         handle.create_group("iterations")
         metrics_cache.create(handle, self._dimension)
 

@@ -42,8 +42,9 @@ def trial_check(definition: dict) -> Callable[[dict], None]:
     """The search's own check of a stored trial (:func:`ilcforce.store.tuning.check_record` runs it),
     from the search's stored ``definition`` (:meth:`Tuning.definition`) alone: its params are a point of
     the search space, its gains are computed from them (trial 0: the experiment's own), each scoring
-    seed's error and chattering are those of its stored norms and the record's cap, and its feasibility
-    is what its check runs say."""
+    seed's error and chattering are those of its stored norms and the record's cap (a seed whose cell
+    failed, with a message, ran nothing and has none), the trial is complete exactly when every seed
+    scored, and its feasibility is what its check runs say."""
     from types import SimpleNamespace
 
     gains = _searched(definition)
@@ -74,15 +75,23 @@ def trial_check(definition: dict) -> Callable[[dict], None]:
         held = record_axes(record)
         if held not in (None, axes) or cap is not None and len(cap) != len(axes):
             raise RecordError(f"its seeds or its cap are not of the task axes {', '.join(axes)} of its experiment")
-        for entry in record["seeds"]:
-            if "message" in entry:
-                continue
+        seeds = record["seeds"]
+        for entry in seeds:  # a seed whose cell failed (its "message") ran nothing: no norms, no values
+            if "message" in entry and not (isinstance(entry["message"], str) and entry["message"]
+                                           and entry["iterations_run"] == 0):
+                raise RecordError(f"seed {entry['seed']}: a failed cell (its message) that ran iterations, or an "
+                                  "empty message")
             means = scored_means(stored_rows(entry, axes), scoring)
             values = ((None, None) if means is None or cap is None else
                       (error_value(means["e_p"], means["e_f"], definition["objective"]),
                        chattering_over([means[f"h_{a}"] for a in axes], cap)))
             if values != (entry["value"], entry["chattering"]):
                 raise RecordError(f"seed {entry['seed']}: its values are not the scores of its norms")
+        scored = bool(seeds) and all("message" not in e and e["diverged_iteration"] is None and
+                                     e["value"] is not None and e["chattering"] is not None for e in seeds)
+        if scored != (record["state"] == COMPLETE):
+            raise RecordError(f"its state is {str(record['state'])[:20]!r} but its seeds "
+                              + ("all scored" if scored else "did not all score (a failure, a divergence or no score)"))
         checks = record["checks"]
         feasible = (record["state"] == COMPLETE and len(checks) == len(definition["check_seeds"]) and
                     all(check_passed(c, definition["check_iterations"]) for c in checks))
