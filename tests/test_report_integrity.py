@@ -298,3 +298,14 @@ def test_a_stopped_report_leaves_the_previous_one_whole_and_a_new_folder_absent(
     assert (old / "e5" / "report.md").is_file() and not (old / "e4").exists(), "replaced whole, not merged"
     assert _cli("report", "--results", str(small_results), "--out", str(fresh), "-j", "1", "-q").returncode == 0
     assert _staging(old) == [] and _staging(fresh) == [] and is_report(fresh)
+
+
+def test_a_link_to_a_file_the_report_does_not_hold_keeps_its_words_only(tmp_path: Path):
+    """A dead link inside the report (a description naming ``notes.md`` the report never wrote) is
+    words on the page, where a file the report holds stays a link."""
+    (tmp_path / "index.md").write_text("# ilcforce reports\n\n[gone](notes.md) [table](claims.csv)\n",
+                                       encoding="utf-8")
+    (tmp_path / "claims.csv").write_text("a\n1\n", encoding="utf-8")
+    text = html.write_html(tmp_path).path.read_text(encoding="utf-8")
+    assert '<a href="claims.csv">table</a>' in text
+    assert "gone" in text and 'href="notes.md"' not in text

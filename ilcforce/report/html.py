@@ -260,7 +260,7 @@ class _Converter:
         """A link's rewritten target: a page of this report becomes its section of the page, a file of
         the report its relative path; a URL of a scheme the reader follows (``https:``, ``mailto:``)
         and a fragment stay as written; None (the link is dropped, its words kept) for a path that
-        does not name a file of the report (:func:`local_target`)."""
+        does not name a file of the report (:func:`local_target`), or names one not written."""
         if href.startswith("#"):
             return href
         target = local_target(self.out_dir, folder, href)
@@ -268,7 +268,7 @@ class _Converter:
             return href if href.lower().startswith(_FOLLOWED_SCHEMES) else None
         if target in self.pages:
             return "#" + _anchor(target)
-        return _url(target)
+        return _url(target) if (self.out_dir / target).exists() else None  # a dead link: its words only
 
     def render(self, page: str, text: str) -> str:
         folder = posixpath.dirname(page)
