@@ -18,6 +18,7 @@ import pytest
 
 from ilcforce.report import html
 from ilcforce.report.folder import is_report
+from ilcforce.report.table_write import inert_markdown
 from ilcforce.store.schema import REPORT_MARKER, RESERVED_NAMES
 
 #: A run of a fraction of a second (0.2 s of the reference, one iteration).
@@ -88,6 +89,7 @@ def hostile(tmp_path_factory: pytest.TempPathFactory) -> dict:
     Image = pytest.importorskip("PIL.Image")
     Image.new("RGB", (4, 4)).save(outside / "outside.png")
     description = (" ".join(forms.values()) + f" ![remote](https://example.invalid/t.png)"
+                   ' <img src="https://example.invalid/raw.png">'
                    f" ![local outside]({outside}/outside.png) ![net](//example.invalid/n.png)"
                    f"\n\n[ref]: {outside}/reference.md")
     experiment = root / "hostile.toml"
@@ -109,7 +111,7 @@ def test_no_link_of_a_description_brings_a_file_from_outside_into_the_report(hos
     page = (out / "index.html").read_text(encoding="utf-8")
     report_md = (out / "hostile" / "report.md").read_text(encoding="utf-8")
     for form in hostile["forms"].values():  # the description, every form in it, reached the Markdown
-        assert form in report_md, form
+        assert inert_markdown(form) in report_md, form
     everything = b"".join(_files(out).values()).decode("utf-8", "replace")
     leaked = [word for word in hostile["words"] if f"{word} was read" in everything]
     assert leaked == [], f"read into the report: {leaked}"
@@ -128,9 +130,13 @@ def test_no_link_of_a_description_brings_a_file_from_outside_into_the_report(hos
         "a file from outside has its own entry in the navigation"
 
 
-def test_a_remote_or_outside_image_is_said_in_words_and_the_report_succeeds(hostile):
+def test_a_remote_or_outside_image_is_never_referenced_and_the_report_succeeds(hostile):
     """Issue 46 item 2: ``![t](https://host/t.png)`` became a remote ``<img>`` on the offline page, and
-    the report then exited 2 after index.html was written."""
+    the report then exited 2 after index.html was written. Neither the page nor any Markdown page of
+    the report (read by a viewer that shows images and raw HTML) references an image or a resource
+    outside the report."""
+    from markdown_it import MarkdownIt
+
     done, out = hostile["done"], hostile["out"]
     assert done.returncode == 0 and "written to" in done.stdout, done.stderr
     page = (out / "index.html").read_text(encoding="utf-8")
@@ -138,10 +144,43 @@ def test_a_remote_or_outside_image_is_said_in_words_and_the_report_succeeds(host
     assert sources, "no figure on the page: the check would pass vacuously"
     assert all((out / s).is_file() and (out / s).resolve().is_relative_to(out.resolve()) for s in sources), sources
     assert "example.invalid" not in " ".join(re.findall(r'(?:src|href)="([^"]*)"', page))
-    section = page[page.index('id="p-hostile-report"'):]
-    for alt in ("remote", "local outside", "net"):
-        assert f"[image not shown: not a file of this report: {alt}]" in section, alt
     assert not [s for s in re.findall(r'(?:src|href)="([^"]*)"', page) if "outside" in s]
+    viewer = MarkdownIt("commonmark", {"html": True})  # as a Markdown viewer reads the pages
+
+    def tokens(items):
+        for token in items:
+            yield token
+            yield from tokens(token.children or [])
+
+    pages = sorted(out.rglob("*.md"))
+    description_seen = 0
+    for path in pages:
+        text = path.read_text(encoding="utf-8")
+        description_seen += "example.invalid/t.png" in text
+        for token in tokens(viewer.parse(text)):
+            if token.type == "image":
+                src = str(token.attrGet("src"))
+                assert "://" not in src and not src.startswith(("/", "~")), (path, src)
+                assert (path.parent / src).resolve().is_relative_to(out.resolve()), (path, src)
+            assert not (token.type.startswith("html") and "<img" in token.content.lower()), (path, token.content)
+    assert description_seen >= 2, "the description is on the pages (report, index): the check would be vacuous"
+
+
+def test_the_page_says_an_image_from_outside_in_words(tmp_path: Path):
+    """The page's own check (behind the pages' escaping): an image naming a URL or a file outside the
+    report is words, never an ``<img>``, and the page is written."""
+    Image = pytest.importorskip("PIL.Image")
+    Image.new("RGB", (4, 4)).save(tmp_path / "outside.png")
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "index.md").write_text(f"# ilcforce reports\n\n![remote](https://example.invalid/t.png) "
+                                  f"![net](//example.invalid/n.png) ![abs]({tmp_path}/outside.png) "
+                                  f"![up](../outside.png)\n", encoding="utf-8")
+    page = html.write_html(out)
+    text = page.path.read_text(encoding="utf-8")
+    assert "<img" not in text and page.figures == 0
+    for alt in ("remote", "net", "abs", "up"):
+        assert f"[image not shown: not a file of this report: {alt}]" in text, alt
 
 
 @pytest.mark.parametrize("href", [
@@ -309,3 +348,22 @@ def test_a_link_to_a_file_the_report_does_not_hold_keeps_its_words_only(tmp_path
     text = html.write_html(tmp_path).path.read_text(encoding="utf-8")
     assert '<a href="claims.csv">table</a>' in text
     assert "gone" in text and 'href="notes.md"' not in text
+
+
+@pytest.mark.parametrize("text", [
+    "![t](https://example.invalid/t.png)", "\\![t](https://example.invalid/t.png)",
+    "\\\\![t](https://example.invalid/t.png)", '<img src="https://example.invalid/raw.png">',
+    "\\<img src=x>", "\\\\<img src=x>", "<https://example.invalid/auto>", "![a][r]\n\n[r]: https://example.invalid/r.png",
+    "![![nested](https://example.invalid/n.png)](x)", "plain words, a < b > c",
+])
+def test_a_users_text_shows_as_written_and_embeds_nothing(text: str):
+    """inert_markdown, attacked with backslashes that would undo its escapes: a viewer that shows
+    images and raw HTML embeds nothing, and shows the text as written."""
+    from markdown_it import MarkdownIt
+
+    viewer = MarkdownIt("commonmark", {"html": True})
+    tokens = [t for block in viewer.parse(inert_markdown(text)) for t in [block, *(block.children or [])]]
+    assert not [t for t in tokens if t.type == "image" or t.type.startswith("html")], inert_markdown(text)
+    shown = viewer.renderInline(inert_markdown(text.split("\n\n")[0]))
+    assert shown == text.split("\n\n")[0].replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;") \
+        .replace('"', "&quot;"), shown
