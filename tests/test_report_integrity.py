@@ -370,3 +370,19 @@ def test_a_users_text_shows_as_written_and_embeds_nothing(text: str):
     shown = viewer.renderInline(inert_markdown(text.split("\n\n")[0]))
     assert shown == text.split("\n\n")[0].replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;") \
         .replace('"', "&quot;"), shown
+
+
+def test_a_folder_made_at_the_target_while_the_report_is_built_is_left_alone(tmp_path: Path):
+    """Attack: the folder is checked before the report is built (which takes minutes) and again
+    before the new report takes its place: a user's folder made there meanwhile is never replaced."""
+    from ilcforce.report import folder
+
+    target = tmp_path / "out"
+    with folder.building(target) as staging:
+        (staging / "index.md").write_text("# ilcforce reports\n", encoding="utf-8")
+        target.mkdir()
+        (target / "mine.txt").write_text("mine\n", encoding="utf-8")
+        with pytest.raises(folder.ReportFolderError, match="not an ilcforce report"):
+            folder.publish(staging, target, "test")
+    assert [p.name for p in target.iterdir()] == ["mine.txt"] and (target / "mine.txt").read_text() == "mine\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"], "the building folder is removed"

@@ -121,6 +121,9 @@ def _move_into_place(staging: Path, target: Path) -> None:
     except OSError as error:
         if error.errno not in (errno.ENOTEMPTY, errno.EEXIST):
             raise
+    if not is_report(target):  # checked again: a folder made there while the report was being built
+        raise ReportFolderError(f"{target} is now a folder that is not an ilcforce report and not empty (made "
+                                "while the report was being built); it is left as it is, and the report not written")
     if _exchange(staging, target):  # staging now holds the previous report
         shutil.rmtree(staging, ignore_errors=True)
         return
