@@ -21,10 +21,12 @@ offline) is said in words, never an ``<img>``.
 
 from __future__ import annotations
 
+import functools
 import html
 import posixpath
 import re
 import urllib.parse
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -172,11 +174,17 @@ _DESTINATION = re.compile(r"\]\(\s*(?:<([^<>\n]+)>|([^)\s<>]+))|^ {0,3}\[[^\]]+\
                           re.MULTILINE)
 
 
-def _linked_pages(out_dir: Path, start: list[str]) -> list[str]:
+def _resolver(out_dir: Path) -> Callable[[str, str], str | None]:
+    """:func:`local_target` in ``out_dir``, each (folder, reference) resolved once per page built (a
+    report's tables repeat their links; a resolution costs a few system calls)."""
+    return functools.lru_cache(maxsize=None)(functools.partial(local_target, Path(out_dir)))
+
+
+def _linked_pages(out_dir: Path, start: list[str], resolve: Callable[[str, str], str | None]) -> list[str]:
     """Every Markdown page reachable from ``start`` by links that stay inside ``out_dir``
-    (:func:`local_target`), in the order first linked."""
+    (``resolve``: :func:`local_target` there), in the order first linked."""
     seen: list[str] = []
-    queue = [p for p in start if local_target(out_dir, "", p) == p and (out_dir / p).is_file()]
+    queue = [p for p in start if resolve("", p) == p and (out_dir / p).is_file()]
     while queue:
         page = queue.pop(0)
         if page in seen:
@@ -184,7 +192,7 @@ def _linked_pages(out_dir: Path, start: list[str]) -> list[str]:
         seen.append(page)
         folder = posixpath.dirname(page)
         for destination in _DESTINATION.findall((out_dir / page).read_text(encoding="utf-8")):
-            linked = local_target(out_dir, folder, "".join(destination))  # the one group that matched
+            linked = resolve(folder, "".join(destination))  # the one group that matched
             if (linked is not None and linked.endswith(".md") and linked not in seen
                     and (out_dir / linked).is_file()):
                 queue.append(linked)
@@ -246,8 +254,9 @@ def _blocks(text: str) -> list[tuple[str, str]]:
 class _Converter:
     """Markdown pages of one report folder to HTML fragments with links and figures rewritten."""
 
-    def __init__(self, out_dir: Path, pages: list[str]):
+    def __init__(self, out_dir: Path, pages: list[str], resolve: Callable[[str, str], str | None]):
         self.out_dir = out_dir
+        self.resolve = resolve  # local_target in out_dir
         self.pages = set(pages)
         self.md = _markdown()
         self.figures: set[str] = set()
@@ -259,7 +268,7 @@ class _Converter:
         does not name a file of the report (:func:`local_target`), or names one not written."""
         if href.startswith("#"):
             return href
-        target = local_target(self.out_dir, folder, href)
+        target = self.resolve(folder, href)
         if target is None:
             return href if href.lower().startswith(_FOLLOWED_SCHEMES) else None
         if target in self.pages:
@@ -285,7 +294,7 @@ class _Converter:
                     child.type, child.tag, child.nesting = "text", "", 0
                 elif child.type == "image":
                     src = str(child.attrGet("src") or "")
-                    target = local_target(self.out_dir, folder, src)
+                    target = self.resolve(folder, src)
                     alt = child.content
                     if target is not None and (self.out_dir / target).is_file():
                         child.attrSet("src", _url(target))
@@ -333,12 +342,13 @@ def write_html(out_dir: Path) -> HtmlReport | None:
     """Write ``out_dir/index.html`` from the Markdown pages under ``out_dir`` (see the module's
     docstring); None, and nothing written, when ``out_dir`` holds neither index.md nor findings.md."""
     out_dir = Path(out_dir)
-    pages = _linked_pages(out_dir, ["findings.md", "index.md"])
+    resolve = _resolver(out_dir)
+    pages = _linked_pages(out_dir, ["findings.md", "index.md"], resolve)
     if not pages:
         return None
     summary_extra = [p for p in (f"{PAPER_EXPERIMENT}/table2.md", f"{PAPER_EXPERIMENT}/table3.md")
                      if (out_dir / p).is_file()]
-    converter = _Converter(out_dir, pages)
+    converter = _Converter(out_dir, pages, resolve)
     by_group: dict[str, list[tuple[str, str]]] = {key: [] for key, _ in GROUPS}
     folders = list(dict.fromkeys(posixpath.dirname(page) for page in pages))  # in the order first linked
     for page in sorted(pages, key=lambda p: folders.index(posixpath.dirname(p))):  # a folder's pages together
