@@ -347,7 +347,7 @@ def write_html(out_dir: Path) -> HtmlReport | None:
     if not pages:
         return None
     summary_extra = [p for p in (f"{PAPER_EXPERIMENT}/table2.md", f"{PAPER_EXPERIMENT}/table3.md")
-                     if (out_dir / p).is_file()]
+                     if resolve("", p) == p and (out_dir / p).is_file()]
     converter = _Converter(out_dir, pages, resolve)
     by_group: dict[str, list[tuple[str, str]]] = {key: [] for key, _ in GROUPS}
     folders = list(dict.fromkeys(posixpath.dirname(page) for page in pages))  # in the order first linked
