@@ -41,6 +41,7 @@ from ilcforce.controllers.base import check_vector
 from ilcforce.noise import NoiseModel
 from ilcforce.plants import DEFAULT_MODEL, MODELS, make_plant, params_class, perturbed_parameter
 from ilcforce.simulate import SimulationSettings, force_axis
+from ilcforce.store.schema import experiment_name_problem
 from ilcforce.task import Reference, Wall
 
 
@@ -60,8 +61,9 @@ class ExperimentInfo:
             raise ValueError(f"experiment.seed must be >= 0, got {self.seed}")
         if self.iterations < 1:
             raise ValueError(f"experiment.iterations must be >= 1, got {self.iterations}")
-        if not self.name or any(c in self.name for c in "/\\") or self.name.startswith("."):
-            raise ValueError(f"experiment.name must be a plain folder name, got {self.name!r}")
+        problem = experiment_name_problem(self.name)  # the one rule (it names folders of results and report)
+        if problem:
+            raise ValueError(f"experiment.name {self.name!r} {problem}")
 
 
 @dataclass(frozen=True)

@@ -27,6 +27,7 @@ from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.nd import check_widths, has_law_nd
 from ilcforce.plants import UnreachableError, make_plant
 from ilcforce.tomlfile import parse_toml, read_toml, resolve_toml
+from ilcforce.store.schema import experiment_name_problem
 
 
 # ------------------------------------------------------------------------------------------------
@@ -325,9 +326,10 @@ def _name_after_file(data: dict, path: Path) -> None:
     if not isinstance(experiment, dict):  # not a table: config_from_dict names the fault
         return
     if "name" not in experiment:
-        if not path.stem or path.stem.startswith(".") or not path.stem.isprintable():
-            raise ConfigError(f"{path}: experiment.name is not set and the file's name cannot name a results "
-                              "folder; set experiment.name")
+        problem = experiment_name_problem(path.stem)  # the one rule experiment.name itself follows
+        if problem:
+            raise ConfigError(f"{path}: experiment.name is not set and the file's name {path.stem!r} {problem}; "
+                              "set experiment.name")
         experiment["name"] = path.stem
     experiment.setdefault("description", f"experiment file {path.name}")
 

@@ -16,27 +16,28 @@ from ilcforce.cli.base import CliError, _guard, _say, app
 @_guard
 def report(
     results: Annotated[Path, typer.Option("--results", help="folder of HDF5 stores (results/<experiment>/<method>.h5)")] = Path("results"),
-    out_dir: Annotated[Optional[Path], typer.Option("--out", help="output folder (default: <results>/report)")] = None,
+    out_dir: Annotated[Optional[Path], typer.Option("--out", help="output folder, replaced whole: absent, empty or an earlier report (default: <results>/report)")] = None,
     jobs: Annotated[int, typer.Option("--jobs", "-j", help="worker processes (default: CPU count)", show_default=False)] = 0,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress lines (warnings are still printed)")] = False,
     pdf: Annotated[bool, typer.Option("--pdf", help="also write every figure as PDF (vector; about doubles the drawing time)")] = False,
 ) -> None:
     """Write the paper's tables, figures and a verdict on each claim from the HDF5 stores."""
     from ilcforce.report.build import write_report
+    from ilcforce.report.folder import ReportFolderError
 
     if results.exists() and not results.is_dir():
         raise CliError(f"--results {results} is a file, not a folder of stores")
     if not results.is_dir():
         raise CliError(f"results folder {results} does not exist; run `ilcforce simulate` or `make reproduce` first")
     target = out_dir if out_dir is not None else results / "report"
-    if target.exists() and not target.is_dir():
-        raise CliError(f"--out {target} is a file, not a folder; the report is a folder (index.md and one folder "
-                       "per experiment)")
     if jobs < 0:
         raise CliError(f"--jobs must be >= 0 (0: one per CPU), got {jobs}")
     formats = ("png", "pdf") if pdf else ("png",)
-    summary = write_report(results, target, formats=formats, jobs=jobs or os.cpu_count() or 1,
-                           progress=None if quiet else lambda text: _say(f"report: {text}", stderr=True))
+    try:  # a folder that is not a report, or holds the results, is refused before anything is read
+        summary = write_report(results, target, formats=formats, jobs=jobs or os.cpu_count() or 1,
+                               progress=None if quiet else lambda text: _say(f"report: {text}", stderr=True))
+    except ReportFolderError as exc:
+        raise CliError(str(exc)) from None
     for warning in summary.warnings:
         _say(f"warning: {warning}", stderr=True)
     if not summary.experiments and not summary.studies and not any(

@@ -22,6 +22,7 @@ and everything that can still be reported is.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -31,11 +32,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ilcforce import store
+from ilcforce import __version__, store
 from ilcforce.report import claims as claims_module
 from ilcforce import stability
 from ilcforce.report import html, long_run, paper, pool, readme, sections, table_write, tables, tasks
+from ilcforce.report import folder as report_folder
 from ilcforce.report import verdicts as verdict_rows
+from ilcforce.store.schema import RESERVED_NAMES
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.index_page import index_text
 from ilcforce.report.study import count_text
@@ -302,6 +305,9 @@ def write_report(
     out_dir : Path
         Created if missing; ``out_dir/<experiment>/`` per experiment and ``out_dir/index.md``. With
         nothing usable under ``results_dir`` nothing is written there (an earlier report stays whole).
+        The report is built beside it and replaces it whole at the end (:mod:`ilcforce.report.folder`):
+        it must be absent, empty or a report ilcforce wrote, else ReportFolderError before anything
+        is read; a report stopped midway leaves the previous one whole.
     formats : tuple of str
         Figure file formats (matplotlib names): PNG by default, which the pages link; add "pdf"
         (FIGURE_FORMATS) for vector figures.
@@ -314,19 +320,18 @@ def write_report(
     ReportSummary
         Experiments reported, files written, and one warning line per problem. Never raises for
         a bad input file; raises :class:`ilcforce.store.StoreError` only if ``results_dir`` is
-        not a directory, and OSError if ``out_dir`` cannot be written.
+        not a directory, :class:`ilcforce.report.folder.ReportFolderError` if ``out_dir`` is not a
+        folder the report may replace, and OSError (naming the file) if ``out_dir`` cannot be written.
     """
     results_dir = Path(results_dir)
     out_dir = Path(out_dir)
+    target = report_folder.check_target(out_dir, results_dir)  # before anything is read or written
     found = store.find_stores(results_dir)
     found.pop("studies", None)  # results/studies/ holds study stores: reported by ilcforce.report.study below
     warnings: list[str] = _misplaced_files(results_dir)
-    written: list[Path] = []
-    verdicts: dict[str, pd.DataFrame] = {}
-    experiment_warnings: dict[str, list[str]] = {}
-    # every experiment, every study's report and every study's findings page is one task; they run on
-    # `jobs` cores together, heaviest first, and are put together below in this fixed order
-    from ilcforce.report.study import study_index_section
+    for name in [name for name in found if name.casefold() in RESERVED_NAMES]:  # a folder renamed by hand
+        warnings.append(f"{results_dir / name}: skipped, its name is one the report writes itself; rename the folder")
+        del found[name]
     from ilcforce.report.study_match import find_study_stores
 
     study_dir = results_dir / "studies"
@@ -334,7 +339,41 @@ def write_report(
     findings_paths = sorted(study_dir.glob("*.h5")) if study_dir.is_dir() else []
     if not found and not report_paths and not findings_paths and not (results_dir / "tuning").is_dir():  # nothing to report: out_dir is left as it is
         return ReportSummary(out_dir=out_dir, experiments=(), files=(), warnings=tuple(warnings))
-    out_dir.mkdir(parents=True, exist_ok=True)
+    with report_folder.building(target) as staging:
+        try:
+            summary = _write_into(results_dir, staging, found, report_paths, findings_paths, warnings,
+                                  formats=formats, jobs=jobs, progress=progress)
+        except OSError as error:  # named by the file it will have, not by the building folder's
+            if error.filename and str(error.filename).startswith(str(staging)):
+                raise type(error)(error.errno, error.strerror or str(error),
+                                  _moved(Path(error.filename), staging, out_dir).as_posix()) from None
+            raise
+        if staging / "index.md" not in summary.files:  # every store unusable: the previous report stays
+            return ReportSummary(out_dir=out_dir, experiments=(), files=(), warnings=summary.warnings)
+        report_folder.publish(staging, target, __version__)
+    page = summary.html
+    return dataclasses.replace(
+        summary, out_dir=out_dir, files=tuple(_moved(path, staging, out_dir) for path in summary.files),
+        warnings=tuple(w.replace(str(staging), str(out_dir)) for w in summary.warnings),
+        html=None if page is None else dataclasses.replace(page, path=_moved(page.path, staging, out_dir)))
+
+
+def _moved(path: Path, staging: Path, out_dir: Path) -> Path:
+    """Where ``path``, written under ``staging``, is once the report is in place."""
+    return out_dir / Path(path).relative_to(staging)
+
+
+def _write_into(results_dir: Path, out_dir: Path, found: dict, report_paths: list, findings_paths: list,
+                warnings: list[str], *, formats: tuple[str, ...], jobs: int,
+                progress: Callable[[str], None] | None) -> ReportSummary:
+    """The report of ``write_report`` written into the empty folder ``out_dir``."""
+    written: list[Path] = []
+    verdicts: dict[str, pd.DataFrame] = {}
+    experiment_warnings: dict[str, list[str]] = {}
+    # every experiment, every study's report and every study's findings page is one task; they run on
+    # `jobs` cores together, heaviest first, and are put together below in this fixed order
+    from ilcforce.report.study import study_index_section
+
     pieces = [pool.Task(f"experiment {name}", _report_experiment, (name, paths, out_dir, tuple(formats)),
                         cost=tasks.experiment_cost(paths.values())) for name, paths in found.items()]
     pieces += [pool.Task(f"study {path.stem}", tasks.study_report, (path, out_dir / "studies", tuple(formats)),

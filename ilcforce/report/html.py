@@ -9,13 +9,24 @@ experiments, the tuning. Links between pages become links within the page; figur
 elements pointing at the PNG files beside the page (relative paths: no network, no CDN, and the
 page stays small); every table sorts by a click on a column's header (a few lines of embedded
 script); provenance (a ``Provenance`` section, a long block of TOML) is folded in ``<details>``.
+
+Nothing outside the report folder is read into the page or shown by it: every reference a page
+makes (a link followed to another page, an image) goes through :func:`local_target`, which
+decodes it, resolves it (symlinks included) and keeps it only when it lands inside the report
+folder. A description's text is the user's, so it can name anything (``/home/me/notes.md``,
+``~/x.md``, ``file:`` URLs, ``%2e%2e/``, backslashes, a symlink out): such a link stays the
+reader's words without being followed, and such an image (a remote one included: the page is
+offline) is said in words, never an ``<img>``.
 """
 
 from __future__ import annotations
 
+import functools
 import html
 import posixpath
 import re
+import urllib.parse
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -34,10 +45,11 @@ GROUPS = (("summary", "Summary"), ("studies", "Studies"), ("experiments", "Exper
 #: The experiment whose Table 2 and Table 3 the summary shows beside the paper's (its setup).
 PAPER_EXPERIMENT = "paper"
 
-_LINK = re.compile(r"\]\(([^)\s]+\.md)(#[^)\s]*)?\)")
 _HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
 _FENCE = re.compile(r"^(```+|~~~+)")
 _SCHEME = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*:")
+#: The URLs a link may keep (a reader follows them by a click; the page never loads them).
+_FOLLOWED_SCHEMES = ("http:", "https:", "mailto:")
 
 _STYLE = """
 body { font-family: system-ui, -apple-system, "Segoe UI", sans-serif; margin: 0; color: #1b1b1b; line-height: 1.45; }
@@ -116,22 +128,73 @@ def _anchor(page: str, prefix: str = "p") -> str:
     return f"{prefix}-" + re.sub(r"[^A-Za-z0-9]+", "-", page.removesuffix(".md")).strip("-")
 
 
-def _linked_pages(out_dir: Path, start: list[str]) -> list[str]:
-    """Every Markdown page reachable from ``start`` by relative links, in the order first linked."""
+def _markdown() -> MarkdownIt:
+    return MarkdownIt("commonmark", {"html": False}).enable("table")
+
+
+def local_target(out_dir: Path, folder: str, href: str) -> str | None:
+    """The file a page's reference ``href`` names, as a POSIX path relative to ``out_dir``, or None
+    when it names anything else: a URL of any scheme (``https:``, ``file:``, ``data:``), a
+    network path (``//host``), an absolute or home path (``/``, ``~``, ``C:``), a backslash, a
+    control character, or a path that leaves ``out_dir`` (``..``, percent-encoded or not, or a
+    symlink whose target is outside). ``folder`` is the referring page's folder relative to
+    ``out_dir``. The reference is decoded first (markdown-it percent-encodes what it parses) and the
+    checks run on the decoded path, so no encoding slips past them; the final check is on the
+    resolved path, so no spelling does."""
+    try:
+        path = urllib.parse.unquote(href.partition("#")[0].partition("?")[0], errors="strict") if href else ""
+    except UnicodeDecodeError:  # an encoded byte sequence that is no text names no file of the report
+        return None
+    if (not path or _SCHEME.match(path) or _SCHEME.match(href) or path.startswith(("/", "~"))
+            or "\\" in path or not path.isprintable()):
+        return None
+    relative = posixpath.normpath(posixpath.join(folder, path))
+    if relative == ".." or relative.startswith(("../", "/")):
+        return None
+    root = Path(out_dir).resolve()
+    try:
+        real = (root / relative).resolve()
+    except (OSError, RuntimeError):  # a symlink loop, a name the system refuses
+        return None
+    return relative if real == root or real.is_relative_to(root) else None
+
+
+def _url(relative: str) -> str:
+    """A report file's path as a relative URL (a space or '#' in a name is encoded; '/', '=', ',' and
+    '+', which variant folders hold, are kept readable)."""
+    return urllib.parse.quote(relative, safe="/=,+")
+
+
+#: Where a page names another: an inline link's destination (``](x.md)``, ``](<x.md>)``) or a reference
+#: definition's (``[r]: x.md``). Broad on purpose: whatever it finds is followed only through
+#: :func:`local_target`, so a form it catches that Markdown would not read as a link costs nothing;
+#: and scanning costs little where parsing every page a second time did not (a 2 MB page of tables:
+#: 9 s to parse, 0.1 s to scan).
+_DESTINATION = re.compile(r"\]\(\s*(?:<([^<>\n]+)>|([^)\s<>]+))|^ {0,3}\[[^\]]+\]:[ \t]*(?:<([^<>\n]+)>|(\S+))",
+                          re.MULTILINE)
+
+
+def _resolver(out_dir: Path) -> Callable[[str, str], str | None]:
+    """:func:`local_target` in ``out_dir``, each (folder, reference) resolved once per page built (a
+    report's tables repeat their links; a resolution costs a few system calls)."""
+    return functools.lru_cache(maxsize=None)(functools.partial(local_target, Path(out_dir)))
+
+
+def _linked_pages(out_dir: Path, start: list[str], resolve: Callable[[str, str], str | None]) -> list[str]:
+    """Every Markdown page reachable from ``start`` by links that stay inside ``out_dir``
+    (``resolve``: :func:`local_target` there), in the order first linked."""
     seen: list[str] = []
-    queue = [p for p in start if (out_dir / p).is_file()]
+    queue = [p for p in start if resolve("", p) == p and (out_dir / p).is_file()]
     while queue:
         page = queue.pop(0)
         if page in seen:
             continue
         seen.append(page)
         folder = posixpath.dirname(page)
-        text = (out_dir / page).read_text(encoding="utf-8")
-        for target, _fragment in _LINK.findall(text):
-            if _SCHEME.match(target):
-                continue
-            linked = posixpath.normpath(posixpath.join(folder, target))
-            if not linked.startswith("../") and (out_dir / linked).is_file() and linked not in seen:
+        for destination in _DESTINATION.findall((out_dir / page).read_text(encoding="utf-8")):
+            linked = resolve(folder, "".join(destination))  # the one group that matched
+            if (linked is not None and linked.endswith(".md") and linked not in seen
+                    and (out_dir / linked).is_file()):
                 queue.append(linked)
     return seen
 
@@ -191,39 +254,60 @@ def _blocks(text: str) -> list[tuple[str, str]]:
 class _Converter:
     """Markdown pages of one report folder to HTML fragments with links and figures rewritten."""
 
-    def __init__(self, out_dir: Path, pages: list[str]):
+    def __init__(self, out_dir: Path, pages: list[str], resolve: Callable[[str, str], str | None]):
         self.out_dir = out_dir
+        self.resolve = resolve  # local_target in out_dir
         self.pages = set(pages)
-        self.md = MarkdownIt("commonmark", {"html": False}).enable("table")
+        self.md = _markdown()
         self.figures: set[str] = set()
 
-    def _target(self, folder: str, href: str) -> tuple[str, bool]:
-        """(the rewritten reference, whether it names a file that exists)."""
-        if not href or href.startswith("#") or _SCHEME.match(href):
-            return href, True
-        path, _, _fragment = href.partition("#")
-        resolved = posixpath.normpath(posixpath.join(folder, path))
-        if resolved in self.pages:
-            return "#" + _anchor(resolved), True
-        return resolved, (self.out_dir / resolved).exists()
+    def _link(self, folder: str, href: str) -> str | None:
+        """A link's rewritten target: a page of this report becomes its section of the page, a file of
+        the report its relative path; a URL of a scheme the reader follows (``https:``, ``mailto:``)
+        and a fragment stay as written; None (the link is dropped, its words kept) for a path that
+        does not name a file of the report (:func:`local_target`), or names one not written."""
+        if href.startswith("#"):
+            return href
+        target = self.resolve(folder, href)
+        if target is None:
+            return href if href.lower().startswith(_FOLLOWED_SCHEMES) else None
+        if target in self.pages:
+            return "#" + _anchor(target)
+        return _url(target) if (self.out_dir / target).exists() else None  # a dead link: its words only
 
     def render(self, page: str, text: str) -> str:
         folder = posixpath.dirname(page)
         tokens = self.md.parse(text)
+        dropped: set[int] = set()  # the link_open tokens whose closing token goes too
         for token in tokens:
-            for child in token.children or []:
+            children = token.children or []
+            for i, child in enumerate(children):
                 if child.type == "link_open":
-                    href, _ok = self._target(folder, str(child.attrGet("href") or ""))
-                    child.attrSet("href", href)
+                    href = self._link(folder, str(child.attrGet("href") or ""))
+                    if href is None:
+                        dropped.add(child.level)
+                        child.type, child.tag, child.attrs, child.nesting = "text", "", {}, 0
+                    else:
+                        child.attrSet("href", href)
+                elif child.type == "link_close" and child.level in dropped:
+                    dropped.discard(child.level)
+                    child.type, child.tag, child.nesting = "text", "", 0
                 elif child.type == "image":
-                    src, exists = self._target(folder, str(child.attrGet("src") or ""))
-                    if exists:
-                        child.attrSet("src", src)
+                    src = str(child.attrGet("src") or "")
+                    target = self.resolve(folder, src)
+                    alt = child.content
+                    if target is not None and (self.out_dir / target).is_file():
+                        child.attrSet("src", _url(target))
                         child.attrSet("loading", "lazy")
-                        self.figures.add(src)
-                    else:  # said in words: a broken image tells the reader nothing
-                        child.type, child.tag, child.attrs = "text", "", {}
-                        child.content = f"[figure not written: {src}]"
+                        self.figures.add(target)
+                    else:  # said in words: a broken image tells the reader nothing, a remote one
+                        # would be fetched by an offline page, a path outside would show what the
+                        # report must not
+                        why = ("figure not written" if target is not None else
+                               "image not shown: not a file of this report")
+                        child.type, child.tag, child.attrs, child.children = "text", "", {}, None
+                        child.content = (f"[{why}: {target}]" if target is not None else
+                                         f"[{why}{': ' + alt if alt else ''}]")
         return self.md.renderer.render(tokens, self.md.options, {})
 
     def page(self, page: str, anchor: str) -> str:
@@ -258,12 +342,13 @@ def write_html(out_dir: Path) -> HtmlReport | None:
     """Write ``out_dir/index.html`` from the Markdown pages under ``out_dir`` (see the module's
     docstring); None, and nothing written, when ``out_dir`` holds neither index.md nor findings.md."""
     out_dir = Path(out_dir)
-    pages = _linked_pages(out_dir, ["findings.md", "index.md"])
+    resolve = _resolver(out_dir)
+    pages = _linked_pages(out_dir, ["findings.md", "index.md"], resolve)
     if not pages:
         return None
     summary_extra = [p for p in (f"{PAPER_EXPERIMENT}/table2.md", f"{PAPER_EXPERIMENT}/table3.md")
-                     if (out_dir / p).is_file()]
-    converter = _Converter(out_dir, pages)
+                     if resolve("", p) == p and (out_dir / p).is_file()]
+    converter = _Converter(out_dir, pages, resolve)
     by_group: dict[str, list[tuple[str, str]]] = {key: [] for key, _ in GROUPS}
     folders = list(dict.fromkeys(posixpath.dirname(page) for page in pages))  # in the order first linked
     for page in sorted(pages, key=lambda p: folders.index(posixpath.dirname(p))):  # a folder's pages together

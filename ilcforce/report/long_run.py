@@ -274,7 +274,7 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
         with report_style():
             figure = make_figure(found[name], out_dir / f"{stem}.png")
         written.append(figure)
-        lines += [f"## {title}", "", str(getattr(found[name], "description", "")) + after, "",
+        lines += [f"## {title}", "", table_write.inert_markdown(str(getattr(found[name], "description", ""))) + after, "",
                   table_write.markdown_table(table), "", f"![{alt}]({figure.name})", "", caption, ""]
     summary = {"provenance": provenance, "headline": headline_lines(found, cases)}
     (out_dir / SUMMARY).write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")

@@ -17,7 +17,7 @@ import pandas as pd
 from ilcforce.plants import changed_parameter
 from ilcforce.report import claims as claims_module
 from ilcforce import stability
-from ilcforce.report.table_write import markdown_table
+from ilcforce.report.table_write import inert_markdown, markdown_table
 
 #: Settings under which a method's law is not the paper's: (method, config section, key, paper value).
 PAPER_LAW = (("c3", "c3", "psi_acceleration", "measured"), ("c3-leak", "c3-leak", "psi_acceleration", "measured"),
@@ -35,9 +35,10 @@ def config_of(provenance: Mapping[str, object]) -> dict:
 
 
 def description(config: Mapping[str, object]) -> str:
-    """The experiment's own one-line description from its configuration ("" when absent)."""
+    """The experiment's own one-line description from its configuration, as Markdown that embeds
+    nothing (:func:`~ilcforce.report.table_write.inert_markdown`; "" when absent)."""
     experiment = config.get("experiment", {})
-    return str(experiment.get("description", "")) if isinstance(experiment, dict) else ""
+    return inert_markdown(str(experiment.get("description", ""))) if isinstance(experiment, dict) else ""
 
 
 def perturbation_label(config: Mapping[str, object]) -> str:

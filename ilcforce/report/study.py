@@ -221,7 +221,7 @@ def write_study_report(path: Path, out_dir: Path, *, formats: tuple[str, ...] = 
     methods = tables.ordered_methods(frame["method"].unique().tolist()) if len(frame) else []
     lines = [f"# Study `{name}`", ""]
     if results.description:
-        lines += [results.description, ""]
+        lines += [table_write.inert_markdown(results.description), ""]
     lines += [f"{done} cells done, {len(failed)} failed; {count_text(len(seeds), 'seed')} "
               f"({_seed_text(seeds)}), methods {', '.join(methods) or '-'}, {len(results.settings)} setting(s)"
               + _settings_text(results) + ".", ""]
@@ -336,7 +336,7 @@ def _seed_text(seeds: list[int]) -> str:
 def _index_lines(name: str, results, headline: pd.DataFrame, n_seeds: int, done: int, failed: int) -> list[str]:
     lines = [f"### [{name}](studies/{name}/report.md)", ""]
     if results.description:
-        lines += [results.description, ""]
+        lines += [table_write.inert_markdown(results.description), ""]
     lines += [f"{count_text(n_seeds, 'seed')}, {len(results.settings)} setting(s), {done} cells done, {failed} failed.",
               ""]
     incomplete = incomplete_text(results)

@@ -26,7 +26,7 @@ from ilcforce.report import figures, paper
 from ilcforce.report.figure_files import save_figure, write_text_whole
 from ilcforce.report.study import incomplete_text, setting_iterations, setting_perturbation
 from ilcforce.report import verdicts as verdict_rows
-from ilcforce.report.table_write import markdown_table, write_csv, write_table
+from ilcforce.report.table_write import inert_markdown, markdown_table, write_csv, write_table
 from ilcforce.stats import format_interval, median_interval
 
 #: Key numbers per setting and method, read at the paper's Table 3 iteration (j = 19, or the setting's
@@ -146,7 +146,7 @@ def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
     and its verdicts as rows (``claims.csv``, ``stability.csv``: :mod:`ilcforce.report.verdicts`).
     Each setting is judged with its own perturbation iteration and number of iterations (its
     configuration)."""
-    lines = [f"# Study `{results.name}`", "", f"**{results.description or 'no description'}**", ""]
+    lines = [f"# Study `{results.name}`", "", f"**{inert_markdown(results.description) or 'no description'}**", ""]
     incomplete = incomplete_text(results)
     lines += [incomplete, ""] if incomplete else []
     lines += ["Every number is a median over seeds with the 95% percentile-bootstrap interval of the median; divergence "
@@ -322,7 +322,7 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
         extra["tuning_source"] = equal_chattering.tuning_of(results)["source"]
     write_text_whole(directory / "findings.md", text)
     written.append(directory / "findings.md")
-    return written, name, {**extra, "description": results.description, "settings": summary,
+    return written, name, {**extra, "description": inert_markdown(results.description), "settings": summary,
                                    "incomplete": incomplete_text(results),
                                    "labelled": bool(getattr(results, "labelled", False)),
                                    "claim_rows": claims_frame.to_dict("list"),

@@ -2,7 +2,8 @@
 
 The frames come from :mod:`ilcforce.report.tables` (or any report module); headers get their unit
 from ``frame.attrs["units"]``. The Markdown renderer is our own (pandas' ``to_markdown`` needs
-``tabulate``, which ilcforce does not depend on). CSV keeps full precision.
+``tabulate``, which ilcforce does not depend on). CSV keeps full precision. A user's own text put
+on a page (a description) goes through :func:`inert_markdown` first.
 """
 
 from __future__ import annotations
@@ -37,6 +38,17 @@ def format_cell(value: object, float_format: str = "{:.4g}") -> str:
         return float_format.format(float(value))
     text = str(value).replace("\r", " ").replace("\n", " ")
     return text.replace("|", "\\|")
+
+
+def inert_markdown(text: str) -> str:
+    """A user's text (an experiment's, a study's or a tuning's description) as Markdown that shows it
+    and embeds nothing: an image (``![alt](https://host/t.png)``, ``![alt](/home/me/x.png)``) and raw
+    HTML (``<img src=...>``, an autolink) are escaped, so no viewer of the report's Markdown pages
+    loads a file or a URL the text names (the report is read offline). Its links stay links, which a
+    reader follows only by a click (the HTML page keeps only those inside the report or on the web:
+    :func:`ilcforce.report.html.local_target`). Backslashes are escaped first, so none of the user's
+    can undo an escape."""
+    return text.replace("\\", "\\\\").replace("<", "\\<").replace("![", "!\\[")
 
 
 def _is_numeric_column(column: pd.Series) -> bool:

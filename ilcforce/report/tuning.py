@@ -17,6 +17,7 @@ import pandas as pd
 from matplotlib.axes import Axes
 
 from ilcforce.controllers import REGISTRY
+from ilcforce.report.table_write import inert_markdown
 
 #: Where ``make tune`` commits each tuning's page (with its date and commit), for reports of results folders
 #: that hold no tuning store (``make reproduce`` does not tune: it reports the committed page).
@@ -268,7 +269,7 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
     shipped = [m for m in definition["methods"] if chosen.get(m)]
     withheld = [m for m in definition["methods"] if not chosen.get(m)]
     text = [f"# Tuning {name}" + (f" (the store {path.name})" if path.name != name else ""), "",
-            *([header["description"], ""] if header.get("description") else []),
+            *([inert_markdown(str(header["description"])), ""] if header.get("description") else []),
             f"Each method's gains searched for two objectives on seeds {_seeds(definition['seeds'])} x "
             f"{definition['iterations']} iterations (the last {definition['score_last']} scored): the error "
             f"log10(e_P / 1 mm) + log10(e_F / 1 N) and the chattering log10({chattering_formula(axes)}) of the "

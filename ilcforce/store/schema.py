@@ -40,10 +40,38 @@ BOUND_FROM = (2, 2)
 METHOD_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 
 
+#: The file a report folder carries to say that ilcforce wrote it (``ilcforce report`` replaces such a
+#: folder, and refuses to write into any other that is not empty).
+REPORT_MARKER = ".ilcforce-report"
+#: Names a results folder or a report folder holds beside the experiments' folders, so that no
+#: experiment may take them (compared without case: a case-insensitive file system makes
+#: ``Index.md`` the report's ``index.md``): the report's own pages and tables, its studies' and
+#: tunings' folders (also the results folder's), and the default report folder ``results/report``.
+RESERVED_NAMES = frozenset({"index.md", "index.html", "findings.md", "claims.csv", "stability.csv",
+                            "studies", "tuning", "report", REPORT_MARKER})
+
+
+def experiment_name_problem(text: object) -> str | None:
+    """Why ``text`` cannot name an experiment, in words ("" never); None when it can.
+
+    The one rule for an experiment's name, which names its results folder ``results/<name>/`` and its
+    report folder ``<report>/<name>/``: a plain name (:data:`STUDY_NAME`: letters, digits, '.', '_',
+    '-', at most 100 characters, starting with a letter or digit: never a path, a hidden file, a
+    control character or a character a Markdown link would break on) that is not one of
+    :data:`RESERVED_NAMES`. Checked where a name is read (the configuration, ilcforce.config) and
+    where a stored one is (:func:`ilcforce.store.validate`)."""
+    if not isinstance(text, str) or not STUDY_NAME.fullmatch(text):
+        return ("is not a plain folder name (letters, digits, '.', '_', '-'; at most 100 characters, the "
+                "first a letter or digit)")
+    if text.casefold() in RESERVED_NAMES:
+        return f"is reserved: the report and the results folder hold their own {text.casefold()} beside the experiments"
+    return None
+
+
 def is_plain_name(text: str) -> bool:
     """A name that makes one results folder, never a path (an experiment's, as stored)."""
-    return (bool(text) and not text.startswith(".") and text.isprintable() and len(text) <= 255
-            and not any(c in text for c in "/\\"))
+    return experiment_name_problem(text) is None
+
 
 #: HDF5 file-format bounds: "v108" gives version-2 object headers and superblock, whose metadata
 #: blocks carry checksums, so a damaged block is an error instead of an endless walk.
