@@ -243,3 +243,23 @@ def test_validate_skips_the_files_kept_beside_a_store(runner, tmp_path):
     stray = tmp_path / "notes.lock"  # not beside a store's name: checked, and not a store
     stray.write_text("x", encoding="utf-8")
     assert runner.invoke(app, ["validate", str(stray)]).exit_code == 2
+
+
+@pytest.mark.parametrize("command", ["simulate", "compare", "config"])
+def test_the_number_of_iterations_is_given_once_with_iters(runner, tmp_path, command):
+    """`--set experiment.iterations=3` wrote the experiment's own store (the only --set key that made no
+    variant), and `--iters 2 --set experiment.iterations=5` ran 2 without a word: both are refused in
+    favour of --iters, one line, exit 2, nothing written; so is a seed given both ways."""
+    results = tmp_path / "results"
+    for args, expected in (
+            (["--set", "experiment.iterations=3"], "--set experiment.iterations=3: give the number of iterations "
+                                                   "with --iters"),
+            (["--iters", "2", "--set", "experiment.iterations=5"], "--set experiment.iterations=5: give the number"),
+            (["--seed", "5", "--set", "experiment.seed=3"], "--seed 5 and --set experiment.seed=3 both give the seed")):
+        _one_clear_line(runner.invoke(app, [command, *args, *SHORT, *(["--results", str(results)]
+                                                                       if command != "config" else [])]), expected)
+    assert not results.exists(), "a refused command writes nothing"
+    # the one way: --iters, into the experiment's own store (iterations never make a variant)
+    if command == "simulate":
+        assert runner.invoke(app, [command, "-m", "c1", "--iters", "1", "--results", str(results)]).exit_code == 0
+        assert (results / "paper" / "c1.h5").is_file()
