@@ -263,3 +263,26 @@ def test_the_number_of_iterations_is_given_once_with_iters(runner, tmp_path, com
     if command == "simulate":
         assert runner.invoke(app, [command, "-m", "c1", "--iters", "1", "--results", str(results)]).exit_code == 0
         assert (results / "paper" / "c1.h5").is_file()
+
+
+def test_study_progress_says_compiling_until_a_cell_finishes_then_an_eta_without_the_compiling(capsys):
+    """The first progress line of a study said "ETA 27794 s": its first cell finished after 12 minutes
+    of compiling and the ETA took that for the pace. Now: "compiling" while no cell of this run has
+    finished, no ETA from the first (it paid for the compiling), then the pace since the first."""
+    from ilcforce.cli.study import _StudyProgress
+    from ilcforce.study.runner import Progress
+
+    clock = [100.0]
+    progress = _StudyProgress("s", quiet=False)
+    progress._time = lambda: clock[0]
+    with progress:
+        steps = [(0.0, 2, ""), (720.0, 3, "c1 seed 0"), (730.0, 4, "c1 seed 1"), (750.0, 5, "c1 seed 2")]
+        for at, finished, last in steps:  # 2 of 42 cells stored before; 40 to run
+            clock[0] = 100.0 + at
+            progress(Progress(total=42, finished=finished, failed=0, to_run=40, last=last))
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == "s: 2/42 cells, 0 failed, 0 s, compiling, no cell finished yet", lines
+    assert lines[1] == "s: 3/42 cells, 0 failed, 720 s, first cell finished (compiling included), ETA after the next"
+    # 10 s for the one cell after the first: 38 cells left take 380 s (not 720 s x 38 = 27360 s)
+    assert lines[2] == "s: 4/42 cells, 0 failed, 730 s, ETA 380 s", lines
+    assert lines[3] == "s: 5/42 cells, 0 failed, 750 s, ETA 555 s", lines  # 30 s / 2 cells x 37
