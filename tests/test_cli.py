@@ -286,3 +286,42 @@ def test_study_progress_says_compiling_until_a_cell_finishes_then_an_eta_without
     # 10 s for the one cell after the first: 38 cells left take 380 s (not 720 s x 38 = 27360 s)
     assert lines[2] == "s: 4/42 cells, 0 failed, 730 s, ETA 380 s", lines
     assert lines[3] == "s: 5/42 cells, 0 failed, 750 s, ETA 555 s", lines  # 30 s / 2 cells x 37
+
+
+def _comment_paths(root):
+    """(file, path) for every experiments/ path named in a comment of an experiment file or the Makefile."""
+    import re
+
+    found = []
+    files = sorted((root / "experiments").rglob("*.toml")) + [root / "Makefile"]
+    for file in files:
+        for line in file.read_text(encoding="utf-8").splitlines():
+            comment = line.strip()
+            if file.name == "Makefile" and "## " in comment and not comment.startswith("#"):
+                comment = comment.split("## ", 1)[1]  # a target's help text
+            elif not comment.startswith("#"):
+                continue
+            found += [(file, p.rstrip(".,:;)")) for p in re.findall(r"experiments/[\w.*/-]*", comment)]
+    return found
+
+
+def test_every_experiments_path_a_comment_names_exists():
+    """arm3.toml named experiments/full/arm3-mc.toml, which never existed: a path in a comment of an
+    experiment file or the Makefile is a file (or, with *, a pattern matching one) of the repository."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    named = _comment_paths(root)
+    assert len(named) > 20, named  # the comments do name paths: the scan reads them
+    missing = [(f.relative_to(root).as_posix(), p) for f, p in named
+               if not (any(root.glob(p)) if "*" in p else (root / p).exists())]
+    assert missing == [], missing
+
+
+def test_help_points_at_what_an_install_has():
+    """`ilcforce --help` pointed at README.md, which a pip install does not have."""
+    result = CliRunner().invoke(app, ["--help"])
+    assert result.exit_code == 0 and "README" not in result.output
+    assert "ilcforce COMMAND --help" in " ".join(result.output.split())
+    study = CliRunner().invoke(app, ["study", "--help"])
+    assert study.exit_code == 0 and "README" not in study.output and "study.sweep" in study.output

@@ -101,7 +101,7 @@ class _StudyProgress:
 @app.command()
 def study(
     ctx: typer.Context,
-    files: Annotated[list[Path], typer.Argument(help="study files: TOML whose study table names the seeds, methods, fixed values, and a sweep or a list of settings (see README); several run one after another on one cluster")],
+    files: Annotated[list[Path], typer.Argument(help="study files: TOML whose table study holds name, seeds (\"0-9\" or a list) and optionally experiment (a file), methods, study.set (fixed values, as --set), study.sweep (a grid) or study.settings (a list); several run one after another on one cluster")],
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://HOST:8786")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", help="local worker processes (default: one per core; 1 runs in this process without Dask)")] = None,
     results: Annotated[Path, typer.Option("--results", help="results folder; the study store is <results>/studies/<name>.h5")] = Path("results"),
