@@ -108,6 +108,8 @@ def _setting_claim(rows: pd.DataFrame, claim: int, label: str, with_spread: bool
         return f"{label}: not run"
     verdict = str(head["verdict"].iloc[0])
     text = f"{label}: **{verdict}**"
+    beside = str(head["note"].iloc[0] or "")  # the verdict the settled metric would give, where it differs
+    text += f" ({beside})" if beside else ""
     binding = _binding(mine)
     if binding is not None:
         text += (f"; binding part (nearest to failing), {binding['part_text']}: {verdict_rows.statistic_text(binding)}"
@@ -115,7 +117,8 @@ def _setting_claim(rows: pd.DataFrame, claim: int, label: str, with_spread: bool
                  f"{verdict_rows.margin_text(binding)})")
     weak = mine[mine["role"].isin(["central", "secondary"]) & (mine["verdict"] != "holds")]
     if len(weak) and verdict != "holds":
-        text += "; not holding: " + ", ".join(f"{r.part_text} ({r.verdict})" for r in weak.itertuples(index=False))
+        text += "; not holding: " + ", ".join(f"{r.part_text}: {verdict_rows.statistic_text(r)} ({r.threshold}: {r.verdict})"
+                                             for r in weak.itertuples(index=False))
         notes = sorted({str(n) for n in weak["note"] if str(n)})
         if notes:
             text += f" [{notes[0]}]"
@@ -174,7 +177,7 @@ def summary_lines(experiments: Mapping[str, Mapping[str, object]], studies: Mapp
     single = _one_setting(claims, verdict_rows.EXPERIMENT, OUR_NOISE_RUN)
     lines = ["## Summary", "",
              f"Numbers are the {verdict_rows.INTERVAL_NOTE}; a margin is the median's distance to the threshold "
-             "as a fraction of the threshold (>= 0 passes). \"Calibrated\": the paper's setup with every noise "
+             "(the nearer edge of a range such as \"within x1.1 of 1.67\") as a fraction of it (>= 0 passes). \"Calibrated\": the paper's setup with every noise "
              "source scaled to match Table 2 (`paper-calibrated`); \"our noise\": the paper's setup as shipped "
              "(docs/model.md, section \"Two noise levels\").", ""]
     for claim in claim_parts.CLAIMS:
