@@ -125,6 +125,16 @@ def _setting_claim(rows: pd.DataFrame, claim: int, label: str, with_spread: bool
     return text
 
 
+def _judged_on(rows: pd.DataFrame, claim: int) -> str:
+    """" Judged on: <claims.csv's statistic_name>." when every judged part of the claim reads one number
+    (claim 5: H(C1) / H(C3) on the whole grid), so the summary names it as claims.csv and the tables do;
+    "" when the parts read several (their names are in the per-study findings and claims.csv)."""
+    if not len(rows):
+        return ""
+    names = set(rows.loc[(rows["claim"] == claim) & rows["role"].isin(["central", "secondary"]), "statistic_name"])
+    return f" Judged on: {names.pop()}." if len(names) == 1 else ""
+
+
 def _one_setting(claims: pd.DataFrame, source: str, name: str) -> pd.DataFrame:
     mine = claims[(claims["source"] == source) & (claims["name"].astype(str) == name)] if len(claims) else claims
     if len(mine) and mine["setting"].nunique() > 1:
@@ -181,7 +191,7 @@ def summary_lines(experiments: Mapping[str, Mapping[str, object]], studies: Mapp
              "source scaled to match Table 2 (`paper-calibrated`); \"our noise\": the paper's setup as shipped "
              "(docs/model.md, section \"Two noise levels\").", ""]
     for claim in claim_parts.CLAIMS:
-        lines.append(f"**Claim {claim.number}.** {claim.statement} Paper: {claim.paper}")
+        lines.append(f"**Claim {claim.number}.** {claim.statement} Paper: {claim.paper}{_judged_on(ours, claim.number)}")
         lines.append(f"* {_setting_claim(calibrated, claim.number, f'Calibrated ({_study_link(CALIBRATED_STUDY)}, {_seeds_label(calibrated)})')}.")
         lines.append(f"* {_setting_claim(ours, claim.number, f'Our noise ({_study_link(OUR_NOISE_STUDY)}, {_seeds_label(ours)})', True)}.")
         if claim.number == 1:  # why C1 leads, where it does (claim 1's cause rows)
