@@ -114,8 +114,8 @@ def statistic_text(row) -> str:
 def _passes(row) -> str:
     if row.role in claims_module.NOT_JUDGED:
         return str(row.role)
-    if int(row.seeds_evaluated) == 0:
-        return f"{row.verdict}"
+    if int(row.seeds_evaluated) == 0 or row.verdict == claims_module.NOT_EVALUABLE:
+        return f"{row.verdict}"  # never "not evaluable; passes in 0 of 1" (a praised method diverged there)
     return f"{row.verdict}; passes in {int(row.seeds_passed)} of {int(row.seeds_evaluated)}{margin_text(row)}"
 
 
