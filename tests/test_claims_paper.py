@@ -187,3 +187,18 @@ def test_verdict_words_never_contradict_each_other_when_the_praised_method_diver
             assert "fails in" not in line.split(").", 1)[0], line
     for line in verdicts.claim_lines(rows):  # a part not evaluable for the divergence: no "passes in 0 of 1"
         assert "not evaluable; passes in" not in line, line
+
+
+def test_in_part_says_which_part_fails_and_by_how_much() -> None:
+    """Claim 2 "in part" where C3's force error was 1.2-2.2x C2's: the verdict's parts now carry the
+    number and threshold of every part that does not hold, beside its verdict."""
+    c3 = paper.table2_row("c3")
+    run = paper_run()
+    run["c3"] = _frame(_norms(c3.jbar_position, c3.position_error_2norm, JUMP_LEARNING),
+                       _norms(c3.jbar_force, 2.0 * 0.096, JUMP_LEARNING), (0.0359, 0.0219))
+    summary = claims.claim_summary(claims.judge_claims(run)).set_index("claim")
+    assert summary.at[2, "verdict"] == "in part"
+    text = summary.at[2, "parts"]
+    threshold = f"< {claim_parts.REDUCTION_RATIO:g}"
+    assert f"before the perturbation, force: fails (2 against {threshold})" in text, text
+    assert f"before the perturbation, position: holds;" in text, "a part that holds needs no number"
