@@ -534,8 +534,8 @@ def _claim5_parts(n: int = 2) -> list[_Part]:
             return value, bool(value > 1.0)
 
         def magnitude(s: _Seed, f=ratio, pub=published, form=JUDGED_H) -> tuple[float, bool]:
-            value = f(s, form=form)
-            return value, bool(abs(math.log(value / pub)) <= math.log(RATIO_FACTOR))
+            value = f(s, form=form)  # 0 (a C1 without chattering) or NaN is no match: no log of it
+            return value, bool(value > 0 and abs(math.log(value / pub)) <= math.log(RATIO_FACTOR))
 
         parts.append(_Part(5, f"direction_{axis}", f"C3 chatters less than C1, {name}", CENTRAL,
                            CLAIM5_JUDGED, direction, "> 1", margin=above(1.0),
