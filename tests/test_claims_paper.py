@@ -155,9 +155,9 @@ def test_a_verdict_the_first_20_ms_change_is_said_beside_it() -> None:
     assert set(parts.loc[parts["claim"] == 5, "verdict"]) == {"holds"}, "the whole grid decides"
     rows = verdicts.claim_rows(parts, source="experiment", name="x", setting="x")
     head = rows[(rows["claim"] == 5) & (rows["role"] == "claim")].iloc[0]
-    assert head["verdict"] == "holds" and head["note"] == "in part without the first 20 ms (settled (t >= 20 ms))"
+    assert head["verdict"] == "holds" and head["note"] == "in part with the first 20 ms left out (settled, t >= 20 ms)"
     line = next(line for line in verdicts.claim_lines(rows) if line.startswith("* Claim 5"))
-    assert line.startswith("* Claim 5 **holds** (holds in 1 of 1 seed; in part without the first 20 ms"), line
+    assert line.startswith("* Claim 5 **holds** (holds in 1 of 1 seed; in part with the first 20 ms left out"), line
     # unchanged by the settled form: nothing is said (claims 1-4 have no settled form to read)
     plain = verdicts.claim_rows(claims.judge_claims(paper_run()), source="experiment", name="x", setting="x")
     assert (plain.loc[plain["role"] == "claim", "note"] == "").all()

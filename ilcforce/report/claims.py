@@ -44,7 +44,7 @@ How a verdict is reached (stated once, used for every claim)
    never "10 of 10 seeds".
 6. Where the judged metric has a form without the first 20 ms (settled, ilcforce.metrics.SETTLED_FROM:
    claim 5's H), the same tests are applied to it; when that would change the claim's verdict, the
-   verdict is stated with the other beside it ("fails without the first 20 ms (settled, t >= 20 ms)";
+   verdict is stated with the other beside it ("fails with the first 20 ms left out (settled, t >= 20 ms)";
    claims.csv's claim row carries it in ``note``). It never decides the verdict.
 
 Iterations are counted from 0; ``p`` (10 in the paper) is the perturbation iteration. The parts
@@ -62,7 +62,7 @@ import pandas as pd
 from ilcforce.plants import changed_parameter
 from ilcforce.report import paper
 from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY, parts_for,  # noqa: F401 (re-exported)
-                                         SETTLED_NAME, SHOWN, _Part, _Seed, _Stop, statement_at)
+                                         SHOWN, _Part, _Seed, _Stop, statement_at)
 from ilcforce.report.seedframes import split_seeds
 from ilcforce.stats import frequency_interval, median_interval
 
@@ -282,8 +282,8 @@ def _settled_part(part: _Part) -> _Part:
 
 def settled_text(verdict_settled: str) -> str:
     """What a verdict line says beside the verdict when leaving out the first 20 ms would change it
-    (rule 6): "fails without the first 20 ms (settled (t >= 20 ms))"; "" when it would not."""
-    return f"{verdict_settled} without the first 20 ms ({SETTLED_NAME})" if verdict_settled else ""
+    (rule 6): "fails with the first 20 ms left out (settled, t >= 20 ms)"; "" when it would not."""
+    return f"{verdict_settled} with the first 20 ms left out (settled, t >= 20 ms)" if verdict_settled else ""
 
 
 def _frequency_text(per_seed: Mapping[str, int], deterministic: bool = False) -> str:
