@@ -13,8 +13,8 @@ RESULTS ?= results
 # (tuned-mc, serial2r-tuned-mc), never by a single run on seed 0; and the robots read from a model file
 # (*-model.toml): their compiled chain kernels still run about 35x slower than the closed forms
 # (docs/model.md#model-file), so they run on demand (`ilcforce compare -c experiments/serial2r-model.toml`);
-# and the spatial arm (arm3): its evidence is its study over 20 held-out seeds (arm3-mc), and SL-adapt, one of
-# the registered methods every single-run experiment runs, has no law for three axes yet
+# and the spatial arm (arm3): its evidence is its study over 20 held-out seeds (arm3-mc, every method with a
+# law for three axes, SL-adapt included), not a single run on seed 0
 EXPERIMENTS := $(filter-out %-tuned %-model arm3,$(patsubst experiments/%.toml,%,$(shell grep -L '^\[study\]' experiments/*.toml)))
 # every registered method (ilcforce/controllers/__init__.py); evaluated only by targets that need it
 METHODS = $(shell $(PY) -m ilcforce.controllers)

@@ -306,8 +306,18 @@ def parse_override(text: str) -> tuple[str, object]:
 
 def command_overrides(sets=(), seed: int | None = None, iters: int | None = None) -> dict[str, object]:
     """The overrides of a command line's ``--set`` items, ``--seed`` and ``--iters``; ConfigError for
-    a negative seed or fewer than one iteration."""
+    a negative seed, fewer than one iteration, or a key given both ways (:data:`OWN_OPTION`).
+
+    ``--set experiment.iterations`` is refused in favour of ``--iters``: the number of iterations never
+    makes a variant (iteration j is the same whether 10 or 20 are run, so such a run is the
+    experiment's own store), unlike every other ``--set`` key, and two ways to give it could disagree."""
     overrides = dict(parse_override(s) for s in (sets or ()))
+    if "experiment.iterations" in overrides:
+        raise ConfigError(f"--set experiment.iterations={_plain(overrides['experiment.iterations'])}: give the "
+                          "number of iterations with --iters (it is not a variant: the run is the experiment's own)")
+    if seed is not None and "experiment.seed" in overrides:
+        raise ConfigError(f"--seed {seed} and --set experiment.seed={_plain(overrides['experiment.seed'])} both "
+                          "give the seed; give it once, with --seed")
     if seed is not None:
         if seed < 0:
             raise ConfigError(f"--seed must be >= 0, got {seed}")

@@ -127,6 +127,12 @@ def test_the_findings_lead_with_a_summary_of_at_most_12_kb() -> None:
     assert "Calibrated ([`paper-calibrated-mc`](studies/paper-calibrated-mc/findings.md), 20 seeds): **holds**" in two
     assert "Our noise ([`paper-mc`](studies/paper-mc/findings.md), 20 seeds): **in part**" in two
     assert "margin -14% of the threshold" in two, two
+    # a part that does not hold says by how much: its number and threshold beside its verdict
+    assert "not holding: C3 below C2 by the paper's margin before the perturbation, force: 0.7 (< 0.613: in part)" \
+        in two, two
+    # claim 5's judged number named as claims.csv names it
+    five = summary.split("**Claim 5.**", 1)[1].split("###", 1)[0]
+    assert "Judged on: H(C1) / H(C3) at j = 19, H on the whole grid (the paper's)." in five, five
     assert "The single run `paper` (seed 0 of our noise): in part" in two
     # the headline results: the claim map's sentence and the long runs' divergence
     assert "claim 2 holds in 1 of 4 cells" in summary and "c3: j = 115 (5 of 5 seeds)" in summary

@@ -124,3 +124,81 @@ def test_on_a_plane_claim_5_reads_u_for_x_and_n_for_y() -> None:
     assert not any(key.endswith(("_x", "_y")) for key in five.index)
     summary = claims.claim_summary(claims.judge_claims(runs)).set_index("claim")
     assert summary.at[5, "verdict"] == "holds"
+
+
+def test_the_margin_has_one_definition_the_distance_to_the_nearest_edge() -> None:
+    """`margin` had two definitions: a fraction of the threshold for < and >=, and factor / distance - 1
+    for "within x1.1" (6.25 against 1.67 printed -71%). One now, for every kind of range: the signed
+    distance to the nearest edge of the passing range as a fraction of that edge (docs/tables.md)."""
+    within = claim_parts.within(1.67, 1.1)
+    assert within(6.25) == pytest.approx((1.67 * 1.1 - 6.25) / (1.67 * 1.1)) == pytest.approx(-2.402, abs=1e-3)
+    assert within(1.0) == pytest.approx((1.0 - 1.67 / 1.1) / (1.67 / 1.1))  # below the range: the lower edge
+    assert within(1.67) > 0 and within(1.67 * 1.1) == pytest.approx(0.0, abs=1e-12)
+    assert claim_parts.below(0.613)(0.694) == pytest.approx((0.613 - 0.694) / 0.613)
+    assert claim_parts.above(2.0)(1.5) == pytest.approx(-0.25)
+    # and the judged part reports exactly that for its median
+    run = paper_run()
+    run["c3"] = run["c3"].assign(chattering_task_x=0.06 / 6.25)
+    parts = claims.judge_claims(run).set_index("part")
+    assert parts.at["magnitude_x", "median"] == pytest.approx(6.25)
+    assert parts.at["magnitude_x", "margin"] == pytest.approx(within(6.25))
+
+
+def test_a_verdict_the_first_20_ms_change_is_said_beside_it() -> None:
+    """Claim 5 is judged on H over the whole grid; where reading it settled (t >= 20 ms) would change
+    the claim's verdict, the claim row and its verdict line say so beside the verdict, never instead."""
+    from ilcforce.report import verdicts
+
+    run = paper_run()
+    run["c3"] = run["c3"].assign(chattering_task_y_settled=0.2)  # settled: C3 chatters more than C1 on Y
+    parts = claims.judge_claims(run)
+    assert set(parts.loc[parts["claim"] == 5, "verdict"]) == {"holds"}, "the whole grid decides"
+    rows = verdicts.claim_rows(parts, source="experiment", name="x", setting="x")
+    head = rows[(rows["claim"] == 5) & (rows["role"] == "claim")].iloc[0]
+    assert head["verdict"] == "holds" and head["note"] == "in part with the first 20 ms left out (settled, t >= 20 ms)"
+    line = next(line for line in verdicts.claim_lines(rows) if line.startswith("* Claim 5"))
+    assert line.startswith("* Claim 5 **holds** (holds in 1 of 1 seed; in part with the first 20 ms left out"), line
+    # unchanged by the settled form: nothing is said (claims 1-4 have no settled form to read)
+    plain = verdicts.claim_rows(claims.judge_claims(paper_run()), source="experiment", name="x", setting="x")
+    assert (plain.loc[plain["role"] == "claim", "note"] == "").all()
+
+
+def test_verdict_words_never_contradict_each_other_when_the_praised_method_diverged() -> None:
+    """"Claim 2 not evaluable (fails in 1 of 1 seed)": the seed where C3 diverged counted as a failure
+    while the claim was not evaluable for that divergence. Such a seed is now counted under its own words."""
+    from ilcforce.report import verdicts
+
+    run = paper_run()
+    c3 = run["c3"].copy()
+    c3.loc[3:, "status"] = "diverged"
+    c3.loc[3, "diverged_time"] = 1.0
+    run["c3"] = c3
+    parts = claims.judge_claims(run)
+    rows = verdicts.claim_rows(parts, source="experiment", name="x", setting="x")
+    head = rows[rows["role"] == "claim"].set_index("claim")
+    assert head.at[2, "verdict"] == "not evaluable"
+    assert head.at[2, "evaluation"] == "a praised method diverged in 1 of 1 seed", head.at[2, "evaluation"]
+    judged = rows[(rows["claim"] == 2) & (rows["role"] == "central")]
+    for row in judged.itertuples(index=False):
+        assert row.verdict == "not evaluable" and "fails" not in row.evaluation, row
+        assert row.evaluation == "a praised method diverged in 1 of 1 seed"
+    for line in verdicts.claim_lines(rows):
+        if "**not evaluable**" in line:
+            assert "fails in" not in line.split(").", 1)[0], line
+    for line in verdicts.claim_lines(rows):  # a part not evaluable for the divergence: no "passes in 0 of 1"
+        assert "not evaluable; passes in" not in line, line
+
+
+def test_in_part_says_which_part_fails_and_by_how_much() -> None:
+    """Claim 2 "in part" where C3's force error was 1.2-2.2x C2's: the verdict's parts now carry the
+    number and threshold of every part that does not hold, beside its verdict."""
+    c3 = paper.table2_row("c3")
+    run = paper_run()
+    run["c3"] = _frame(_norms(c3.jbar_position, c3.position_error_2norm, JUMP_LEARNING),
+                       _norms(c3.jbar_force, 2.0 * 0.096, JUMP_LEARNING), (0.0359, 0.0219))
+    summary = claims.claim_summary(claims.judge_claims(run)).set_index("claim")
+    assert summary.at[2, "verdict"] == "in part"
+    text = summary.at[2, "parts"]
+    threshold = f"< {claim_parts.REDUCTION_RATIO:g}"
+    assert f"before the perturbation, force: fails (2 against {threshold})" in text, text
+    assert f"before the perturbation, position: holds;" in text, "a part that holds needs no number"

@@ -243,3 +243,85 @@ def test_validate_skips_the_files_kept_beside_a_store(runner, tmp_path):
     stray = tmp_path / "notes.lock"  # not beside a store's name: checked, and not a store
     stray.write_text("x", encoding="utf-8")
     assert runner.invoke(app, ["validate", str(stray)]).exit_code == 2
+
+
+@pytest.mark.parametrize("command", ["simulate", "compare", "config"])
+def test_the_number_of_iterations_is_given_once_with_iters(runner, tmp_path, command):
+    """`--set experiment.iterations=3` wrote the experiment's own store (the only --set key that made no
+    variant), and `--iters 2 --set experiment.iterations=5` ran 2 without a word: both are refused in
+    favour of --iters, one line, exit 2, nothing written; so is a seed given both ways."""
+    results = tmp_path / "results"
+    for args, expected in (
+            (["--set", "experiment.iterations=3"], "--set experiment.iterations=3: give the number of iterations "
+                                                   "with --iters"),
+            (["--iters", "2", "--set", "experiment.iterations=5"], "--set experiment.iterations=5: give the number"),
+            (["--seed", "5", "--set", "experiment.seed=3"], "--seed 5 and --set experiment.seed=3 both give the seed")):
+        _one_clear_line(runner.invoke(app, [command, *args, *SHORT, *(["--results", str(results)]
+                                                                       if command != "config" else [])]), expected)
+    assert not results.exists(), "a refused command writes nothing"
+    # the one way: --iters, into the experiment's own store (iterations never make a variant)
+    if command == "simulate":
+        assert runner.invoke(app, [command, "-m", "c1", "--iters", "1", "--results", str(results)]).exit_code == 0
+        assert (results / "paper" / "c1.h5").is_file()
+
+
+def test_study_progress_says_compiling_until_a_cell_finishes_then_an_eta_without_the_compiling(capsys):
+    """The first progress line of a study said "ETA 27794 s": its first cell finished after 12 minutes
+    of compiling and the ETA took that for the pace. Now: "compiling" while no cell of this run has
+    finished, no ETA from the first (it paid for the compiling), then the pace since the first."""
+    from ilcforce.cli.study import _StudyProgress
+    from ilcforce.study.runner import Progress
+
+    clock = [100.0]
+    progress = _StudyProgress("s", quiet=False)
+    progress._time = lambda: clock[0]
+    with progress:
+        steps = [(0.0, 2, ""), (720.0, 3, "c1 seed 0"), (730.0, 4, "c1 seed 1"), (750.0, 5, "c1 seed 2")]
+        for at, finished, last in steps:  # 2 of 42 cells stored before; 40 to run
+            clock[0] = 100.0 + at
+            progress(Progress(total=42, finished=finished, failed=0, to_run=40, last=last))
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == "s: 2/42 cells, 0 failed, 0 s, compiling, no cell finished yet", lines
+    assert lines[1] == "s: 3/42 cells, 0 failed, 720 s, first cell finished (compiling included), ETA after the next"
+    # 10 s for the one cell after the first: 38 cells left take 380 s (not 720 s x 38 = 27360 s)
+    assert lines[2] == "s: 4/42 cells, 0 failed, 730 s, ETA 380 s", lines
+    assert lines[3] == "s: 5/42 cells, 0 failed, 750 s, ETA 555 s", lines  # 30 s / 2 cells x 37
+
+
+def _comment_paths(root):
+    """(file, path) for every experiments/ path named in a comment of an experiment file or the Makefile."""
+    import re
+
+    found = []
+    files = sorted((root / "experiments").rglob("*.toml")) + [root / "Makefile"]
+    for file in files:
+        for line in file.read_text(encoding="utf-8").splitlines():
+            comment = line.strip()
+            if file.name == "Makefile" and "## " in comment and not comment.startswith("#"):
+                comment = comment.split("## ", 1)[1]  # a target's help text
+            elif not comment.startswith("#"):
+                continue
+            found += [(file, p.rstrip(".,:;)")) for p in re.findall(r"experiments/[\w.*/-]*", comment)]
+    return found
+
+
+def test_every_experiments_path_a_comment_names_exists():
+    """arm3.toml named experiments/full/arm3-mc.toml, which never existed: a path in a comment of an
+    experiment file or the Makefile is a file (or, with *, a pattern matching one) of the repository."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    named = _comment_paths(root)
+    assert len(named) > 20, named  # the comments do name paths: the scan reads them
+    missing = [(f.relative_to(root).as_posix(), p) for f, p in named
+               if not (any(root.glob(p)) if "*" in p else (root / p).exists())]
+    assert missing == [], missing
+
+
+def test_help_points_at_what_an_install_has():
+    """`ilcforce --help` pointed at README.md, which a pip install does not have."""
+    result = CliRunner().invoke(app, ["--help"])
+    assert result.exit_code == 0 and "README" not in result.output
+    assert "ilcforce COMMAND --help" in " ".join(result.output.split())
+    study = CliRunner().invoke(app, ["study", "--help"])
+    assert study.exit_code == 0 and "README" not in study.output and "study.sweep" in study.output

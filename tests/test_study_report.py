@@ -47,7 +47,7 @@ def test_key_numbers_are_medians_with_bootstrap_intervals(results):
     numbers = per_seed_numbers(frame, ["c1", "c2", "c3"], 3)
     h1 = frame[(frame["method"] == "c1") & (frame["iteration"] == 2)].sort_values("seed")["chattering_task_x"]
     h3 = c3["chattering_task_x"]
-    np.testing.assert_allclose(numbers["H(C1)/H(C3) x at j = 2"]["ratio"], h1.to_numpy() / h3.to_numpy(),
+    np.testing.assert_allclose(numbers["H(C1) / H(C3) at j = 2, H on the whole grid (the paper's), x (shown, not judged)"]["ratio"], h1.to_numpy() / h3.to_numpy(),
                                rtol=0, atol=0, err_msg="ratios are taken seed by seed (common random numbers)")
 
 
@@ -374,3 +374,39 @@ def test_report_on_a_sweep_whose_setting_diverges_in_every_cell(tmp_path):
     assert result.exit_code == 0, result.output
     text = "\n".join(p.read_text(encoding="utf-8") for p in (tmp_path / "out").rglob("*.md"))
     assert "j = 0 (2 of 2 seeds)" in text, text[:2000]
+
+
+def test_the_number_tables_call_judged_is_the_one_claims_csv_judges(tmp_path):
+    """Claim 5 was judged on H over the whole grid (claims.csv, docs/model.md) while the study tables
+    labelled the settled ratio "(judged by claim 5)". Now each label a table tags "judged by claim k"
+    names exactly the statistic claims.csv judges claim k's central parts on, and the settled ratio is
+    "(shown, not judged)", in every report file that writes key numbers."""
+    import re
+
+    from ilcforce.report import claim_parts
+
+    study = small_study(name="judged", seeds="0-1", methods=("c1", "c3"),
+                        set={**SMALL, "experiment.iterations": 20})
+    root = tmp_path / "results"
+    run_study(study, root, workers=1)
+    out = tmp_path / "report"
+    write_report(root, out, formats=("png",), jobs=1)
+    claims_csv = pd.read_csv(out / "claims.csv", keep_default_na=False)
+    mine = claims_csv[(claims_csv["name"] == "judged") & (claims_csv["role"] == "central")]
+    tables = sorted((out / "studies" / "judged").glob("key_numbers_s*.csv"))
+    assert tables, "the study wrote its key numbers"
+    tagged = []
+    for table in tables:
+        for label in pd.read_csv(table, keep_default_na=False)["quantity"]:
+            found = re.fullmatch(r"(.*), (\w) \(judged by claim (\d)\)", label)
+            if found:
+                tagged.append(label)
+                name, axis, claim = found.group(1), found.group(2), int(found.group(3))
+                judged = mine[(mine["claim"] == claim) & mine["part"].str.endswith(f"_{axis}")]
+                assert len(judged) and set(judged["statistic_name"]) == {name}, (label, judged)
+            elif "judged" in label:
+                assert label.endswith(claim_parts.SHOWN_TAG), label
+    assert len(tagged) == 2 * len(tables), tagged  # x and y, at j = 19
+    assert all("settled" not in label for label in tagged)
+    text = (out / "studies" / "judged" / "report.md").read_text(encoding="utf-8")
+    assert f"{claim_parts.h_ratio_name(19, '_settled')}, y {claim_parts.SHOWN_TAG}" in text

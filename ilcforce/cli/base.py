@@ -49,7 +49,9 @@ app = typer.Typer(
     add_completion=False,
     no_args_is_help=True,
     help="Iterative learning control for hybrid force/position control of robot manipulators in contact "
-         "(five-bar and serial 2R; reproduces and checks the ILC + sliding mode paper; see README.md).",
+         "(a five-bar, a serial 2R arm, arms read from a URDF or MJCF model file); reproduces and checks the "
+         "ILC + sliding mode paper. `ilcforce COMMAND --help` describes a command and its options; "
+         "`ilcforce config` prints every setting with its value, as an experiment file.",
 )
 out = _LazyConsole(stderr=False)
 err = _LazyConsole(stderr=True)

@@ -19,7 +19,7 @@ from ilcforce.cli.base import _guard, _load, app
 
 #: The comment above each section (methods' gain sections are named by the registry's titles).
 SECTIONS = {
-    "experiment": "name, seed, iterations",
+    "experiment": "name, seed, iterations (on the command line: --seed, --iters)",
     "plant": "the robot (model) and the true plant's change from an iteration on (perturbation)",
     "wall": "the constraint surface (docs/model.md#wall)",
     "reference": "the desired position and force",

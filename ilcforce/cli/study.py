@@ -26,8 +26,26 @@ def _study_errors():
     return (StudyError, StudyStoreError, StudyRunError, ExportError)
 
 
+def eta_text(total: int, finished: int, failed: int, to_run: int, since_first: float) -> str:
+    """What a progress line says of the time left. Until a cell of this run has finished: "compiling, no
+    cell finished yet" (the workers' first cells include compiling the kernels, which took 12 minutes on a
+    loaded machine, and an ETA from them said 27794 s); after the first, which paid for the compiling,
+    the ETA waits for the next; from then on "ETA <s> s" at the pace since the first finished
+    (``since_first`` seconds ago); "" when every cell is done."""
+    done = finished + failed
+    if done >= total:
+        return ""
+    ran = done - (total - to_run)
+    if ran <= 0:
+        return "compiling, no cell finished yet"
+    if ran == 1:
+        return "first cell finished (compiling included), ETA after the next"
+    return f"ETA {since_first / (ran - 1) * (total - done):.0f} s"
+
+
 class _StudyProgress:
-    """Progress over cells: a rich bar with ETA on a terminal, a line every ~10% otherwise."""
+    """Progress over cells: a rich bar on a terminal, a line every ~10 s otherwise; both say
+    "compiling" until a cell has finished and an ETA from then on (:func:`eta_text`)."""
 
     def __init__(self, name: str, quiet: bool, stop: list | None = None) -> None:
         import time
@@ -37,15 +55,15 @@ class _StudyProgress:
         self.bar = None
         self._next_line = 0.0
         self._started = self._time()
+        self._first = None  # when the first cell of this run finished
 
     def __enter__(self):
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                   TimeRemainingColumn)
+        from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
         if not self.quiet and err.is_terminal:
             self.bar = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                                 TextColumn("cells, {task.fields[failed]} failed"), TimeElapsedColumn(),
-                                TextColumn("ETA"), TimeRemainingColumn(), TextColumn("{task.fields[last]}"),
+                                TextColumn("{task.fields[eta]}"), TextColumn("{task.fields[last]}"),
                                 console=err.console(), transient=False)
             self.bar.__enter__()
             self.task = None
@@ -56,22 +74,24 @@ class _StudyProgress:
             raise KeyboardInterrupt  # callback, Python ignores it): stop here, after a cell's commit
         if self.quiet:
             return
-        if self.bar is not None:
-            if self.task is None:
-                self.task = self.bar.add_task(self.name, total=p.total, completed=p.finished, failed=0, last="")
-            self.bar.update(self.task, completed=p.finished + p.failed, failed=p.failed, last=p.last[:60])
-            return
         now = self._time()
         if p.last == "":
-            self._started = now
+            self._started, self._first = now, None
+        elif self._first is None:
+            self._first = now  # the first cell of this run finished: the ETA's pace is measured from here
+        elapsed = now - self._started
+        eta = eta_text(p.total, p.finished, p.failed, p.to_run, 0.0 if self._first is None else now - self._first)
+        if self.bar is not None:
+            if self.task is None:
+                self.task = self.bar.add_task(self.name, total=p.total, completed=p.finished, failed=0, last="",
+                                              eta=eta)
+            self.bar.update(self.task, completed=p.finished + p.failed, failed=p.failed, last=p.last[:60], eta=eta)
+            return
         done = p.finished + p.failed
         if p.last == "" or done == p.total or now >= self._next_line:
             self._next_line = now + 10.0
-            elapsed = now - self._started
-            ran = done - (p.total - p.to_run)
-            eta = f", ETA {elapsed / ran * (p.total - done):.0f} s" if ran > 0 and done < p.total else ""
-            err.print(f"{self.name}: {done}/{p.total} cells, {p.failed} failed, {elapsed:.0f} s{eta}",
-                      highlight=False, markup=False)
+            _say(f"{self.name}: {done}/{p.total} cells, {p.failed} failed, {elapsed:.0f} s"
+                 + (f", {eta}" if eta else ""), stderr=True)  # one line, never wrapped at 80 columns
 
     def __exit__(self, *exc):
         if self.bar is not None:
@@ -81,7 +101,7 @@ class _StudyProgress:
 @app.command()
 def study(
     ctx: typer.Context,
-    files: Annotated[list[Path], typer.Argument(help="study files: TOML whose study table names the seeds, methods, fixed values, and a sweep or a list of settings (see README); several run one after another on one cluster")],
+    files: Annotated[list[Path], typer.Argument(help="study files: TOML whose table study holds name, seeds (\"0-9\" or a list) and optionally experiment (a file), methods, study.set (fixed values, as --set), study.sweep (a grid) or study.settings (a list); several run one after another on one cluster")],
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://HOST:8786")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", help="local worker processes (default: one per core; 1 runs in this process without Dask)")] = None,
     results: Annotated[Path, typer.Option("--results", help="results folder; the study store is <results>/studies/<name>.h5")] = Path("results"),

@@ -159,20 +159,28 @@ class _Stop(Exception):
         self.passed, self.note, self.diverged = passed, note, diverged
 
 
+# The margin, one definition for every part (docs/tables.md, "Terms"): the statistic's signed distance to
+# the nearest edge of its passing range, as a fraction of that edge; >= 0 passes, -0.12 is 12% of the edge
+# on the wrong side. The three forms below are that definition for the three kinds of range.
+
+
 def below(threshold: float) -> Callable[[float], float]:
-    """Margin of a statistic that must stay below ``threshold``: (threshold - x) / threshold, > 0 passing."""
+    """Margin of a statistic that must stay below ``threshold`` (the edge): (threshold - x) / threshold."""
     return lambda x: (threshold - x) / threshold
 
 
 def above(threshold: float) -> Callable[[float], float]:
-    """Margin of a statistic that must reach ``threshold``: (x - threshold) / threshold, >= 0 passing."""
+    """Margin of a statistic that must reach ``threshold`` (the edge): (x - threshold) / threshold."""
     return lambda x: (x - threshold) / threshold
 
 
 def within(published: float, factor: float) -> Callable[[float], float]:
-    """Margin of a ratio that must lie within ``factor`` of ``published`` either way: factor / (its
-    distance as a factor) - 1, >= 0 passing."""
-    return lambda x: factor / max(x / published, published / x) - 1.0 if x > 0 else -math.inf
+    """Margin of a ratio that must lie within ``factor`` of ``published`` either way, i.e. in
+    [published / factor, published x factor]: the distance to the nearer edge as a fraction of it, the
+    smaller of :func:`below` (published x factor) and :func:`above` (published / factor). 6.25 against
+    1.67 x 1.1 = 1.837 is -240%."""
+    high, low = below(published * factor), above(published / factor)
+    return lambda x: min(high(x), low(x))
 
 
 @dataclass(frozen=True)
@@ -181,8 +189,8 @@ class _Part:
 
     ``partly``: for a judged part with a weaker reading (claim 2: C3 below C2 at all), whether a value
     that fails the threshold still meets it; a seed doing so counts toward "in part" (claims.py).
-    ``margin``: the signed distance of a value to the threshold as a fraction of it (>= 0 passing),
-    reported for the median."""
+    ``margin``: the signed distance of a value to the nearest edge of its passing range as a fraction
+    of that edge (>= 0 passing; :func:`below`, :func:`above`, :func:`within`), reported for the median."""
 
     claim: int
     key: str
@@ -194,6 +202,9 @@ class _Part:
     partly: Callable[[float], bool] | None = None
     partial_text: str = ""  # the weaker condition, e.g. "< 1 (C3 below C2)"
     margin: Callable[[float], float] | None = None
+    #: the same test on the metric without the first 20 ms (settled, :data:`SETTLED_NAME`), where the
+    #: judged metric has such a form: never judged, it says beside a verdict when that would change it
+    settled: Callable[["_Seed"], tuple[float, bool | None]] | None = None
 
 
 def _ratio(numerator: float, denominator: float) -> float:
@@ -481,6 +492,25 @@ def _claim4_parts() -> list[_Part]:
 JUDGED_H = ""
 #: The forms of H shown beside the judged one.
 SHOWN_H = (("_settled", "settled (t >= 20 ms)"), ("_no_t0", "without t = 0"))
+#: The names of the terms (docs/tables.md, "Terms"): the whole grid (every logged sample of an iteration,
+#: the paper's reading) and settled (the samples from t = 20 ms on, ilcforce.metrics.SETTLED_FROM).
+WHOLE_GRID_NAME, SETTLED_NAME = "whole grid", "settled (t >= 20 ms)"
+def h_ratio_name(j: int, form: str = JUDGED_H) -> str:
+    """The name of the ratio H(C1) / H(C3) at iteration ``j`` with H in ``form`` (``""``: the whole grid,
+    the paper's; ``_settled``, ``_no_t0``: :data:`SHOWN_H`)."""
+    what = f"on the {WHOLE_GRID_NAME} (the paper's)" if form == JUDGED_H else dict(SHOWN_H)[form]
+    return f"H(C1) / H(C3) at j = {j}, H {what}"
+
+
+#: What claim 5 judges, by one name: claims.csv's statistic_name of its judged parts, and the name a study
+#: table gives that number, tagged :data:`JUDGED_TAG`; the other forms are tagged :data:`SHOWN_TAG`.
+CLAIM5_JUDGED = h_ratio_name(paper.CHATTERING_ITERATION)
+JUDGED_TAG, SHOWN_TAG = "(judged by claim 5)", "(shown, not judged)"
+
+
+def claim5_shown(form: str) -> str:
+    """claims.csv's name of claim 5's ratio with H in another form (``_settled``, ``_no_t0``), shown only."""
+    return f"{h_ratio_name(paper.CHATTERING_ITERATION, form)} {SHOWN_TAG}"
 
 
 #: Claim 5's axes per task dimension: (our axis, the paper's axis it stands for, the published ratio). On a plane
@@ -499,17 +529,24 @@ def _claim5_parts(n: int = 2) -> list[_Part]:
             c3 = s.chattering("c3", column)  # the asserted method first: its divergence settles the part
             return _ratio(s.chattering("c1", column), c3)
 
+        def direction(s: _Seed, f=ratio, form=JUDGED_H) -> tuple[float, bool]:
+            value = f(s, form=form)
+            return value, bool(value > 1.0)
+
+        def magnitude(s: _Seed, f=ratio, pub=published, form=JUDGED_H) -> tuple[float, bool]:
+            value = f(s, form=form)  # 0 (a C1 without chattering) or NaN is no match: no log of it
+            return value, bool(value > 0 and abs(math.log(value / pub)) <= math.log(RATIO_FACTOR))
+
         parts.append(_Part(5, f"direction_{axis}", f"C3 chatters less than C1, {name}", CENTRAL,
-                           "H(C1) / H(C3) at j = 19, H on the whole grid (the paper's)",
-                           lambda s, f=ratio: (f(s), bool(f(s) > 1.0)), "> 1", margin=above(1.0)))
+                           CLAIM5_JUDGED, direction, "> 1", margin=above(1.0),
+                           settled=lambda s, f=direction: f(s, form="_settled")))
         parts.append(_Part(5, f"magnitude_{axis}", f"ratio near the paper's {published}, {name}", SECONDARY,
-                           "H(C1) / H(C3) at j = 19, H on the whole grid (the paper's)",
-                           lambda s, f=ratio, pub=published: (
-                               f(s), bool(abs(math.log(f(s) / pub)) <= math.log(RATIO_FACTOR))),
-                           f"within x{RATIO_FACTOR:g} of {published}", margin=within(published, RATIO_FACTOR)))
+                           CLAIM5_JUDGED, magnitude,
+                           f"within x{RATIO_FACTOR:g} of {published}", margin=within(published, RATIO_FACTOR),
+                           settled=lambda s, f=magnitude: f(s, form="_settled")))
         for form, what in SHOWN_H:
             parts.append(_Part(5, f"ratio{form}_{axis}", f"H(C1) / H(C3) {what}, {name}",
-                               SHOWN, f"ratio of H {what}", lambda s, f=ratio, form=form: (f(s, form=form), None)))
+                               SHOWN, claim5_shown(form), lambda s, f=ratio, form=form: (f(s, form=form), None)))
         parts.append(_Part(5, f"before_perturbation_{axis}", f"H(C1) / H(C3) before the perturbation, {name}",
                            SHOWN, "ratio of H at j = p - 1 (the change of the plant at p alters each law's chattering)",
                            lambda s, a=axis: (_ratio(s.chattering_before("c1", f"chattering_task_{a}{JUDGED_H}"),
@@ -526,7 +563,8 @@ def _claim5_parts(n: int = 2) -> list[_Part]:
                                        s.chattering(m, f"chattering_task_{a}{form}") / t, None)))
     if n == 3:  # the plane's second axis: no paper number, shown beside
         parts.append(_Part(5, "direction_v", "H(C1) / H(C3) along v (no counterpart in the paper)", SHOWN,
-                           "H(C1) / H(C3) at j = 19, H on the whole grid",
+                           f"H(C1) / H(C3) at j = {paper.CHATTERING_ITERATION}, H on the {WHOLE_GRID_NAME} "
+                           "(shown: v has no counterpart in the paper)",
                            lambda s: (_ratio(s.chattering("c1", f"chattering_task_v{JUDGED_H}"),
                                              s.chattering("c3", f"chattering_task_v{JUDGED_H}")), None)))
     return parts

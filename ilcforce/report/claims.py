@@ -26,18 +26,26 @@ How a verdict is reached (stated once, used for every claim)
    comparison it asserts does not exist there). Its frequency ("12 of 20 seeds") carries a 95%
    Wilson interval; its statistic is the median over seeds with a 95% percentile-bootstrap
    interval **of the median** (:mod:`ilcforce.stats`), beside the 5-95% spread of the seeds
-   themselves (where one seed would fall), and the median's **margin** to the threshold (a
-   fraction of the threshold, >= 0 on the passing side).
+   themselves (where one seed would fall), and the median's **margin** to the threshold (its
+   signed distance to the nearest edge of the passing range as a fraction of that edge, >= 0 on
+   the passing side; for "within x1.1 of 1.67" the edges are 1.67 / 1.1 and 1.67 x 1.1).
 3. Each part is **central** (what the claim is about), **secondary** (a qualifier) or **shown**
    (a number printed beside the claim, never judged). A claim is **not evaluable** when a central
    part is; otherwise it **holds** when every judged part holds, **fails** when no central part
    holds or holds in part, and holds **in part** otherwise (some of what it asserts holds: the
    parts say which).
 4. The same rule applied to one seed's part results gives that seed's claim verdict; the claim's
-   frequency ("holds in 3 of 20 seeds") counts them.
+   frequency ("holds in 3 of 20 seeds") counts them. A seed where a method the claim praises diverged
+   is counted under no verdict word ("a praised method diverged in 1 of 20 seeds"): the comparison it
+   asserts does not exist there, so a claim "not evaluable" for a divergence never reads "fails in 1
+   of 1 seed" beside it. A part's own evaluation counts such seeds the same way.
 5. A **deterministic** setting (no noise source active: every seed runs the same simulation) is
    one evaluation, judged on its first seed and said as such ("one evaluation, deterministic"),
    never "10 of 10 seeds".
+6. Where the judged metric has a form without the first 20 ms (settled, ilcforce.metrics.SETTLED_FROM:
+   claim 5's H), the same tests are applied to it; when that would change the claim's verdict, the
+   verdict is stated with the other beside it ("fails with the first 20 ms left out (settled, t >= 20 ms)";
+   claims.csv's claim row carries it in ``note``). It never decides the verdict.
 
 Iterations are counted from 0; ``p`` (10 in the paper) is the perturbation iteration. The parts
 themselves, with their thresholds, are in :mod:`ilcforce.report.claim_parts`.
@@ -66,6 +74,8 @@ IN_PART = "in part"
 FAILS = "fails"
 NOT_EVALUABLE = "not evaluable"
 VERDICTS = (HOLDS, IN_PART, FAILS, NOT_EVALUABLE)
+#: How a frequency counts a seed where a method the claim praises diverged: no verdict word (rule 4).
+DIVERGED = "a praised method diverged"
 
 # ---------------------------------------------------------------------------------------------
 # Judging
@@ -174,8 +184,9 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     passing share), ``part_verdict`` ("-" for shown parts), ``notes`` (why a seed could not be
     judged, first reason), ``n_seeds``, ``threshold`` (the pass condition), ``deterministic``,
     ``partial`` (the weaker condition that makes a failing part "in part", "" without one),
-    ``margin`` (the median's signed distance to the threshold as a fraction of it, >= 0 passing;
-    NaN for shown parts), ``spread_low``, ``spread_high`` (5th and 95th percentile over seeds).
+    ``margin`` (the median's signed distance to the nearest edge of the passing range as a fraction of
+    that edge, >= 0 passing; NaN for shown parts), ``diverged`` (the seeds where the method the part
+    praises diverged), ``verdict_settled`` (the claim's verdict on the settled form, rule 6, "" when the same), ``spread_low``, ``spread_high`` (5th and 95th percentile over seeds).
     :func:`claim_summary` reduces it to one row per claim. ``deterministic``: the setting draws
     nothing random (:func:`is_deterministic`); it is judged once, on its first seed (rule 5).
     ``config``: the setting's resolved configuration (TOML layout), read by the parts that name a
@@ -187,13 +198,20 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     contexts = {seed: _Seed(frames, perturbation_iteration, config) for seed, frames in seeds.items()}
     all_parts = parts_for(metrics.columns)  # claim 5 along the task's axes
     results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in all_parts}
+    # the judged parts' same tests on their metric's settled form (rule 6): what the verdict would be
+    settled = {part: [_evaluate(_settled_part(part), ctx) for ctx in contexts.values()]
+               for part in all_parts if part.settled is not None}
     roles = {part.key: part.role for part in all_parts}
     rows, claim_rows = [], {}
     parameter = changed_parameter(config or {})  # the plant's change, as claim 4 names it
     for claim in CLAIMS:
         mine = [part for part in all_parts if part.claim == claim.number]
         verdicts: dict[str, str] = {}
+        settled_verdicts: dict[str, str] = {}
         for part in mine:
+            if part in settled:
+                settled_verdicts[part.key] = part_verdict([_outcome(part, r[0], r[1]) for r in settled[part]],
+                                                          sum(1 for r in settled[part] if r[3]))
             values = np.array([r[0] for r in results[part]])
             passes = [r[1] for r in results[part]]
             outcomes = [_outcome(part, r[0], r[1]) for r in results[part]]
@@ -223,10 +241,11 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
                          "share_low": share.low, "share_high": share.high, "part_verdict": verdict,
                          "notes": notes[0] if notes else "", "n_seeds": len(contexts),
                          "threshold": part.threshold, "deterministic": bool(deterministic),
-                         "partial": part.partial_text, "margin": margin, "spread_low": low5,
+                         "partial": part.partial_text, "margin": margin, "diverged": diverged, "spread_low": low5,
                          "spread_high": high95})
-        # the same rule per seed: how often the claim as a whole holds
-        per_seed = {v: 0 for v in VERDICTS}
+        # the same rule per seed: how often the claim as a whole holds; a seed where a method the claim
+        # praises diverged is counted as such, not as a verdict (rule 4)
+        per_seed = {v: 0 for v in (*VERDICTS, DIVERGED)}
         for index in range(len(contexts)):
             seed_verdicts = {}
             for part in mine:
@@ -235,18 +254,39 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
                 value, passed = results[part][index][0], results[part][index][1]
                 outcome = _outcome(part, value, passed)
                 seed_verdicts[part.key] = {None: NOT_EVALUABLE, "pass": HOLDS, "partly": IN_PART}.get(outcome, FAILS)
-            per_seed[claim_verdict(seed_verdicts, roles)] += 1
-        claim_rows[claim.number] = (claim_verdict(verdicts, roles), per_seed)
+            if any(results[part][index][3] for part in mine if part.role not in NOT_JUDGED):
+                per_seed[DIVERGED] += 1
+            else:
+                per_seed[claim_verdict(seed_verdicts, roles)] += 1
+        verdict = claim_verdict(verdicts, roles)
+        changed = ""
+        if settled_verdicts:
+            otherwise = claim_verdict({**verdicts, **settled_verdicts}, roles)
+            changed = otherwise if otherwise != verdict else ""
+        claim_rows[claim.number] = (verdict, per_seed, changed)
     frame = pd.DataFrame(rows)
     if frame.empty:
         return frame
     frame.insert(2, "verdict", frame["claim"].map(lambda c: claim_rows[c][0]))
-    frame.insert(3, "claim_frequency", frame["claim"].map(lambda c: _frequency_text(*claim_rows[c], deterministic)))
+    frame.insert(3, "claim_frequency", frame["claim"].map(lambda c: _frequency_text(claim_rows[c][1], deterministic)))
     frame.insert(4, "claim_seeds_holding", frame["claim"].map(lambda c: int(claim_rows[c][1][HOLDS])))
+    frame.insert(5, "verdict_settled", frame["claim"].map(lambda c: claim_rows[c][2]))
     return frame
 
 
-def _frequency_text(verdict: str, per_seed: Mapping[str, int], deterministic: bool = False) -> str:
+def _settled_part(part: _Part) -> _Part:
+    """``part`` with its test read on the settled form of its metric (:attr:`_Part.settled`)."""
+    return _Part(part.claim, part.key, part.text, part.role, part.statistic, part.settled, part.threshold,
+                 part.partly, part.partial_text, part.margin)
+
+
+def settled_text(verdict_settled: str) -> str:
+    """What a verdict line says beside the verdict when leaving out the first 20 ms would change it
+    (rule 6): "fails with the first 20 ms left out (settled, t >= 20 ms)"; "" when it would not."""
+    return f"{verdict_settled} with the first 20 ms left out (settled, t >= 20 ms)" if verdict_settled else ""
+
+
+def _frequency_text(per_seed: Mapping[str, int], deterministic: bool = False) -> str:
     if deterministic:
         return ONE_EVALUATION
     n = sum(per_seed.values())
@@ -255,19 +295,31 @@ def _frequency_text(verdict: str, per_seed: Mapping[str, int], deterministic: bo
 
 
 def part_verdicts_text(mine: pd.DataFrame) -> str:
-    """A claim's judged parts and their verdicts in one line: "C2 below C1, position: holds; ..."."""
+    """A claim's judged parts and their verdicts in one line, a part that does not hold with its number
+    and threshold, so that "in part" never hides by how much a part fails: "C2 below C1, position:
+    holds; C3 below C2 by the paper's margin ..., force: fails (1.88 against < 0.613); ..."."""
     judged = mine[~mine["role"].isin(NOT_JUDGED)] if len(mine) else mine
-    return "; ".join(f"{r.part_text}: {r.part_verdict}" for r in judged.itertuples(index=False)) or "-"
+    return "; ".join(f"{r.part_text}: {r.part_verdict}" + _by_how_much(r) for r in judged.itertuples(index=False)) or "-"
+
+
+def _by_how_much(row) -> str:
+    """" (1.88 against < 0.613)" for a judged part that does not hold and has a number; "" otherwise."""
+    if row.part_verdict == HOLDS or not math.isfinite(float(row.median)):
+        return ""
+    return f" ({float(row.median):.3g} against {row.threshold})"
 
 
 def claim_summary(parts: pd.DataFrame) -> pd.DataFrame:
-    """One row per claim: ``claim``, ``statement``, ``verdict``, ``frequency``, ``parts`` (every
+    """One row per claim: ``claim``, ``statement``, ``verdict``, ``frequency`` (with the verdict the settled
+    metric would give where it differs, rule 6), ``parts`` (every
     judged part's verdict, so a claim that fails on one part of four says so), ``paper``, ``rule``."""
     rows = []
     for claim in CLAIMS:
         mine = parts[parts["claim"] == claim.number] if not parts.empty else parts
         verdict = str(mine["verdict"].iloc[0]) if len(mine) else NOT_EVALUABLE
         frequency = str(mine["claim_frequency"].iloc[0]) if len(mine) else "-"
+        beside = settled_text(str(mine["verdict_settled"].iloc[0])) if len(mine) and "verdict_settled" in mine else ""
+        frequency += f"; {beside}" if beside else ""  # rule 6: beside the verdict, never instead of it
         statement = str(mine["statement"].iloc[0]) if len(mine) else claim.statement
         rows.append({"claim": claim.number, "statement": statement, "verdict": verdict,
                      "frequency": frequency, "parts": part_verdicts_text(mine), "paper": claim.paper,

@@ -108,6 +108,8 @@ def _setting_claim(rows: pd.DataFrame, claim: int, label: str, with_spread: bool
         return f"{label}: not run"
     verdict = str(head["verdict"].iloc[0])
     text = f"{label}: **{verdict}**"
+    beside = str(head["note"].iloc[0] or "")  # the verdict the settled metric would give, where it differs
+    text += f" ({beside})" if beside else ""
     binding = _binding(mine)
     if binding is not None:
         text += (f"; binding part (nearest to failing), {binding['part_text']}: {verdict_rows.statistic_text(binding)}"
@@ -115,11 +117,22 @@ def _setting_claim(rows: pd.DataFrame, claim: int, label: str, with_spread: bool
                  f"{verdict_rows.margin_text(binding)})")
     weak = mine[mine["role"].isin(["central", "secondary"]) & (mine["verdict"] != "holds")]
     if len(weak) and verdict != "holds":
-        text += "; not holding: " + ", ".join(f"{r.part_text} ({r.verdict})" for r in weak.itertuples(index=False))
+        text += "; not holding: " + ", ".join(f"{r.part_text}: {verdict_rows.statistic_text(r)} ({r.threshold}: {r.verdict})"
+                                             for r in weak.itertuples(index=False))
         notes = sorted({str(n) for n in weak["note"] if str(n)})
         if notes:
             text += f" [{notes[0]}]"
     return text
+
+
+def _judged_on(rows: pd.DataFrame, claim: int) -> str:
+    """" Judged on: <claims.csv's statistic_name>." when every judged part of the claim reads one number
+    (claim 5: H(C1) / H(C3) on the whole grid), so the summary names it as claims.csv and the tables do;
+    "" when the parts read several (their names are in the per-study findings and claims.csv)."""
+    if not len(rows):
+        return ""
+    names = set(rows.loc[(rows["claim"] == claim) & rows["role"].isin(["central", "secondary"]), "statistic_name"])
+    return f" Judged on: {names.pop()}." if len(names) == 1 else ""
 
 
 def _one_setting(claims: pd.DataFrame, source: str, name: str) -> pd.DataFrame:
@@ -174,11 +187,11 @@ def summary_lines(experiments: Mapping[str, Mapping[str, object]], studies: Mapp
     single = _one_setting(claims, verdict_rows.EXPERIMENT, OUR_NOISE_RUN)
     lines = ["## Summary", "",
              f"Numbers are the {verdict_rows.INTERVAL_NOTE}; a margin is the median's distance to the threshold "
-             "as a fraction of the threshold (>= 0 passes). \"Calibrated\": the paper's setup with every noise "
+             "(the nearer edge of a range such as \"within x1.1 of 1.67\") as a fraction of it (>= 0 passes). \"Calibrated\": the paper's setup with every noise "
              "source scaled to match Table 2 (`paper-calibrated`); \"our noise\": the paper's setup as shipped "
              "(docs/model.md, section \"Two noise levels\").", ""]
     for claim in claim_parts.CLAIMS:
-        lines.append(f"**Claim {claim.number}.** {claim.statement} Paper: {claim.paper}")
+        lines.append(f"**Claim {claim.number}.** {claim.statement} Paper: {claim.paper}{_judged_on(ours, claim.number)}")
         lines.append(f"* {_setting_claim(calibrated, claim.number, f'Calibrated ({_study_link(CALIBRATED_STUDY)}, {_seeds_label(calibrated)})')}.")
         lines.append(f"* {_setting_claim(ours, claim.number, f'Our noise ({_study_link(OUR_NOISE_STUDY)}, {_seeds_label(ours)})', True)}.")
         if claim.number == 1:  # why C1 leads, where it does (claim 1's cause rows)

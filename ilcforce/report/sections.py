@@ -122,16 +122,19 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
         lines = [f"Judged over {n} seed{'s' if n != 1 else ''}. Each number is the median over seeds with the "
                  "95% percentile-bootstrap interval of the median (where the median lies; where a single seed "
                  "falls is the seeds' 5-95% column); each frequency counts the seeds where the part passes "
-                 "(95% Wilson interval in brackets); the margin is the median's distance to the threshold as a "
-                 "fraction of it (>= 0 passes). With one seed there is no interval.", ""]
+                 "(95% Wilson interval in brackets); the margin is the median's distance to the threshold (the nearer "
+                 "edge of a range) as a fraction of it (>= 0 passes). With one seed there is no interval.", ""]
     lines.append(markdown_table(summary[["claim", "verdict", "frequency", "parts", "statement"]]))
     if flags:
         lines += ["Methods flagged for unstable learning (see Learning stability): "
                   + "; ".join(f"{m}: {text}" for m, text in flags.items()) + ".", ""]
     for claim in claims_module.CLAIMS:
         mine = parts[parts["claim"] == claim.number] if len(parts) else parts
+        beside = (claims_module.settled_text(str(mine["verdict_settled"].iloc[0]))
+                  if len(mine) and "verdict_settled" in mine else "")  # the settled metric's verdict, if other
         lines += [f"### Claim {claim.number}: {claim.statement}", "",
-                  f"Verdict: **{summary.loc[summary['claim'] == claim.number, 'verdict'].iloc[0]}**. "
+                  f"Verdict: **{summary.loc[summary['claim'] == claim.number, 'verdict'].iloc[0]}**"
+                  f"{f' ({beside})' if beside else ''}. "
                   f"Paper: {claim.paper} Parts: {claim.rule}", ""]
         rows = []
         for row in mine.itertuples(index=False):
@@ -161,9 +164,12 @@ _RULE_TEXT = (
     "names where). A claim is not evaluable when a central part is; otherwise it holds when every judged "
     "part holds, fails when no central part holds or holds in part, and holds in part otherwise. Each part's "
     "median comes with the 95% bootstrap interval of the median, the 5-95% spread of the seeds and its "
-    "margin to the threshold (a fraction of the threshold, >= 0 passing). Shown parts (and cause "
+    "margin to the threshold (its distance to the nearest edge of the passing range as a fraction of that "
+    "edge, >= 0 passing). Shown parts (and cause "
     "parts, which name a modelling choice behind a verdict) are printed, never judged. The claim's frequency "
-    "applies the same rule to each seed; a deterministic setting (no noise source active) is one evaluation."
+    "applies the same rule to each seed, and counts a seed where a praised method diverged as such, not as "
+    "a failure; a deterministic setting (no noise source active) is one evaluation. Where the judged metric "
+    "read without the first 20 ms (settled) would change a claim's verdict, that verdict is said beside it."
 )
 
 

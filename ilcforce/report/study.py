@@ -26,7 +26,7 @@ import pandas as pd
 
 from ilcforce.metrics import convergence_iteration
 from ilcforce.records import TASK_DIMENSIONS, task_axes
-from ilcforce.report import paper, table_write, tables
+from ilcforce.report import claim_parts, paper, table_write, tables
 from ilcforce.report.figure_files import write_text_whole
 from ilcforce.report.seedframes import SeedMetrics, split_seeds
 from ilcforce.report.study_match import study_methods_and_seeds
@@ -123,10 +123,15 @@ def per_seed_numbers(frame: pd.DataFrame, methods: list[str], iterations: int) -
         # the task axes the frame has H of: x, y (2 axes), else u, v, n (3 axes)
         axes = next((task_axes(n) for n in TASK_DIMENSIONS if f"chattering_task_{task_axes(n)[0]}" in frame.columns),
                     task_axes(2))
+        # named as claims.csv names them: the whole-grid ratio at j = 19 on a judged axis is the number claim
+        # 5 is judged on (claim_parts.CLAIM5_JUDGED); the settled one, and v (no paper counterpart), are shown
+        judged_axes = {ours for n in claim_parts.CLAIM5_AXES for ours, _theirs, _r in claim_parts.CLAIM5_AXES[n]}
         for axis in axes:
-            pairs.append((f"H(C1)/H(C3) {axis} at j = {j_h}", "c1", "c3",
+            judged = j_h == paper.CHATTERING_ITERATION and axis in judged_axes
+            tag = claim_parts.JUDGED_TAG if judged else claim_parts.SHOWN_TAG
+            pairs.append((f"{claim_parts.h_ratio_name(j_h)}, {axis} {tag}", "c1", "c3",
                           lambda m, a=axis: _value(m, f"chattering_task_{a}", j_h)))
-            pairs.append((f"H(C1)/H(C3) {axis} settled (judged by claim 5) at j = {j_h}", "c1", "c3",
+            pairs.append((f"{claim_parts.h_ratio_name(j_h, '_settled')}, {axis} {claim_parts.SHOWN_TAG}", "c1", "c3",
                           lambda m, a=axis: _value(m, f"chattering_task_{a}_settled", j_h)))
     for quantity, top, bottom, get in pairs:
         for seed in sorted(set(seeds[top]) & set(seeds[bottom])):

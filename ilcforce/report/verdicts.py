@@ -41,7 +41,8 @@ def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> 
         rows.append({**base, "part": CLAIM_ROW, "role": CLAIM_ROW, "verdict": str(first["verdict"]),
                      "seeds_evaluated": n, "seeds_passed": int(first["claim_seeds_holding"]),
                      "statistic": math.nan, "statistic_low": math.nan, "statistic_high": math.nan,
-                     "threshold": "", "part_text": str(first["statement"]), "statistic_name": "", "note": "",
+                     "threshold": "", "part_text": str(first["statement"]), "statistic_name": "",
+                     "note": claims_module.settled_text(str(first.get("verdict_settled", "") or "")),
                      "margin": math.nan, "spread_low": math.nan, "spread_high": math.nan, "partial": ""})
         for row in mine.itertuples(index=False):
             shown = row.role in claims_module.NOT_JUDGED
@@ -71,8 +72,9 @@ def part_evaluation(row) -> str:
     if row.role in claims_module.NOT_JUDGED:
         return f"shown, not judged: a value in {int(row.evaluable)} of {seeds}"
     judged, passed = int(row.evaluable), int(row.passed)
-    counts = [(claims_module.HOLDS, passed), (claims_module.FAILS, judged - passed),
-              (claims_module.NOT_EVALUABLE, total - judged)]
+    diverged = int(getattr(row, "diverged", 0) or 0)  # failures where the praised method diverged (rule 4)
+    counts = [(claims_module.HOLDS, passed), (claims_module.FAILS, judged - passed - diverged),
+              (claims_module.DIVERGED, diverged), (claims_module.NOT_EVALUABLE, total - judged)]
     return ", ".join(f"{word} in {n}" for word, n in counts if n) + f" of {seeds}"
 
 
@@ -112,8 +114,8 @@ def statistic_text(row) -> str:
 def _passes(row) -> str:
     if row.role in claims_module.NOT_JUDGED:
         return str(row.role)
-    if int(row.seeds_evaluated) == 0:
-        return f"{row.verdict}"
+    if int(row.seeds_evaluated) == 0 or row.verdict == claims_module.NOT_EVALUABLE:
+        return f"{row.verdict}"  # never "not evaluable; passes in 0 of 1" (a praised method diverged there)
     return f"{row.verdict}; passes in {int(row.seeds_passed)} of {int(row.seeds_evaluated)}{margin_text(row)}"
 
 
@@ -139,7 +141,8 @@ def claim_lines(rows: pd.DataFrame) -> list[str]:
         detail = "; ".join(f"{r.part_text}: {statistic_text(r)} ({r.threshold} {_passes(r)})"
                            for r in judged.itertuples(index=False))
         how = "one evaluation" if head["evaluation"] == claims_module.ONE_EVALUATION else head["evaluation"]
-        lines.append(f"* Claim {int(claim)} **{head['verdict']}** ({how}). {detail}.")
+        beside = f"; {head['note']}" if str(head["note"] or "") else ""  # a verdict the settled metric changes
+        lines.append(f"* Claim {int(claim)} **{head['verdict']}** ({how}{beside}). {detail}.")
     return lines
 
 

@@ -272,7 +272,7 @@ def _format_value(value) -> str:
 def build_study(data: dict, *, source: str = "", path: Path | None = None) -> Study:
     """Validate a parsed study file (the whole TOML document) and resolve every setting."""
     if not isinstance(data, dict) or "study" not in data:
-        raise StudyError("a study file needs a [study] table (see the README's section on studies)")
+        raise StudyError("a study file needs a [study] table with at least name and seeds, e.g. [study] name = \"s\" seeds = \"0-9\"")
     extra = [k for k in data if k != "study"]
     if extra:
         raise StudyError(f"unknown top-level table [{extra[0]}] in a study file; only [study] (with "
