@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pandas as pd
 import pytest
 
@@ -161,6 +162,74 @@ def test_a_verdict_the_first_20_ms_change_is_said_beside_it() -> None:
     # unchanged by the settled form: nothing is said (claims 1-4 have no settled form to read)
     plain = verdicts.claim_rows(claims.judge_claims(paper_run()), source="experiment", name="x", setting="x")
     assert (plain.loc[plain["role"] == "claim", "note"] == "").all()
+
+
+def _claim5_note(run: dict[str, pd.DataFrame]) -> tuple[str, str, str]:
+    """(claim 5's verdict, its claims.csv note, its verdict line) for one run."""
+    from ilcforce.report import verdicts
+
+    rows = verdicts.claim_rows(claims.judge_claims(run), source="experiment", name="x", setting="x")
+    head = rows[(rows["claim"] == 5) & (rows["role"] == "claim")].iloc[0]
+    line = next(line for line in verdicts.claim_lines(rows) if line.startswith("* Claim 5"))
+    return str(head["verdict"]), str(head["note"]), line
+
+
+def test_a_verdict_that_rests_on_the_t0_spike_says_so_beside_it() -> None:
+    """The spatial arm's case (issue 47): on the whole grid C3 chatters 3-5x more than C1 (the judged
+    ratio 0.22 along X, 0.31 along Y: claim 5 fails), but the start mismatch at t = 0 makes that: with
+    the first 20 ms or only t = 0 left out the ratio along Y is 1.93 and 2.75, so C3 chatters about half as
+    much as C1 there. The verdict line names both readings beside the failing verdict."""
+    run = paper_run()
+    h1x, h1y = float(run["c1"]["chattering_task_x"].iloc[0]), float(run["c1"]["chattering_task_y"].iloc[0])
+    run["c3"] = run["c3"].assign(chattering_task_x=h1x / 0.22, chattering_task_y=h1y / 0.31,
+                                 chattering_task_x_settled=h1x / 0.113, chattering_task_y_settled=h1y / 1.93,
+                                 chattering_task_x_no_t0=h1x / 0.2, chattering_task_y_no_t0=h1y / 2.75)
+    verdict, note, line = _claim5_note(run)
+    assert verdict == "fails", "the whole grid decides"
+    assert note == ("in part with the first 20 ms left out (settled, t >= 20 ms); "
+                    "in part with only the sample at t = 0 left out (H without t = 0)"), note
+    assert line.startswith(f"* Claim 5 **fails** (fails in 1 of 1 seed; {note})"), line
+
+
+def _growing_c3(run: dict[str, pd.DataFrame], iterations: int, rate: float = 0.075) -> dict[str, pd.DataFrame]:
+    """``run`` over ``iterations`` iterations, C3's whole-grid H_y growing by ``rate`` per iteration to
+    Table 3's value at j = 19 (the five-bar's C3, issue 47: +7.5% per iteration in 97 of 98 seeds), its
+    settled H_y flat at Table 3's value."""
+    out = {}
+    for method, frame in run.items():
+        more = frame.reindex(range(iterations), method="ffill")
+        more.index.name = "iteration"
+        out[method] = more
+    j = np.arange(iterations)
+    h3y = float(run["c3"]["chattering_task_y"].iloc[0])
+    out["c3"] = out["c3"].assign(chattering_task_y=h3y * (1.0 + rate) ** (j - paper.CHATTERING_ITERATION))
+    return out
+
+
+def test_a_verdict_that_rests_on_the_iteration_read_says_so_beside_it() -> None:
+    """The five-bar's case (issue 47): C3's whole-grid H_y grows over the iterations while its settled H_y is
+    flat, so the judged ratio at j = 19 depends on the iteration read. At j = 19 it is the paper's (holds);
+    at j = 9, before the plant changes, it is 2.44 x 1.075^10 = 5.0 (magnitude fails: in part); at the last
+    of 40 iterations 2.44 / 1.075^20 = 0.58 (C3 chatters more: in part). Both are said beside the verdict."""
+    verdict, note, line = _claim5_note(_growing_c3(paper_run(), 40))
+    assert verdict == "holds"
+    assert note == ("in part read at j = 9, before the plant changes, instead of j = 19; in part read at j = 39, "
+                    "the last iteration C1 and C3 both completed, instead of j = 19"), note
+    assert f"; {note})" in line, line
+    # a 20-iteration run has no later iteration: only the reading at j = 9 is said
+    verdict, note, _line = _claim5_note(_growing_c3(paper_run(), 20))
+    assert verdict == "holds" and note == "in part read at j = 9, before the plant changes, instead of j = 19", note
+    # H that does not change over the iterations: no reading changes the verdict, nothing is said
+    assert _claim5_note(_growing_c3(paper_run(), 40, rate=0.0))[1] == ""
+
+
+def test_the_last_iteration_read_names_each_seeds_last() -> None:
+    """Seeds whose runs end at different iterations: the reading names the range of last iterations."""
+    one, two = _growing_c3(paper_run(), 40), _growing_c3(paper_run(), 30)
+    frames = [claims.tidy_from_methods(one, seed=0), claims.tidy_from_methods(two, seed=1)]
+    parts = claims.judge_claims_over_seeds(pd.concat(frames, ignore_index=True))
+    note = claims.beside_text(parts[parts["claim"] == 5])
+    assert "read at j = 29..39 (per seed), the last iteration C1 and C3 both completed" in note, note
 
 
 def test_verdict_words_never_contradict_each_other_when_the_praised_method_diverged() -> None:

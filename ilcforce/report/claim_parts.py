@@ -202,9 +202,10 @@ class _Part:
     partly: Callable[[float], bool] | None = None
     partial_text: str = ""  # the weaker condition, e.g. "< 1 (C3 below C2)"
     margin: Callable[[float], float] | None = None
-    #: the same test on the metric without the first 20 ms (settled, :data:`SETTLED_NAME`), where the
-    #: judged metric has such a form: never judged, it says beside a verdict when that would change it
-    settled: Callable[["_Seed"], tuple[float, bool | None]] | None = None
+    #: the same test on other readings of the judged number, by :data:`READINGS` key (claim 5: H settled,
+    #: H without t = 0, the ratio at j = p - 1 and at the last iteration): never judged, each says beside a
+    #: verdict when it would change it (claims.py, rule 6)
+    readings: tuple[tuple[str, Callable[["_Seed"], tuple[float, bool | None]]], ...] = ()
 
 
 def _ratio(numerator: float, denominator: float) -> float:
@@ -315,6 +316,29 @@ class _Seed:
         if not math.isfinite(value):
             raise _Stop(None, f"{method} has no complete iteration {j}")
         return value
+
+    def chattering_at(self, method: str, column: str, j: int) -> float:
+        """H at iteration ``j`` (finite, or not evaluable); C3, the method claim 5 praises, fails where it
+        diverged by ``j``."""
+        self.asserted(method, j) if method == "c3" else self.need(method)
+        value = self.metrics[method].value_at(column, j)
+        if not math.isfinite(value):
+            raise _Stop(None, f"{method} has no complete iteration {j}")
+        return value
+
+    def last_common(self, methods: tuple[str, ...]) -> int:
+        """The last iteration every one of ``methods`` completed (-1 when one completed none)."""
+        self.need(*methods)
+        return min(max(self.metrics[m].complete_iterations, default=-1) for m in methods)
+
+    def reading_iteration(self, at: str) -> int:
+        """The iteration another reading of claim 5 reads (:data:`READINGS`): ``"before"`` j = p - 1, the
+        last before the plant changes; ``"last"`` the last iteration C1 and C3 both completed. Not
+        evaluable where that is the judged iteration itself, or (``"last"``) not after it."""
+        j = self.p - 1 if at == "before" else self.last_common(("c1", "c3"))
+        if j < 0 or j == paper.CHATTERING_ITERATION or (at == "last" and j < paper.CHATTERING_ITERATION):
+            raise _Stop(None, f"no other iteration to read ({at})")
+        return j
 
     def chattering(self, method: str, column: str) -> float:
         self.asserted(method, paper.CHATTERING_ITERATION) if method == "c3" else self.need(method)
@@ -519,31 +543,50 @@ CLAIM5_AXES = {2: (("x", "x", paper.CHATTERING_RATIO_X), ("y", "y", paper.CHATTE
                3: (("u", "x", paper.CHATTERING_RATIO_X), ("n", "y", paper.CHATTERING_RATIO_Y))}
 
 
+#: The other readings of claim 5's judged ratio (keys of :attr:`_Part.readings`), each said beside the
+#: verdict where it would give another (claims.py, rule 6): the judged ratio with H settled (the first
+#: 20 ms left out) and with only the sample at t = 0 left out (the verdict rests on the start mismatch
+#: when these differ), and the whole-grid ratio read at j = p - 1 (before the plant changes) and at the
+#: last iteration C1 and C3 both completed, when a run goes beyond j = 19 (the verdict rests on the
+#: iteration read when these differ: a whole-grid H that grows over the iterations while the settled
+#: one is flat).
+READINGS = ("settled", "no_t0", "before", "last")
+
+
+def _readings(test: Callable) -> tuple[tuple[str, Callable], ...]:
+    """:data:`READINGS` of one of claim 5's tests (``test(seed, form=..., at=...)``)."""
+    return (("settled", lambda s: test(s, form="_settled")), ("no_t0", lambda s: test(s, form="_no_t0")),
+            ("before", lambda s: test(s, at="before")), ("last", lambda s: test(s, at="last")))
+
+
 def _claim5_parts(n: int = 2) -> list[_Part]:
     parts = []
     for axis, theirs_axis, published in CLAIM5_AXES[n]:
         name = axis.upper() if axis == theirs_axis else f"along {axis} (the paper's {theirs_axis.upper()})"
 
-        def ratio(s: _Seed, axis=axis, form=JUDGED_H) -> float:
+        def ratio(s: _Seed, axis=axis, form=JUDGED_H, at: str | None = None) -> float:
             column = f"chattering_task_{axis}{form}"
+            if at is not None:  # another iteration (READINGS)
+                j = s.reading_iteration(at)
+                c3 = s.chattering_at("c3", column, j)
+                return _ratio(s.chattering_at("c1", column, j), c3)
             c3 = s.chattering("c3", column)  # the asserted method first: its divergence settles the part
             return _ratio(s.chattering("c1", column), c3)
 
-        def direction(s: _Seed, f=ratio, form=JUDGED_H) -> tuple[float, bool]:
-            value = f(s, form=form)
+        def direction(s: _Seed, f=ratio, form=JUDGED_H, at: str | None = None) -> tuple[float, bool]:
+            value = f(s, form=form, at=at)
             return value, bool(value > 1.0)
 
-        def magnitude(s: _Seed, f=ratio, pub=published, form=JUDGED_H) -> tuple[float, bool]:
-            value = f(s, form=form)  # 0 (a C1 without chattering) or NaN is no match: no log of it
+        def magnitude(s: _Seed, f=ratio, pub=published, form=JUDGED_H, at: str | None = None) -> tuple[float, bool]:
+            value = f(s, form=form, at=at)  # 0 (a C1 without chattering) or NaN is no match: no log of it
             return value, bool(value > 0 and abs(math.log(value / pub)) <= math.log(RATIO_FACTOR))
 
         parts.append(_Part(5, f"direction_{axis}", f"C3 chatters less than C1, {name}", CENTRAL,
-                           CLAIM5_JUDGED, direction, "> 1", margin=above(1.0),
-                           settled=lambda s, f=direction: f(s, form="_settled")))
+                           CLAIM5_JUDGED, direction, "> 1", margin=above(1.0), readings=_readings(direction)))
         parts.append(_Part(5, f"magnitude_{axis}", f"ratio near the paper's {published}, {name}", SECONDARY,
                            CLAIM5_JUDGED, magnitude,
                            f"within x{RATIO_FACTOR:g} of {published}", margin=within(published, RATIO_FACTOR),
-                           settled=lambda s, f=magnitude: f(s, form="_settled")))
+                           readings=_readings(magnitude)))
         for form, what in SHOWN_H:
             parts.append(_Part(5, f"ratio{form}_{axis}", f"H(C1) / H(C3) {what}, {name}",
                                SHOWN, claim5_shown(form), lambda s, f=ratio, form=form: (f(s, form=form), None)))

@@ -42,10 +42,15 @@ How a verdict is reached (stated once, used for every claim)
 5. A **deterministic** setting (no noise source active: every seed runs the same simulation) is
    one evaluation, judged on its first seed and said as such ("one evaluation, deterministic"),
    never "10 of 10 seeds".
-6. Where the judged metric has a form without the first 20 ms (settled, ilcforce.metrics.SETTLED_FROM:
-   claim 5's H), the same tests are applied to it; when that would change the claim's verdict, the
-   verdict is stated with the other beside it ("fails with the first 20 ms left out (settled, t >= 20 ms)";
-   claims.csv's claim row carries it in ``note``). It never decides the verdict.
+6. Where the judged number has other readings (claim 5's H(C1) / H(C3):
+   :data:`ilcforce.report.claim_parts.READINGS`), the same tests are applied to each: H settled (the
+   first 20 ms left out, ilcforce.metrics.SETTLED_FROM), H with only the sample at t = 0 left out, and
+   the whole-grid ratio read at j = p - 1 (before the plant changes) and at the last iteration C1 and
+   C3 both completed (a run beyond j = 19). Each that would change the claim's verdict is stated
+   beside it ("fails with the first 20 ms left out (settled, t >= 20 ms); holds read at j = 9, before
+   the plant changes, instead of j = 19": the verdict rests on the start at t = 0, or on the iteration
+   read); claims.csv's claim row carries it in ``note``. A reading no seed can give (a 20-iteration run
+   has no later iteration) says nothing. They never decide the verdict.
 
 Iterations are counted from 0; ``p`` (10 in the paper) is the perturbation iteration. The parts
 themselves, with their thresholds, are in :mod:`ilcforce.report.claim_parts`.
@@ -53,6 +58,7 @@ themselves, with their thresholds, are in :mod:`ilcforce.report.claim_parts`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping
 
@@ -62,7 +68,7 @@ import pandas as pd
 from ilcforce.plants import changed_parameter
 from ilcforce.report import paper
 from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY, parts_for,  # noqa: F401 (re-exported)
-                                         SHOWN, _Part, _Seed, _Stop, statement_at)
+                                         READINGS, SHOWN, _Part, _Seed, _Stop, statement_at)
 from ilcforce.report.seedframes import split_seeds
 from ilcforce.stats import frequency_interval, median_interval
 
@@ -186,7 +192,9 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     ``partial`` (the weaker condition that makes a failing part "in part", "" without one),
     ``margin`` (the median's signed distance to the nearest edge of the passing range as a fraction of
     that edge, >= 0 passing; NaN for shown parts), ``diverged`` (the seeds where the method the part
-    praises diverged), ``verdict_settled`` (the claim's verdict on the settled form, rule 6, "" when the same), ``spread_low``, ``spread_high`` (5th and 95th percentile over seeds).
+    praises diverged), ``verdict_beside`` (the claim's verdict on each other reading of its judged number that
+    would change it, rule 6, as the verdict line says it; "" when none would), ``spread_low``, ``spread_high``
+    (5th and 95th percentile over seeds).
     :func:`claim_summary` reduces it to one row per claim. ``deterministic``: the setting draws
     nothing random (:func:`is_deterministic`); it is judged once, on its first seed (rule 5).
     ``config``: the setting's resolved configuration (TOML layout), read by the parts that name a
@@ -198,20 +206,16 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     contexts = {seed: _Seed(frames, perturbation_iteration, config) for seed, frames in seeds.items()}
     all_parts = parts_for(metrics.columns)  # claim 5 along the task's axes
     results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in all_parts}
-    # the judged parts' same tests on their metric's settled form (rule 6): what the verdict would be
-    settled = {part: [_evaluate(_settled_part(part), ctx) for ctx in contexts.values()]
-               for part in all_parts if part.settled is not None}
+    # the judged parts' same tests on the other readings of their number (rule 6): what the verdict would be
+    readings = {(part, key): [_evaluate(dataclasses.replace(part, evaluate=test), ctx) for ctx in contexts.values()]
+                for part in all_parts if part.role not in NOT_JUDGED for key, test in part.readings}
     roles = {part.key: part.role for part in all_parts}
     rows, claim_rows = [], {}
     parameter = changed_parameter(config or {})  # the plant's change, as claim 4 names it
     for claim in CLAIMS:
         mine = [part for part in all_parts if part.claim == claim.number]
         verdicts: dict[str, str] = {}
-        settled_verdicts: dict[str, str] = {}
         for part in mine:
-            if part in settled:
-                settled_verdicts[part.key] = part_verdict([_outcome(part, r[0], r[1]) for r in settled[part]],
-                                                          sum(1 for r in settled[part] if r[3]))
             values = np.array([r[0] for r in results[part]])
             passes = [r[1] for r in results[part]]
             outcomes = [_outcome(part, r[0], r[1]) for r in results[part]]
@@ -259,31 +263,71 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
             else:
                 per_seed[claim_verdict(seed_verdicts, roles)] += 1
         verdict = claim_verdict(verdicts, roles)
-        changed = ""
-        if settled_verdicts:
-            otherwise = claim_verdict({**verdicts, **settled_verdicts}, roles)
-            changed = otherwise if otherwise != verdict else ""
-        claim_rows[claim.number] = (verdict, per_seed, changed)
+        beside = _other_readings(mine, readings, verdicts, roles, verdict, contexts.values(), perturbation_iteration)
+        claim_rows[claim.number] = (verdict, per_seed, beside)
     frame = pd.DataFrame(rows)
     if frame.empty:
         return frame
     frame.insert(2, "verdict", frame["claim"].map(lambda c: claim_rows[c][0]))
     frame.insert(3, "claim_frequency", frame["claim"].map(lambda c: _frequency_text(claim_rows[c][1], deterministic)))
     frame.insert(4, "claim_seeds_holding", frame["claim"].map(lambda c: int(claim_rows[c][1][HOLDS])))
-    frame.insert(5, "verdict_settled", frame["claim"].map(lambda c: claim_rows[c][2]))
+    frame.insert(5, "verdict_beside", frame["claim"].map(lambda c: claim_rows[c][2]))
     return frame
 
 
-def _settled_part(part: _Part) -> _Part:
-    """``part`` with its test read on the settled form of its metric (:attr:`_Part.settled`)."""
-    return _Part(part.claim, part.key, part.text, part.role, part.statistic, part.settled, part.threshold,
-                 part.partly, part.partial_text, part.margin)
+def reading_text(key: str, perturbation_iteration: int, last: tuple[int, int] | None = None) -> str:
+    """How a verdict line names another reading (rule 6; ``key`` of :data:`READINGS`): "with the first
+    20 ms left out (settled, t >= 20 ms)", "read at j = 9, before the plant changes, instead of j = 19", ...
+    ``last``: the smallest and largest last iteration C1 and C3 both completed over the seeds."""
+    judged = paper.CHATTERING_ITERATION
+    if key == "settled":
+        return "with the first 20 ms left out (settled, t >= 20 ms)"
+    if key == "no_t0":
+        return "with only the sample at t = 0 left out (H without t = 0)"
+    if key == "before":
+        return f"read at j = {perturbation_iteration - 1}, before the plant changes, instead of j = {judged}"
+    low, high = last if last is not None else (judged, judged)
+    where = f"j = {low}" if low == high else f"j = {low}..{high} (per seed)"
+    return f"read at {where}, the last iteration C1 and C3 both completed, instead of j = {judged}"
 
 
-def settled_text(verdict_settled: str) -> str:
-    """What a verdict line says beside the verdict when leaving out the first 20 ms would change it
-    (rule 6): "fails with the first 20 ms left out (settled, t >= 20 ms)"; "" when it would not."""
-    return f"{verdict_settled} with the first 20 ms left out (settled, t >= 20 ms)" if verdict_settled else ""
+def _other_readings(mine, readings, verdicts: Mapping[str, str], roles: Mapping[str, str], verdict: str,
+                    contexts, perturbation_iteration: int) -> str:
+    """Rule 6: "<verdict> <reading>" for every other reading of the judged number that would change the
+    claim's verdict, joined by "; " ("" when none would). A reading not evaluable in any part (no seed
+    has it: a run of 20 iterations has no later one) says nothing."""
+    said = []
+    for key in READINGS:
+        found = {part.key: part_verdict([_outcome(part, r[0], r[1]) for r in readings[(part, key)]],
+                                        sum(1 for r in readings[(part, key)] if r[3]))
+                 for part in mine if (part, key) in readings}
+        if not found or all(v == NOT_EVALUABLE for v in found.values()):
+            continue
+        otherwise = claim_verdict({**verdicts, **found}, roles)
+        if otherwise == verdict:
+            continue
+        last = None
+        if key == "last":
+            ends = [_last_common(ctx) for ctx in contexts]
+            ends = [j for j in ends if j > paper.CHATTERING_ITERATION]
+            last = (min(ends), max(ends)) if ends else None
+        said.append(f"{otherwise} {reading_text(key, perturbation_iteration, last)}")
+    return "; ".join(said)
+
+
+def _last_common(ctx: _Seed) -> int:
+    try:
+        return ctx.last_common(("c1", "c3"))
+    except _Stop:
+        return -1
+
+
+def beside_text(mine: pd.DataFrame) -> str:
+    """What a claim's verdict line says beside its verdict (rule 6), from one claim's rows of
+    :func:`judge_claims_over_seeds`'s frame: "" when no other reading changes it."""
+    if not len(mine) or "verdict_beside" not in mine:
+        return ""
+    return str(mine["verdict_beside"].iloc[0] or "")
 
 
 def _frequency_text(per_seed: Mapping[str, int], deterministic: bool = False) -> str:
@@ -310,15 +354,15 @@ def _by_how_much(row) -> str:
 
 
 def claim_summary(parts: pd.DataFrame) -> pd.DataFrame:
-    """One row per claim: ``claim``, ``statement``, ``verdict``, ``frequency`` (with the verdict the settled
-    metric would give where it differs, rule 6), ``parts`` (every
+    """One row per claim: ``claim``, ``statement``, ``verdict``, ``frequency`` (with the verdicts other
+    readings of the judged number would give where they differ, rule 6), ``parts`` (every
     judged part's verdict, so a claim that fails on one part of four says so), ``paper``, ``rule``."""
     rows = []
     for claim in CLAIMS:
         mine = parts[parts["claim"] == claim.number] if not parts.empty else parts
         verdict = str(mine["verdict"].iloc[0]) if len(mine) else NOT_EVALUABLE
         frequency = str(mine["claim_frequency"].iloc[0]) if len(mine) else "-"
-        beside = settled_text(str(mine["verdict_settled"].iloc[0])) if len(mine) and "verdict_settled" in mine else ""
+        beside = beside_text(mine)
         frequency += f"; {beside}" if beside else ""  # rule 6: beside the verdict, never instead of it
         statement = str(mine["statement"].iloc[0]) if len(mine) else claim.statement
         rows.append({"claim": claim.number, "statement": statement, "verdict": verdict,

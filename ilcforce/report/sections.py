@@ -130,8 +130,7 @@ def claims_markdown(parts: pd.DataFrame, flags: Mapping[str, str]) -> list[str]:
                   + "; ".join(f"{m}: {text}" for m, text in flags.items()) + ".", ""]
     for claim in claims_module.CLAIMS:
         mine = parts[parts["claim"] == claim.number] if len(parts) else parts
-        beside = (claims_module.settled_text(str(mine["verdict_settled"].iloc[0]))
-                  if len(mine) and "verdict_settled" in mine else "")  # the settled metric's verdict, if other
+        beside = claims_module.beside_text(mine)  # other readings' verdicts, where they differ (rule 6)
         lines += [f"### Claim {claim.number}: {claim.statement}", "",
                   f"Verdict: **{summary.loc[summary['claim'] == claim.number, 'verdict'].iloc[0]}**"
                   f"{f' ({beside})' if beside else ''}. "

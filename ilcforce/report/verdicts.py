@@ -42,7 +42,7 @@ def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> 
                      "seeds_evaluated": n, "seeds_passed": int(first["claim_seeds_holding"]),
                      "statistic": math.nan, "statistic_low": math.nan, "statistic_high": math.nan,
                      "threshold": "", "part_text": str(first["statement"]), "statistic_name": "",
-                     "note": claims_module.settled_text(str(first.get("verdict_settled", "") or "")),
+                     "note": str(first.get("verdict_beside", "") or ""),
                      "margin": math.nan, "spread_low": math.nan, "spread_high": math.nan, "partial": ""})
         for row in mine.itertuples(index=False):
             shown = row.role in claims_module.NOT_JUDGED
