@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from ilcforce import store
@@ -180,6 +181,50 @@ def test_input_figures_leave_no_empty_band_and_keep_the_start_off_scale(serial2r
         assert len(axes) == 4, "a row per method, (a) and (b)"
         for ax in axes:
             assert_range_not_set_by_the_start(ax)
+
+
+def assert_legend_clear_of_data(fig: Figure) -> None:
+    """No legend of ``fig`` covers a drawn sample, nor the start (t < RANGE_FROM), where the start
+    mismatch's spike runs off scale through the whole height of the panel."""
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)
+    checked = 0
+    for ax in fig.get_axes():
+        legend = ax.get_legend()
+        if legend is None:
+            continue
+        box = legend.get_window_extent(renderer)
+        for line in ax.get_lines():
+            t, y = (np.asarray(a, dtype=float) for a in line.get_data())
+            if t.size < 10:  # a legend proxy
+                continue
+            x_px, y_px = ax.transData.transform(np.column_stack([t, y])).T
+            start = t < RANGE_FROM
+            assert (x_px[start] < box.x0).all(), f"the legend of {ax.get_title() or ax.get_ylabel()!r} is over t = 0"
+            inside = (box.x0 <= x_px) & (x_px <= box.x1) & (box.y0 <= y_px) & (y_px <= box.y1)
+            assert not inside[~start].any(), f"the legend of {ax.get_title() or ax.get_ylabel()!r} covers data"
+            checked += 1
+    assert checked, "no legend checked"
+
+
+def test_input_figure_legends_stand_clear_of_the_t0_spike() -> None:
+    """Fig. 7's legend stood at the upper left, over the spike at t = 0 that runs up off scale (the
+    start mismatch); it stands at the right end of the free band above the data now."""
+    import pandas as pd
+
+    t = np.linspace(0.0, 2.0, 4001)
+
+    def frame(scale: float, spike: float) -> pd.DataFrame:
+        desired = 32 * (t / 2) ** 3 + 8 * np.sin(3 * t)
+        actual = desired - scale * np.sin(900 * t) - 0.3 * scale * np.sin(2 * np.pi * t)
+        actual[:10] -= spike * np.exp(-np.arange(10) / 2)  # Delta tau = desired - actual: up at t = 0
+        return pd.DataFrame({"task_input_y": actual, "desired_task_input_y": desired},
+                            index=pd.Index(t, name="time"))
+
+    with figures.report_style():
+        fig = figures.figure_input({"c1": frame(1.0, 3.0), "c3": frame(0.03, 1.1)}, "y",
+                                   iterations={"c1": 19, "c3": 19})
+    assert_legend_clear_of_data(fig)
 
 
 def test_sweep_key_numbers_mark_a_setting_where_every_seed_diverged(monkeypatch, tmp_path: Path) -> None:

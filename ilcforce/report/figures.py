@@ -455,7 +455,8 @@ def figure_input(
     its own scale (C1's Delta tau is about ten times C3's; compare the values, and H in Table 3).
     The y range is set from
     t >= RANGE_FROM, so the start mismatch at t = 0 does not flatten the rest; what lies off
-    scale is written in the panel, in a free band above the data that it shares with the legend.
+    scale is written in the panel, in a free band above the data that it shares with the legend, at the
+    band's right end (the start's spike runs up through its left end).
     ``absent`` (method -> reason) names a method that has no row, in the figure's title.
     """
     methods = list(frames_by_method)
@@ -475,7 +476,8 @@ def figure_input(
             (ax_delta, [(t, frame[f"desired_task_input_{axis}"] - frame[f"task_input_{axis}"])]),
         ):
             # the data fill the lower part; the legend, the note its last line, stands in the band above,
-            # which is as tall as the legend's rows
+            # which is as tall as the legend's rows, at its RIGHT end: the only samples that reach into the
+            # band are the start mismatch's before t = RANGE_FROM (off scale), at the left edge
             note = _range_without_start(ax, series)
             handles, texts = ax.get_legend_handles_labels()
             if note:  # one more line of the legend: a long method label can never cover it
@@ -485,7 +487,7 @@ def figure_input(
             columns = 2 if not note else 1
             rows = -(-len(texts) // columns)
             _range_without_start(ax, series, headroom=HEADROOM_BASE + HEADROOM_PER_ROW * rows)
-            ax.legend(handles, texts, loc="upper left", ncols=columns, fontsize="x-small")
+            ax.legend(handles, texts, loc="upper right", ncols=columns, fontsize="x-small")
         if k < n - 1:
             ax_input.set_xlabel("")
             ax_delta.set_xlabel("")
