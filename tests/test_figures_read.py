@@ -207,6 +207,35 @@ def assert_legend_clear_of_data(fig: Figure) -> None:
     assert checked, "no legend checked"
 
 
+def assert_panels_fill_the_width(fig: Figure, share: float = 0.85) -> None:
+    """The panels span at least ``share`` of the figure's width: no legend column beside them leaves a
+    blank block under it (sweep_key_numbers' legend stood right of the top panel, over nothing below)."""
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)
+    width = fig.bbox.width
+    for ax in fig.get_axes():
+        box = ax.get_window_extent(renderer)
+        assert box.width >= share * width, f"{ax.get_ylabel()!r} spans {box.width / width:.0%} of the width"
+
+
+def assert_inside_the_canvas(fig: Figure) -> None:
+    """Every artist (axis labels, tick labels, titles, legends) inside the figure as drawn: none clipped
+    (fig.get_tightbbox against the canvas, in inches)."""
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)
+    tight = fig.get_tightbbox(renderer)
+    width, height = fig.get_size_inches()
+    slack = 1.0 / fig.dpi  # a pixel
+    assert tight.x0 >= -slack and tight.y0 >= -slack, f"drawn beyond the left or bottom edge: {tight}"
+    assert tight.x1 <= width + slack and tight.y1 <= height + slack, f"drawn beyond the right or top edge: {tight}"
+    for ax in fig.get_axes():  # and the axis labels in particular, each by its own extent
+        for label in (ax.xaxis.label, ax.yaxis.label):
+            if label.get_text():
+                box = label.get_window_extent(renderer)
+                assert box.x0 >= -1 and box.y0 >= -1 and box.x1 <= fig.bbox.width + 1 \
+                    and box.y1 <= fig.bbox.height + 1, f"axis label {label.get_text()!r} clipped: {box}"
+
+
 def test_input_figure_legends_stand_clear_of_the_t0_spike() -> None:
     """Fig. 7's legend stood at the upper left, over the spike at t = 0 that runs up off scale (the
     start mismatch); it stands at the right end of the free band above the data now."""
@@ -264,7 +293,9 @@ def test_sweep_key_numbers_mark_a_setting_where_every_seed_diverged(monkeypatch,
         crosses = [line for line in ax.get_lines() if line.get_marker() == "x" and len(line.get_xdata())]
         assert [list(line.get_xdata()) for line in crosses] == [[1e-3]], ax.get_ylabel()
     assert "settled" in fig.get_axes()[-1].get_ylabel()
-    assert any("no seed has the number" in t.get_text() for t in fig.get_axes()[0].get_legend().get_texts())
+    assert any("no seed has the number" in t.get_text() for t in fig.legends[0].get_texts())
+    assert_panels_fill_the_width(fig)
+    assert_inside_the_canvas(fig)
 
 
 def test_error_norms_that_coincide_both_show(serial2r_c3: Path) -> None:

@@ -253,8 +253,11 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
         if missing_drawn:
             axes[0].plot([], [], marker="x", color="0.3", linestyle="none",
                          label="cross at the foot: no seed has the number (all diverged)")
-        axes[0].legend(fontsize="small", title=f"{'marker' if labelled else 'line'}: median over seeds",
-                       title_fontsize="small", loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+        # one legend for the panels, below them across the figure's width (on the right of the top panel it
+        # left a blank block of the legend's width beside the panels under it)
+        handles, texts = axes[0].get_legend_handles_labels()
+        fig.legend(handles, texts, fontsize="small", title=f"{'marker' if labelled else 'line'}: median over seeds",
+                   title_fontsize="small", loc="outside lower center", ncols=min(3, len(texts)))
         axes[0].set_title(f"key numbers {'per setting' if labelled else 'against ' + key}; "
                           "seeds that diverged are left out")
         files += save_figure(fig, directory, "sweep_key_numbers", formats)
