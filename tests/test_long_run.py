@@ -117,3 +117,28 @@ def test_heldout_rates_count_misses_false_alarms_and_not_evaluable_with_wilson_i
     assert 0.01 < low < 1 / 12 < high < 0.36
     none = growth_validation.rates(pd.DataFrame(rows[4:]).assign(verdict_20="not flagged"), 20).set_index("what")
     assert none.loc["false alarms", "rate_low"] < 1e-12 and 0.2 < none.loc["false alarms", "rate_high"] < 0.3
+
+
+def test_the_long_run_figure_says_what_its_marks_are(tmp_path, monkeypatch):
+    """docs/long-run/long_run.png named the methods only: its crosses, bands and vertical lines were explained
+    nowhere in the image. Its legends now name each, and the image is written."""
+    from ilcforce.report import figure_files
+    from ilcforce.report.figures import report_style
+
+    runs = pd.concat([_run("c1", 0, 40, lambda j: 0.1), _run("c1", 1, 40, lambda j: 0.1),
+                      _run("c2", 0, 40, lambda j: 0.02 * 1.05 ** j, diverge_at=30),
+                      _run("c2", 1, 40, lambda j: 0.02 * 1.05 ** j, diverge_at=35)], ignore_index=True)
+    study = _Study({"long": runs}, {"plant": {"perturbation": {"from_iteration": 10, "factor": 1.4}}})
+    drawn = []
+    save = figure_files.save_figure
+    monkeypatch.setattr(figure_files, "save_figure", lambda fig, *a: drawn.append(fig) or save(fig, *a))
+    with report_style():
+        path = long_run.long_run_figure(study, tmp_path / "long_run.png")
+    assert path.is_file() and path.stat().st_size > 0
+    texts = [t.get_text() for legend in drawn[0].legends for t in legend.get_texts()]
+    for said in (long_run.MEDIAN_TEXT, long_run.BAND_TEXT, long_run.CROSS_TEXT, long_run.PAPER_END_TEXT,
+                 "dash-dotted: the plant's change, m3 x 1.4 from j = 10", "C1 (SMC)", "C2 (ILC)"):
+        assert said in texts, (said, texts)
+    # every mark the legend names is drawn: a cross where each diverged seed ended
+    crosses = [line for ax in drawn[0].get_axes() for line in ax.get_lines() if line.get_marker() == "x"]
+    assert {float(line.get_xdata()[0]) for line in crosses} == {29.0, 34.0}

@@ -110,12 +110,31 @@ def _band(ax, frame: pd.DataFrame, column: str, method: str) -> None:
                 ax.plot([jj - 1], [before.iloc[-1]], marker="x", color=color, ms=5, mew=1.2, ls="none")
 
 
+#: What the long-run figure draws besides the methods' colours, in its legend (and the page's caption).
+MEDIAN_TEXT = "line: median over the seeds still running"
+BAND_TEXT = "band: 5-95% of those seeds"
+CROSS_TEXT = "x: a seed's last complete iteration before it diverged"
+PAPER_END_TEXT = "dotted: j = 19, the paper's last iteration"
+
+
+def _key_entries(ax, p: int, change: str) -> None:
+    """Legend proxies (grey) for what the figure draws besides the methods' colours: the median line, the
+    band, the cross at a divergence, the plant's change and the paper's last iteration."""
+    ax.plot([], [], color="0.3", lw=1.2, label=MEDIAN_TEXT)
+    ax.fill_between([], [], [], color="0.3", alpha=0.15, linewidth=0, label=BAND_TEXT)
+    ax.plot([], [], marker="x", color="0.3", ms=5, mew=1.2, ls="none", label=CROSS_TEXT)
+    ax.plot([], [], color="0.5", ls="-.", lw=0.8, label=f"dash-dotted: the plant's change, {change} from j = {p}")
+    ax.plot([], [], color="0.7", ls=":", lw=0.8, label=PAPER_END_TEXT)
+
+
 def long_run_figure(results, out: Path) -> Path:
     """Settled H (X, Y) and the error 2-norms against the iteration: median line, 5-95% band over seeds,
-    a cross where a seed diverged (at its last complete iteration)."""
+    a cross where a seed diverged (at its last complete iteration); the legend names the methods and
+    says what each of those marks is (a colour per method; the marks in grey)."""
     from matplotlib.figure import Figure
 
     from ilcforce.report.figure_files import save_figure
+    from ilcforce.report.sections import perturbation_label
 
     metrics = results.metrics
     methods = tables.ordered_methods(metrics["method"].unique().tolist())
@@ -134,7 +153,12 @@ def long_run_figure(results, out: Path) -> Path:
     for ax in axes[1]:
         ax.set_xlabel("iteration j")
     handles, labels = axes[0, 0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), 5), frameon=False)
+    fig.legend(handles, labels, loc="outside upper center", ncol=min(len(labels), 5), frameon=False,
+               title="colour: method", title_fontsize="small")
+    marks = Figure().subplots()  # the marks' proxies, kept out of the panels
+    _key_entries(marks, p, perturbation_label(setting_config(results, next(iter(study_settings(results)))[0])))
+    fig.legend(*marks.get_legend_handles_labels(), loc="outside lower center", ncol=3, frameon=False,
+               fontsize="small")
     return save_figure(fig, out.parent, out.stem, ("png",))[0]
 
 
@@ -257,8 +281,9 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
     sections = (
         (LONG_RUN, long_run_table, long_run_figure, "long_run", "Every method over 1,000 iterations", "",
          "settled H and error norms against the iteration",
-         "Line: median over the seeds still running; band: 5-95% of them; x: a seed's last complete iteration "
-         "before it diverged; dash-dotted: the plant's change; dotted: j = 19, the paper's last iteration."),
+         "Colour: the method (upper legend). Line: median over the seeds still running; band: 5-95% of them; "
+         "x: a seed's last complete iteration before it diverged; dash-dotted: the plant's change; dotted: j = 19, "
+         "the paper's last iteration (the lower legend says the same)."),
         (CAUSE, cause_table, cause_figure, "cause", "Why the paper's laws diverge: one candidate cause at a time",
          " (the account: docs/model.md#long-run).", "memory growth per setting",
          "Left: the learned memory's norm over t >= 20 ms (log scale: geometric growth is a straight line); "
