@@ -236,6 +236,37 @@ def assert_inside_the_canvas(fig: Figure) -> None:
                     and box.y1 <= fig.bbox.height + 1, f"axis label {label.get_text()!r} clipped: {box}"
 
 
+def assert_figure_legends_clear_of_the_panels(fig: Figure) -> None:
+    """No figure legend overlaps a panel with its tick and axis labels (each axes' tight box)."""
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)
+    assert fig.legends, "no figure legend"
+    for legend in fig.legends:
+        box = legend.get_window_extent(renderer)
+        for ax in fig.get_axes():
+            panel = ax.get_tightbbox(renderer)
+            assert not box.overlaps(panel), f"the legend overlaps {ax.get_ylabel() or ax.get_title()!r}"
+
+
+def test_band_figures_over_seeds_keep_their_labels_with_many_methods() -> None:
+    """arm3-mc's Fig. 5 over seeds: nine methods made its legend taller than the fixed bottom margin, so it
+    ran over the x-axis labels and off the figure's foot. The margin is measured from the legend now."""
+    from ilcforce.report import seed_bands
+
+    methods = ("c1", "c2", "c3", "smc-bl", "pd-ilc", "c3-leak", "sl-adapt", "c2-robust", "c3-robust")
+    frame = _tidy(methods=methods, seeds=2, iterations=8)
+    for axis in ("x", "y"):
+        frame[f"chattering_task_{axis}"] = 0.05
+        frame[f"chattering_task_{axis}_no_t0"] = 0.04
+        frame[f"chattering_task_{axis}_settled"] = 0.03
+    with figures.report_style():
+        drawn = [seed_bands.figure_fig5_over_seeds(frame, perturbation_iteration=4, perturbation_label="m2 x 1.4"),
+                 seed_bands.figure_input_over_seeds(frame, "y", perturbation_iteration=4, perturbation_label="m2 x 1.4")]
+    for fig in drawn:
+        assert_inside_the_canvas(fig)
+        assert_figure_legends_clear_of_the_panels(fig)
+
+
 def test_input_figure_legends_stand_clear_of_the_t0_spike() -> None:
     """Fig. 7's legend stood at the upper left, over the spike at t = 0 that runs up off scale (the
     start mismatch); it stands at the right end of the free band above the data now."""

@@ -119,5 +119,5 @@ def test_sweep_figure_names_the_unit_of_the_swept_key_and_its_bands(tmp_path, mo
         study_figures.sweep_figures(results, tmp_path, ("png",))
     (fig,) = drawn
     assert fig.axes[-1].get_xlabel() == "simulation.sample_time (s)"
-    texts = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    texts = [t.get_text() for t in fig.legends[0].get_texts()]
     assert study_figures.DARK_BAND in texts and study_figures.LIGHT_BAND in texts

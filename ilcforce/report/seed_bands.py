@@ -30,6 +30,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
@@ -141,6 +142,19 @@ def _seed_proxy(ax, seed: int | None, perturbation_iteration: int | None, pertur
                 label=f"{perturbation_label} from j = {perturbation_iteration}")
 
 
+def _legend_below(fig: Figure, source, lowest) -> None:
+    """One legend for the panels (``source``'s entries) at the figure's foot, and the panels' bottom margin
+    set from what that legend and the ``lowest`` row's tick and axis labels measure: a fixed margin let a
+    legend of many methods run over the x-axis labels and off the figure's foot (arm3-mc's Fig. 5). One
+    measure on the Agg renderer (constrained layout costs a third of these figures' time)."""
+    legend = fig.legend(*source.get_legend_handles_labels(), loc="lower center", bbox_to_anchor=(0.5, 0.0),
+                        ncols=3, fontsize="small", title="line: median over seeds", title_fontsize="small")
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    below = max(ax.get_window_extent(renderer).y0 - ax.get_tightbbox(renderer).y0 for ax in lowest)
+    pad = 0.08 * fig.dpi  # 0.08 inch between the labels and the legend
+    fig.subplots_adjust(bottom=(legend.get_window_extent(renderer).height + below + pad) / fig.bbox.height)
+
+
 def figure_fig5_over_seeds(frame: pd.DataFrame, flags: Mapping[str, str] | None = None,
                            perturbation_iteration: int | None = None, perturbation_label: str = "m3 x 1.4") -> Figure:
     """Fig. 5 over seeds: RMS and peak over t of the position and force errors against j."""
@@ -149,7 +163,7 @@ def figure_fig5_over_seeds(frame: pd.DataFrame, flags: Mapping[str, str] | None 
     last = int(frame["iteration"].max())
     # fixed margins, not the style's constrained layout: that was a third of these figures' cost
     fig = Figure(figsize=(10.0, 7.0), layout="none")
-    fig.subplots_adjust(left=0.09, right=0.98, top=0.94, bottom=0.2, hspace=0.08, wspace=0.24)
+    fig.subplots_adjust(left=0.09, right=0.98, top=0.94, hspace=0.08, wspace=0.24)  # bottom: _legend_below
     axes = fig.subplots(2, 2, sharex=True)
     panels = ((("position_error_rms", "position error |e_P|, RMS over t (m)"),
                ("position_error_max", "position error |e_P|, peak over t (m)")),
@@ -166,8 +180,7 @@ def figure_fig5_over_seeds(frame: pd.DataFrame, flags: Mapping[str, str] | None 
             if row == 1:
                 ax.set_xlabel("iteration j")
     _seed_proxy(axes[0, 0], seed, perturbation_iteration, perturbation_label)
-    fig.legend(*axes[0, 0].get_legend_handles_labels(), loc="lower center", ncols=3, fontsize="small",
-               title="line: median over seeds", title_fontsize="small")
+    _legend_below(fig, axes[0, 0], axes[1])
     fig.suptitle(f"Fig. 5 over {n_seeds} seeds: size of the tracking errors per iteration "
                  f"(shaded: j = {', '.join(map(str, TRACKING_ITERATIONS))}, drawn in Fig. 5)", fontsize="medium")
     return fig
@@ -188,7 +201,7 @@ def figure_input_over_seeds(frame: pd.DataFrame, axis: str, flags: Mapping[str, 
     n_seeds, seed = frame["seed"].nunique(), _single_seed(frame)
     last = int(frame["iteration"].max())
     fig = Figure(figsize=(12.0, 4.3), layout="none")
-    fig.subplots_adjust(left=0.07, right=0.99, top=0.87, bottom=0.27, wspace=0.2)
+    fig.subplots_adjust(left=0.07, right=0.99, top=0.87, wspace=0.2)  # bottom: _legend_below
     axes = fig.subplots(1, 3, sharex=True)
     forms = (("", "whole grid"), ("_no_t0", "without t = 0"), ("_settled", "settled, t >= 20 ms"))
     for k, (ax, (suffix, what)) in enumerate(zip(axes, forms)):
@@ -200,8 +213,7 @@ def figure_input_over_seeds(frame: pd.DataFrame, axis: str, flags: Mapping[str, 
         ax.set_xlabel("iteration j")
     axes[0].set_ylabel(rf"H = std over t of $\Delta\tau$ {axis_text(axis)} (N)", fontsize="small")
     _seed_proxy(axes[0], seed, perturbation_iteration, perturbation_label)
-    fig.legend(*axes[0].get_legend_handles_labels(), loc="lower center", ncols=3, fontsize="small",
-               title="line: median over seeds", title_fontsize="small")
+    _legend_below(fig, axes[0], axes)
     fig.suptitle(f"Fig. {number} over {n_seeds} seeds: spread of Delta tau {axis_text(axis)} per "
                  f"iteration (shaded: j = {min(paper.CHATTERING_ITERATION, last)}, drawn in Fig. {number})",
                  fontsize="medium")
