@@ -1219,6 +1219,12 @@ def test_findings_lead_with_a_bottom_line() -> None:
     assert verdicts.bottom_line(rows) == ("Bottom line: of the paper's 5 claims, 2 hold (2, 4), 1 hold in part (3), "
                                           "1 fail (1), 1 cannot be judged (5).")
     assert verdicts.bottom_line(rows.iloc[0:0]) == ""
+    # a verdict another reading of its number changes (claims.csv's note) is said with the count
+    noted = rows.assign(note=["", "", "", "", "", ""])
+    noted.loc[5, ["verdict", "note"]] = ["fails", "in part with the first 20 ms left out (settled, t >= 20 ms)"]
+    assert verdicts.bottom_line(noted) == ("Bottom line: of the paper's 5 claims, 2 hold (2, 4), 1 hold in part (3), "
+                                           "2 fail (1, 5). Claim 5 fails; in part with the first 20 ms left out "
+                                           "(settled, t >= 20 ms).")
 
 
 def test_list_of_figures_headings_are_each_captions_first_sentence() -> None:

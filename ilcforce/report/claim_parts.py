@@ -130,7 +130,9 @@ CLAIMS: tuple[Claim, ...] = (
           "Shown beside: the ratio with H settled (t >= 20 ms, ilcforce.metrics.SETTLED_FROM: every iteration "
           "starts at rest while the reference asks for a moving force, so the first samples hold a start "
           "mismatch no law removes) and without t = 0, the ratio at j = p - 1 (before the plant changes), and "
-          "our H (whole grid and settled) / Table 3's H."),
+          "our H (whole grid and settled) / Table 3's H. Said beside the verdict where it would differ: the "
+          "verdict with H settled or without t = 0 (it then rests on the start mismatch at t = 0), and with the "
+          "ratio read at j = p - 1 or at the last iteration of a longer run (it then rests on the iteration read)."),
 )
 
 

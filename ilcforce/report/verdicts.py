@@ -236,7 +236,9 @@ def read_back(path) -> pd.DataFrame:
 
 def bottom_line(rows: pd.DataFrame) -> str:
     """One plain sentence from the claim rows: how many of the paper's claims hold, hold in part,
-    fail or cannot be judged (empty when there is no claim row)."""
+    fail or cannot be judged (empty when there is no claim row), and, for a claim whose verdict another
+    reading of its number would change (the claim row's ``note``, rule 6 of :mod:`ilcforce.report.claims`),
+    what that reading gives: "claim 5 fails; in part with the first 20 ms left out (...)"."""
     head = rows[rows["role"] == CLAIM_ROW] if len(rows) else rows
     if not len(head):
         return ""
@@ -246,4 +248,8 @@ def bottom_line(rows: pd.DataFrame) -> str:
         claims = sorted(int(c) for c in head.loc[head["verdict"] == verdict, "claim"])
         if claims:
             said.append(f"{len(claims)} {word} ({', '.join(map(str, claims))})")
-    return f"Bottom line: of the paper's {len(head)} claims, " + ", ".join(said) + "."
+    line = f"Bottom line: of the paper's {len(head)} claims, " + ", ".join(said) + "."
+    notes = head[head["note"].fillna("").astype(str) != ""] if "note" in head else head.iloc[0:0]
+    for row in notes.itertuples(index=False):  # the verdict rests on how its number is read: said with it
+        line += f" Claim {int(row.claim)} {row.verdict}; {row.note}."
+    return line
