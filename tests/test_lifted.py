@@ -87,3 +87,18 @@ def test_analyze_prints_the_check():
     for words in ("spectral radius 1.000000 (marginal", "largest singular value", "predicted unbounded",
                   "memory change at t = 0"):
         assert words in proc.stdout, proc.stdout
+
+
+def test_the_noise_step_is_a_small_step_for_a_smooth_law_and_a_describing_function_for_a_switch():
+    """C2 is smooth: the noise-sized step gives the small step's band growth. C3's alpha_hat sgn(sigma) is a
+    switch: its secant gain grows as the step shrinks (4 alpha / (pi A)), so the tiny step predicts more growth
+    than the amplitude the noise really perturbs the memory at."""
+    cfg = load_config(None, SHORT)
+    smooth = [lifted.analyze(cfg, "c2", at=12, full=False, step=s).band_growth for s in (1e-6, "noise")]
+    for (_l, _h, a), (_l2, _h2, b) in zip(*smooth, strict=True):
+        assert abs(a - b) < 1e-3 * a
+    paper_grid = load_config(None, {"reference.duration": 0.1})  # Ts = 0.1 ms, where the switch dominates
+    tiny, noise = (max(g for _l, _h, g in lifted.analyze(paper_grid, "c3", at=12, full=False, step=s).band_growth)
+                   for s in (1e-6, "noise"))
+    assert tiny > 10 * noise  # 131 against 1.37 per iteration, measured
+    assert noise < 2

@@ -21,6 +21,7 @@ def analyze(
     at: Annotated[int, typer.Option("--at", help="linearise around the memory of the noise-free run after this many iterations")] = 20,
     bands: Annotated[str, typer.Option("--bands", help="band edges, Hz (the last band ends at the Nyquist frequency)")] = "0,100,400,800,1600,5000",
     full: Annotated[Optional[bool], typer.Option("--full/--matrix-free", help="the full lifted matrix (one iteration per column) or matrix-free (default: full up to 5000 columns)")] = None,
+    step: Annotated[str, typer.Option("--step", help="finite-difference step: 'noise' (the memory change the experiment's noise makes in one iteration: a switching term's describing-function amplitude), a fraction of each memory column's largest value, or 'auto' (noise where there is some)")] = "auto",
 ) -> None:
     """Predict a learning law's convergence from its lifted map (noise off): spectral radius, largest
     singular value, per-band growth per iteration and the drift at t = 0."""
@@ -32,6 +33,11 @@ def analyze(
         raise CliError(f"--bands takes comma-separated frequencies in Hz, got {bands!r}") from None
     if not edges or edges[0] < 0:
         raise CliError(f"--bands takes frequencies >= 0 Hz, got {bands!r}")
+    if step not in ("auto", "noise"):
+        try:
+            step = float(step)
+        except ValueError:
+            raise CliError(f"--step takes 'auto', 'noise' or a number in (0, 1), got {step!r}") from None
     cfg = _load(config, None, None, sets)
 
     def progress(done: int, total: int) -> None:
@@ -39,7 +45,7 @@ def analyze(
             _say(f"lifted matrix: {done}/{total} columns", stderr=True)
 
     try:
-        check = lifted.analyze(cfg, method, at=at, bands=edges, full=full, progress=progress)
+        check = lifted.analyze(cfg, method, at=at, bands=edges, full=full, step=step, progress=progress)
     except lifted.AnalysisError as exc:
         raise CliError(str(exc)) from None
     _say(f"{check.experiment} / {check.method}: the lifted map at j = {check.at} (noise off), Ts = "
