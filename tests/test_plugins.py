@@ -256,3 +256,42 @@ def test_entry_points_are_read_once_and_only_when_the_registry_is_used(monkeypat
     assert registry.shipped == SHIPPED and calls == [], "the shipped names need no entry point"
     assert "c3" in registry and registry["c1"].name == "c1" and len(registry) == len(SHIPPED)
     assert calls == [1]
+
+
+def test_a_method_with_an_n_axis_law_only_runs_on_a_2_joint_robot(short_config):
+    """A plugin may give a 2-D ``law``, an n-axis ``law_nd`` or both, as a shipped method: with ``law_nd``
+    alone it runs through the n-joint loop on the five-bar too, the very numbers C2 gives there."""
+    import dataclasses
+
+    import numpy as np
+
+    from ilcforce import simulate
+    from ilcforce.controllers.c2 import C2Controller
+    from ilcforce.ndof import loop as loop_nd
+    from ilcforce.experiment import iteration_inputs
+
+    class NAxisOnly(C2Controller):
+        law = None  # no 2-D law
+
+    config = short_config(**{"experiment.iterations": 2})
+    reference = config.reference_samples()
+
+    def run(controller, loop):
+        setup = simulate._setup(dataclasses.replace(iteration_inputs(config, 0, reference), loop=loop), controller)
+        assert setup.layout is loop_nd
+        records = []
+        for j in range(2):
+            mem_prev, mem_new = controller.begin_iteration(j)
+            record = simulate.run_iteration(dataclasses.replace(iteration_inputs(config, j, reference), loop=loop),
+                                            controller, mem_prev, mem_new)
+            controller.end_iteration(record)
+            records.append(record)
+        return records
+
+    args = (config.n_control, config.surface, config.wall.sign, config.gains["c2"])
+    plugin = run(NAxisOnly(*args, sample_time=config.simulation.sample_time), "auto")
+    shipped = run(C2Controller(*args, sample_time=config.simulation.sample_time), "nd")
+    for a, b in zip(plugin, shipped):
+        assert a.status == b.status == "complete"
+        for name, x in a.log.items():
+            np.testing.assert_array_equal(x, b.log[name], err_msg=f"j={a.iteration} {name}: same law, same loop")
