@@ -174,6 +174,13 @@ def test_a_broken_plugin_is_one_line_and_the_shipped_methods_run(tmp_path):
                      "cannot be loaded (RuntimeError: the law module is not finished)"], ran.stderr
     listed = _run(python, ["-m", "ilcforce.controllers"], tmp_path)
     assert listed.stdout.split() == [*SHIPPED, "p-ilc"], "the working plugin loads beside the broken one"
+    study = _run(python, ["-m", "ilcforce", "study", "-m", "c1,p-ilc", "--sweep", "p-ilc.kp=[50, 50],[100, 100]",
+                          "--seeds", "0", "--set", "reference.duration=0.05", "--set", "experiment.iterations=1",
+                          "--workers", "2", "--results", str(tmp_path / "results")], tmp_path)
+    assert study.returncode == 0, study.stderr
+    assert "4 cells (0 already stored, 4 run, 0 failed)" in study.stdout, study.stdout
+    said = [line for line in study.stderr.splitlines() if "half-done" in line]
+    assert said == lines, "one line for the command, not one more per worker process"
     refused = _run(python, ["-m", "ilcforce", "simulate", "-m", "half-done", "--iters", "1"], tmp_path)
     assert refused.returncode == 2 and "unknown method 'half-done'" in refused.stderr, refused.stderr
 
@@ -205,6 +212,7 @@ _GOOD = """
 
 
 def _registry(monkeypatch, *points: tuple[str, str]) -> Registry:
+    monkeypatch.delenv(controllers._SAID, raising=False)  # this process has said nothing yet
     eps = [EntryPoint(name, value, ENTRY_POINT_GROUP) for name, value in points]
     monkeypatch.setattr(controllers, "_entry_points", lambda: eps)
     return Registry(controllers.REGISTRY.shipped_specs())
@@ -234,7 +242,10 @@ def test_each_plugin_fault_is_one_line_naming_it(tmp_path, monkeypatch, capsys, 
     assert printed[0].startswith(f"ilcforce: plugin method {point[0]!r} ({point[1]}) left out: ")
     assert problem in printed[0], printed[0]
     list(registry)
-    assert capsys.readouterr().err == "", "said once per process"
+    assert capsys.readouterr().err == "", "said once"
+    assert os.environ[controllers._SAID] == "1", "the processes this one starts do not say it again"
+    list(Registry(controllers.REGISTRY.shipped_specs()))
+    assert capsys.readouterr().err == ""
 
 
 def test_a_controller_without_a_law_or_gains_defaults_is_left_out(tmp_path, monkeypatch, capsys):

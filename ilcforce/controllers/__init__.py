@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import importlib
 import inspect
+import os
 import re
 import sys
 import threading
@@ -123,6 +124,11 @@ ENTRY_POINT_GROUP = "ilcforce.methods"
 _METHOD_NAME = re.compile(r"[a-z][a-z0-9_-]{0,39}")
 
 
+#: set in the environment once a process has said which plugins did not load, so that the processes it starts
+#: (a study's Dask workers, a report's pool) do not say it again
+_SAID = "ILCFORCE_PLUGIN_PROBLEMS_SAID"
+
+
 class PluginError(ValueError):
     """Why an entry point of :data:`ENTRY_POINT_GROUP` gives no usable method (one line)."""
 
@@ -205,8 +211,10 @@ class Registry(Mapping):
                 self._all = self._load()
             finally:
                 self._loading = False
-        for line in self._problems:  # once per process, the one place that says it
-            print(line, file=sys.stderr)
+        if self._problems and not os.environ.get(_SAID):  # once per command: its worker processes inherit _SAID
+            os.environ[_SAID] = "1"
+            for line in self._problems:
+                print(line, file=sys.stderr)
         return self._all
 
     def _load(self) -> dict[str, MethodSpec]:
@@ -258,7 +266,7 @@ class Registry(Mapping):
         return tuple(name for name in self if name not in self._shipped)
 
     def problems(self) -> tuple[str, ...]:
-        """One line per plugin that did not load (each also printed once on stderr)."""
+        """One line per plugin that did not load (each also printed on stderr, once per command)."""
         self._specs()
         return tuple(self._problems)
 
