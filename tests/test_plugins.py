@@ -154,6 +154,19 @@ def test_a_plugin_leaves_the_ahead_of_time_kernels_current(plugin_python, tmp_pa
     assert status == without.stdout.strip(), "the plugin changes nothing in whether the compiled module is used"
 
 
+def test_a_plugin_law_has_no_ahead_of_time_simulator(monkeypatch):
+    """The loader finds no compiled loop for a law outside ilcforce.controllers, so the run takes numba's."""
+    from ilcforce.compiled import aot
+    from ilcforce.controllers.c2 import C2Controller
+    from ilcforce.plants.fivebar import FiveBar
+
+    monkeypatch.syspath_prepend(str(EXAMPLE))
+    from ilcforce_ptype.law import PTypeController
+
+    assert aot.law_key(PTypeController) is None and aot.law_key(C2Controller) == "c2_c2_law"
+    assert aot.simulator(PTypeController, FiveBar, FiveBar) is None
+
+
 def test_a_broken_plugin_is_one_line_and_the_shipped_methods_run(tmp_path):
     broken = tmp_path / "broken"
     (broken / "broken_method").mkdir(parents=True)
