@@ -18,13 +18,12 @@ import sys
 import sysconfig
 import textwrap
 import tomllib
-from importlib.metadata import EntryPoint
 from pathlib import Path
 
 import pytest
 
 from ilcforce import controllers
-from ilcforce.controllers import ENTRY_POINT_GROUP, Registry
+from ilcforce.controllers import ENTRY_POINT_GROUP, EntryPoint, Registry
 
 ROOT = Path(__file__).resolve().parent.parent
 EXAMPLE = ROOT / "examples" / "ilcforce-plugin-example"
@@ -139,6 +138,22 @@ def test_a_plugin_method_runs_through_simulate_study_tune_and_report(plugin_pyth
     assert "p-ilc" in (report / "tuning" / "tiny" / "tuning.csv").read_text()
 
 
+def test_the_registry_reads_the_entry_points_importlib_metadata_reads(plugin_python, tmp_path):
+    """The registry's own reader of the installed entry points (ilcforce.controllers._entry_points, which spares
+    every cold command importlib.metadata's import) against importlib.metadata, in the venv with the plugin."""
+    code = textwrap.dedent(f"""
+        import sys
+        from ilcforce import controllers
+        fast = [(ep.name, ep.value) for ep in controllers._entry_points()]
+        assert "importlib.metadata" not in sys.modules
+        from importlib.metadata import entry_points
+        slow = sorted((ep.name, ep.value) for ep in entry_points(group={ENTRY_POINT_GROUP!r}))
+        assert fast == slow == [("p-ilc", "ilcforce_ptype:SPEC")], (fast, slow)
+        """)
+    done = _run(plugin_python, ["-c", code], tmp_path)
+    assert done.returncode == 0, done.stderr
+
+
 def test_a_plugin_leaves_the_ahead_of_time_kernels_current(plugin_python, tmp_path):
     """The plugin's law is not in the ahead-of-time module: it runs through numba (the test above), and the
     module stays in use for the shipped laws (its stamp covers ilcforce's own sources, not the plugin's)."""
@@ -183,7 +198,7 @@ def test_a_broken_plugin_is_one_line_and_the_shipped_methods_run(tmp_path):
                         "--results", str(tmp_path / "results")], tmp_path)
     assert ran.returncode == 0, ran.stderr
     lines = [line for line in ran.stderr.splitlines() if "half-done" in line]
-    assert lines == ["ilcforce: plugin method 'half-done' (broken_method:SPEC of package broken-method) left out: "
+    assert lines == ["ilcforce: plugin method 'half-done' (broken_method:SPEC of package broken_method) left out: "
                      "cannot be loaded (RuntimeError: the law module is not finished)"], ran.stderr
     listed = _run(python, ["-m", "ilcforce.controllers"], tmp_path)
     assert listed.stdout.split() == [*SHIPPED, "p-ilc"], "the working plugin loads beside the broken one"
@@ -226,7 +241,7 @@ _GOOD = """
 
 def _registry(monkeypatch, *points: tuple[str, str]) -> Registry:
     monkeypatch.delenv(controllers._SAID, raising=False)  # this process has said nothing yet
-    eps = [EntryPoint(name, value, ENTRY_POINT_GROUP) for name, value in points]
+    eps = [EntryPoint(name, value) for name, value in points]
     monkeypatch.setattr(controllers, "_entry_points", lambda: eps)
     return Registry(controllers.REGISTRY.shipped_specs())
 

@@ -180,10 +180,65 @@ def _first_line(exc: BaseException) -> str:
     return text[:200] if text else type(exc).__name__
 
 
-def _entry_points() -> list:
-    from importlib.metadata import entry_points
+@dataclass(frozen=True)
+class EntryPoint:
+    """One ``name = module:attribute`` line of an installed distribution's entry points in
+    :data:`ENTRY_POINT_GROUP` (what ``importlib.metadata.EntryPoint`` holds for it)."""
 
-    return sorted(entry_points(group=ENTRY_POINT_GROUP), key=lambda ep: (ep.name, ep.value))
+    name: str
+    value: str
+    package: str = ""  # the distribution that declares it ("" if unknown)
+
+    def load(self):
+        """Import the module and return the attribute (``importlib.metadata``'s rule; extras ignored)."""
+        module, _, attribute = self.value.split("[")[0].partition(":")
+        found = importlib.import_module(module.strip())
+        for part in filter(None, attribute.strip().split(".")):
+            found = getattr(found, part)
+        return found
+
+
+def _group_lines(text: str, group: str):
+    """The ``name = value`` lines of ``[group]`` in an entry_points.txt (an INI file)."""
+    inside = False
+    for line in text.splitlines():
+        line = line.strip()
+        if line.startswith("[") and line.endswith("]"):
+            inside = line[1:-1].strip() == group
+        elif inside and "=" in line and not line.startswith(("#", ";")):
+            name, _, value = line.partition("=")
+            yield name.strip(), value.strip()
+
+
+def _entry_points() -> list[EntryPoint]:
+    """The entry points of :data:`ENTRY_POINT_GROUP` of the distributions on ``sys.path`` (the first of a
+    name wins, as for ``importlib.metadata``), sorted by name.
+
+    Read here rather than through ``importlib.metadata``, whose import and scan (email, csv, zipfile, ...)
+    is about 30 ms of every cold command, ``ilcforce --help`` included; this reads only each
+    distribution's entry_points.txt (1-3 ms)."""
+    seen, found = set(), []
+    for entry in sys.path:
+        try:
+            names = sorted(os.listdir(entry or "."))
+        except OSError:  # not a folder (a zip file, a missing path)
+            continue
+        for item in names:
+            stem, dot, kind = item.rpartition(".")
+            if not dot or kind not in ("dist-info", "egg-info"):
+                continue
+            package = stem.split("-")[0]
+            key = re.sub(r"[-_.]+", "_", package).lower()
+            if key in seen:
+                continue
+            seen.add(key)
+            try:
+                with open(os.path.join(entry or ".", item, "entry_points.txt"), encoding="utf-8") as handle:
+                    text = handle.read()
+            except (OSError, UnicodeDecodeError):
+                continue
+            found += [EntryPoint(name, value, package) for name, value in _group_lines(text, ENTRY_POINT_GROUP)]
+    return sorted(found, key=lambda ep: (ep.name, ep.value))
 
 
 class Registry(Mapping):
@@ -229,7 +284,7 @@ class Registry(Mapping):
             try:
                 spec = _plugin_spec(entry_point, specs)
             except PluginError as exc:
-                package = getattr(getattr(entry_point, "dist", None), "name", None)
+                package = entry_point.package
                 source = f"{entry_point.value}" + (f" of package {package}" if package else "")
                 self._problems.append(f"ilcforce: plugin method {entry_point.name!r} ({source}) left out: {exc}")
                 continue
