@@ -193,7 +193,25 @@ def test_a_broken_plugin_is_one_line_and_the_shipped_methods_run(tmp_path):
         [project.entry-points."ilcforce.methods"]
         half-done = "broken_method:SPEC"
         """))
-    python = _venv(tmp_path, EXAMPLE, broken)
+    # a plugin whose law numba cannot compile: the example with a name the law does not define
+    bad_law = tmp_path / "bad-law"
+    (bad_law / "bad_law").mkdir(parents=True)
+    source = EXAMPLE / "ilcforce_ptype"
+    (bad_law / "bad_law" / "__init__.py").write_text((source / "__init__.py").read_text()
+                                                     .replace("p-ilc", "bad-law").replace("ilcforce_ptype", "bad_law"))
+    law = (source / "law.py").read_text().replace('"p-ilc"', '"bad-law"')
+    law = law.replace("return _torque(k, meas, ref, gains, mem_prev, mem_new, write, diag)",
+                      "return _torque(k, meas, ref, gains, mem_prev, mem_new, write, no_such_name)")
+    assert "no_such_name" in law
+    (bad_law / "bad_law" / "law.py").write_text(law)
+    (bad_law / "pyproject.toml").write_text(textwrap.dedent("""
+        [project]
+        name = "bad-law"
+        version = "0.0.1"
+        [project.entry-points."ilcforce.methods"]
+        bad-law = "bad_law:SPEC"
+        """))
+    python = _venv(tmp_path, EXAMPLE, broken, bad_law)
     ran = _run(python, ["-m", "ilcforce", "simulate", "-m", "c1", "--iters", "1", "--set", "reference.duration=0.05",
                         "--results", str(tmp_path / "results")], tmp_path)
     assert ran.returncode == 0, ran.stderr
@@ -201,7 +219,13 @@ def test_a_broken_plugin_is_one_line_and_the_shipped_methods_run(tmp_path):
     assert lines == ["ilcforce: plugin method 'half-done' (broken_method:SPEC of package broken_method) left out: "
                      "cannot be loaded (RuntimeError: the law module is not finished)"], ran.stderr
     listed = _run(python, ["-m", "ilcforce.controllers"], tmp_path)
-    assert listed.stdout.split() == [*SHIPPED, "p-ilc"], "the working plugin loads beside the broken one"
+    assert listed.stdout.split() == [*SHIPPED, "bad-law", "p-ilc"], "the working plugins load beside the broken one"
+    failed = _run(python, ["-m", "ilcforce", "simulate", "-m", "bad-law", "--iters", "1", "--set",
+                           "reference.duration=0.05", "--results", str(tmp_path / "results")], tmp_path)
+    assert failed.returncode == 2, failed.stderr
+    assert failed.stderr.splitlines()[-1] == ("error: the law bad_law.law.ptype_law does not compile with numba: "
+                                              "NameError: name 'no_such_name' is not defined"), failed.stderr
+    assert "Traceback" not in failed.stderr and not list((tmp_path / "results").glob("*/bad-law.h5"))
     study = _run(python, ["-m", "ilcforce", "study", "-m", "c1,p-ilc", "--sweep", "p-ilc.kp=[50, 50],[100, 100]",
                           "--seeds", "0", "--set", "reference.duration=0.05", "--set", "experiment.iterations=1",
                           "--workers", "2", "--results", str(tmp_path / "results")], tmp_path)
@@ -334,3 +358,19 @@ def test_a_method_with_an_n_axis_law_only_runs_on_a_2_joint_robot(short_config):
         assert a.status == b.status == "complete"
         for name, x in a.log.items():
             np.testing.assert_array_equal(x, b.log[name], err_msg=f"j={a.iteration} {name}: same law, same loop")
+
+
+def _law_with_a_typo(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+    return meas[0] * no_such_gain, 0.0  # noqa: F821 - the fault under test
+
+
+def test_a_law_numba_cannot_compile_is_one_line_naming_it():
+    from ilcforce.controllers.base import compiled_law
+    from ilcforce.controllers.nd import LawError
+
+    with pytest.raises(LawError) as caught:
+        compiled_law(_law_with_a_typo).dispatcher()
+    message = str(caught.value)
+    assert "\n" not in message and "\x1b" not in message
+    assert message.endswith("._law_with_a_typo does not compile with numba: NameError: name 'no_such_gain' is not "
+                            "defined"), message
