@@ -138,12 +138,21 @@ def study_name(content: dict) -> str:
     return f"sweep-{shown}-{digest}" if shown else f"seeds-{digest}"
 
 
+def _description(content: dict) -> str:
+    """One line from the content: "from the command line: c3; c3.eta = 1, 2, 5; seeds 0-19"."""
+    parts = [", ".join(content["methods"]) if "methods" in content else "every method"]
+    parts += [f"{key} = {', '.join(_toml(v) for v in values)}" for key, values in content.get("sweep", {}).items()]
+    seeds = content["seeds"]
+    parts.append(f"seeds {seeds}" if isinstance(seeds, str) else f"seeds {', '.join(map(str, seeds))}")
+    return "from the command line: " + "; ".join(parts)
+
+
 def study_text(name: str, content: dict) -> str:
     """The study file of ``content`` named ``name`` (TOML; a fixed text for the same content)."""
     lines = ["# written by `ilcforce study --sweep/--seeds` (ilcforce.study.options): the study that command ran;",
              "# `ilcforce study` with this file runs it again (and continues its store)",
              "[study]", f"name = {_toml(name)}",
-             f"description = {_toml('a study from the command line (--sweep/--seeds)')}"]
+             f"description = {_toml(_description(content))}"]
     for key in ("experiment", "methods", "seeds"):
         if key in content:
             lines.append(f"{key} = {_toml(content[key])}")
