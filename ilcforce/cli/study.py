@@ -140,7 +140,8 @@ def _inline_study(files, results, sweeps, seeds, methods, config, sets):
     given = [flag for flag, value in (("--sweep", sweeps), ("--seeds", seeds), ("--methods", methods),
                                       ("--config", config), ("--set", sets)) if value]
     if files and given:
-        _fail_plain(f"give study files or {given[0]}, not both: a study file names its own {given[0].lstrip('-')}")
+        _fail_plain(f"give study files or {given[0]}, not both (a study file says its own methods, seeds, sweep, "
+                    "set and experiment)")
     if files:
         return None
     if not given:
