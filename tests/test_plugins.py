@@ -278,6 +278,7 @@ def _registry(monkeypatch, *points: tuple[str, str]) -> Registry:
     ("mine", ("mine", "my_method:Gains"), False, "gives a Gains, not an ilcforce.controllers.MethodSpec"),
     ("mine", ("mine", "my_method:NOTHING"), False, "cannot be loaded (AttributeError"),
     ("Mine Two", ("Mine Two", "my_method:SPEC"), False, "'Mine Two' is not a method name"),
+    ("plant", ("plant", "my_method:SPEC"), False, "'plant' is a section of ilcforce's own files"),
 ])
 def test_each_plugin_fault_is_one_line_naming_it(tmp_path, monkeypatch, capsys, name, point, in_paper, problem):
     _plugin_module(tmp_path, monkeypatch, _GOOD.format(name=name, in_paper=in_paper))
@@ -374,3 +375,12 @@ def test_a_law_numba_cannot_compile_is_one_line_naming_it():
     assert "\n" not in message and "\x1b" not in message
     assert message.endswith("._law_with_a_typo does not compile with numba: NameError: name 'no_such_gain' is not "
                             "defined"), message
+
+
+def test_the_reserved_names_hold_every_section_of_an_experiment_file():
+    import dataclasses
+
+    from ilcforce.config import Config
+
+    assert {f.name for f in dataclasses.fields(Config)} <= set(controllers.RESERVED)
+    assert not set(controllers.RESERVED) & set(SHIPPED)

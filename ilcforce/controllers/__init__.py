@@ -124,6 +124,11 @@ ENTRY_POINT_GROUP = "ilcforce.methods"
 _METHOD_NAME = re.compile(r"[a-z][a-z0-9_-]{0,39}")
 
 
+#: names a method may not take: its gains would be a TOML section of the same name as an experiment file's own
+#: (ilcforce.config.Config's fields; tests/test_plugins.py pins the two lists) or a study's or a tuning's table
+RESERVED = ("experiment", "plant", "wall", "reference", "simulation", "noise", "surface", "tuning", "gains", "study",
+            "tune")
+
 #: set in the environment once a process has said which plugins did not load, so that the processes it starts
 #: (a study's Dask workers, a report's pool) do not say it again
 _SAID = "ILCFORCE_PLUGIN_PROBLEMS_SAID"
@@ -151,6 +156,8 @@ def _plugin_spec(entry_point, taken: Mapping[str, MethodSpec]) -> MethodSpec:
                           "first; at most 40 characters)")
     if spec.name in taken:
         raise PluginError(f"{spec.name!r} is already a method ({taken[spec.name].module})")
+    if spec.name in RESERVED:
+        raise PluginError(f"{spec.name!r} is a section of ilcforce's own files; a method's gains cannot take it")
     if spec.in_paper:
         raise PluginError("in_paper must be False (the paper's methods are the shipped c1, c2 and c3)")
     try:
