@@ -99,6 +99,9 @@ def test_the_name_comes_from_the_content_alone():
     (["--sweep", "c3.eta=1,2"], "--seeds is missing (e.g. --seeds 0-19)"),
     (["--sweep", "c3.eta=1,2", "--seeds", "a-b"], "--seeds must be a range a-b or a comma-separated list"),
     (["--sweep", "c3.eta=1,1.0", "--seeds", "0"], "lists a value twice"),
+    (["--sweep", "c3.eta=1,2", "--seeds", "0", "--set", "experiment.seed=3"], "--set experiment.seed: a study's seeds "
+                                                                              "are --seeds"),
+    (["--sweep", "experiment.seed=1,2", "--seeds", "0"], "--sweep experiment.seed: a study's seeds are --seeds"),
     (["--sweep", "c3.nothing=1,2", "--seeds", "0"], "c3.nothing"),
     (["--sweep", "c3.eta=1,2", "--seeds", "0", "-m", "c9"], "unknown method 'c9'"),
     (["--sweep", "c3.eta=1,2", "--seeds", "0", "-c", "nowhere.toml"], "--config: no experiment file nowhere.toml"),

@@ -122,6 +122,9 @@ def study_content(*, methods: list[str] | None, seeds: str, sweeps: list[str], s
         if key in sweep:
             raise StudyError(f"--sweep {key} is given twice; give its values once (--sweep {key}=V1,V2,...)")
         sweep[key] = values
+    for flag, keys in (("--set", fixed), ("--sweep", sweep)):
+        if "experiment.seed" in keys:
+            raise StudyError(f"{flag} experiment.seed: a study's seeds are --seeds (e.g. --seeds 0-19)")
     if fixed:
         table["set"] = fixed
     if sweep:
