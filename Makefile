@@ -16,7 +16,8 @@ RESULTS ?= results
 # and the spatial arm (arm3): its evidence is its study over 20 held-out seeds (arm3-mc, every method with a
 # law for three axes, SL-adapt included), not a single run on seed 0
 EXPERIMENTS := $(filter-out %-tuned %-model arm3,$(patsubst experiments/%.toml,%,$(shell grep -L '^\[study\]' experiments/*.toml)))
-# every registered method (ilcforce/controllers/__init__.py); evaluated only by targets that need it
+# every registered method (ilcforce/controllers/__init__.py, then any installed plugin's: docs/plugins.md);
+# evaluated only by targets that need it
 METHODS = $(shell $(PY) -m ilcforce.controllers)
 JOBS ?= $(shell nproc 2>/dev/null || echo 2)
 # numba keeps compiled kernels here so that only the first run pays for compilation

@@ -148,7 +148,7 @@ def test_variant_folders_of_different_overrides_differ():
     (["compare", "--resume"], "error: No such option: --resume"),
     (["simulate", "--iters", "abc"], "error: Invalid value for '--iters'"),
     (["nosuch"], "error: No such command 'nosuch'."),
-    (["study"], "error: Missing argument 'files'."),
+    (["study"], "error: give a study file, or a study by its options"),
     (["simulate", "--method"], "error: Option '--method' requires an argument."),
 ])
 def test_usage_errors_of_the_entry_point_are_one_line(args, expected):

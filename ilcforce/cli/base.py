@@ -94,12 +94,13 @@ def _guard(func):
     def wrapper(*args, **kwargs):
         try:
             from ilcforce.config import ConfigError
+            from ilcforce.controllers.nd import LawError
             from ilcforce.experiment import UnknownMethodError
             from ilcforce.store import StoreError
 
             try:
                 return func(*args, **kwargs)
-            except (ConfigError, StoreError, UnknownMethodError, CliError) as exc:
+            except (ConfigError, StoreError, UnknownMethodError, CliError, LawError) as exc:
                 _fail(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
             except OSError as exc:
                 _fail(f"{exc.filename or ''}: {exc.strerror or exc}".lstrip(": "))

@@ -101,7 +101,7 @@ class _StudyProgress:
 @app.command()
 def study(
     ctx: typer.Context,
-    files: Annotated[list[Path], typer.Argument(help="study files: TOML whose table study holds name, seeds (\"0-9\" or a list) and optionally experiment (a file), methods, study.set (fixed values, as --set), study.sweep (a grid) or study.settings (a list); several run one after another on one cluster")],
+    files: Annotated[Optional[list[Path]], typer.Argument(help="study files: TOML whose table study holds name, seeds (\"0-9\" or a list) and optionally experiment (a file), methods, study.set (fixed values, as --set), study.sweep (a grid) or study.settings (a list); several run one after another on one cluster; none with --sweep/--seeds", show_default=False)] = None,
     scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="address of an existing Dask scheduler, e.g. tcp://HOST:8786")] = None,
     workers: Annotated[Optional[int], typer.Option("--workers", help="local worker processes (default: one per core; 1 runs in this process without Dask)")] = None,
     results: Annotated[Path, typer.Option("--results", help="results folder; the study store is <results>/studies/<name>.h5")] = Path("results"),
@@ -111,6 +111,11 @@ def study(
     keep_stores: Annotated[bool, typer.Option("--keep-stores", help="also write each cell's full run store under <results>/studies/<name>/cells/")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="no progress output")] = False,
     timeout: Annotated[float, typer.Option("--timeout", help="seconds allowed to reach --scheduler")] = 10.0,
+    sweeps: Annotated[Optional[list[str]], typer.Option("--sweep", help="instead of a study file: KEY=V1,V2,... swept (repeat for a grid); the study file it stands for is saved as <results>/studies/<name>.toml", show_default=False)] = None,
+    seeds: Annotated[Optional[str], typer.Option("--seeds", help="with --sweep (or alone): the seeds, a-b or a,b,c", show_default=False)] = None,
+    methods: Annotated[Optional[str], typer.Option("--methods", "-m", help="with --sweep/--seeds: comma-separated methods (default: every method)", show_default=False)] = None,
+    config: Annotated[Optional[Path], typer.Option("--config", "-c", help="with --sweep/--seeds: the experiment (default: the paper's setup)", show_default=False)] = None,
+    sets: Annotated[Optional[list[str]], typer.Option("--set", help="with --sweep/--seeds: KEY=VALUE fixed for every cell (repeatable)", show_default=False)] = None,
 ) -> None:
     """Run studies (seeds x settings x methods) on Dask; finished cells are stored and never rerun."""
     from ilcforce.study import load_study, run_study
@@ -119,7 +124,8 @@ def study(
 
     # SIGTERM and Ctrl-C: the entry point's stops.stop_signals raise KeyboardInterrupt here
     try:
-        specs = [load_study(resolve_toml(file)) for file in files]  # every file valid before any cell runs
+        inline = _inline_study(files, results, sweeps, seeds, methods, config, sets)  # --sweep/--seeds
+        specs = [inline] if inline else [load_study(resolve_toml(file)) for file in files]  # all valid before a cell runs
         names = [spec.name for spec in specs]
         twice = sorted({n for n in names if names.count(n) > 1})
         if twice:
@@ -128,6 +134,10 @@ def study(
                         f"stored as results/studies/<name>.h5)")
         for spec in specs:  # every store usable before any cell runs
             check_store(spec, results, resume=resume, overwrite=overwrite, replace_stale=replace_stale)
+        if inline:
+            from ilcforce.study.options import save_study_file
+
+            save_study_file(inline)  # beside its store, before its first cell
         with SharedClient() as shared:
             for spec in specs:
                 with _StudyProgress(spec.name, quiet, STOPS) as progress:
@@ -143,6 +153,29 @@ def study(
     except KeyboardInterrupt:
         _say(announce("every finished cell is stored; rerun the same command to continue"), stderr=True)
         raise typer.Exit(stop_code())
+
+
+def _inline_study(files, results, sweeps, seeds, methods, config, sets):
+    """The study of --sweep/--seeds/--methods/--config/--set (ilcforce.study.options), None with study files."""
+    given = [flag for flag, value in (("--sweep", sweeps), ("--seeds", seeds), ("--methods", methods),
+                                      ("--config", config), ("--set", sets)) if value]
+    if files and given:
+        _fail_plain(f"give study files or {given[0]}, not both (a study file says its own methods, seeds, sweep, "
+                    "set and experiment)")
+    if files:
+        return None
+    if not given:
+        _fail_plain("give a study file, or a study by its options, e.g. `ilcforce study -m c3 --sweep c3.eta=1,2,5 "
+                    "--seeds 0-19`")
+    from ilcforce.cli.base import CliError, _methods
+    from ilcforce.study.options import study_from_options
+
+    try:
+        names = _methods(methods) if methods is not None else None
+    except CliError as exc:
+        _fail_plain(str(exc))
+    return study_from_options(results, methods=names, seeds=seeds, sweeps=list(sweeps or ()), sets=list(sets or ()),
+                              experiment=config)
 
 
 def _summarise(spec, summary, quiet: bool) -> None:

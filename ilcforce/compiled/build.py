@@ -46,7 +46,7 @@ def _exports():
     from ilcforce.plants.base import PlantKernels, kernel_signature
 
     laws = {}
-    for spec in REGISTRY.values():
+    for spec in REGISTRY.shipped_specs():  # ilcforce's own laws; a plugin's runs through numba (no law_key)
         cls = spec.controller_class
         key = aot.law_key(cls)
         if key is not None:

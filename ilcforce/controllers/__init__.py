@@ -5,16 +5,33 @@ and the TOML section of its gains), title, short label and colour for figures an
 holding its law, controller class and gains dataclass, its memory layout, and how it learns.
 Figures, tables, the report, the CLI help, the config defaults and the Makefile (``python -m
 ilcforce.controllers``) all read the registry; nothing else lists the methods. Adding a method is
-one new module implementing :class:`~ilcforce.controllers.base.Controller` and one entry below.
+one new module implementing :class:`~ilcforce.controllers.base.Controller` and one entry below (or,
+outside ilcforce, a plugin: below).
 
 The registry is cheap to import: a spec names its module by path and imports it only when its
 controller or gains class is asked for, and a law's kernel is loaded only when first used
 (:class:`~ilcforce.controllers.base.compiled_law`).
+
+**Plugins.** An installed package adds a method of its own, without a fork, through the entry-point
+group :data:`ENTRY_POINT_GROUP` (``ilcforce.methods``, Gymnasium's convention): each entry point is
+named after the method and points at its :class:`MethodSpec` (or at a function returning one);
+docs/plugins.md and ``examples/ilcforce-plugin-example/`` show one. The registry loads them into
+:data:`REGISTRY` after the shipped methods, on first use and once per process, so a plugin method is
+the same to the rest of ilcforce as a shipped one. A plugin that cannot be loaded is left out with
+one line on stderr naming it and the problem (``REGISTRY.problems()``); the shipped methods never
+depend on it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
+import inspect
+import os
+import re
+import sys
+import threading
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 
 #: How a method learns (MethodSpec.learns).
@@ -101,11 +118,226 @@ _ENTRIES = (
                "the paper's eq. (14) with a learning window, a zero-phase Q filter and projection of alpha_hat"),
 )
 
-#: method name -> spec, in report order (the paper's three first).
-REGISTRY: dict[str, MethodSpec] = {spec.name: spec for spec in _ENTRIES}
+#: the entry-point group through which an installed package declares a method (docs/plugins.md)
+ENTRY_POINT_GROUP = "ilcforce.methods"
+#: a method name: the --method value, a TOML section, part of file names (results/<experiment>/<name>.h5)
+_METHOD_NAME = re.compile(r"[a-z][a-z0-9_-]{0,39}")
+
+
+#: names a method may not take: its gains would be a TOML section of the same name as an experiment file's own
+#: (ilcforce.config.Config's fields; tests/test_plugins.py pins the two lists) or a study's or a tuning's table
+RESERVED = ("experiment", "plant", "wall", "reference", "simulation", "noise", "surface", "tuning", "gains", "study",
+            "tune")
+
+#: set in the environment once a process has said which plugins did not load, so that the processes it starts
+#: (a study's Dask workers, a report's pool) do not say it again
+_SAID = "ILCFORCE_PLUGIN_PROBLEMS_SAID"
+
+
+class PluginError(ValueError):
+    """Why an entry point of :data:`ENTRY_POINT_GROUP` gives no usable method (one line)."""
+
+
+def _plugin_spec(entry_point, taken: Mapping[str, MethodSpec]) -> MethodSpec:
+    """The spec an entry point declares, checked as far as the rest of ilcforce relies on it without
+    running the law (PluginError otherwise): the module, the controller and gains classes load, the
+    gains have defaults (every experiment carries every method's gains), and the controller has a law."""
+    try:
+        found = entry_point.load()
+        spec = found() if callable(found) and not isinstance(found, MethodSpec) else found
+    except (Exception, SystemExit) as exc:  # noqa: BLE001 - a plugin's fault is reported, not raised
+        raise PluginError(f"cannot be loaded ({type(exc).__name__}: {_first_line(exc)})") from None
+    if not isinstance(spec, MethodSpec):
+        raise PluginError(f"gives a {type(spec).__name__}, not an ilcforce.controllers.MethodSpec")
+    if spec.name != entry_point.name:
+        raise PluginError(f"the entry point is named {entry_point.name!r} but its spec {spec.name!r}")
+    if not _METHOD_NAME.fullmatch(spec.name):
+        raise PluginError(f"{spec.name!r} is not a method name (lower-case letters, digits, '-', '_'; a letter "
+                          "first; at most 40 characters)")
+    if spec.name in taken:
+        raise PluginError(f"{spec.name!r} is already a method ({taken[spec.name].module})")
+    if spec.name in RESERVED:
+        raise PluginError(f"{spec.name!r} is a section of ilcforce's own files; a method's gains cannot take it")
+    if spec.in_paper:
+        raise PluginError("in_paper must be False (the paper's methods are the shipped c1, c2 and c3)")
+    try:
+        controller, gains = spec.controller_class, spec.gains_class
+    except (Exception, SystemExit) as exc:  # noqa: BLE001
+        raise PluginError(f"module {spec.module}: {type(exc).__name__}: {_first_line(exc)}") from None
+    if not (isinstance(gains, type) and dataclasses.is_dataclass(gains)):
+        raise PluginError(f"{spec.module}.{spec.gains} is not a dataclass")
+    try:
+        gains()
+    except Exception as exc:  # noqa: BLE001
+        raise PluginError(f"{spec.gains}() with its defaults fails: {_first_line(exc)}") from None
+    if not isinstance(controller, type):
+        raise PluginError(f"{spec.module}.{spec.controller} is not a class")
+    if all(inspect.getattr_static(controller, law, None) is None for law in ("law", "law_nd")):
+        raise PluginError(f"{spec.controller} has neither a law (2-D) nor a law_nd (n axes)")
+    if getattr(controller, "name", None) != spec.name:
+        raise PluginError(f"{spec.controller}.name is {getattr(controller, 'name', None)!r}, not {spec.name!r}")
+    layout = getattr(controller, "memory_layout", None)
+    if not (isinstance(layout, dict) and all(isinstance(v, tuple) and len(v) == 3 for v in layout.values())):
+        raise PluginError(f"{spec.controller}.memory_layout must be a dict of name -> (first column, last + 1, unit)")
+    return spec
+
+
+def _first_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split())
+    return text[:200] if text else type(exc).__name__
+
+
+@dataclass(frozen=True)
+class EntryPoint:
+    """One ``name = module:attribute`` line of an installed distribution's entry points in
+    :data:`ENTRY_POINT_GROUP` (what ``importlib.metadata.EntryPoint`` holds for it)."""
+
+    name: str
+    value: str
+    package: str = ""  # the distribution that declares it ("" if unknown)
+
+    def load(self):
+        """Import the module and return the attribute (``importlib.metadata``'s rule; extras ignored)."""
+        module, _, attribute = self.value.split("[")[0].partition(":")
+        found = importlib.import_module(module.strip())
+        for part in filter(None, attribute.strip().split(".")):
+            found = getattr(found, part)
+        return found
+
+
+def _group_lines(text: str, group: str):
+    """The ``name = value`` lines of ``[group]`` in an entry_points.txt (an INI file)."""
+    inside = False
+    for line in text.splitlines():
+        line = line.strip()
+        if line.startswith("[") and line.endswith("]"):
+            inside = line[1:-1].strip() == group
+        elif inside and "=" in line and not line.startswith(("#", ";")):
+            name, _, value = line.partition("=")
+            yield name.strip(), value.strip()
+
+
+def _entry_points() -> list[EntryPoint]:
+    """The entry points of :data:`ENTRY_POINT_GROUP` of the distributions on ``sys.path`` (the first of a
+    name wins, as for ``importlib.metadata``), sorted by name.
+
+    Read here rather than through ``importlib.metadata``, whose import and scan (email, csv, zipfile, ...)
+    is about 30 ms of every cold command, ``ilcforce --help`` included; this reads only each
+    distribution's entry_points.txt (1-3 ms)."""
+    seen, found = set(), []
+    for entry in sys.path:
+        try:
+            names = sorted(os.listdir(entry or "."))
+        except OSError:  # not a folder (a zip file, a missing path)
+            continue
+        for item in names:
+            stem, dot, kind = item.rpartition(".")
+            if not dot or kind not in ("dist-info", "egg-info"):
+                continue
+            package = stem.split("-")[0]
+            key = re.sub(r"[-_.]+", "_", package).lower()
+            if key in seen:
+                continue
+            seen.add(key)
+            try:
+                with open(os.path.join(entry or ".", item, "entry_points.txt"), encoding="utf-8") as handle:
+                    text = handle.read()
+            except (OSError, UnicodeDecodeError):
+                continue
+            found += [EntryPoint(name, value, package) for name, value in _group_lines(text, ENTRY_POINT_GROUP)]
+    return sorted(found, key=lambda ep: (ep.name, ep.value))
+
+
+class Registry(Mapping):
+    """method name -> :class:`MethodSpec`, in report order: the shipped methods (the paper's three first),
+    then the installed plugins' by name. The plugins are loaded at the first look into the registry, once
+    per process (not at import: the entry points are read only by a process that needs a method)."""
+
+    def __init__(self, shipped: tuple[MethodSpec, ...]) -> None:
+        self._shipped = {spec.name: spec for spec in shipped}
+        self._all: dict[str, MethodSpec] | None = None
+        self._problems: list[str] = []
+        self._lock = threading.RLock()
+        self._loading = False
+
+    def _specs(self) -> dict[str, MethodSpec]:
+        if self._all is not None:
+            return self._all
+        with self._lock:
+            if self._all is not None:
+                return self._all
+            if self._loading:  # a plugin's module looks into the registry while it loads: the shipped ones
+                return self._shipped
+            self._loading = True
+            try:
+                self._all = self._load()
+            finally:
+                self._loading = False
+        if self._problems and not os.environ.get(_SAID):  # once per command: its worker processes inherit _SAID
+            os.environ[_SAID] = "1"
+            for line in self._problems:
+                print(line, file=sys.stderr)
+        return self._all
+
+    def _load(self) -> dict[str, MethodSpec]:
+        specs = dict(self._shipped)
+        try:
+            found = _entry_points()
+        except Exception as exc:  # noqa: BLE001 - damaged package metadata: the shipped methods still run
+            self._problems.append(f"ilcforce: plugin methods not loaded: the installed packages' entry points "
+                                  f"cannot be read ({_first_line(exc)})")
+            return specs
+        for entry_point in found:
+            try:
+                spec = _plugin_spec(entry_point, specs)
+            except PluginError as exc:
+                package = entry_point.package
+                source = f"{entry_point.value}" + (f" of package {package}" if package else "")
+                self._problems.append(f"ilcforce: plugin method {entry_point.name!r} ({source}) left out: {exc}")
+                continue
+            specs[spec.name] = spec
+        return specs
+
+    def __getitem__(self, name: str) -> MethodSpec:
+        return self._specs()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._specs())
+
+    def __len__(self) -> int:
+        return len(self._specs())
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._specs()
+
+    def __repr__(self) -> str:
+        return f"Registry({', '.join(self)})"
+
+    @property
+    def shipped(self) -> tuple[str, ...]:
+        """The methods that come with ilcforce (no plugin), in report order; reading it loads no plugin."""
+        return tuple(self._shipped)
+
+    def shipped_specs(self) -> tuple[MethodSpec, ...]:
+        """The shipped methods' specs, in report order, without loading any plugin (the ahead-of-time
+        build compiles these laws alone)."""
+        return tuple(self._shipped.values())
+
+    def plugins(self) -> tuple[str, ...]:
+        """The installed plugins' methods that loaded."""
+        return tuple(name for name in self if name not in self._shipped)
+
+    def problems(self) -> tuple[str, ...]:
+        """One line per plugin that did not load (each also printed on stderr, once per command)."""
+        self._specs()
+        return tuple(self._problems)
+
+
+#: method name -> spec, in report order (the paper's three first, then the other shipped ones, then plugins).
+REGISTRY: Registry = Registry(_ENTRIES)
 
 #: the paper's methods, in the paper's order
-PAPER_METHODS: tuple[str, ...] = tuple(name for name, spec in REGISTRY.items() if spec.in_paper)
+PAPER_METHODS: tuple[str, ...] = tuple(spec.name for spec in _ENTRIES if spec.in_paper)
 
 
 def method_names() -> tuple[str, ...]:
@@ -140,5 +372,5 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-__all__ = ["LEARNS", "MethodNameError", "MethodSpec", "PAPER_METHODS", "REGISTRY", "Controller", "canonical_method",
-           "method_names"]
+__all__ = ["ENTRY_POINT_GROUP", "LEARNS", "MethodNameError", "MethodSpec", "PAPER_METHODS", "PluginError", "REGISTRY",
+           "Registry", "Controller", "canonical_method", "method_names"]

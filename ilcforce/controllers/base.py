@@ -45,7 +45,7 @@ import numpy as np
 
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import njit
-from ilcforce.controllers.nd import G_OWN_FIRST, at_py, field_width
+from ilcforce.controllers.nd import G_OWN_FIRST, at_py, compile_law, field_width
 
 if TYPE_CHECKING:
     from ilcforce.records import IterationRecord
@@ -257,7 +257,7 @@ class compiled_law:  # noqa: N801 (used as a decorator-like descriptor)
 
     def dispatcher(self):
         if self._dispatcher is None:
-            self._dispatcher = _jit.numba().njit(law_signature(), cache=True, error_model="numpy")(self.py_func)
+            self._dispatcher = compile_law(self.py_func, law_signature())  # LawError if it does not compile
         return self._dispatcher
 
     def __get__(self, obj, owner=None):

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import inspect
+import re
 
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import njit
@@ -135,6 +136,26 @@ def check_widths(section: str, gains, n: int | None = None) -> int:
     return n
 
 
+class LawError(ValueError):
+    """A law numba cannot compile, in one line naming it (a shipped law always compiles; a plugin's may not,
+    docs/plugins.md)."""
+
+    @classmethod
+    def of(cls, py_func, exc: Exception) -> LawError:
+        """The error for ``py_func`` from numba's (several lines, the first a generic "Failed in ...")."""
+        lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in str(exc).splitlines()]
+        said = next((line for line in lines if line and not line.startswith("Failed in ")), type(exc).__name__)
+        return cls(f"the law {py_func.__module__}.{py_func.__qualname__} does not compile with numba: {said[:300]}")
+
+
+def compile_law(py_func, signature):
+    """``numba.njit(signature, cache=True, error_model="numpy")(py_func)``; LawError if numba cannot compile it."""
+    try:
+        return _jit.numba().njit(signature, cache=True, error_model="numpy")(py_func)
+    except Exception as exc:  # noqa: BLE001 - numba's typing and lowering errors have no common base
+        raise LawError.of(py_func, exc) from None
+
+
 @functools.cache
 def law_signature_nd():
     types = _jit.numba().types
@@ -153,7 +174,7 @@ class compiled_law_nd:  # noqa: N801 (a descriptor, as base.compiled_law)
 
     def __get__(self, obj, owner=None):
         if self._dispatcher is None:
-            self._dispatcher = _jit.numba().njit(law_signature_nd(), cache=True, error_model="numpy")(self.py_func)
+            self._dispatcher = compile_law(self.py_func, law_signature_nd())
         return self._dispatcher
 
 
