@@ -1,0 +1,185 @@
+"""C3-robust taken apart: the table of ``experiments/long/c3-robust-ablation.toml`` (docs/model.md#long-run).
+
+C3-robust changes the paper's C3 (eq. 14) in four ways: a learning window, a Q filter, a bound on the
+switching gain alpha_hat, and the desired acceleration in the regressor Psi. The study runs each change alone
+(on top of plain C3), each left out (the other three on), all four and none, and the bound replaced by a
+leak of alpha_hat; this module turns its store into one row per setting:
+
+* **divergence**: how many seeds diverged within the study's iterations, the median (and range) of the first
+  iteration that did not complete, and the median time into that iteration at which the watchdog stopped it;
+* **errors**: e_P and e_F (the error 2-norms of Table 2, as docs/model.md's long-run table gives them), the
+  mean over j = 15..19 of each seed, median over the seeds that completed those iterations ("through j = 19");
+* **settled H**: H_x and H_y over t >= 20 ms (the report's settled chattering), median over seeds, at j = 19
+  and at the last iteration of the seeds that ran every iteration;
+* **alpha_hat against its bound**: alpha_hat(t) is a function of time; the study keeps its RMS over the
+  settled window (t >= 20 ms, ``memory_settled_alpha_hat``), here at the last complete iteration of each seed
+  (median over seeds), beside the setting's alpha_max; "at the bound" counts the seeds whose settled RMS is
+  within 0.1% of alpha_max (the law caps alpha_hat sample by sample, so an RMS that close means alpha_hat
+  sits at the cap over the whole settled window), and "reached at j" is the median first iteration of that.
+
+``python -m ilcforce.report.c3_robust_ablation --results results --out docs/long-run`` writes
+``c3-robust-ablation.md`` and the table as ``c3_robust_ablation.csv``/``.md`` (``make long`` writes them through
+:func:`ilcforce.report.long_run.write_page`); nothing else in the folder is touched.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+#: the study's name (experiments/long/c3-robust-ablation.toml)
+STUDY = "c3-robust-ablation"
+#: the page and the table stem it writes
+PAGE = "c3-robust-ablation.md"
+TABLE = "c3_robust_ablation"
+#: the iterations the errors are averaged over (the paper's last five)
+ERROR_WINDOW = (15, 19)
+#: alpha_hat's settled RMS within this fraction of alpha_max counts as at the bound
+AT_BOUND = 1e-3
+#: an alpha_max at or above this is no bound (the configuration's largest float, 1e12, stands for none)
+NO_BOUND = 1e11
+#: the four changes, as (config key, its value when the change is on): a setting says which are on
+CHANGES = (("learn_from", "window", lambda v: float(v) > 0), ("q_cutoff", "Q", lambda v: float(v) > 0),
+           ("alpha_max", "bound", lambda v: float(v) < NO_BOUND),
+           ("psi_acceleration", "desired acc.", lambda v: v == "desired"))
+
+
+def _median(values) -> float:
+    values = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    return float(np.median(values)) if values else math.nan
+
+
+def _range(values, fmt: str) -> str:
+    values = [float(v) for v in values if math.isfinite(float(v))]
+    if not values:
+        return "-"
+    low, high = min(values), max(values)
+    return format(low, fmt) if low == high else f"{format(low, fmt)}-{format(high, fmt)}"
+
+
+def ablation_table(results) -> pd.DataFrame:
+    """One row per setting of the ablation study (see the module doc for each column)."""
+    from ilcforce.report.growth_validation import setting_config, study_settings
+    from ilcforce.stability import diverged_at
+
+    rows = []
+    for k, label, _p in study_settings(results):
+        config = setting_config(results, k)
+        gains = config.get("c3-robust", {})
+        on = [name for key, name, is_on in CHANGES if is_on(gains.get(key))]
+        alpha_max = float(gains.get("alpha_max", math.nan))
+        bounded = alpha_max < NO_BOUND
+        metrics = results.setting_metrics(k)
+        iterations = int(config.get("experiment", {}).get("iterations", 0))
+        diverged_j, diverged_t, errors_p, errors_f, hx19, hy19, hx_end, hy_end = ([] for _ in range(8))
+        alpha_end, reached, at_bound = [], [], 0
+        seeds = sorted(int(s) for s in metrics["seed"].unique())
+        for _seed, frame in metrics.groupby("seed", sort=True):
+            frame = frame.sort_values("iteration")
+            complete = frame[frame["status"] == "complete"]
+            j = diverged_at(frame)
+            if math.isfinite(j):
+                diverged_j.append(j)
+                diverged_t.append(float(frame.loc[frame["iteration"] == j, "diverged_time"].iloc[0]))
+            window = complete[complete["iteration"].between(*ERROR_WINDOW)]
+            if len(window) == ERROR_WINDOW[1] - ERROR_WINDOW[0] + 1:
+                errors_p.append(float(window["position_error_2norm"].mean()))
+                errors_f.append(float(window["force_error_2norm"].mean()))
+                at19 = window[window["iteration"] == ERROR_WINDOW[1]].iloc[0]
+                hx19.append(float(at19["chattering_task_x_settled"]))
+                hy19.append(float(at19["chattering_task_y_settled"]))
+            if len(complete) == iterations:
+                hx_end.append(float(complete["chattering_task_x_settled"].iloc[-1]))
+                hy_end.append(float(complete["chattering_task_y_settled"].iloc[-1]))
+            if len(complete):
+                alpha = complete["memory_settled_alpha_hat"].to_numpy(dtype=float)
+                alpha_end.append(float(alpha[-1]))
+                if bounded:
+                    hit = np.flatnonzero(alpha >= (1.0 - AT_BOUND) * alpha_max)
+                    if abs(alpha[-1] - alpha_max) <= AT_BOUND * alpha_max:
+                        at_bound += 1
+                    if len(hit):
+                        reached.append(float(complete["iteration"].iloc[hit[0]]))
+        rows.append({
+            "setting": label,
+            "changes on": ", ".join(on) or "none",
+            "seeds": len(seeds),
+            "diverged": f"{len(diverged_j)} of {len(seeds)}",
+            "diverged at j (median)": _median(diverged_j),
+            "diverged at j (range)": _range(diverged_j, ".0f"),
+            "at t in the iteration (ms, median)": _median(diverged_t) * 1e3 if diverged_t else math.nan,
+            "through j=19": len(errors_p),
+            "e_P j=15..19 (m)": _median(errors_p),
+            "e_F j=15..19 (N)": _median(errors_f),
+            "H_x settled j=19 (N)": _median(hx19),
+            "H_y settled j=19 (N)": _median(hy19),
+            f"H_x settled j={iterations - 1} (N)": _median(hx_end),
+            f"H_y settled j={iterations - 1} (N)": _median(hy_end),
+            f"ran all {iterations}": len(hy_end),
+            "alpha_hat settled RMS, last j (N)": _median(alpha_end),
+            "alpha_hat range over seeds (N)": _range(alpha_end, ".4g"),
+            "alpha_max (N)": alpha_max if bounded else math.inf,
+            "at the bound": f"{at_bound} of {len(seeds)}" if bounded else "no bound",
+            "bound reached at j (median)": _median(reached) if bounded else math.nan,
+        })
+    return pd.DataFrame(rows)
+
+
+def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
+    """Write the ablation page and table into ``out_dir`` from ``results_dir/studies/c3-robust-ablation.h5``;
+    nothing (an empty list) when that store is absent or unreadable."""
+    from ilcforce.report import table_write
+    from ilcforce.report.study import studies_provenance
+    from ilcforce.study import StudyStoreError, read_study
+
+    path = Path(results_dir) / "studies" / f"{STUDY}.h5"
+    if not path.is_file():
+        return []
+    try:
+        results = read_study(path)
+    except (StudyStoreError, OSError, KeyError, ValueError, TypeError):
+        return []
+    table = ablation_table(results)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    written = table_write.write_table(table, out_dir, TABLE)
+    seeds = sorted(int(s) for s in results.metrics["seed"].unique())
+    command = f"ilcforce study experiments/long/{STUDY}.toml --workers 2 --results RESULTS"
+    lines = [
+        "# C3-robust taken apart", "",
+        f"Generated by `python -m ilcforce.report.c3_robust_ablation --results RESULTS --out docs/long-run` "
+        f"(also by `make long`) from the study run by `{command}` ({studies_provenance({STUDY: results})}; seeds "
+        f"{', '.join(map(str, seeds))}, method c3-robust, the paper's setup otherwise).", "",
+        __doc__.split("\n\n", 1)[1].split("``python -m")[0].strip().replace("``", "`"), "",
+        str(getattr(results, "description", "")) + ".", "",
+        table_write.markdown_table(table), "",
+        "A cell's single run is `ilcforce simulate -m c3-robust -n ITERATIONS --seed SEED --set "
+        "c3-robust.KEY=VALUE ...` with the setting's four (or six) keys; the study's cells are bit-identical to "
+        "it (docs/studies.md).", ""]
+    page = out_dir / PAGE
+    page.write_text("\n".join(lines), encoding="utf-8")
+    written.append(page)
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m ilcforce.report.c3_robust_ablation",
+                                     description=__doc__.split("\n")[0])
+    parser.add_argument("--results", type=Path, default=Path("results"))
+    parser.add_argument("--out", type=Path, default=Path("docs/long-run"))
+    args = parser.parse_args(argv)
+    written = write_page(args.results, args.out)
+    if not written:
+        print(f"error: no readable {STUDY} study in {args.results / 'studies'} (run make long)", file=sys.stderr)
+        return 2
+    print(f"wrote {written[-1]}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,125 @@
+"""C3-robust taken apart (experiments/long/c3-robust-ablation.toml, ilcforce.report.c3_robust_ablation): the
+shipped study runs each of the four changes alone and left out on seeds no other study uses, and the page's
+table counts divergence, errors, settled H and alpha_hat against its bound as its module doc says, on
+constructed runs whose answers are known. The page's numbers come from `make long`."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from ilcforce.report import c3_robust_ablation as ablation
+from ilcforce.study.spec import is_study_file, load_study
+
+ROOT = Path(__file__).resolve().parents[1]
+STUDY_FILE = ROOT / "experiments" / "long" / "c3-robust-ablation.toml"
+CHANGES = ("learn_from", "q_cutoff", "alpha_max", "psi_acceleration")
+
+
+def _on(gains) -> tuple[bool, ...]:
+    return (gains.learn_from > 0, gains.q_cutoff > 0, gains.alpha_max < ablation.NO_BOUND,
+            gains.psi_acceleration == "desired")
+
+
+def test_the_shipped_study_runs_each_change_alone_and_left_out_all_and_none():
+    study = load_study(STUDY_FILE)
+    assert study.methods == ("c3-robust",) and study.seeds == (530, 531, 532, 533, 534)
+    assert study.settings[0].config.experiment.iterations >= 300
+    patterns = {}
+    for setting in study.settings:
+        g = setting.config.gains["c3-robust"]
+        if g.alpha_leak == 0.0:
+            patterns[_on(g)] = setting.label()
+    wanted = {tuple(True for _ in CHANGES), tuple(False for _ in CHANGES)}
+    for i in range(4):
+        wanted.add(tuple(k == i for k in range(4)))  # alone
+        wanted.add(tuple(k != i for k in range(4)))  # left out
+    assert set(patterns) == wanted, patterns
+    shipped = load_study(STUDY_FILE).settings[0].config.gains["c3-robust"]
+    from ilcforce.config_load import load_config
+
+    default = load_config(None).gains["c3-robust"]
+    assert shipped == default, "the 'all four' setting is the shipped C3-robust"
+
+
+def test_the_ablation_seeds_are_held_out_from_every_other_study():
+    ours = set(load_study(STUDY_FILE).seeds)
+    for path in sorted((ROOT / "experiments").rglob("*.toml")):
+        if path == STUDY_FILE or not is_study_file(path):
+            continue
+        assert not ours & set(load_study(path).seeds), path
+
+
+class _Study:
+    """What ``read_study`` returns, as far as the table reads it."""
+
+    def __init__(self, settings: dict[str, tuple[dict, pd.DataFrame]]):
+        self._frames = [frame for _c, frame in settings.values()]
+        self.settings = pd.DataFrame({"setting": range(len(settings)), "label": list(settings),
+                                      "config_json": [json.dumps(c) for c, _f in settings.values()]})
+        self.metrics = pd.concat(self._frames, ignore_index=True)
+        self.description = "constructed"
+        self.sessions = []
+
+    def setting_metrics(self, k: int) -> pd.DataFrame:
+        return self._frames[k]
+
+
+def _run(seed: int, n: int, alpha, *, diverge_at: int | None = None, e_f=1.0):
+    rows = []
+    for j in range(n):
+        done = diverge_at is None or j < diverge_at
+        rows.append({"seed": seed, "method": "c3-robust", "iteration": j, "status": "complete" if done else "diverged",
+                     "diverged_time": math.nan if done else 0.0051,
+                     "position_error_2norm": 1e-4 if done else math.nan,
+                     "force_error_2norm": e_f if done else math.nan,
+                     "chattering_task_x_settled": 0.02 + 1e-4 * j if done else math.nan,
+                     "chattering_task_y_settled": 0.03 if done else math.nan,
+                     "memory_settled_alpha_hat": alpha(j) if done else math.nan})
+        if not done:
+            break
+    return pd.DataFrame(rows)
+
+
+def _config(n, **gains):
+    return {"experiment": {"iterations": n}, "c3-robust": {"learn_from": 0.005, "q_cutoff": 50.0, "alpha_max": 0.03,
+                                                           "psi_acceleration": "desired", **gains}}
+
+
+def test_the_table_of_constructed_runs():
+    n = 30
+    capped = pd.concat([_run(0, n, lambda j: min(0.03, 0.002 * j)),           # at the bound from j = 15
+                        _run(1, n, lambda j: 0.001 * j, diverge_at=25, e_f=3.0),  # below it, diverges at j = 25
+                        ], ignore_index=True)
+    free = pd.concat([_run(0, n, lambda j: 0.002 * j, diverge_at=4), _run(1, n, lambda j: 0.002 * j, diverge_at=8)],
+                     ignore_index=True)
+    study = _Study({"all four": (_config(n), capped),
+                    "none": (_config(n, learn_from=0.0, q_cutoff=0.0, alpha_max=1e12, psi_acceleration="measured"),
+                             free)})
+    table = ablation.ablation_table(study).set_index("setting")
+    row = table.loc["all four"]
+    assert row["changes on"] == "window, Q, bound, desired acc."
+    assert row["diverged"] == "1 of 2" and row["diverged at j (median)"] == 25
+    assert row["at t in the iteration (ms, median)"] == pytest.approx(5.1)
+    assert row["through j=19"] == 2 and row["e_F j=15..19 (N)"] == pytest.approx(2.0)  # median of 1.0 and 3.0
+    assert row[f"ran all {n}"] == 1 and row[f"H_x settled j={n - 1} (N)"] == pytest.approx(0.02 + 1e-4 * (n - 1))
+    assert row["H_y settled j=19 (N)"] == pytest.approx(0.03)
+    assert row["at the bound"] == "1 of 2" and row["bound reached at j (median)"] == 15
+    assert row["alpha_hat settled RMS, last j (N)"] == pytest.approx((0.03 + 0.024) / 2)
+    assert row["alpha_max (N)"] == 0.03
+    none = table.loc["none"]
+    assert none["changes on"] == "none" and none["diverged"] == "2 of 2" and none["diverged at j (range)"] == "4-8"
+    assert none["at the bound"] == "no bound" and math.isinf(none["alpha_max (N)"])
+    assert none["through j=19"] == 0 and math.isnan(none["e_P j=15..19 (m)"])
+
+
+def test_the_page_is_written_from_a_stored_study_only(tmp_path):
+    """No store: nothing written and exit 2 with one line; the page never touches long-run.md."""
+    out = tmp_path / "out"
+    assert ablation.write_page(tmp_path / "results", out) == [] and not out.exists()
+    assert ablation.main(["--results", str(tmp_path / "results"), "--out", str(out)]) == 2
