@@ -123,3 +123,30 @@ def test_the_page_is_written_from_a_stored_study_only(tmp_path):
     out = tmp_path / "out"
     assert ablation.write_page(tmp_path / "results", out) == [] and not out.exists()
     assert ablation.main(["--results", str(tmp_path / "results"), "--out", str(out)]) == 2
+
+
+def test_the_profile_of_a_constructed_alpha_hat():
+    alpha = np.concatenate([np.zeros(10), np.full(30, 0.03), np.linspace(0.01, 0.02, 10)])
+    row = ablation.profile_row(alpha, 0.03, 10)
+    assert row["share of t at the bound"] == pytest.approx(30 / 40)
+    assert (row["alpha_hat min (N)"], row["alpha_hat max (N)"]) == (0.01, 0.03)
+    flat = ablation.profile_row(np.full(20, 0.02), 1e12, 0)
+    assert flat["variation over t (std/mean)"] < 1e-12 and math.isnan(flat["share of t at the bound"])
+
+
+def test_alpha_profiles_rerun_the_study_files_cells(tmp_path):
+    """A real rerun of two cells of a small study file: with a bound far below what alpha_hat learns in two
+    iterations it sits at the bound over the whole settled window; without one it varies over t."""
+    study = tmp_path / "tiny.toml"
+    study.write_text('\n'.join([
+        '[study]', 'name = "tiny"', 'methods = ["c3-robust"]', 'seeds = [530]',
+        '[study.set]', '"experiment.iterations" = 2',
+        '[[study.settings]]', 'label = "capped"', '"c3-robust.alpha_max" = 1e-6',
+        '[[study.settings]]', 'label = "free"', '"c3-robust.alpha_max" = 1e12',
+        '[[study.settings]]', 'label = "not asked for"', '"c3-robust.alpha_max" = 0.5', '']), encoding="utf-8")
+    table = ablation.alpha_profiles(530, ["capped", "free"], study).set_index("setting")
+    assert list(table.index) == ["capped", "free"] and set(table["j"]) == {1}
+    assert table.loc["capped", "share of t at the bound"] > 0.99
+    assert table.loc["capped", "alpha_hat median (N)"] == pytest.approx(1e-6, rel=1e-9)
+    assert math.isnan(table.loc["free", "share of t at the bound"]) and math.isinf(table.loc["free", "alpha_max (N)"])
+    assert table.loc["free", "variation over t (std/mean)"] > 0.05

@@ -24,10 +24,14 @@ on ten held-out seeds over 1,000 iterations by the long-run study (docs/long-run
   frequency (the 0.5 Hz force sine), so the learned feed-forward keeps the task's content;
 * psi_acceleration "desired": Psi's acceleration term is the desired S ddP_d (docs/model.md#acceleration),
   not the measured S ddP of the paper. With the measured one, the learned D entries multiply the
-  acceleration the torque itself produces, an algebraic loop that the simulator resolves implicitly; at the
-  start of an iteration, where that loop falls back hundreds of times, it kicked C3-robust into divergence
-  after 430-440 iterations on two of two held-out seeds (20-65 ms into the iteration); with the desired
-  acceleration the same seeds run 1,000 iterations. A [c3] table's choice does not reach C3-robust;
+  acceleration the torque itself produces, an algebraic loop that the simulator resolves implicitly; with it
+  (the other three changes on) C3-robust diverges within a few iterations, at j = 2-18 on the five held-out
+  seeds of the ablation study, about 5 ms into the iteration, where the learning window opens
+  (docs/long-run/c3-robust-ablation.md; ``ilcforce simulate -m c3-robust --set
+  c3-robust.psi_acceleration=measured -n 40 --seed 100`` diverges at j = 4). An earlier version of this note
+  said 430-440 iterations on seeds 100 and 101; that does not reproduce. The desired acceleration is thus
+  one of the two changes that keep C3-robust bounded (the Q filter is the other), not a refinement. A [c3]
+  table's choice does not reach C3-robust;
 * alpha_max 0.03 N: just above the non-repetitive disturbance's bound by the norm of eq. (2)
   (0.02 N per axis, 0.028 N as a 2-vector; docs/model.md#noise): the switching term of eq. (14) only
   has to dominate what learning cannot remove. Without a bound alpha_hat only grows (its update is

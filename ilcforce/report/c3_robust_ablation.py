@@ -17,9 +17,18 @@ leak of alpha_hat; this module turns its store into one row per setting:
   within 0.1% of alpha_max (the law caps alpha_hat sample by sample, so an RMS that close means alpha_hat
   sits at the cap over the whole settled window), and "reached at j" is the median first iteration of that.
 
+The study keeps alpha_hat's RMS, not alpha_hat(t) itself (a run store of 300 iterations holds about 0.6 GB).
+Whether alpha_hat(t) is still a function of time or a constant at the cap is read off the last iteration's
+alpha_hat(t) by :func:`alpha_profiles`, which reruns chosen cells of the study file in this process (the same
+code and configuration as the study's cells) and keeps only that array: over the settled window, its
+minimum, median and maximum, the coefficient of variation over t, and the share of samples within 0.1% of
+alpha_max.
+
 ``python -m ilcforce.report.c3_robust_ablation --results results --out docs/long-run`` writes
 ``c3-robust-ablation.md`` and the table as ``c3_robust_ablation.csv``/``.md`` (``make long`` writes them through
-:func:`ilcforce.report.long_run.write_page`); nothing else in the folder is touched.
+:func:`ilcforce.report.long_run.write_page`); nothing else in the folder is touched. With ``--profile SEED``
+it also reruns every setting of the study file that ran all its iterations in the stored study, for that seed,
+and writes ``c3_robust_alpha_profile.csv``/``.md`` (not part of ``make long``: a few minutes a setting).
 """
 
 from __future__ import annotations
@@ -43,6 +52,10 @@ ERROR_WINDOW = (15, 19)
 AT_BOUND = 1e-3
 #: an alpha_max at or above this is no bound (the configuration's largest float, 1e12, stands for none)
 NO_BOUND = 1e11
+#: the profile table's stem (``--profile``)
+PROFILE = "c3_robust_alpha_profile"
+#: the study file the profile reruns cells of
+STUDY_FILE = Path(__file__).resolve().parents[2] / "experiments" / "long" / f"{STUDY}.toml"
 #: the four changes, as (config key, its value when the change is on): a setting says which are on
 CHANGES = (("learn_from", "window", lambda v: float(v) > 0), ("q_cutoff", "Q", lambda v: float(v) > 0),
            ("alpha_max", "bound", lambda v: float(v) < NO_BOUND),
@@ -130,6 +143,46 @@ def ablation_table(results) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def profile_row(alpha: np.ndarray, alpha_max: float, settled_from_sample: int) -> dict:
+    """alpha_hat(t) of one iteration over the settled window: its spread, and the share at the bound."""
+    settled = np.asarray(alpha, dtype=float).reshape(-1)[settled_from_sample:]
+    mean = float(np.mean(settled))
+    bounded = alpha_max < NO_BOUND
+    return {"alpha_hat min (N)": float(np.min(settled)), "alpha_hat median (N)": float(np.median(settled)),
+            "alpha_hat max (N)": float(np.max(settled)),
+            "variation over t (std/mean)": float(np.std(settled) / mean) if mean > 0 else math.nan,
+            "share of t at the bound": (float(np.mean(np.abs(settled - alpha_max) <= AT_BOUND * alpha_max))
+                                        if bounded else math.nan)}
+
+
+def alpha_profiles(seed: int, labels, study_file: Path = STUDY_FILE) -> pd.DataFrame:
+    """Rerun the settings ``labels`` of ``study_file`` for ``seed`` (every iteration, in this process) and
+    describe the last complete iteration's alpha_hat(t) (:func:`profile_row`)."""
+    from ilcforce import metrics
+    from ilcforce.experiment import simulate_iterations
+    from ilcforce.study.spec import Cell, load_study
+
+    study = load_study(study_file)
+    rows = []
+    for setting in study.settings:
+        if setting.label() not in labels:
+            continue
+        config = study.cell_config(Cell(setting.index, int(seed), "c3-robust"))
+        gains = config.gains["c3-robust"]
+        last, j_last = None, -1
+        for record in simulate_iterations(config, "c3-robust"):
+            if record.diverged:
+                break
+            last, j_last = record.memory["alpha_hat"], record.iteration
+        if last is None:
+            continue
+        k0 = metrics.settled_sample(config.simulation.sample_time)
+        rows.append({"setting": setting.label(), "seed": int(seed), "j": j_last,
+                     "alpha_max (N)": gains.alpha_max if gains.alpha_max < NO_BOUND else math.inf,
+                     **profile_row(last, gains.alpha_max, k0)})
+    return pd.DataFrame(rows)
+
+
 def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
     """Write the ablation page and table into ``out_dir`` from ``results_dir/studies/c3-robust-ablation.h5``;
     nothing (an empty list) when that store is absent or unreadable."""
@@ -172,11 +225,21 @@ def main(argv: list[str] | None = None) -> int:
                                      description=__doc__.split("\n")[0])
     parser.add_argument("--results", type=Path, default=Path("results"))
     parser.add_argument("--out", type=Path, default=Path("docs/long-run"))
+    parser.add_argument("--profile", type=int, metavar="SEED", default=None,
+                        help="also rerun, for this seed, every setting that ran all its iterations, and write "
+                             "alpha_hat(t)'s profile at the last iteration")
     args = parser.parse_args(argv)
     written = write_page(args.results, args.out)
     if not written:
         print(f"error: no readable {STUDY} study in {args.results / 'studies'} (run make long)", file=sys.stderr)
         return 2
+    if args.profile is not None:
+        from ilcforce.report import table_write
+
+        table = pd.read_csv(args.out / f"{TABLE}.csv")
+        survivors = table.loc[table["diverged"].astype(str).str.startswith("0 of"), "setting"].tolist()
+        profile = alpha_profiles(args.profile, survivors)
+        written += table_write.write_table(profile, args.out, PROFILE)
     print(f"wrote {written[-1]}")
     return 0
 
