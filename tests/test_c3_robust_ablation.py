@@ -80,7 +80,8 @@ def _run(seed: int, n: int, alpha, *, diverge_at: int | None = None, e_f=1.0):
                      "force_error_2norm": e_f if done else math.nan,
                      "chattering_task_x_settled": 0.02 + 1e-4 * j if done else math.nan,
                      "chattering_task_y_settled": 0.03 if done else math.nan,
-                     "memory_settled_alpha_hat": alpha(j) if done else math.nan})
+                     "memory_settled_alpha_hat": alpha(j) if done else math.nan,
+                     "memory_start_theta_hat": 2.0 + 0.5 * j if done else math.nan})
         if not done:
             break
     return pd.DataFrame(rows)
@@ -92,7 +93,7 @@ def _config(n, **gains):
 
 
 def test_the_table_of_constructed_runs():
-    n = 30
+    n = 80
     capped = pd.concat([_run(0, n, lambda j: min(0.03, 0.002 * j)),           # at the bound from j = 15
                         _run(1, n, lambda j: 0.001 * j, diverge_at=25, e_f=3.0),  # below it, diverges at j = 25
                         ], ignore_index=True)
@@ -109,9 +110,13 @@ def test_the_table_of_constructed_runs():
     assert row["through j=19"] == 2 and row["e_F j=15..19 (N)"] == pytest.approx(2.0)  # median of 1.0 and 3.0
     assert row[f"ran all {n}"] == 1 and row[f"H_x settled j={n - 1} (N)"] == pytest.approx(0.02 + 1e-4 * (n - 1))
     assert row["H_y settled j=19 (N)"] == pytest.approx(0.03)
+    assert row[f"e_F j={n - 5}..{n - 1} (N)"] == pytest.approx(1.0)  # the seed that ran all, its last five
     assert row["at the bound"] == "1 of 2" and row["bound reached at j (median)"] == 15
     assert row["alpha_hat settled RMS, last j (N)"] == pytest.approx((0.03 + 0.024) / 2)
     assert row["alpha_max (N)"] == 0.03
+    assert row[f"alpha_hat rise per iteration, j={n - 51}..{n - 1} (N)"] == 0.0  # capped since j = 15
+    assert row["Theta_hat at t=0, j=19"] == pytest.approx(2.0 + 0.5 * 19)  # both seeds ran to j = 19
+    assert row[f"Theta_hat at t=0, j={n - 1}"] == pytest.approx(2.0 + 0.5 * (n - 1))  # only seed 0 ran all
     none = table.loc["none"]
     assert none["changes on"] == "none" and none["diverged"] == "2 of 2" and none["diverged at j (range)"] == "4-8"
     assert none["at the bound"] == "no bound" and math.isinf(none["alpha_max (N)"])

@@ -8,14 +8,19 @@ leak of alpha_hat; this module turns its store into one row per setting:
 * **divergence**: how many seeds diverged within the study's iterations, the median (and range) of the first
   iteration that did not complete, and the median time into that iteration at which the watchdog stopped it;
 * **errors**: e_P and e_F (the error 2-norms of Table 2, as docs/model.md's long-run table gives them), the
-  mean over j = 15..19 of each seed, median over the seeds that completed those iterations ("through j = 19");
+  mean over j = 15..19 of each seed, median over the seeds that completed those iterations ("through j = 19"),
+  and the same over the last five iterations of the seeds that ran every iteration;
 * **settled H**: H_x and H_y over t >= 20 ms (the report's settled chattering), median over seeds, at j = 19
   and at the last iteration of the seeds that ran every iteration;
 * **alpha_hat against its bound**: alpha_hat(t) is a function of time; the study keeps its RMS over the
   settled window (t >= 20 ms, ``memory_settled_alpha_hat``), here at the last complete iteration of each seed
   (median over seeds), beside the setting's alpha_max; "at the bound" counts the seeds whose settled RMS is
   within 0.1% of alpha_max (the law caps alpha_hat sample by sample, so an RMS that close means alpha_hat
-  sits at the cap over the whole settled window), and "reached at j" is the median first iteration of that.
+  sits at the cap over the whole settled window), and "reached at j" is the median first iteration of that;
+  its rise per iteration over the last 50 iterations (median over the seeds that ran them all) tells a gain
+  that has settled from one still climbing;
+* **Theta_hat at t = 0** (``memory_start_theta_hat``, its norm at the first sample): at j = 19 and at the last
+  iteration of the seeds that ran all, the drift the start mismatch drives (docs/model.md#long-run).
 
 The study keeps alpha_hat's RMS, not alpha_hat(t) itself (a run store of 300 iterations holds about 0.6 GB).
 Whether alpha_hat(t) is still a function of time or a constant at the cap is read off the last iteration's
@@ -48,6 +53,8 @@ PAGE = "c3-robust-ablation.md"
 TABLE = "c3_robust_ablation"
 #: the iterations the errors are averaged over (the paper's last five)
 ERROR_WINDOW = (15, 19)
+#: alpha_hat's rise per iteration is taken over this many last iterations
+RISE_OVER = 50
 #: alpha_hat's settled RMS within this fraction of alpha_max counts as at the bound
 AT_BOUND = 1e-3
 #: an alpha_max at or above this is no bound (the configuration's largest float, 1e12, stands for none)
@@ -90,6 +97,7 @@ def ablation_table(results) -> pd.DataFrame:
         metrics = results.setting_metrics(k)
         iterations = int(config.get("experiment", {}).get("iterations", 0))
         diverged_j, diverged_t, errors_p, errors_f, hx19, hy19, hx_end, hy_end = ([] for _ in range(8))
+        late_p, late_f, rise, start19, start_end = [], [], [], [], []
         alpha_end, reached, at_bound = [], [], 0
         seeds = sorted(int(s) for s in metrics["seed"].unique())
         for _seed, frame in metrics.groupby("seed", sort=True):
@@ -106,9 +114,16 @@ def ablation_table(results) -> pd.DataFrame:
                 at19 = window[window["iteration"] == ERROR_WINDOW[1]].iloc[0]
                 hx19.append(float(at19["chattering_task_x_settled"]))
                 hy19.append(float(at19["chattering_task_y_settled"]))
+                start19.append(float(at19["memory_start_theta_hat"]))
             if len(complete) == iterations:
                 hx_end.append(float(complete["chattering_task_x_settled"].iloc[-1]))
                 hy_end.append(float(complete["chattering_task_y_settled"].iloc[-1]))
+                late_p.append(float(complete["position_error_2norm"].iloc[-5:].mean()))
+                late_f.append(float(complete["force_error_2norm"].iloc[-5:].mean()))
+                settled_alpha = complete["memory_settled_alpha_hat"].to_numpy(dtype=float)
+                if len(settled_alpha) > RISE_OVER:
+                    rise.append((settled_alpha[-1] - settled_alpha[-1 - RISE_OVER]) / RISE_OVER)
+                start_end.append(float(complete["memory_start_theta_hat"].iloc[-1]))
             if len(complete):
                 alpha = complete["memory_settled_alpha_hat"].to_numpy(dtype=float)
                 alpha_end.append(float(alpha[-1]))
@@ -134,11 +149,16 @@ def ablation_table(results) -> pd.DataFrame:
             f"H_x settled j={iterations - 1} (N)": _median(hx_end),
             f"H_y settled j={iterations - 1} (N)": _median(hy_end),
             f"ran all {iterations}": len(hy_end),
+            f"e_P j={iterations - 5}..{iterations - 1} (m)": _median(late_p),
+            f"e_F j={iterations - 5}..{iterations - 1} (N)": _median(late_f),
             "alpha_hat settled RMS, last j (N)": _median(alpha_end),
             "alpha_hat range over seeds (N)": _range(alpha_end, ".4g"),
             "alpha_max (N)": alpha_max if bounded else math.inf,
             "at the bound": f"{at_bound} of {len(seeds)}" if bounded else "no bound",
             "bound reached at j (median)": _median(reached) if bounded else math.nan,
+            f"alpha_hat rise per iteration, j={iterations - 1 - RISE_OVER}..{iterations - 1} (N)": _median(rise),
+            "Theta_hat at t=0, j=19": _median(start19),
+            f"Theta_hat at t=0, j={iterations - 1}": _median(start_end),
         })
     return pd.DataFrame(rows)
 
@@ -183,6 +203,21 @@ def alpha_profiles(seed: int, labels, study_file: Path = STUDY_FILE) -> pd.DataF
     return pd.DataFrame(rows)
 
 
+def _profile_lines(out_dir: Path) -> list[str]:
+    """The alpha_hat(t) profile table ``--profile`` wrote into ``out_dir``, if it did."""
+    from ilcforce.report import table_write
+
+    path = out_dir / f"{PROFILE}.csv"
+    if not path.is_file():
+        return []
+    profile = pd.read_csv(path)
+    seeds = ", ".join(str(s) for s in sorted(profile["seed"].unique()))
+    return ["## alpha_hat(t) at the last iteration", "",
+            f"Written by `--profile` (seed {seeds}): every setting that ran all its iterations, rerun in one process "
+            "with the study file's configuration, and alpha_hat(t) of its last iteration over the settled window "
+            "(t >= 20 ms).", "", table_write.markdown_table(profile), ""]
+
+
 def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
     """Write the ablation page and table into ``out_dir`` from ``results_dir/studies/c3-robust-ablation.h5``;
     nothing (an empty list) when that store is absent or unreadable."""
@@ -211,6 +246,7 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
         __doc__.split("\n\n", 1)[1].split("``python -m")[0].strip().replace("``", "`"), "",
         str(getattr(results, "description", "")) + ".", "",
         table_write.markdown_table(table), "",
+        *_profile_lines(out_dir),
         "A cell's single run is `ilcforce simulate -m c3-robust -n ITERATIONS --seed SEED --set "
         "c3-robust.KEY=VALUE ...` with the setting's four (or six) keys; the study's cells are bit-identical to "
         "it (docs/studies.md).", ""]
@@ -239,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
         table = pd.read_csv(args.out / f"{TABLE}.csv")
         survivors = table.loc[table["diverged"].astype(str).str.startswith("0 of"), "setting"].tolist()
         profile = alpha_profiles(args.profile, survivors)
-        written += table_write.write_table(profile, args.out, PROFILE)
+        written = [*table_write.write_table(profile, args.out, PROFILE), *write_page(args.results, args.out)]
     print(f"wrote {written[-1]}")
     return 0
 
