@@ -35,8 +35,10 @@ on ten held-out seeds over 1,000 iterations by the long-run study (docs/long-run
 * alpha_max 0.03 N: just above the non-repetitive disturbance's bound by the norm of eq. (2)
   (0.02 N per axis, 0.028 N as a 2-vector; docs/model.md#noise): the switching term of eq. (14) only
   has to dominate what learning cannot remove. Without a bound alpha_hat only grows (its update is
-  never negative), and the chattering with it. The ablation study (experiments/long/c3-robust-ablation.toml,
-  docs/long-run/c3-robust-ablation.md) shows where alpha_hat ends against this bound;
+  never negative), and the chattering with it. With the bound, alpha_hat reaches it at about j = 230 and
+  stays there on every seed of the ablation study (experiments/long/c3-robust-ablation.toml,
+  docs/long-run/c3-robust-ablation.md): from then on the switching gain is the constant 0.03 N, not a
+  learned function of time (docs/model.md#c3-robust-ablation);
 * alpha_leak 0 (per iteration) and alpha_nominal 0 N: no leak of alpha_hat (off by default, so every stored
   run and number is unchanged). With alpha_leak > 0, alpha_hat_{j-1} is first pulled towards alpha_nominal
   by that fraction (sigma-modification, Ioannou & Kokotovic 1983, on the switching gain alone; C3-leak
