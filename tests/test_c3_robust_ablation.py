@@ -48,9 +48,10 @@ def test_the_shipped_study_runs_each_change_alone_and_left_out_all_and_none():
 
 
 def test_the_ablation_seeds_are_held_out_from_every_other_study():
+    """Seeds 530-534 belong to the ablation alone (its 1,000-iteration leak check continues it on two of them)."""
     ours = set(load_study(STUDY_FILE).seeds)
     for path in sorted((ROOT / "experiments").rglob("*.toml")):
-        if path == STUDY_FILE or not is_study_file(path):
+        if path == STUDY_FILE or not is_study_file(path) or load_study(path).name == ablation.LEAK_CHECK:
             continue
         assert not ours & set(load_study(path).seeds), path
 
@@ -155,3 +156,13 @@ def test_alpha_profiles_rerun_the_study_files_cells(tmp_path):
     assert table.loc["capped", "alpha_hat median (N)"] == pytest.approx(1e-6, rel=1e-9)
     assert math.isnan(table.loc["free", "share of t at the bound"]) and math.isinf(table.loc["free", "alpha_max (N)"])
     assert table.loc["free", "variation over t (std/mean)"] > 0.05
+
+
+def test_the_ablation_and_its_leak_check_are_long_studies_left_out_of_the_findings():
+    """The report's findings leave these `make long` studies to their committed page (report.long_run)."""
+    from ilcforce.report import long_run
+
+    names = {load_study(path).name for path in (ROOT / "experiments" / "long").glob("c3-robust-*.toml")}
+    assert names == {ablation.STUDY, ablation.LEAK_CHECK}
+    assert all(long_run.is_long_study(name) for name in names)
+    assert not long_run.is_long_study("paper-mc")

@@ -48,6 +48,9 @@ import pandas as pd
 
 #: the study's name (experiments/long/c3-robust-ablation.toml)
 STUDY = "c3-robust-ablation"
+#: the 1,000-iteration check of the leak of alpha_hat (experiments/long/c3-robust-leak-1000.toml), read with
+#: ``ilcforce export`` and cited in docs/model.md#c3-robust-ablation; a ``make long`` study like this one
+LEAK_CHECK = "c3-robust-leak-1000"
 #: the page and the table stem it writes
 PAGE = "c3-robust-ablation.md"
 TABLE = "c3_robust_ablation"

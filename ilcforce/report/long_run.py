@@ -325,7 +325,8 @@ def committed_summary(directory: Path | None = None) -> dict | None:
 
 def is_long_study(name: str) -> bool:
     """A study of ``make long`` (summarised by its committed page, not by the findings of a report)."""
-    return name.startswith(VALIDATION_PREFIX) or name in (LONG_RUN, CAUSE, c3_robust_ablation.STUDY)
+    return name.startswith(VALIDATION_PREFIX) or name in (LONG_RUN, CAUSE, c3_robust_ablation.STUDY,
+                                                          c3_robust_ablation.LEAK_CHECK)
 
 
 def main(argv: list[str] | None = None) -> int:
