@@ -66,7 +66,7 @@ NO_BOUND = 1e11
 PROFILE = "c3_robust_alpha_profile"
 #: the study file the profile reruns cells of
 STUDY_FILE = Path(__file__).resolve().parents[2] / "experiments" / "long" / f"{STUDY}.toml"
-#: the four changes, as (config key, its value when the change is on): a setting says which are on
+#: the four changes, as (config key, name, whether a value turns it on): a setting says which are on
 CHANGES = (("learn_from", "window", lambda v: float(v) > 0), ("q_cutoff", "Q", lambda v: float(v) > 0),
            ("alpha_max", "bound", lambda v: float(v) < NO_BOUND),
            ("psi_acceleration", "desired acc.", lambda v: v == "desired"))
