@@ -131,3 +131,115 @@ def test_c3_robust_decides_its_own_psi_acceleration():
     assert config.gains["c3-robust"].psi_acceleration == "desired" and config.gains["c3-robust"].eta == 2.0
     own = load_config(None, {"c3-robust.psi_acceleration": "measured"})
     assert own.gains["c3-robust"].psi_acceleration == "measured"
+
+
+# --- the leak of alpha_hat (c3-robust.alpha_leak, alpha_nominal): learned and bounded without a cap ---------
+
+
+def _leaky(config, **gains):
+    g = replace(config.gains["c3-robust"], **gains)
+    return replace(config, gains={**config.gains, "c3-robust": g}), g
+
+
+def test_alpha_hat_is_not_leaked_by_default():
+    """The shipped C3-robust has no leak, so its runs and every stored number are today's."""
+    g = load_config(None).gains["c3-robust"]
+    assert (g.alpha_leak, g.alpha_nominal) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_alpha_leak_pulls_alpha_hat_towards_its_nominal_value_before_the_eq14_update(seed):
+    """alpha_hat_j = min(alpha_max, alpha_hat_{j-1} - alpha_leak (alpha_hat_{j-1} - alpha_nominal) + eta |sigma|_1);
+    Theta_hat's update and the law's other terms are C3-robust's without the leak."""
+    config, meas, ref, mem_prev = _law_inputs(seed, 9)
+    config, g = _leaky(config, psi_acceleration="measured", alpha_max=1e12, alpha_leak=0.25, alpha_nominal=0.01)
+    plain_config, _ = _leaky(config, alpha_leak=0.0)
+    mem_prev[4, 8] = 0.2 + 0.1 * seed
+    leaky, plain = make_controller(config, "c3-robust"), make_controller(plain_config, "c3-robust")
+    t = 2.0 * g.learn_from  # inside the learning window
+    mem_l, mem_p = np.zeros((N, 9)), np.zeros((N, 9))
+    tau = leaky.law(4, t, meas, ref, leaky.gains(), mem_prev, mem_l, True, np.zeros(DIAG_WIDTH))
+    plain.law(4, t, meas, ref, plain.gains(), mem_prev, mem_p, True, np.zeros(DIAG_WIDTH))
+    sigma, psi = _reference_surface(meas, ref[4], config)
+    previous = mem_prev[4, 8]
+    alpha = previous - 0.25 * (previous - 0.01) + g.eta * sigma @ np.sign(sigma)
+    assert mem_l[4, 8] == pytest.approx(alpha, rel=1e-13)
+    assert mem_p[4, 8] == pytest.approx(previous + g.eta * sigma @ np.sign(sigma), rel=1e-13)
+    assert mem_l[4, 8] < mem_p[4, 8], "the leak takes off 0.25 (alpha_hat - 0.01) > 0"
+    np.testing.assert_array_equal(mem_l[4, :8], mem_p[4, :8])
+    Phi = np.zeros((8, 2))
+    Phi[0:4, 0], Phi[4:8, 1] = psi, psi
+    u = np.diag(g.k) @ sigma + Phi.T @ mem_l[4, :8] + meas[4:6] + mem_l[4, 8] * np.sign(sigma)
+    np.testing.assert_allclose(tau, meas[10:14].reshape(2, 2).T @ u, rtol=1e-11, atol=1e-13)
+    # the cap still acts after the leak
+    capped, _ = _leaky(config, alpha_max=0.05)
+    controller = make_controller(capped, "c3-robust")
+    controller.law(4, t, meas, ref, controller.gains(), mem_prev, mem_l, True, np.zeros(DIAG_WIDTH))
+    assert mem_l[4, 8] == 0.05
+
+
+def test_with_a_leak_alpha_hat_settles_at_nominal_plus_increment_over_leak():
+    """Iterated with a constant eta |sigma|_1, the leaky update converges to alpha_nominal + increment /
+    alpha_leak (bounded without a cap, and a function of sigma: learned); without the leak it grows by the
+    increment every iteration."""
+    from ilcforce.controllers.c3 import alpha_update
+
+    leak, nominal, increment = 0.05, 0.01, 1e-3
+    alpha = plain = 0.0
+    for _ in range(600):
+        alpha = alpha_update(alpha, increment, np.inf, leak, nominal)
+        plain = alpha_update(plain, increment, np.inf, 0.0, nominal)
+    assert alpha == pytest.approx(nominal + increment / leak, rel=1e-9)
+    assert plain == pytest.approx(600 * increment, rel=1e-12)
+
+
+def _run_keeping_alpha(config, loop, iterations=3):
+    """tests/test_ndof.py's run of C3-robust in the 2-D ("auto") or n-axis ("nd") loop, with alpha_hat as each
+    iteration handed it on."""
+    import dataclasses
+
+    from ilcforce import simulate
+    from ilcforce.experiment import iteration_inputs
+
+    reference = config.reference_samples()
+    controller = make_controller(config, "c3-robust")
+    out = []
+    for j in range(iterations):
+        inputs = dataclasses.replace(iteration_inputs(config, j, reference), loop=loop)
+        mem_prev, mem_new = controller.begin_iteration(j)
+        record = simulate.run_iteration(inputs, controller, mem_prev, mem_new)
+        controller.end_iteration(record)
+        out.append((record, controller.learned_state()["alpha_hat"].copy()))
+    return out
+
+
+def test_the_n_axis_loop_leaks_alpha_hat_as_the_2d_loop_does():
+    """The n-axis law (law_nd) carries the leak too: on the five-bar, 3 iterations of C3-robust with a leak
+    give the same alpha_hat and signals in both loops, to tests/test_ndof.py's tolerance on its scales."""
+    from test_ndof import _SCALE_OF, RTOL
+
+    config, _g = _leaky(load_config(None), alpha_leak=0.3, alpha_nominal=0.02, alpha_max=1e12)
+    two_d, n_d = _run_keeping_alpha(config, "auto"), _run_keeping_alpha(config, "nd")
+    plain = _run_keeping_alpha(_leaky(config, alpha_leak=0.0)[0], "auto")
+    for (a, alpha_a), (b, alpha_b) in zip(two_d, n_d):
+        assert (a.status, a.fallback_count) == (b.status, b.fallback_count) and a.status == "complete"
+        assert np.max(np.abs(alpha_a - alpha_b)) < RTOL * np.max(np.abs(alpha_a))
+        for name, x in a.log.items():
+            if name == "implicit_fallbacks":
+                np.testing.assert_array_equal(x, b.log[name])
+                continue
+            scale = max(np.max(np.abs(a.log[_SCALE_OF.get(name, name)])), 1e-300)
+            assert np.max(np.abs(x - b.log[name])) / scale < RTOL, name
+    # the leak acts: alpha_hat (0.003-0.018 N unleaked after 3 iterations) is pulled towards 0.02 N
+    assert np.max(np.abs(two_d[-1][1] - plain[-1][1])) > 1e-3
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("c3-robust.alpha_leak", 1.0, "c3-robust.alpha_leak must be in [0, 1)"),
+    ("c3-robust.alpha_leak", -0.1, "c3-robust.alpha_leak must be in [0, 1)"),
+    ("c3-robust.alpha_nominal", -0.01, "c3-robust.alpha_nominal must be a finite gain >= 0 N"),
+])
+def test_bad_leak_options_are_one_line_naming_the_key(key, value, words):
+    with pytest.raises(ConfigError, match=words.replace(".", r"\.").replace("[", r"\[").replace(")", r"\)")) as info:
+        load_config(None, {key: value})
+    assert "\n" not in str(info.value)

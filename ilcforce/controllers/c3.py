@@ -122,13 +122,32 @@ def _theta_terms(k, na, p1x, p1y, p2x, p2y, sx, sy, gains, mem_prev, mem_new, wr
     return mx, my
 
 
+@njit(inline="always", error_model="numpy")
+def alpha_update(previous, increment, alpha_max, alpha_leak, alpha_nominal):
+    """alpha_hat_j(t) from alpha_hat_{j-1}(t) (``previous``) and eta sigma^T sgn(sigma) (``increment``), eq. (14):
+
+    alpha_hat_j = min(alpha_max, alpha_hat_{j-1} - alpha_leak (alpha_hat_{j-1} - alpha_nominal) + increment)
+
+    The leak is the sigma-modification of adaptive control (Ioannou & Kokotovic 1983) on the switching gain
+    alone: with a bounded sigma, alpha_hat settles at alpha_nominal + increment / alpha_leak, learned and
+    bounded without a cap. alpha_leak = 0 skips it (the arithmetic of the paper's law, bit for bit)."""
+    if alpha_leak > 0.0:
+        previous = previous - alpha_leak * (previous - alpha_nominal)
+    alpha = previous + increment  # eq. (14), alpha update
+    if alpha > alpha_max:  # (a NaN stays NaN, so the watchdog still sees a divergence)
+        alpha = alpha_max
+    return alpha
+
+
 @njit(inline="always", error_model="numpy")  # inlined into each law: a called c3_torque costs ~8% of a step
-def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_max, learn):
+def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_max, learn, alpha_leak, alpha_nominal):
     """Eq. (14) at sample k, with the previous iteration's memory scaled by ``keep``, alpha_hat_j
     capped at ``alpha_max``, and Theta_hat and alpha_hat updated only where ``learn`` is True (their
-    learning signal is sigma there, 0 elsewhere). The paper's C3 is keep = 1, alpha_max = inf,
-    learn = True (all exact no-ops); C3-leak (``c3_leak``) uses keep = 1 - leakage and a finite bound;
-    C3-robust (``c3_robust``) a bound and a learning window."""
+    learning signal is sigma there, 0 elsewhere); alpha_hat_{j-1} leaks towards ``alpha_nominal`` by the
+    fraction ``alpha_leak`` before the update (:func:`alpha_update`). The paper's C3 is keep = 1,
+    alpha_max = inf, learn = True, alpha_leak = 0 (all exact no-ops); C3-leak (``c3_leak``) uses
+    keep = 1 - leakage and a finite bound; C3-robust (``c3_robust``) a bound, a learning window and
+    optionally the leak of alpha_hat."""
     psi_desired = gains[PSI_ACCELERATION_FLAG] > 0.5
     sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, psi_desired)
     lx = sx if learn else 0.0  # sigma as the updates of eq. (14) see it
@@ -144,9 +163,8 @@ def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_m
         mx, my = _theta_terms(k, 6, p1x, p1y, p2x, p2y, lx, ly, gains, mem_prev, mem_new, write, keep)
     sgx = sgn(sx)
     sgy = sgn(sy)
-    alpha = keep * mem_prev[k, 2 * na] + gains[ETA] * (lx * sgn(lx) + ly * sgn(ly))  # eq. (14), alpha update
-    if alpha > alpha_max:  # (a NaN stays NaN, so the watchdog still sees a divergence)
-        alpha = alpha_max
+    alpha = alpha_update(keep * mem_prev[k, 2 * na], gains[ETA] * (lx * sgn(lx) + ly * sgn(ly)), alpha_max,
+                         alpha_leak, alpha_nominal)
     if write:
         mem_new[k, 2 * na] = alpha
     gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])  # g_ff G_nom (0 in the paper's law)
@@ -159,11 +177,12 @@ def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_m
 
 
 def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0, np.inf, True)
+    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0, np.inf, True, 0.0, 0.0)
 
 
 @njit(inline="always", error_model="numpy")
-def c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, keep, alpha_max, learn):
+def c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, keep, alpha_max, learn, alpha_leak,
+                 alpha_nominal):
     """Eq. (14) on n task axes (docs/model.md#n-dof), ``c3_torque``'s arithmetic axis by axis.
 
     Psi = [psi1; dP + sigma; 1] in R^(3n) with gravity (na = 3n entries of Theta per axis), [psi1; dP +
@@ -196,9 +215,7 @@ def c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, keep,
                 mem_new[k, na * i + r] = th
         a_sum += l * sgn(l)
         diag[u + i] = m
-    alpha = keep * mem_prev[k, n * na] + gains[at(ETA_ND, n)] * a_sum  # eq. (14), alpha update
-    if alpha > alpha_max:  # (a NaN stays NaN, so the watchdog still sees a divergence)
-        alpha = alpha_max
+    alpha = alpha_update(keep * mem_prev[k, n * na], gains[at(ETA_ND, n)] * a_sum, alpha_max, alpha_leak, alpha_nominal)
     if write:
         mem_new[k, n * na] = alpha
     for i in range(n):
@@ -211,7 +228,7 @@ def c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, keep,
 
 
 def c3_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    return c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0, np.inf, True)
+    return c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0, np.inf, True, 0.0, 0.0)
 
 
 class C3Controller(MemoryController):

@@ -69,12 +69,13 @@ assert tuple(_SHARED) == _C3_INDICES, "C3-leak packs C3's gains at C3's indices 
 def c3_leak_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
     n = tau.shape[0]
     return c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0 - gains[at(LEAKAGE_ND, n)],
-                        gains[at(ALPHA_MAX_ND, n)], True)
+                        gains[at(ALPHA_MAX_ND, n)], True, 0.0, 0.0)
 
 
 def c3_leak_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
     # eq. (14) with (1 - lambda) on the previous iteration's memory and alpha_hat <= alpha_max
-    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0 - gains[LEAKAGE], gains[ALPHA_MAX], True)
+    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0 - gains[LEAKAGE], gains[ALPHA_MAX], True,
+                     0.0, 0.0)
 
 
 class C3LeakController(C3Controller):

@@ -16,6 +16,7 @@ Written to ``<report>/studies/<name>/``: ``report.md``, ``key_numbers_s<k>.csv``
 from __future__ import annotations
 
 import json
+from datetime import datetime, timezone
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -364,3 +365,20 @@ def study_index_section(reports: list[StudyReport]) -> list[str]:
         for report in reports:
             section += report.index_lines or [f"### {report.name}", "", "No report (see warnings).", ""]
     return section
+
+
+def studies_provenance(found: dict[str, object]) -> str:
+    """"studies run on 2026-12-05 at commit 0123456789ab" from the studies' recorded sessions."""
+    commits, dates = set(), []
+    for results in found.values():
+        for session in getattr(results, "sessions", None) or []:
+            if not isinstance(session, dict):
+                continue
+            commit = str((session.get("versions") or {}).get("git_commit") or "")
+            if commit:
+                commits.add(commit[:12])
+            when = str(session.get("finished") or session.get("started") or "")
+            if when:
+                dates.append(when[:10])
+    when = max(dates) if dates else datetime.now(timezone.utc).strftime("%Y-%m-%d")
+    return f"studies run on {when}" + (f" at commit {', '.join(sorted(commits))}" if commits else "")
