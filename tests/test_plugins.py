@@ -75,7 +75,7 @@ def plugin_python(tmp_path_factory) -> Path:
 
 def test_the_example_declares_its_method_through_the_group():
     meta = tomllib.loads((EXAMPLE / "pyproject.toml").read_text())["project"]
-    assert meta["entry-points"][ENTRY_POINT_GROUP] == {"p-ilc": "ilcforce_ptype:SPEC"}
+    assert meta["entry-points"][ENTRY_POINT_GROUP] == {"p-ilc": "ilcforce_ptype:METHOD_SPEC"}
 
 
 def test_a_plugin_method_runs_through_simulate_study_tune_and_report(plugin_python, tmp_path):
@@ -148,7 +148,7 @@ def test_the_registry_reads_the_entry_points_importlib_metadata_reads(plugin_pyt
         assert "importlib.metadata" not in sys.modules
         from importlib.metadata import entry_points
         slow = sorted((ep.name, ep.value) for ep in entry_points(group={ENTRY_POINT_GROUP!r}))
-        assert fast == slow == [("p-ilc", "ilcforce_ptype:SPEC")], (fast, slow)
+        assert fast == slow == [("p-ilc", "ilcforce_ptype:METHOD_SPEC")], (fast, slow)
         """)
     done = _run(plugin_python, ["-c", code], tmp_path)
     assert done.returncode == 0, done.stderr
@@ -191,7 +191,7 @@ def test_a_broken_plugin_is_one_line_and_the_shipped_methods_run(tmp_path):
         name = "broken-method"
         version = "0.0.1"
         [project.entry-points."ilcforce.methods"]
-        half-done = "broken_method:SPEC"
+        half-done = "broken_method:METHOD_SPEC"
         """))
     # a plugin whose law numba cannot compile: the example with a name the law does not define
     bad_law = tmp_path / "bad-law"
@@ -209,14 +209,14 @@ def test_a_broken_plugin_is_one_line_and_the_shipped_methods_run(tmp_path):
         name = "bad-law"
         version = "0.0.1"
         [project.entry-points."ilcforce.methods"]
-        bad-law = "bad_law:SPEC"
+        bad-law = "bad_law:METHOD_SPEC"
         """))
     python = _venv(tmp_path, EXAMPLE, broken, bad_law)
     ran = _run(python, ["-m", "ilcforce", "simulate", "-m", "c1", "--iters", "1", "--set", "reference.duration=0.05",
                         "--results", str(tmp_path / "results")], tmp_path)
     assert ran.returncode == 0, ran.stderr
     lines = [line for line in ran.stderr.splitlines() if "half-done" in line]
-    assert lines == ["ilcforce: plugin method 'half-done' (broken_method:SPEC of package broken_method) left out: "
+    assert lines == ["ilcforce: plugin method 'half-done' (broken_method:METHOD_SPEC of package broken_method) left out: "
                      "cannot be loaded (RuntimeError: the law module is not finished)"], ran.stderr
     listed = _run(python, ["-m", "ilcforce.controllers"], tmp_path)
     assert listed.stdout.split() == [*SHIPPED, "bad-law", "p-ilc"], "the working plugins load beside the broken one"
@@ -259,7 +259,7 @@ _GOOD = """
         law = staticmethod(lambda *args: (0.0, 0.0))
         memory_layout = {{}}
 
-    SPEC = MethodSpec("{name}", "Mine", "Mine", "C0", "my_method", "Controller", "Gains", "none", False, {in_paper}, "me")
+    METHOD_SPEC = MethodSpec("{name}", "Mine", "Mine", "C0", "my_method", "Controller", "Gains", "none", False, {in_paper}, "me")
     """
 
 
@@ -271,14 +271,14 @@ def _registry(monkeypatch, *points: tuple[str, str]) -> Registry:
 
 
 @pytest.mark.parametrize(("name", "point", "in_paper", "problem"), [
-    ("mine", ("mine", "my_method:SPEC"), False, None),
-    ("mine", ("yours", "my_method:SPEC"), False, "the entry point is named 'yours' but its spec 'mine'"),
-    ("c3", ("c3", "my_method:SPEC"), False, "'c3' is already a method (ilcforce.controllers.c3)"),
-    ("mine", ("mine", "my_method:SPEC"), True, "in_paper must be False"),
+    ("mine", ("mine", "my_method:METHOD_SPEC"), False, None),
+    ("mine", ("yours", "my_method:METHOD_SPEC"), False, "the entry point is named 'yours' but its spec 'mine'"),
+    ("c3", ("c3", "my_method:METHOD_SPEC"), False, "'c3' is already a method (ilcforce.controllers.c3)"),
+    ("mine", ("mine", "my_method:METHOD_SPEC"), True, "in_paper must be False"),
     ("mine", ("mine", "my_method:Gains"), False, "gives a Gains, not an ilcforce.controllers.MethodSpec"),
     ("mine", ("mine", "my_method:NOTHING"), False, "cannot be loaded (AttributeError"),
-    ("Mine Two", ("Mine Two", "my_method:SPEC"), False, "'Mine Two' is not a method name"),
-    ("plant", ("plant", "my_method:SPEC"), False, "'plant' is a section of ilcforce's own files"),
+    ("Mine Two", ("Mine Two", "my_method:METHOD_SPEC"), False, "'Mine Two' is not a method name"),
+    ("plant", ("plant", "my_method:METHOD_SPEC"), False, "'plant' is a section of ilcforce's own files"),
 ])
 def test_each_plugin_fault_is_one_line_naming_it(tmp_path, monkeypatch, capsys, name, point, in_paper, problem):
     _plugin_module(tmp_path, monkeypatch, _GOOD.format(name=name, in_paper=in_paper))
@@ -305,11 +305,11 @@ def test_a_controller_without_a_law_or_gains_defaults_is_left_out(tmp_path, monk
     _plugin_module(tmp_path, monkeypatch, _GOOD.format(name="mine", in_paper=False)
                    .replace("law = staticmethod(lambda *args: (0.0, 0.0))", "pass")
                    .replace("k: tuple = (1.0, 1.0)", "k: tuple"))
-    assert list(_registry(monkeypatch, ("mine", "my_method:SPEC"))) == list(SHIPPED)
+    assert list(_registry(monkeypatch, ("mine", "my_method:METHOD_SPEC"))) == list(SHIPPED)
     assert "Gains() with its defaults fails" in capsys.readouterr().err
     (tmp_path / "my_method.py").write_text((tmp_path / "my_method.py").read_text().replace("k: tuple\n", "k: tuple = (1.0, 1.0)\n"))
     sys.modules.pop("my_method", None)
-    assert list(_registry(monkeypatch, ("mine", "my_method:SPEC"))) == list(SHIPPED)
+    assert list(_registry(monkeypatch, ("mine", "my_method:METHOD_SPEC"))) == list(SHIPPED)
     assert "Controller has neither a law (2-D) nor a law_nd (n axes)" in capsys.readouterr().err
 
 

@@ -1,6 +1,6 @@
 """An ilcforce plugin method: P-type ILC with proportional feedback (docs/plugins.md).
 
-ilcforce reads :data:`SPEC` through the entry point ``p-ilc`` of the group ``ilcforce.methods``
+ilcforce reads :data:`METHOD_SPEC` through the entry point ``p-ilc`` of the group ``ilcforce.methods``
 (pyproject.toml). This module is imported when ilcforce first looks into its method registry, so it
 stays light: the law lives in :mod:`ilcforce_ptype.law`, which imports no numba either (ilcforce
 compiles a law only when a run uses it).
@@ -8,7 +8,7 @@ compiles a law only when a run uses it).
 
 from ilcforce.controllers import MethodSpec
 
-SPEC = MethodSpec(
+METHOD_SPEC = MethodSpec(
     name="p-ilc",  # --method value and the TOML section of its gains ([p-ilc])
     title="P-ILC: P-type ILC on the sliding surface with proportional feedback (a plugin)",
     label="P-ILC",  # legends and table columns
