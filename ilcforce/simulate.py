@@ -215,11 +215,12 @@ def _shared_setup(inputs: IterationInputs, controller) -> tuple:
     return ref, n_log, t_control, make_plant(inputs.true_plant), make_plant(inputs.nominal_plant), fset, iset
 
 
-def _has_law_2d(controller_class) -> bool:
-    """Whether a controller class has a 2-D law, without compiling it (reading ``law`` compiles)."""
+def _has_law_2d(controller) -> bool:
+    """Whether a controller (its class, or the object itself) has a 2-D law, without compiling it (reading
+    ``law`` compiles)."""
     import inspect
 
-    return inspect.getattr_static(controller_class, "law", None) is not None
+    return inspect.getattr_static(controller, "law", None) is not None
 
 
 def _setup(inputs: IterationInputs, controller) -> IterationSetup:
@@ -230,7 +231,7 @@ def _setup(inputs: IterationInputs, controller) -> IterationSetup:
     ref, n_log, t_control, true_robot, nominal_robot, fset, iset = shared
     # a method with an n-axis law only (a plugin may give either law, docs/plugins.md) runs through the n-joint
     # loop on a 2-joint plant too, which gives the 2-D loop's numbers (tests/test_ndof.py)
-    if inputs.loop == "nd" or true_robot.dimension != 2 or not _has_law_2d(type(controller)):
+    if inputs.loop == "nd" or true_robot.dimension != 2 or not _has_law_2d(controller):
         return _setup_nd(inputs, controller, shared)
     s = inputs.settings
     theta0 = true_robot.inverse_kinematics(s.initial_position)
