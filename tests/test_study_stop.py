@@ -53,7 +53,7 @@ def _first_worker(driver: subprocess.Popen, seen: set, timeout: float = 120.0) -
         assert driver.poll() is None, driver.stderr.read()
         found = _descendants(driver.pid)
         seen |= found
-        workers = [p for p in found if "spawn_main" in " ".join(_cmdline(p))]  # not the resource tracker
+        workers = [p for p in found if "local_worker" in " ".join(_cmdline(p))]  # a nanny (study/local_worker.py)
         if workers:
             return workers[0]
         time.sleep(0.005)
