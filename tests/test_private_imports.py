@@ -308,3 +308,28 @@ def test_the_pins_hold_for_the_installed_packages():
         assert requirement.specifier.contains(installed, prereleases=True), \
             f"{requirement.name} {installed} is installed; pyproject pins {bound}"
 
+
+
+def test_a_dask_without_the_flag_stops_a_study_with_one_line(tmp_path, monkeypatch):
+    """A Dask installed outside the pin whose Task no longer takes the flag: the study stops at its
+    first cell with one line naming the pin, before any cell runs (not a TypeError from inside)."""
+    import dask._task_spec
+
+    from ilcforce.study import StudyRunError, run_study
+
+    from test_study import small_study
+
+    class TaskOfAnotherRelease:
+        def __init__(self, key, func, *args):
+            self.key, self.func, self.args = key, func, args
+
+    monkeypatch.setattr(dask._task_spec, "Task", TaskOfAnotherRelease)
+    with pytest.raises(StudyRunError) as caught:
+        run_study(small_study(), tmp_path, workers=2)
+    message = str(caught.value)
+    assert "\n" not in message and f"pip install '{DASK}'" in message, message
+    assert "TypeError" in message and "_data_producer" in message, message
+    from ilcforce.study import read_study
+
+    path = tmp_path / "studies" / "tiny.h5"
+    assert not path.exists() or read_study(path).cells.empty

@@ -171,7 +171,7 @@ LOCAL_WORKER = Path(__file__).with_name("local_worker.py")
 
 
 class LocalWorkers:
-    """The worker processes of a local cluster: ``python -m ilcforce.study.local_worker``, each Dask's
+    """The worker processes of a local cluster: ``python -P ilcforce/study/local_worker.py``, each Dask's
     nanny of one single-threaded worker, started here through ``subprocess`` (no patch of
     multiprocessing).
 
@@ -192,6 +192,7 @@ class LocalWorkers:
     def __init__(self) -> None:
         self.processes: list = []
         self._alive: int | None = None  # the driver's write end of the pipe the workers watch
+        self._closing = threading.Lock()  # the start's thread and a stop may both close
 
     def start(self, cluster, count: int, settings: dict, deadline: float) -> None:
         """Start ``count`` worker processes for ``cluster``'s scheduler and wait until each has joined
@@ -230,7 +231,9 @@ class LocalWorkers:
         """End every worker process: SIGTERM to its group, SIGKILL after :data:`WORKER_END_GRACE`."""
         import signal
 
-        processes, self.processes = self.processes, []
+        with self._closing:
+            processes, self.processes = self.processes, []
+            alive, self._alive = self._alive, None
         for process in processes:
             with contextlib.suppress(OSError):
                 os.killpg(process.pid, signal.SIGTERM)
@@ -244,9 +247,8 @@ class LocalWorkers:
                     os.killpg(process.pid, signal.SIGKILL)
                 with contextlib.suppress(Exception):
                     process.wait(5)
-        if self._alive is not None:
-            os.close(self._alive)
-            self._alive = None
+        if alive is not None:
+            os.close(alive)
 
 
 def start_local_cluster(make, timeout: float):
@@ -410,11 +412,12 @@ def _cell_task(key: str, function, args):
 
         return Task(key, function, *(parse_input(a) for a in args), _data_producer=True)
     except (ImportError, TypeError) as exc:
-        failure = f"{type(exc).__name__}: {_one_line(exc)[:120]}"
+        failure = type(exc).__name__
     import dask
 
-    raise StudyRunError(f"this Dask ({dask.__version__}) cannot queue a study's cells ({failure}); install the "
-                        f"release ilcforce pins: pip install '{DASK_REQUIREMENT}'")
+    raise StudyRunError(f"this Dask ({dask.__version__}) has no dask._task_spec.Task(..., _data_producer=True) "
+                        f"({failure}), which queues a study's cells; install the release ilcforce pins: "
+                        f"pip install '{DASK_REQUIREMENT}'")
 
 
 #: The Dask releases that have the data-producer flag of :func:`_cell_task` (as pinned in pyproject.toml).
