@@ -53,7 +53,7 @@ def _first_worker(driver: subprocess.Popen, seen: set, timeout: float = 120.0) -
         assert driver.poll() is None, driver.stderr.read()
         found = _descendants(driver.pid)
         seen |= found
-        workers = [p for p in found if "spawn_main" in " ".join(_cmdline(p))]  # not the resource tracker
+        workers = [p for p in found if "local_worker" in " ".join(_cmdline(p))]  # a nanny (study/local_worker.py)
         if workers:
             return workers[0]
         time.sleep(0.005)
@@ -192,3 +192,54 @@ def test_a_lost_remote_scheduler_ends_with_one_line_and_blames_no_cell(tmp_path)
     assert len(cells) >= 1 and set(cells["state"]) == {"done"}, cells
     summary = run_study(load_study(study), results, workers=1)
     assert summary.failed == () and summary.skipped == len(cells)
+
+
+def test_no_worker_outlives_a_driver_killed_mid_study(tmp_path):
+    """The local workers run in process groups of their own (out of the terminal's Ctrl-C), so
+    nothing of the driver's reaches them when it dies: they watch a pipe only the driver writes to,
+    and end when it closes, kill -9 of the driver included."""
+    study = write_study_file(tmp_path, TINY_TOML.replace('seeds = "0-1"', 'seeds = "0-5"'))
+    journal = tmp_path / "r" / "studies" / "tiny.h5.journal"
+    driver = subprocess.Popen([sys.executable, "-m", "ilcforce", "study", str(study), "--results",
+                               str(tmp_path / "r"), "--workers", "2", "--quiet"], stdout=subprocess.DEVNULL,
+                              stderr=subprocess.DEVNULL, start_new_session=True)
+    seen: set = set()
+    try:
+        _first_worker(driver, seen)
+        _wait_for_a_committed_cell(driver, journal, lambda: "(stderr not kept)")
+        seen |= _descendants(driver.pid)
+        nannies = [p for p in psutil.Process(driver.pid).children() if "local_worker" in " ".join(_cmdline(p))]
+        assert len(nannies) == 2 and all(os.getpgid(p.pid) == p.pid for p in nannies), nannies
+        driver.kill()
+        driver.wait(timeout=30)
+    finally:
+        _stop(driver)
+    _assert_no_orphan(seen)
+
+
+def test_a_local_worker_ends_when_its_driver_s_pipe_closes(tmp_path):
+    """The mechanism of the test above, alone: a local worker process whose scheduler is not there
+    (Dask's nanny then waits for it for ever) runs while the driver's pipe is open, and ends as soon
+    as its write end closes."""
+    from ilcforce.study import dask_run
+
+    read, write = os.pipe()
+    nowhere = f"tcp://127.0.0.1:{_free_port()}"
+    process = subprocess.Popen([sys.executable, "-P", str(dask_run.LOCAL_WORKER), nowhere, "probe", str(read), "{}"],
+                               pass_fds=(read,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, process_group=0)
+    os.close(read)
+    try:
+        time.sleep(3.0)  # Dask imported, the scheduler looked for
+        assert process.poll() is None, f"the worker process ended ({process.returncode}) while its driver was there"
+        os.close(write)
+        write = None
+        closed = time.monotonic()
+        process.wait(timeout=30)
+        took = time.monotonic() - closed
+    finally:
+        if write is not None:
+            os.close(write)
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait(10)
+    assert took < 5.0, f"it ended {took:.1f} s after the pipe closed"

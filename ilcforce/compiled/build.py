@@ -51,9 +51,10 @@ def _exports():
         key = aot.law_key(cls)
         if key is not None:
             laws[key] = cls.law
-    sim_args = loop._simulate.nopython_signatures[0].args[4:]
+    # a dispatcher's ``signatures``: the argument types of each compiled signature (numba's public API)
+    sim_args = loop._simulate.signatures[0][4:]
     sim_sig = types.UniTuple(types.int64, 2)(*sim_args)
-    desired_sig = types.int64(*desired.desired_kernel.nopython_signatures[0].args[2:])
+    desired_sig = types.int64(*desired.desired_kernel.signatures[0][2:])
     simulate, desired_kernel = loop._simulate, desired.desired_kernel
     out = []
     for model in MODELS:
@@ -93,7 +94,9 @@ def _releasing_the_gil():
     """Exports that release the GIL while they run, as numba's ``nogil=True``: the store's writes
     and the next iteration's simulation overlap (ilcforce/pipeline.py). pycc has no option for it;
     its compiler takes numba's compile flags from ``Flags()``, and ``release_gil`` is the flag
-    ``nogil=True`` sets."""
+    ``nogil=True`` sets. The one patch of numba in ilcforce, for the build only: numba is pinned
+    below the next release (pyproject.toml) and tests/test_private_imports.py checks that the
+    installed numba still makes its flags so; docs/design.md has the plan for pycc's removal."""
     from numba.pycc import compiler
 
     plain = compiler.Flags

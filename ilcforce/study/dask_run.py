@@ -12,6 +12,7 @@ import os
 import threading
 import time
 import uuid
+from pathlib import Path
 
 #: Seconds allowed to reach a remote scheduler, and then for a first worker to be there.
 CONNECT_TIMEOUT = 10.0
@@ -118,88 +119,141 @@ def dask_client(workers: int, scheduler: str | None, timeout: float = CONNECT_TI
                 client.close()
             return
         def make():
-            return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, memory_limit=0,
-                                dashboard_address=None, silence_logs=logging.CRITICAL,
-                                # the scheduler's HTTP endpoint (health, metrics) on a free local
-                                # port: no clash with another cluster on 8787, no "port in use" warning
-                                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+            cluster = LocalCluster(n_workers=0, processes=True, dashboard_address=None,
+                                   silence_logs=logging.CRITICAL,
+                                   # the scheduler's HTTP endpoint (health, metrics) on a free local
+                                   # port: no clash with another cluster on 8787, no "port in use" warning
+                                   scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
+            try:
+                local.start(cluster, workers, settings, time.monotonic() + CLUSTER_START_TIMEOUT + 5.0)
+            except BaseException:
+                local.close()
+                cluster.close()
+                raise
+            return cluster
 
-        stack = contextlib.ExitStack()
-        stack.enter_context(workers_in_their_own_process_group())
+        local = LocalWorkers()
         try:
             cluster = start_local_cluster(make, CLUSTER_START_TIMEOUT)
         except StudyRunError:
-            stack.close()
+            local.close()
             raise
         except Exception as exc:  # noqa: BLE001 - e.g. a worker process killed while it started
             failure = f"{type(exc).__name__}: {_one_line(exc)[:200]}"
         except BaseException:  # a stop signal
-            stack.close()
+            local.close()
             raise
         else:
             failure = None
         if failure is not None:  # outside the except block: no chained traceback is kept alive
-            stack.close()
+            local.close()
             raise StudyRunError(f"the local Dask cluster of {workers} workers did not start ({failure})")
-        with stack:
+        try:
+            client = Client(cluster, set_as_default=False)
             try:
-                client = Client(cluster, set_as_default=False)
-                try:
-                    yield client
-                finally:
-                    client.close()
+                yield client
             finally:
-                cluster.close()
+                client.close()
+        finally:
+            local.close()
+            cluster.close()
 
 
-#: held while a worker process is spawned, and by a stop that closes spawning (``_give_up``): a stop then
-#: sees every child already spawned, and no new one starts after it (a child spawned while the driver
-#: unwound read its start-up data from a closed pipe and printed an EOFError traceback on the terminal)
+#: held while a worker process is started, and by a stop that closes starting (``_give_up``): a stop then
+#: sees every worker process already started, and no new one starts after it
 _SPAWN_LOCK = threading.Lock()
 _SPAWN = {"closed": False}
+#: Seconds a local worker process has to end after SIGTERM before it is killed.
+WORKER_END_GRACE = 2.0
+#: A local worker process's program, run as a file (``python -P``: without ``ilcforce.study``'s package
+#: import, h5py and pandas among it, about 0.9 s of a worker's start).
+LOCAL_WORKER = Path(__file__).with_name("local_worker.py")
 
 
-@contextlib.contextmanager
-def workers_in_their_own_process_group():
-    """Within: the processes multiprocessing starts (a local cluster's workers) start in a process
-    group of their own, so a terminal's Ctrl-C, which reaches the whole foreground group, is the
-    driver's alone (the workers printed KeyboardInterrupt tracebacks from wherever it found them);
-    the driver stops the cluster itself. The driver keeps its own handlers all along: SIGINT used to
-    be ignored while the cluster started so that the workers inherited it ignored, and a Ctrl-C then
-    was lost (the study ran to its end and exited 0).
+class LocalWorkers:
+    """The worker processes of a local cluster: ``python -P ilcforce/study/local_worker.py``, each Dask's
+    nanny of one single-threaded worker, started here through ``subprocess`` (no patch of
+    multiprocessing).
 
-    multiprocessing's ``util.spawnv_passfds`` is replaced by the same exec through ``os.posix_spawn``
-    with ``setpgroup=0``; the descriptors it passes are kept open across the exec by a dup2 onto
-    themselves (which clears their close-on-exec flag, POSIX 2008 TC2, glibc >= 2.29)."""
-    from multiprocessing import util
+    * Each starts in a process group of its own, so a terminal's Ctrl-C, which reaches the whole
+      foreground group, is the driver's alone (the workers printed KeyboardInterrupt tracebacks from
+      wherever it found them); the driver stops the cluster itself. The driver keeps its own
+      handlers all along (SIGINT ignored while the cluster started, for the workers to inherit, lost
+      the Ctrl-C: the study ran to its end and exited 0).
+    * Their output goes to /dev/null (Dask's logging is not the user's; a cell's error comes back
+      through its future, and the warnings multiprocessing's resource tracker printed about the
+      semaphores of workers killed while they started are theirs alone).
+    * They hold the read end of a pipe whose write end only the driver holds, and exit when it
+      closes: no worker outlives its driver, however the driver ends (kill -9 included).
+    * None is started after a stop (``_give_up`` closes starting; a worker that Dask started as the
+      driver unwound read its start-up data from a closed pipe and printed an EOFError traceback).
+    """
 
-    original = util.spawnv_passfds
+    def __init__(self) -> None:
+        self.processes: list = []
+        self._alive: int | None = None  # the driver's write end of the pipe the workers watch
+        self._closing = threading.Lock()  # the start's thread and a stop may both close
 
-    def spawnv_passfds(path, args, passfds):
-        actions = [(os.POSIX_SPAWN_DUP2, fd, fd) for fd in sorted(map(int, passfds))]
-        tracker = any("resource_tracker" in str(arg) for arg in args)
-        if tracker:
-            # its only words are warnings about the semaphores of workers killed while they started
-            actions.append((os.POSIX_SPAWN_OPEN, 2, os.devnull, os.O_WRONLY, 0))
-        with _SPAWN_LOCK:
-            if _SPAWN["closed"] and not tracker:
-                raise OSError("the study is stopping: no new worker process is started")
-            return os.posix_spawn(path, list(args), os.environ, file_actions=actions, setpgroup=0)
+    def start(self, cluster, count: int, settings: dict, deadline: float) -> None:
+        """Start ``count`` worker processes for ``cluster``'s scheduler and wait until each has joined
+        it (until ``deadline``, a ``time.monotonic()``)."""
+        import json
+        import subprocess
+        import sys
 
-    _SPAWN["closed"] = False
-    util.spawnv_passfds = spawnv_passfds
-    try:
-        yield
-    finally:
-        # after a stop during the start, spawning stays closed: Dask's threads may still try to start a
-        # worker while this process exits (with the original function back, that worker read its start-up
-        # data from a closed pipe and printed an EOFError traceback under the driver's one line)
-        if not _SPAWN["closed"]:
-            util.spawnv_passfds = original
+        watched, self._alive = os.pipe()
+        try:
+            address = cluster.scheduler_address
+            config = json.dumps(settings)
+            for index in range(count):
+                with _SPAWN_LOCK:
+                    if _SPAWN["closed"]:
+                        raise StudyRunError("the study is stopping: no new worker process is started")
+                    self.processes.append(subprocess.Popen(
+                        [sys.executable, "-P", str(LOCAL_WORKER), address, f"local-{index}", str(watched), config],
+                        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                        pass_fds=(watched,), process_group=0))
+        finally:
+            os.close(watched)
+        while len(cluster.scheduler_info.get("workers", ())) < count:
+            for process in self.processes:
+                if process.poll() is not None:
+                    raise StudyRunError(f"a local worker process ended while the cluster started "
+                                        f"(exit status {process.returncode})")
+            if _SPAWN["closed"]:
+                raise StudyRunError("the study is stopping: the cluster's start is given up")
+            if time.monotonic() > deadline:  # the driver gives up first (start_local_cluster); this ends the wait
+                raise StudyRunError(f"the local Dask cluster did not start within {CLUSTER_START_TIMEOUT:g} s "
+                                    "(a worker hung while it started?)")
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        """End every worker process: SIGTERM to its group, SIGKILL after :data:`WORKER_END_GRACE`."""
+        import signal
+
+        with self._closing:
+            processes, self.processes = self.processes, []
+            alive, self._alive = self._alive, None
+        for process in processes:
+            with contextlib.suppress(OSError):
+                os.killpg(process.pid, signal.SIGTERM)
+        deadline = time.monotonic() + WORKER_END_GRACE
+        for process in processes:
+            with contextlib.suppress(Exception):
+                process.wait(max(0.0, deadline - time.monotonic()))
+        for process in processes:
+            if process.poll() is None:
+                with contextlib.suppress(OSError):
+                    os.killpg(process.pid, signal.SIGKILL)
+                with contextlib.suppress(Exception):
+                    process.wait(5)
+        if alive is not None:
+            os.close(alive)
 
 
 def start_local_cluster(make, timeout: float):
-    """``make()`` (which starts a LocalCluster) run in a helper thread, with a stop that always works.
+    """``make()`` (which starts a LocalCluster and its workers) run in a helper thread, with a stop that
+    always works.
 
     * The main thread keeps its handlers and waits in steps of 0.1 s, so Ctrl-C and SIGTERM act at
       once, cluster start included (the helper thread blocks SIGINT, so Python's C-level handler
@@ -214,6 +268,8 @@ def start_local_cluster(make, timeout: float):
 
     before = _child_pids()
     box: dict = {}
+    with _SPAWN_LOCK:
+        _SPAWN["closed"] = False
 
     def target() -> None:
         signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
@@ -241,11 +297,11 @@ def start_local_cluster(make, timeout: float):
 
 
 def _give_up(before: set[int], thread) -> None:
-    """Kill the processes a cluster start made (children since ``before``), so the start fails in its
-    thread and unwinds (waited for up to 3 s). Not multiprocessing's resource tracker: killed, it was
-    relaunched by that unwinding; it ends by itself when this process does, after unlinking the
-    killed workers' semaphores."""
-    with _SPAWN_LOCK:  # no worker is being spawned now, and none will be
+    """Kill the processes a cluster start made (descendants since ``before``), so the start fails in its
+    thread and unwinds (waited for up to 3 s). Not a nanny's multiprocessing resource tracker: it ends
+    by itself once the processes that hold its pipe are gone, after unlinking the killed workers'
+    semaphores."""
+    with _SPAWN_LOCK:  # no worker process is being started now, and none will be
         _SPAWN["closed"] = True
     _kill_new_children(before, lambda cmdline: "resource_tracker" not in cmdline)
     thread.join(3.0)
@@ -344,11 +400,28 @@ def _cell_task(key: str, function, args):
     worker never takes a waiting cell down with it (Dask fails every task a dead worker held), and a
     cell needs no worker restriction: a task restricted to a worker that died while no worker was
     running stays in Dask's ``no-worker`` state for good, even with ``allow_other_workers`` (the
-    scheduler does not offer it to workers that join later). The flag is ``Task``'s, dask >= 2025.1.
-    """
-    from dask._task_spec import Task, parse_input
+    scheduler does not offer it to workers that join later).
 
-    return Task(key, function, *(parse_input(a) for a in args), _data_producer=True)
+    The flag is private to Dask (``Task``'s, dask >= 2025.1) and Dask offers no public way to queue a
+    task so: pyproject.toml pins the releases that have it, and tests/test_private_imports.py lists it
+    with its reason. A Dask outside the pin without it is one line (:class:`StudyRunError`), not a
+    traceback from inside the study.
+    """
+    try:
+        from dask._task_spec import Task, parse_input
+
+        return Task(key, function, *(parse_input(a) for a in args), _data_producer=True)
+    except (ImportError, TypeError) as exc:
+        failure = type(exc).__name__
+    import dask
+
+    raise StudyRunError(f"this Dask ({dask.__version__}) has no dask._task_spec.Task(..., _data_producer=True) "
+                        f"({failure}), which queues a study's cells; install the release ilcforce pins: "
+                        f"pip install '{DASK_REQUIREMENT}'")
+
+
+#: The Dask releases that have the data-producer flag of :func:`_cell_task` (as pinned in pyproject.toml).
+DASK_REQUIREMENT = "dask[distributed]>=2025.1,<2026.9"
 
 
 def run_on_dask(client, jobs, function, in_flight: int):
