@@ -22,6 +22,13 @@ FRONT_PAGE_BYTES = 1_000_000
 PAGE_BYTES = 2_000_000
 
 
+#: A table of a study's kind at its widest (a column per method's divergence, long headers, long cells).
+WIDE_TABLE = ("| setting | " + " | ".join(f"H(C1)/H(C3) y settled, method {i} divergence" for i in range(24)) + " |\n"
+              + "|:---|" + "---:|" * 24 + "\n"
+              + "| noise.scale=0.5,experiment.sample_time=0.0001 | "
+              + " | ".join(f"j = {i} [3, 17] ({i} of 20 seeds)" for i in range(24)) + " |\n")
+
+
 def _write(root: Path, pages: dict[str, str]) -> None:
     for name, text in pages.items():
         (root / name).parent.mkdir(parents=True, exist_ok=True)
@@ -37,7 +44,7 @@ def pages(tmp_path: Path) -> Path:
                     "| [paper](paper/report.md) |\n\n## Tuning\n\n* [t](tuning/t/report.md)\n",
         "findings.md": "Bottom line: claim 1 holds.\n\n[paper's report](paper/report.md#table-2)\n",
         "studies/mc/report.md": "# Study mc\n\n![fig](fig3.png)\n\n[findings](findings.md)\n",
-        "studies/mc/findings.md": "# Study mc\n\nfindings\n",
+        "studies/mc/findings.md": "# Study mc\n\nfindings\n\n" + WIDE_TABLE,
         "paper/report.md": ("# experiment paper\n\nMethods.\n\n## Provenance\n\n| method | file |\n|:---|:---|\n"
                             "| c3 | c3.h5 |\n\n```toml\n" + toml + "\n```\n\nCommand lines: x\n\n"
                             "## Table 2\n\n[Table 2](table2.md)\n\n![missing](fig9.png)\n\n```toml\n" + toml
@@ -216,6 +223,28 @@ def test_the_pages_in_a_real_browser(report, tmp_path: Path) -> None:
         shot = tmp_path / f"{page.parent.name}.png"
         shot.write_bytes(visit.screenshot)
         assert visit.screenshot.startswith(b"\x89PNG") and shot.stat().st_size > 10_000  # a drawn page, not blank
+
+
+def test_a_wide_table_wraps_to_the_page_instead_of_scrolling(pages: Path) -> None:
+    """Issue 47 item 5: wide tables scrolled sideways at 1400 px. A table of 25 long columns, wider than
+    the window when its cells do not wrap, fits the page's main column."""
+    chromium = find_chromium()
+    if chromium is None:
+        pytest.skip("no chromium on this machine (apt-get install chromium): the browser check is skipped")
+    html.write_html(pages)
+    measure = ("(function () { var t = document.querySelector('#p-studies-mc-findings table');"
+               " var main = document.querySelector('main').getBoundingClientRect();"
+               " var fitted = [t.getBoundingClientRect().right <= main.right + 1, t.scrollWidth <= t.clientWidth + 1,"
+               " document.documentElement.scrollWidth <= window.innerWidth];"
+               " var cells = Array.from(t.querySelectorAll('th, td'));"
+               " cells.forEach(function (c) { c.style.whiteSpace = 'nowrap'; });"
+               " var natural = Math.max(t.getBoundingClientRect().width, t.scrollWidth);"
+               " cells.forEach(function (c) { c.style.whiteSpace = ''; });"
+               " return [fitted, natural > window.innerWidth]; })()")
+    visit = open_page(chromium, pages / "studies" / "mc" / "index.html", {"measure": measure})
+    fitted, would_overflow = visit.values["measure"]
+    assert would_overflow, "the table is not wide: the check would pass vacuously"
+    assert fitted == [True, True, True]
 
 
 def test_the_site_check_finds_what_it_looks_for(tmp_path: Path) -> None:
