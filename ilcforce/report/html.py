@@ -78,7 +78,8 @@ section.page { border-top: 1px solid #ccc; margin-top: 2rem; padding-top: 0.5rem
 .source { color: #777; font-size: 0.8rem; font-family: monospace; }
 h1.group { font-size: 1.9rem; margin-top: 3rem; border-bottom: 3px solid #0b57a4; }
 table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.85rem; max-width: 100%; }
-th, td { border: 1px solid #ccc; padding: 0.2rem 0.4rem; vertical-align: top; overflow-wrap: anywhere; }
+th, td { border: 1px solid #ccc; padding: 0.2rem 0.4rem; vertical-align: top; overflow-wrap: break-word; }
+table.squeezed { font-size: 0.75rem; } table.squeezed th, table.squeezed td { overflow-wrap: anywhere; }
 th { background: #eef1f5; cursor: pointer; user-select: none; }
 th[data-dir="asc"]::after { content: " \\25B2"; } th[data-dir="desc"]::after { content: " \\25BC"; }
 tr:nth-child(even) td { background: #fafafa; }
@@ -90,9 +91,19 @@ summary { cursor: pointer; color: #444; }
 """
 
 # Click a column's header to sort the table's rows by it (numbers as numbers, where every filled
-# cell of the column starts with one; a dash or "n/a" sorts last); click again to reverse.
+# cell of the column starts with one; a dash or "n/a" sorts last); click again to reverse. A table
+# still wider than the page once its cells wrap between words (a long setting name, many columns)
+# is squeezed: a smaller font, and its cells may wrap inside a word.
 _SCRIPT = """
 (function () {
+  function squeeze() {
+    Array.prototype.forEach.call(document.querySelectorAll("table"), function (table) {
+      table.classList.remove("squeezed");
+      if (table.offsetWidth > table.parentNode.clientWidth + 1) table.classList.add("squeezed");
+    });
+  }
+  squeeze();
+  window.addEventListener("resize", squeeze);
   function number(text) {
     var m = text.replace(/\\u2212/g, "-").replace(/,/g, "").trim().match(/^[-+]?(\\d+\\.?\\d*|\\.\\d+)(e[-+]?\\d+)?/i);
     return m ? parseFloat(m[0]) : null;
@@ -428,10 +439,13 @@ def _units(out_dir: Path, pages: list[str], summary_extra: list[str]) -> list[_U
     members[""] += summary_extra
     order = [key for key, _ in GROUPS]
     keys.sort(key=lambda key: order.index(_unit_group(key)))  # stable: each group in the order linked
-    # a folder's pages together, in the order their folders were first linked (a study's subfolders)
+    # a folder's pages together, in the order their folders were first linked (a study's subfolders),
+    # led by the part's own page (its report; a tuning's index) however the findings linked the rest
     for key in keys:
         folders = list(dict.fromkeys(posixpath.dirname(p) for p in members[key]))
         members[key].sort(key=lambda p: folders.index(posixpath.dirname(p)))
+        leading = [p for p in members[key] if key not in ("", LONG_RUN_UNIT) and p in (f"{key}/report.md", f"{key}/index.md")]
+        members[key] = leading[:1] + [p for p in members[key] if p not in leading[:1]]
     return [_Unit(key=key, html=_unit_html(key), group=_unit_group(key), pages=tuple(members[key]))
             for key in keys if members[key]]
 
@@ -447,7 +461,8 @@ def _navigation(out_dir: Path, units: list[_Unit], current: _Unit) -> list[str]:
         lines.append(f"<h2>{title}</h2><ul>")
         for unit in mine:
             href = html.escape(_relative(unit.html, current.folder), quote=True)
-            name = "Front page: summary and findings" if unit.key == "" else _title(out_dir, unit.pages[0])
+            name = ("Front page: summary and findings" if unit.key == "" else
+                    _title(out_dir, unit.pages[0]).removeprefix("ilcforce report: "))
             if unit is not current:
                 lines.append(f'<li><a href="{href}">{html.escape(name)}</a></li>')
                 continue
