@@ -14,6 +14,11 @@ Reads only the results store (:mod:`ilcforce.store`); never simulates. Layout wr
                                             claim and per part; claim_parts.csv the full per-part frame
     <out_dir>/<experiment>/stability.csv    the learning-stability rates and flags as data
     <out_dir>/<experiment>/<figure>.png (and .pdf with formats=FIGURE_FORMATS, ilcforce report --pdf)
+    <out_dir>/studies/<study>/, <out_dir>/tuning/<tuning>/   each study's and tuning's pages
+    <out_dir>/long-run/long-run.md          make long's pages: from its studies when stored, else the
+                                            committed ones (docs/long-run/) copied in
+    <out_dir>/index.html, <out_dir>/<part>/index.html   the HTML site (ilcforce.report.html): a front
+                                            page and a page per study, experiment, tuning, the long runs
 
 Problems with the inputs (an unreadable or foreign file, a missing method, a partial run, a newer
 schema) never raise: each becomes one line in :attr:`ReportSummary.warnings` and in the report,
