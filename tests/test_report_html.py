@@ -292,3 +292,37 @@ def test_every_verdict_table_column_is_documented() -> None:
         first_cells = re.findall(r"^\| ([^|]+) \|", part, re.M)
         names = {name for cell in first_cells for name in re.findall(r"`([^`]+)`", cell)}
         assert sorted(set(columns) - names) == [], "columns without a row in docs/tables.md"
+
+
+def test_every_committed_long_run_page_is_on_the_long_runs_page(tmp_path: Path, monkeypatch) -> None:
+    """Issue 47 item 6, the growth test's page too: every page make long committed (long-run.md and the
+    held-out growth test's growth-heldout.md, with their figures and tables) is copied into a report
+    whose results hold no long study, listed in its index and shown on the long runs' page; a file
+    there that is no file of its own (a symlink) is not copied."""
+    from ilcforce.report import long_run
+
+    committed = tmp_path / "docs-long-run"
+    committed.mkdir()
+    (committed / "long-run.md").write_text("# Long runs: bounded?\n\n![growth](long_run.png)\n\n"
+                                           "[held out](growth-heldout.md)\n", encoding="utf-8")
+    (committed / "growth-heldout.md").write_text("# The growth test out of sample\n\n| a |\n|---|\n| 1 |\n",
+                                                 encoding="utf-8")
+    (committed / "growth_heldout.csv").write_text("a\n1\n", encoding="utf-8")
+    (committed / "long_run.png").write_bytes((Path(__file__).parent / "browser.py").read_bytes()[:10])
+    (tmp_path / "secret.md").write_text("# secret\n", encoding="utf-8")
+    (committed / "linked.md").symlink_to(tmp_path / "secret.md")
+    monkeypatch.setattr(long_run, "COMMITTED", committed)
+    results = tmp_path / "results"
+    for method in ("c1", "c2", "c3"):
+        write_store(results / "paper" / f"{method}.h5", method)
+    summary = write_report(results, tmp_path / "report", formats=())
+    out = summary.out_dir
+    assert sorted(p.name for p in (out / "long-run").iterdir()) == [
+        "growth-heldout.md", "growth_heldout.csv", "long-run.md", "long-runs.html", "long_run.png"]
+    index = (out / "index.md").read_text(encoding="utf-8")
+    assert "[Long runs: bounded?](long-run/long-run.md)" in index
+    assert "[The growth test out of sample](long-run/growth-heldout.md)" in index
+    page = (out / "long-run" / "long-runs.html").read_text(encoding="utf-8")
+    assert page.index('id="p-long-run-long-run"') < page.index('id="p-long-run-growth-heldout"')
+    assert 'href="#p-long-run-growth-heldout"' in page and 'src="long_run.png"' in page
+    assert check_site(out).problems == []

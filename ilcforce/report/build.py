@@ -431,8 +431,9 @@ def _write_into(results_dir: Path, out_dir: Path, found: dict, report_paths: lis
     # `make long`'s pages: from its studies where stored, else as committed (make reproduce does not run them)
     long_files = long_run.report_pages(results_dir, out_dir / long_run.REPORT_FOLDER)
     written += long_files
-    long_pages = [(path.name, title) for path in long_files if path.suffix == ".md"
-                  and (title := _long_run_title(path))]
+    long_pages = sorted(((path.name, title) for path in long_files if path.suffix == ".md"
+                         and (title := _long_run_title(path))),
+                        key=lambda page: html.LONG_RUN_PAGES.index(f"{long_run.REPORT_FOLDER}/{page[0]}"))
     if long_pages:
         study_section = [*study_section, "## Long runs", "",
                          *(f"* [{title}]({long_run.REPORT_FOLDER}/{name}) (`make long`)" for name, title in long_pages),

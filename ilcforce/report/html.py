@@ -47,7 +47,7 @@ from ilcforce.report.figure_files import write_text_whole
 HTML_NAME = "index.html"
 #: make long's pages as the report holds them (``ilcforce.report.long_run``), and their HTML page: the
 #: folder is shared with a run of the experiment ``long-run``, whose page is ``long-run/index.html``.
-LONG_RUN_PAGES = frozenset({"long-run/long-run.md", "long-run/growth-heldout.md"})
+LONG_RUN_PAGES = ("long-run/long-run.md", "long-run/growth-heldout.md")  # in the order they are shown
 LONG_RUN_UNIT = "long runs"
 LONG_RUN_HTML = "long-run/long-runs.html"
 #: A fenced block longer than this many lines is folded (configurations as stored run to 150 lines).
@@ -444,8 +444,11 @@ def _units(out_dir: Path, pages: list[str], summary_extra: list[str]) -> list[_U
     for key in keys:
         folders = list(dict.fromkeys(posixpath.dirname(p) for p in members[key]))
         members[key].sort(key=lambda p: folders.index(posixpath.dirname(p)))
-        leading = [p for p in members[key] if key not in ("", LONG_RUN_UNIT) and p in (f"{key}/report.md", f"{key}/index.md")]
-        members[key] = leading[:1] + [p for p in members[key] if p not in leading[:1]]
+        if key == LONG_RUN_UNIT:
+            members[key].sort(key=LONG_RUN_PAGES.index)
+        elif key:
+            leading = [p for p in (f"{key}/report.md", f"{key}/index.md") if p in members[key]][:1]
+            members[key] = leading + [p for p in members[key] if p not in leading]
     return [_Unit(key=key, html=_unit_html(key), group=_unit_group(key), pages=tuple(members[key]))
             for key in keys if members[key]]
 
