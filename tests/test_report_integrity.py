@@ -354,12 +354,15 @@ def test_a_stopped_report_leaves_the_previous_one_whole_and_a_new_folder_absent(
 def test_a_link_to_a_file_the_report_does_not_hold_keeps_its_words_only(tmp_path: Path):
     """A dead link inside the report (a description naming ``notes.md`` the report never wrote) is
     words on the page, where a file the report holds stays a link."""
-    (tmp_path / "index.md").write_text("# ilcforce reports\n\n[gone](notes.md) [table](claims.csv)\n",
+    (tmp_path / "index.md").write_text("# ilcforce reports\n\n[gone](notes.md) [table](claims.csv) [folder](exp/)\n",
                                        encoding="utf-8")
     (tmp_path / "claims.csv").write_text("a\n1\n", encoding="utf-8")
+    (tmp_path / "exp").mkdir()
     text = html.write_html(tmp_path).path.read_text(encoding="utf-8")
     assert '<a href="claims.csv">table</a>' in text
     assert "gone" in text and 'href="notes.md"' not in text
+    assert "folder" in text and 'href="exp' not in text  # a folder is no file of the site
+    assert check_site(tmp_path).problems == []
 
 
 @pytest.mark.parametrize("text", [

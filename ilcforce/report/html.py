@@ -352,7 +352,7 @@ class _Converter:
         another), a file of the report its path relative to this HTML page; a URL of a scheme the
         reader follows (``https:``, ``mailto:``) and a fragment stay as written; None (the link is
         dropped, its words kept) for a path that does not name a file of the report
-        (:func:`local_target`), or names one not written."""
+        (:func:`local_target`), or names none written (a folder included)."""
         if href.startswith("#"):
             return href
         target = self.resolve(folder, href)
@@ -360,8 +360,8 @@ class _Converter:
             return href if href.lower().startswith(_FOLLOWED_SCHEMES) else None
         if target in self.unit_of:
             return self._page_link(target)
-        if not (self.out_dir / target).exists():
-            return None  # a dead link: its words only
+        if not (self.out_dir / target).is_file():
+            return None  # a dead link (or a folder, which is no page of the site): its words only
         return _relative(target, self.current.folder)
 
     def render(self, page: str, text: str) -> str:
