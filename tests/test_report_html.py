@@ -87,6 +87,9 @@ def test_each_part_is_a_page_of_its_own_in_the_reader_s_order(pages: Path) -> No
     assert 'src="fig3.png"' in study and 'loading="lazy"' in study
     assert "[figure not written: paper/fig9.png]" in paper and "fig9.png\"" not in paper
     assert site.figures == 1
+    # a column's alignment is a class of the page's style, not a style attribute on every cell
+    assert '<th class="r">e [m]</th>' in paper and '<td class="r">2e-5</td>' in paper and "<td>c1</td>" in paper
+    assert not re.search(r"<t[dh][^>]*style=", everything)
 
 
 def test_every_page_carries_the_same_navigation(pages: Path) -> None:

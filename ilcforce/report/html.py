@@ -60,6 +60,8 @@ GROUPS = (("summary", "Summary"), ("studies", "Studies"), ("experiments", "Exper
 #: The experiment whose Table 2 and Table 3 the summary shows beside the paper's (its setup).
 PAPER_EXPERIMENT = "paper"
 
+#: A table column's alignment (markdown-it writes it as a style on every cell) as a class of the style.
+_ALIGN = {"right": "r", "center": "c"}
 _HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
 _FENCE = re.compile(r"^(```+|~~~+)")
 _SCHEME = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*:")
@@ -80,7 +82,8 @@ h1.group { font-size: 1.9rem; margin-top: 3rem; border-bottom: 3px solid #0b57a4
 table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.85rem; max-width: 100%; }
 th, td { border: 1px solid #ccc; padding: 0.2rem 0.4rem; vertical-align: top; overflow-wrap: break-word; }
 table.squeezed { font-size: 0.75rem; } table.squeezed th, table.squeezed td { overflow-wrap: anywhere; }
-th { background: #eef1f5; cursor: pointer; user-select: none; }
+th { background: #eef1f5; cursor: pointer; user-select: none; text-align: left; }
+th.r, td.r { text-align: right; } th.c, td.c { text-align: center; }
 th[data-dir="asc"]::after { content: " \\25B2"; } th[data-dir="desc"]::after { content: " \\25BC"; }
 tr:nth-child(even) td { background: #fafafa; }
 img { max-width: 100%; height: auto; border: 1px solid #eee; margin: 0.5rem 0; }
@@ -369,6 +372,13 @@ class _Converter:
         tokens = self.md.parse(text)
         dropped: set[int] = set()  # the link_open tokens whose closing token goes too
         for token in tokens:
+            if token.type in ("th_open", "td_open") and token.attrGet("style"):
+                # a cell's alignment as a class of the page's style, not an attribute on every cell: the
+                # attribute was 40% of a large study's page (left is the style's default)
+                align = str(token.attrGet("style")).removeprefix("text-align:")
+                token.attrs.pop("style")
+                if align in _ALIGN:
+                    token.attrSet("class", _ALIGN[align])
             children = token.children or []
             for child in children:
                 if child.type == "link_open":
