@@ -99,11 +99,11 @@ summary { cursor: pointer; color: #444; }
 # is squeezed: a smaller font, and its cells may wrap inside a word.
 _SCRIPT = """
 (function () {
-  function squeeze() {
-    Array.prototype.forEach.call(document.querySelectorAll("table"), function (table) {
-      table.classList.remove("squeezed");
-      if (table.offsetWidth > table.parentNode.clientWidth + 1) table.classList.add("squeezed");
-    });
+  function squeeze() {  // every width read first, then the classes set: one layout, not one per table
+    var tables = Array.prototype.slice.call(document.querySelectorAll("table"));
+    tables.forEach(function (table) { table.classList.remove("squeezed"); });
+    tables.filter(function (table) { return table.offsetWidth > table.parentNode.clientWidth + 1; })
+          .forEach(function (table) { table.classList.add("squeezed"); });
   }
   squeeze();
   window.addEventListener("resize", squeeze);
