@@ -81,7 +81,7 @@ section.page { border-top: 1px solid #ccc; margin-top: 2rem; padding-top: 0.5rem
 h1.group { font-size: 1.9rem; margin-top: 3rem; border-bottom: 3px solid #0b57a4; }
 table { border-collapse: collapse; margin: 0.8rem 0; font-size: 0.85rem; max-width: 100%; }
 th, td { border: 1px solid #ccc; padding: 0.2rem 0.4rem; vertical-align: top; overflow-wrap: break-word; }
-table.squeezed { font-size: 0.75rem; } table.squeezed th, table.squeezed td { overflow-wrap: anywhere; }
+table.squeezed { font-size: 0.75rem; } table.squeezed th, table.squeezed-more td { overflow-wrap: anywhere; }
 th { background: #eef1f5; cursor: pointer; user-select: none; text-align: left; }
 th.r, td.r { text-align: right; } th.c, td.c { text-align: center; }
 th[data-dir="asc"]::after { content: " \\25B2"; } th[data-dir="desc"]::after { content: " \\25BC"; }
@@ -96,14 +96,17 @@ summary { cursor: pointer; color: #444; }
 # Click a column's header to sort the table's rows by it (numbers as numbers, where every filled
 # cell of the column starts with one; a dash or "n/a" sorts last); click again to reverse. A table
 # still wider than the page once its cells wrap between words (a long setting name, many columns)
-# is squeezed: a smaller font, and its cells may wrap inside a word.
+# is squeezed: a smaller font, and its headers may wrap inside a word (its cells too, if it is still
+# too wide).
 _SCRIPT = """
 (function () {
-  function squeeze() {  // every width read first, then the classes set: one layout, not one per table
+  function wide(table) { return table.offsetWidth > table.parentNode.clientWidth + 1; }
+  function squeeze() {  // every width read first, then the classes set: a layout per step, not per table
     var tables = Array.prototype.slice.call(document.querySelectorAll("table"));
-    tables.forEach(function (table) { table.classList.remove("squeezed"); });
-    tables.filter(function (table) { return table.offsetWidth > table.parentNode.clientWidth + 1; })
-          .forEach(function (table) { table.classList.add("squeezed"); });
+    tables.forEach(function (table) { table.classList.remove("squeezed", "squeezed-more"); });
+    tables = tables.filter(wide);
+    tables.forEach(function (table) { table.classList.add("squeezed"); });
+    tables.filter(wide).forEach(function (table) { table.classList.add("squeezed-more"); });
   }
   squeeze();
   window.addEventListener("resize", squeeze);
@@ -446,17 +449,19 @@ def _units(out_dir: Path, pages: list[str], summary_extra: list[str]) -> list[_U
     members: dict[str, list[str]] = {key: [] for key in keys}
     for page in pages:
         members[_unit_key(page)].append(page)
-    members[""] += summary_extra
+    # the front page: the findings, the paper's Tables 2 and 3 beside ours, then the index of every run
+    front = members[""]
+    members[""] = [p for p in front if p == "findings.md"] + summary_extra + [p for p in front if p != "findings.md"]
     order = [key for key, _ in GROUPS]
     keys.sort(key=lambda key: order.index(_unit_group(key)))  # stable: each group in the order linked
     # a folder's pages together, in the order their folders were first linked (a study's subfolders),
     # led by the part's own page (its report; a tuning's index) however the findings linked the rest
-    for key in keys:
+    for key in keys[1:]:  # keys[0] is the front page (the summary group leads), its order set above
         folders = list(dict.fromkeys(posixpath.dirname(p) for p in members[key]))
         members[key].sort(key=lambda p: folders.index(posixpath.dirname(p)))
         if key == LONG_RUN_UNIT:
             members[key].sort(key=LONG_RUN_PAGES.index)
-        elif key:
+        else:
             leading = [p for p in (f"{key}/report.md", f"{key}/index.md") if p in members[key]][:1]
             members[key] = leading + [p for p in members[key] if p not in leading]
     return [_Unit(key=key, html=_unit_html(key), group=_unit_group(key), pages=tuple(members[key]))
