@@ -5,8 +5,8 @@ Markdown page says (a section added later included) is on an HTML page too. The 
 following the links of ``index.md`` and ``findings.md`` (in the order the links come), converted with
 markdown-it (installed with rich), and put on HTML pages, one per part of the report:
 
-* the front page ``index.html``: the findings (summary first), the index of every run, and the
-  paper's Table 2 and Table 3 beside ours when the paper's experiment was reported;
+* the front page ``index.html``: the findings (summary first), the paper's Table 2 and Table 3
+  beside ours when the paper's experiment was reported, and the index of every run;
 * one page per study (``studies/<name>/index.html``: its report and findings), per experiment
   (``<experiment>/index.html``: its report, tables, claims), per tuning (``tuning/<name>/index.html``)
   and one for the long runs of ``make long`` (``long-run/long-runs.html``: the pages of
@@ -14,7 +14,8 @@ markdown-it (installed with rich), and put on HTML pages, one per part of the re
 
 Every page carries the same navigation (every page of the site by group, this one's sections under
 it), the same few lines of style and the same small script (every table sorts by a click on a
-column's header); wide tables wrap their cells to the page's width instead of scrolling sideways. A
+column's header); wide tables wrap their cells to the page's width instead of scrolling sideways
+(between words; inside words too for a table still too wide, which the script squeezes). A
 link to a Markdown page becomes a link to its section on the HTML page that holds it; figures are
 ``<img>`` elements pointing at the PNG files by relative path (no network, no CDN, and the pages stay
 small); provenance (a ``Provenance`` section, a long block of TOML) is folded in ``<details>``.
