@@ -103,3 +103,32 @@ def check_site(out_dir: Path) -> Site:
                 site.local_links += 1
                 site.cross_page_links += target.suffix == ".html" and target != path.resolve()
     return site
+
+
+def dead_markdown_links(out_dir: Path) -> tuple[int, list[str]]:
+    """Every link and image of every Markdown page of the report, as a Markdown viewer follows them:
+    (how many name a file by a relative path, and those whose file the report does not hold). The
+    HTML pages keep a dead link's words only, so a check of the HTML alone would not see one."""
+    from markdown_it import MarkdownIt
+
+    out_dir = Path(out_dir)
+    root = out_dir.resolve()
+    parser = MarkdownIt("commonmark").enable("table")
+
+    def tokens(items):
+        for token in items:
+            yield token
+            yield from tokens(token.children or [])
+
+    checked, dead = 0, []
+    for page in sorted(out_dir.rglob("*.md")):
+        for token in tokens(parser.parse(page.read_text(encoding="utf-8"))):
+            reference = token.attrGet("href") if token.type == "link_open" else (
+                token.attrGet("src") if token.type == "image" else None)
+            if not reference or reference.startswith("#") or _SCHEME.match(str(reference)):
+                continue
+            checked += 1
+            target = (page.parent / urllib.parse.unquote(str(reference).partition("#")[0])).resolve()
+            if not (target.is_relative_to(root) and target.is_file()):
+                dead.append(f"{page.relative_to(out_dir).as_posix()}: {reference}")
+    return checked, dead
