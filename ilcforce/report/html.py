@@ -469,7 +469,7 @@ def _units(out_dir: Path, pages: list[str], summary_extra: list[str]) -> list[_U
             for key in keys if members[key]]
 
 
-def _navigation(out_dir: Path, units: list[_Unit], current: _Unit) -> list[str]:
+def _navigation(titles: dict[str, str], units: list[_Unit], current: _Unit) -> list[str]:
     """The navigation every page carries: every HTML page of the site by group, this one marked
     and its sections listed under it."""
     lines = ['<div class="brand"><strong>ilcforce report</strong></div>']
@@ -481,14 +481,14 @@ def _navigation(out_dir: Path, units: list[_Unit], current: _Unit) -> list[str]:
         for unit in mine:
             href = html.escape(_relative(unit.html, current.folder), quote=True)
             name = ("Front page: summary and findings" if unit.key == "" else
-                    _title(out_dir, unit.pages[0]).removeprefix("ilcforce report: "))
+                    titles[unit.pages[0]].removeprefix("ilcforce report: "))
             if unit is not current:
                 lines.append(f'<li><a href="{href}">{html.escape(name)}</a></li>')
                 continue
             lines.append(f'<li class="current"><a href="{href}" aria-current="page">{html.escape(name)}</a><ul>')
             for page in unit.pages:
                 anchor = _anchor(page, "summary" if unit.key == "" and _unit_key(page) else "p")
-                lines.append(f'<li><a href="#{anchor}">{html.escape(_title(out_dir, page))}</a></li>')
+                lines.append(f'<li><a href="#{anchor}">{html.escape(titles[page])}</a></li>')
             lines.append("</ul></li>")
         lines.append("</ul>")
     return lines
@@ -516,6 +516,7 @@ def write_html(out_dir: Path) -> HtmlReport | None:
                      if resolve("", p) == p and (out_dir / p).is_file()]
     units = _units(out_dir, pages, summary_extra)
     converter = _Converter(out_dir, units, resolve)
+    titles = {page: _title(out_dir, page) for unit in units for page in unit.pages}  # read once, shown on every page
     written: list[Path] = []
     sizes: dict[str, int] = {}
     for unit in units:
@@ -526,9 +527,9 @@ def write_html(out_dir: Path) -> HtmlReport | None:
         for page in unit.pages:
             anchor = _anchor(page, "summary" if unit.key == "" and _unit_key(page) else "p")
             body.append(converter.page(page, anchor))
-        title = "ilcforce report" if unit.key == "" else f"{_title(out_dir, unit.pages[0])} - ilcforce report"
+        title = "ilcforce report" if unit.key == "" else f"{titles[unit.pages[0]]} - ilcforce report"
         path = out_dir / unit.html
-        write_text_whole(path, _document(title, _navigation(out_dir, units, unit), body))
+        write_text_whole(path, _document(title, _navigation(titles, units, unit), body))
         written.append(path)
         sizes[unit.html] = path.stat().st_size
     total = sum(sizes.values()) + sum((out_dir / f).stat().st_size for f in converter.figures)
