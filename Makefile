@@ -116,7 +116,8 @@ reproduce: $(STAMP) aot ## run every experiment (every registered method, in par
 # c3-robust-leak-1000.toml, 4 cells of 1,000 iterations, about 3 minutes).
 # Not part of `make reproduce` (about 30 minutes on 2 cores before the ablation); its
 # summary page is committed as docs/long-run/long-run.md (dated, with the commit) and the findings cite it.
-# `ilcforce report` adds the same page to the report when these stores are in $(RESULTS)/studies/.
+# `ilcforce report` writes the same pages into the report when these stores are in $(RESULTS)/studies/, and
+# otherwise copies the committed ones in (docs/long-run/: its long-run/ folder, on the site's long runs page).
 LONG_STUDIES := $(sort $(wildcard experiments/long/*.toml))
 
 long: $(STAMP) aot ## run the long studies (1,000 iterations; the growth test's validation) and write docs/long-run/

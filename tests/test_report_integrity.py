@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from ilcforce.report import html
+from site_check import check_site
 from ilcforce.report.folder import is_report
 from ilcforce.report.table_write import inert_markdown
 from ilcforce.store.schema import REPORT_MARKER, RESERVED_NAMES
@@ -108,26 +109,33 @@ def test_no_link_of_a_description_brings_a_file_from_outside_into_the_report(hos
     was built (only ``../`` was stopped), and the file embedded with its own navigation entry."""
     done, out = hostile["done"], hostile["out"]
     assert done.returncode == 0, done.stderr
-    page = (out / "index.html").read_text(encoding="utf-8")
+    pages = {path: path.read_text(encoding="utf-8") for path in sorted(out.rglob("*.html"))}
+    assert out / "hostile" / "index.html" in pages and out / "index.html" in pages
+    page = "\n".join(pages.values())  # every page of the site
     report_md = (out / "hostile" / "report.md").read_text(encoding="utf-8")
     for form in hostile["forms"].values():  # the description, every form in it, reached the Markdown
         assert inert_markdown(form) in report_md, form
     everything = b"".join(_files(out).values()).decode("utf-8", "replace")
     leaked = [word for word in hostile["words"] if f"{word} was read" in everything]
     assert leaked == [], f"read into the report: {leaked}"
-    # no link on the page names a file outside the report
-    hrefs = re.findall(r'href="([^"]*)"', page)
+    # no link on any page names a file outside the report, and every link and image resolves inside it
+    assert check_site(out).problems == []
+    hrefs = [(path, h) for path, text in pages.items() for h in re.findall(r'href="([^"]*)"', text)]
     assert hrefs, "no link found: the check would pass vacuously"
-    assert not [h for h in hrefs if h.startswith(("/", "~", "file:", "\\")) or ".." in h or "%2e" in h.lower()
-                or str(hostile["outside"]) in h], hrefs
+    # a page links another by a relative path (``../index.html``): every one lands inside the report
+    assert not [h for path, h in hrefs if h.startswith(("/", "~", "file:", "\\")) or "%2e" in h.lower()
+                or str(hostile["outside"]) in h
+                or not (path.parent / h.partition("#")[0]).resolve().is_relative_to(out.resolve())], hrefs
     # each link's words are kept, as text (not a link)
-    section = page[page.index('id="p-hostile-report"'):]
+    hostile_page = pages[out / "hostile" / "index.html"]
+    section = hostile_page[hostile_page.index('id="p-hostile-report"'):]
     words = re.findall(r"\[(words-[a-z_]+)\]", " ".join(hostile["forms"].values()))
     assert len(words) == 12
     for word in words:
         assert word in section and not re.search(f"<a [^>]*>{word}</a>", section), word
-    assert "<h1>LEAK" not in page and "LEAK_" not in re.sub(r"<section.*?</section>", "", page, flags=re.S), \
-        "a file from outside has its own entry in the navigation"
+    for text in pages.values():
+        assert "<h1>LEAK" not in text and "LEAK_" not in re.sub(r"<section.*?</section>", "", text, flags=re.S), \
+            "a file from outside has its own entry in the navigation"
 
 
 def test_a_remote_or_outside_image_is_never_referenced_and_the_report_succeeds(hostile):
@@ -139,10 +147,11 @@ def test_a_remote_or_outside_image_is_never_referenced_and_the_report_succeeds(h
 
     done, out = hostile["done"], hostile["out"]
     assert done.returncode == 0 and "written to" in done.stdout, done.stderr
-    page = (out / "index.html").read_text(encoding="utf-8")
-    sources = re.findall(r'<img src="([^"]*)"', page)
-    assert sources, "no figure on the page: the check would pass vacuously"
-    assert all((out / s).is_file() and (out / s).resolve().is_relative_to(out.resolve()) for s in sources), sources
+    pages = {path: path.read_text(encoding="utf-8") for path in sorted(out.rglob("*.html"))}
+    page = "\n".join(pages.values())  # every page of the site
+    sources = [path.parent / src for path, text in pages.items() for src in re.findall(r'<img src="([^"]*)"', text)]
+    assert sources, "no figure on any page: the check would pass vacuously"
+    assert all(s.is_file() and s.resolve().is_relative_to(out.resolve()) for s in sources), sources
     assert "example.invalid" not in " ".join(re.findall(r'(?:src|href)="([^"]*)"', page))
     assert not [s for s in re.findall(r'(?:src|href)="([^"]*)"', page) if "outside" in s]
     viewer = MarkdownIt("commonmark", {"html": True})  # as a Markdown viewer reads the pages
@@ -345,12 +354,15 @@ def test_a_stopped_report_leaves_the_previous_one_whole_and_a_new_folder_absent(
 def test_a_link_to_a_file_the_report_does_not_hold_keeps_its_words_only(tmp_path: Path):
     """A dead link inside the report (a description naming ``notes.md`` the report never wrote) is
     words on the page, where a file the report holds stays a link."""
-    (tmp_path / "index.md").write_text("# ilcforce reports\n\n[gone](notes.md) [table](claims.csv)\n",
+    (tmp_path / "index.md").write_text("# ilcforce reports\n\n[gone](notes.md) [table](claims.csv) [folder](exp/)\n",
                                        encoding="utf-8")
     (tmp_path / "claims.csv").write_text("a\n1\n", encoding="utf-8")
+    (tmp_path / "exp").mkdir()
     text = html.write_html(tmp_path).path.read_text(encoding="utf-8")
     assert '<a href="claims.csv">table</a>' in text
     assert "gone" in text and 'href="notes.md"' not in text
+    assert "folder" in text and 'href="exp' not in text  # a folder is no file of the site
+    assert check_site(tmp_path).problems == []
 
 
 @pytest.mark.parametrize("text", [

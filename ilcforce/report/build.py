@@ -14,6 +14,11 @@ Reads only the results store (:mod:`ilcforce.store`); never simulates. Layout wr
                                             claim and per part; claim_parts.csv the full per-part frame
     <out_dir>/<experiment>/stability.csv    the learning-stability rates and flags as data
     <out_dir>/<experiment>/<figure>.png (and .pdf with formats=FIGURE_FORMATS, ilcforce report --pdf)
+    <out_dir>/studies/<study>/, <out_dir>/tuning/<tuning>/   each study's and tuning's pages
+    <out_dir>/long-run/long-run.md          make long's pages: from its studies when stored, else the
+                                            committed ones (docs/long-run/) copied in
+    <out_dir>/index.html, <out_dir>/<part>/index.html   the HTML site (ilcforce.report.html): a front
+                                            page and a page per study, experiment, tuning, the long runs
 
 Problems with the inputs (an unreadable or foreign file, a missing method, a partial run, a newer
 schema) never raise: each becomes one line in :attr:`ReportSummary.warnings` and in the report,
@@ -75,7 +80,7 @@ class ReportSummary:
     files: tuple[Path, ...]
     warnings: tuple[str, ...]
     studies: tuple[str, ...] = ()  # studies reported (ilcforce.report.study), the paper's Monte Carlo first
-    html: Any = None  # the one-page HTML report (ilcforce.report.html.HtmlReport), None when not written
+    html: Any = None  # the HTML pages (ilcforce.report.html.HtmlReport), None when not written
 
     @property
     def index(self) -> Path:
@@ -355,7 +360,15 @@ def write_report(
     return dataclasses.replace(
         summary, out_dir=out_dir, files=tuple(_moved(path, staging, out_dir) for path in summary.files),
         warnings=tuple(w.replace(str(staging), str(out_dir)) for w in summary.warnings),
-        html=None if page is None else dataclasses.replace(page, path=_moved(page.path, staging, out_dir)))
+        html=None if page is None else dataclasses.replace(
+            page, path=_moved(page.path, staging, out_dir), site=tuple(_moved(p, staging, out_dir) for p in page.site)))
+
+
+def _long_run_title(path: Path) -> str:
+    """The title of one of make long's pages (its first line, a heading), "" for its tables' pages."""
+    first = path.read_text(encoding="utf-8").split("\n", 1)[0]
+    page = f"{long_run.REPORT_FOLDER}/{path.name}"
+    return first.removeprefix("# ") if first.startswith("# ") and page in html.LONG_RUN_PAGES else ""
 
 
 def _moved(path: Path, staging: Path, out_dir: Path) -> Path:
@@ -415,11 +428,16 @@ def _write_into(results_dir: Path, out_dir: Path, found: dict, report_paths: lis
     tuning_lines = tuning_pages(results_dir, out_dir, tuple(formats), written, warnings, sources)
     if tuning_lines:  # `ilcforce tune`'s stores: per method the objective against the trial and the chosen gains
         study_section = [*study_section, "## Tuning", "", *tuning_lines, ""]
-    long_files = long_run.write_page(results_dir, out_dir / "long-run")  # `make long`'s studies, when stored
-    if long_files:
-        written += long_files
-        study_section = [*study_section, "## Long runs", "", "[Does learning stay bounded over 1,000 iterations, "
-                         "and does the growth test see it coming?](long-run/long-run.md) (`make long`)", ""]
+    # `make long`'s pages: from its studies where stored, else as committed (make reproduce does not run them)
+    long_files = long_run.report_pages(results_dir, out_dir / long_run.REPORT_FOLDER)
+    written += long_files
+    long_pages = sorted(((path.name, title) for path in long_files if path.suffix == ".md"
+                         and (title := _long_run_title(path))),
+                        key=lambda page: html.LONG_RUN_PAGES.index(f"{long_run.REPORT_FOLDER}/{page[0]}"))
+    if long_pages:
+        study_section = [*study_section, "## Long runs", "",
+                         *(f"* [{title}]({long_run.REPORT_FOLDER}/{name}) (`make long`)" for name, title in long_pages),
+                         ""]
     reported = tuple(r.name for r in study_reports if r.index_lines)
     if not verdicts and not reported and not studies:  # every store was unusable: an existing report stays
         if tuning_lines:  # a results folder of tuning stores only: their pages, and an index linking them
@@ -453,7 +471,7 @@ def _write_into(results_dir: Path, out_dir: Path, found: dict, report_paths: lis
     written.append(findings)
     page = html.write_html(out_dir)  # last: it is made of the Markdown pages written above
     if page is not None:
-        written.append(page.path)
+        written += page.site
     return ReportSummary(
         out_dir=out_dir,
         experiments=tuple(sorted(verdicts)),

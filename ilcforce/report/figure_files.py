@@ -74,3 +74,19 @@ def save_figure(fig: Figure, directory: Path, stem: str, formats: tuple[str, ...
                         (lambda tmp, fmt=fmt: fig.savefig(tmp, format=fmt,
                                                           metadata={"CreationDate": None} if fmt == "pdf" else None)))
             for fmt in formats]
+
+
+def copy_committed(source: Path, target: Path, skip: frozenset[str] = frozenset()) -> list[Path]:
+    """Copy the files of a committed folder of pages (``docs/tuning/<name>``, ``docs/long-run``) into the
+    report folder ``target``, each whole or not at all, except those named in ``skip``; returns the
+    files written (none when ``source`` is no folder: an installed package has no docs). A symlink or
+    a subfolder there is not copied: the report holds what the folder itself holds."""
+    import shutil
+
+    source, written = Path(source), []
+    items = sorted(source.iterdir()) if source.is_dir() else []
+    for item in items:
+        if item.is_file() and not item.is_symlink() and item.name not in skip:
+            Path(target).mkdir(parents=True, exist_ok=True)
+            written.append(write_whole(Path(target) / item.name, lambda tmp, item=item: shutil.copyfile(item, tmp)))
+    return written

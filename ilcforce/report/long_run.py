@@ -338,10 +338,29 @@ def headline_lines(found: dict[str, object], cases: pd.DataFrame) -> list[str]:
     return lines
 
 
+#: Where ``make long`` commits its pages (with their date and commit), for reports of results folders that
+#: hold no long study (``make reproduce`` does not run them: its report holds the committed pages).
+COMMITTED = Path(__file__).resolve().parents[2] / "docs" / "long-run"
+#: The folder of a report that holds these pages (the findings link ``long-run/long-run.md`` from the
+#: report's top, as docs/findings.md does from docs/).
+REPORT_FOLDER = "long-run"
+
+
+def report_pages(results_dir: Path, out_dir: Path) -> list[Path]:
+    """The long runs' pages in a report (``out_dir`` is its :data:`REPORT_FOLDER`): written from the long
+    studies under ``results_dir/studies`` where they are stored (:func:`write_page`,
+    :func:`write_heldout_page`), and the committed pages of ``make long`` (:data:`COMMITTED`) copied in
+    for what they did not write; nothing where there are neither (an installed package has no docs)."""
+    from ilcforce.report.figure_files import copy_committed
+
+    written = write_page(results_dir, out_dir) + write_heldout_page(results_dir, out_dir)
+    return written + copy_committed(COMMITTED, out_dir, skip=frozenset(path.name for path in written))
+
+
 def committed_summary(directory: Path | None = None) -> dict | None:
     """The summary ``make long`` committed (docs/long-run/summary.json), or None where there is none
     (an installed package without the repository's docs)."""
-    directory = directory or Path(__file__).resolve().parents[2] / "docs" / "long-run"
+    directory = directory or COMMITTED
     try:
         return json.loads((directory / SUMMARY).read_text(encoding="utf-8"))
     except (OSError, ValueError):

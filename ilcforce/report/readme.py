@@ -74,8 +74,10 @@ SUMMARY_LIMIT = 12 * 1024
 SUMMARY_END = "## Per study"
 
 
-def _study_link(name: str) -> str:
-    return f"[`{name}`](studies/{name}/findings.md)"
+def _study_link(name: str, reported: Mapping[str, object] | None = None) -> str:
+    """The study's name linking its findings page; its name alone where ``reported`` (the studies whose
+    pages the report holds) does not hold it (a results folder without that study: no dead link)."""
+    return f"`{name}`" if reported is not None and name not in reported else f"[`{name}`](studies/{name}/findings.md)"
 
 
 def _binding(rows: pd.DataFrame):
@@ -192,8 +194,8 @@ def summary_lines(experiments: Mapping[str, Mapping[str, object]], studies: Mapp
              "(docs/model.md, section \"Two noise levels\").", ""]
     for claim in claim_parts.CLAIMS:
         lines.append(f"**Claim {claim.number}.** {claim.statement} Paper: {claim.paper}{_judged_on(ours, claim.number)}")
-        lines.append(f"* {_setting_claim(calibrated, claim.number, f'Calibrated ({_study_link(CALIBRATED_STUDY)}, {_seeds_label(calibrated)})')}.")
-        lines.append(f"* {_setting_claim(ours, claim.number, f'Our noise ({_study_link(OUR_NOISE_STUDY)}, {_seeds_label(ours)})', True)}.")
+        lines.append(f"* {_setting_claim(calibrated, claim.number, f'Calibrated ({_study_link(CALIBRATED_STUDY, studies)}, {_seeds_label(calibrated)})')}.")
+        lines.append(f"* {_setting_claim(ours, claim.number, f'Our noise ({_study_link(OUR_NOISE_STUDY, studies)}, {_seeds_label(ours)})', True)}.")
         if claim.number == 1:  # why C1 leads, where it does (claim 1's cause rows)
             lines += [f"  {line.removeprefix('* ')}" for line in verdict_rows.cause_lines(ours)]
         head = single[(single["claim"] == claim.number) & (single["role"] == verdict_rows.CLAIM_ROW)] if len(single) else single

@@ -317,18 +317,13 @@ def committed_pages(out_dir: Path, written: list, sources: set[str]) -> list[str
     """The pages ``make tune`` committed under docs/tuning/ for the tunings named in ``sources`` (those
     whose tuned experiment a reported study ran), copied into the report: ``make reproduce`` does not tune,
     and its tuned studies' gains come from these tunings. Index lines; nothing when there are none."""
-    import shutil
+    from ilcforce.report.figure_files import copy_committed
 
     lines = []
     for page in sorted(COMMITTED.glob("*/index.md")) if COMMITTED.is_dir() else []:
         if page.parent.name not in sources:
             continue
-        target = out_dir / "tuning" / page.parent.name
-        target.mkdir(parents=True, exist_ok=True)
-        for item in sorted(page.parent.iterdir()):
-            if item.is_file():
-                shutil.copyfile(item, target / item.name)
-                written.append(target / item.name)
+        written += copy_committed(page.parent, out_dir / "tuning" / page.parent.name)
         title = page.read_text(encoding="utf-8").split("\n", 1)[0].removeprefix("# ")
         lines.append(f"- [{title}](tuning/{page.parent.name}/index.md) (committed by `make tune`)")
     return lines
