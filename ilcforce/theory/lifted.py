@@ -179,10 +179,12 @@ def noise_amplitude(fmap: IterationMap, config: Config) -> np.ndarray:
     fmap.calls += noisy.calls
     change = (noisy.base_image - fmap.base_image).reshape(fmap.n_control, fmap.width)
     amplitude = np.sqrt(np.mean(np.square(change), axis=0))
-    if not np.all(amplitude > 0):
-        raise AnalysisError(f"{fmap.method}: the experiment's noise does not reach every memory column (noise.scale "
-                            "0?); give a relative --step instead of 'noise'")
-    return amplitude
+    if not np.any(amplitude > 0):
+        raise AnalysisError(f"{fmap.method}: the experiment's noise does not reach the memory (noise.scale 0?); "
+                            "give a relative --step instead of 'noise'")
+    # a column the noise does not move (a memory held at its bound, e.g. C3-robust's alpha_hat at alpha_max):
+    # the small relative step, at which such a column's derivative is its own (zero at a hard bound)
+    return np.where(amplitude > 0, amplitude, _step(fmap, STEP))
 
 
 def _step(fmap: IterationMap, relative: float | np.ndarray) -> np.ndarray:

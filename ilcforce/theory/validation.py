@@ -248,25 +248,35 @@ def _page(args, rows: list[dict], seeds: list[int], seconds: float) -> None:
 
 
 def _figure(out: Path, rows: list[dict]) -> None:
+    """Predicted against measured growth per band, in % per iteration, of the bands predicted near or above 1
+    (a contracting band's measured change is stationary, ~0%: the table shows those); one colour per method."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5), constrained_layout=True)
-    for ax, robot in zip(axes, dict.fromkeys(r["robot"] for r in rows)):
-        sub = [r for r in rows if r["robot"] == robot and np.isfinite(r["measured_median"])]
-        for method in dict.fromkeys(r["method"] for r in sub):
-            pts = [(r["predicted"], r["measured_median"]) for r in sub if r["method"] == method]
-            ax.plot(*zip(*pts), "o", label=method)
-        values = [v for r in sub for v in (r["predicted"], r["measured_median"])]
+    colours = {m: f"C{i}" for i, m in enumerate(METHODS)}
+    robots = list(dict.fromkeys(r["robot"] for r in rows))
+    fig, axes = plt.subplots(1, len(robots), figsize=(5.2 * len(robots), 4.6), constrained_layout=True, squeeze=False)
+    for ax, robot in zip(axes[0], robots):
+        near = [r for r in rows if r["robot"] == robot and np.isfinite(r["measured_median"]) and r["predicted"] >= 0.97]
+        left_out = sum(1 for r in rows if r["robot"] == robot and r["predicted"] < 0.97)
+        for method in METHODS:
+            pts = [(100 * (r["predicted"] - 1), 100 * (r["measured_median"] - 1)) for r in near if r["method"] == method]
+            if pts:
+                ax.plot(*zip(*pts), "o", color=colours[method], label=method)
+        values = [v for r in near for v in (100 * (r["predicted"] - 1), 100 * (r["measured_median"] - 1))]
         if values:
-            lo, hi = min(values), max(values)
+            lo, hi = min(values + [-1.0]), max(values + [1.0])
             ax.plot([lo, hi], [lo, hi], "k-", lw=0.8, label="measured = predicted")
-        ax.set_title(robot)
-        ax.set_xlabel("predicted growth per iteration (one point per band)")
-        ax.set_ylabel("measured growth per iteration")
-        ax.legend(fontsize=8)
+            ax.fill_between([lo, hi], [lo - 100 * AGREEMENT, hi - 100 * AGREEMENT],
+                            [lo + 100 * AGREEMENT, hi + 100 * AGREEMENT], color="0.85", label=f"within {AGREEMENT:g}")
+        ax.axhline(0, color="0.5", lw=0.5)
+        ax.axvline(0, color="0.5", lw=0.5)
+        ax.set_title(f"{robot} ({left_out} contracting bands, predicted < 0.97, in the table only)", fontsize=9)
+        ax.set_xlabel("predicted growth of a band, % per iteration")
+        ax.set_ylabel("measured growth, % per iteration")
+        ax.legend(fontsize=8, loc="upper left")
     fig.savefig(out / "validation.png", dpi=110)
 
 
