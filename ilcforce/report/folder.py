@@ -25,6 +25,7 @@ import threading
 from collections.abc import Iterator
 from pathlib import Path
 
+from ilcforce.store.safeio import process_alive
 from ilcforce.store.schema import REPORT_MARKER
 from ilcforce.stops import on_stop_signals
 
@@ -74,23 +75,13 @@ def check_target(out_dir: Path, results_dir: Path) -> Path:
     return target
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except OSError:  # another user's process: alive
-        return True
-    return True
-
-
 def _remove_stale(target: Path) -> None:
     """Remove what killed reports left beside ``target`` (their partial folders; a previous report
     the two-rename fallback had not removed yet)."""
     with contextlib.suppress(OSError):
         for entry in target.parent.iterdir():
             found = _PARTIAL.match(entry.name)
-            if found and found["name"] == target.name and not _alive(int(found["pid"])) \
+            if found and found["name"] == target.name and not process_alive(int(found["pid"])) \
                     and entry.is_dir() and not entry.is_symlink():
                 shutil.rmtree(entry, ignore_errors=True)
 

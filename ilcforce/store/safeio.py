@@ -54,7 +54,9 @@ def is_temporary_name(name: str) -> bool:
     return _TEMPORARY.fullmatch(name) is not None
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists (another user's counts as alive): a writer's temporary file or a
+    killed command's leftovers are removed only when their process is gone."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -75,7 +77,7 @@ def dead_copies_in(folder: Path, name: str | None = None) -> list[Path]:
     found = []
     for match in matches:
         pid, item = int(match.group(2)), Path(folder) / match.group(0)
-        if (name is None or match.group(1) == name) and pid != os.getpid() and not _alive(pid):
+        if (name is None or match.group(1) == name) and pid != os.getpid() and not process_alive(pid):
             with contextlib.suppress(OSError):
                 found += [item] if stat.S_ISREG(os.lstat(item).st_mode) else []
     return found
