@@ -41,7 +41,7 @@ from ilcforce.controllers.base import check_vector
 from ilcforce.noise import NoiseModel
 from ilcforce.plants import DEFAULT_MODEL, MODELS, make_plant, params_class, perturbed_parameter
 from ilcforce.simulate import SimulationSettings, force_axis
-from ilcforce.store.schema import experiment_name_problem
+from ilcforce.config_ranges import experiment_name_problem
 from ilcforce.task import Reference, Wall
 
 

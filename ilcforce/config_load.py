@@ -27,7 +27,7 @@ from ilcforce.controllers import REGISTRY
 from ilcforce.controllers.nd import check_widths, has_law_nd
 from ilcforce.plants import UnreachableError, make_plant
 from ilcforce.tomlfile import parse_toml, read_toml, resolve_toml
-from ilcforce.store.schema import experiment_name_problem
+from ilcforce.config_ranges import experiment_name_problem
 
 
 # ------------------------------------------------------------------------------------------------

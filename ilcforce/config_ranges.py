@@ -5,11 +5,14 @@ entry, or the default of its type (:data:`DEFAULT_RANGES`). Strings are printabl
 A whole run's resources (working memory, integrator steps) are bounded too
 (:data:`MAX_RUN_BYTES`, :data:`MAX_STEPS_PER_ITERATION`, estimated by
 :func:`ilcforce.config_load.run_footprint`). Adding a config field needs an entry here only when the
-default range does not fit it.
+default range does not fit it. The names the configuration gives folders follow one rule here too
+(:func:`experiment_name_problem`: an experiment's and a study's name name folders of results and
+reports; the stores read the same rule back).
 """
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 
@@ -76,3 +79,32 @@ def range_of(path: str, kind: type) -> Range:
     return DEFAULT_RANGES[kind]
 
 
+#: A study's name, which names its store and its report folder: a plain file name (checked when a
+#: study file is read, and again when a store is read, so that a stored name never makes a path).
+STUDY_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
+#: The file a report folder carries to say that ilcforce wrote it (``ilcforce report`` replaces such a
+#: folder, and refuses to write into any other that is not empty).
+REPORT_MARKER = ".ilcforce-report"
+#: Names a results folder or a report folder holds beside the experiments' folders, so that no
+#: experiment may take them (compared without case: a case-insensitive file system makes
+#: ``Index.md`` the report's ``index.md``): the report's own pages and tables, its studies' and
+#: tunings' folders (also the results folder's), and the default report folder ``results/report``.
+RESERVED_NAMES = frozenset({"index.md", "index.html", "findings.md", "claims.csv", "stability.csv",
+                            "studies", "tuning", "report", REPORT_MARKER})
+
+
+def experiment_name_problem(text: object) -> str | None:
+    """Why ``text`` cannot name an experiment, in words ("" never); None when it can.
+
+    The one rule for an experiment's name, which names its results folder ``results/<name>/`` and its
+    report folder ``<report>/<name>/``: a plain name (:data:`STUDY_NAME`: letters, digits, '.', '_',
+    '-', at most 100 characters, starting with a letter or digit: never a path, a hidden file, a
+    control character or a character a Markdown link would break on) that is not one of
+    :data:`RESERVED_NAMES`. Checked where a name is read (the configuration, ilcforce.config) and
+    where a stored one is (:func:`ilcforce.store.validate`)."""
+    if not isinstance(text, str) or not STUDY_NAME.fullmatch(text):
+        return ("is not a plain folder name (letters, digits, '.', '_', '-'; at most 100 characters, the "
+                "first a letter or digit)")
+    if text.casefold() in RESERVED_NAMES:
+        return f"is reserved: the report and the results folder hold their own {text.casefold()} beside the experiments"
+    return None

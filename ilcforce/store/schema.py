@@ -17,14 +17,13 @@ from typing import Any
 
 import numpy as np
 
+# the names results and report folders hold: the configuration's rule, read by the store too
+from ilcforce.config_ranges import REPORT_MARKER, RESERVED_NAMES, STUDY_NAME, experiment_name_problem  # noqa: F401
 from ilcforce.records import LOG_SIGNALS, REFERENCE_SIGNALS, TASK_DIMENSIONS, log_signals, reference_signals
 
 SCHEMA_NAME = "ilcforce.store"
 #: The study store's schema name (ilcforce/store/study.py); here so that a run-store reader can name it.
 STUDY_SCHEMA_NAME = "ilcforce.study"
-#: A study's name, which names its store and its report folder: a plain file name (checked when a
-#: study file is read, and again when a store is read, so that a stored name never makes a path).
-STUDY_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,99}$")
 SCHEMA_VERSION = "2.2"
 #: From this schema version on, every object with attributes carries ``attrs_crc32``
 #: (:mod:`ilcforce.store.seal`). A 2.0 store has none: it is read, and ``validate`` says that its
@@ -38,34 +37,6 @@ SEALED_FROM = (2, 1)
 BOUND_FROM = (2, 2)
 #: A method name as stored (it names the store file ``<method>.h5``): never a path.
 METHOD_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
-
-
-#: The file a report folder carries to say that ilcforce wrote it (``ilcforce report`` replaces such a
-#: folder, and refuses to write into any other that is not empty).
-REPORT_MARKER = ".ilcforce-report"
-#: Names a results folder or a report folder holds beside the experiments' folders, so that no
-#: experiment may take them (compared without case: a case-insensitive file system makes
-#: ``Index.md`` the report's ``index.md``): the report's own pages and tables, its studies' and
-#: tunings' folders (also the results folder's), and the default report folder ``results/report``.
-RESERVED_NAMES = frozenset({"index.md", "index.html", "findings.md", "claims.csv", "stability.csv",
-                            "studies", "tuning", "report", REPORT_MARKER})
-
-
-def experiment_name_problem(text: object) -> str | None:
-    """Why ``text`` cannot name an experiment, in words ("" never); None when it can.
-
-    The one rule for an experiment's name, which names its results folder ``results/<name>/`` and its
-    report folder ``<report>/<name>/``: a plain name (:data:`STUDY_NAME`: letters, digits, '.', '_',
-    '-', at most 100 characters, starting with a letter or digit: never a path, a hidden file, a
-    control character or a character a Markdown link would break on) that is not one of
-    :data:`RESERVED_NAMES`. Checked where a name is read (the configuration, ilcforce.config) and
-    where a stored one is (:func:`ilcforce.store.validate`)."""
-    if not isinstance(text, str) or not STUDY_NAME.fullmatch(text):
-        return ("is not a plain folder name (letters, digits, '.', '_', '-'; at most 100 characters, the "
-                "first a letter or digit)")
-    if text.casefold() in RESERVED_NAMES:
-        return f"is reserved: the report and the results folder hold their own {text.casefold()} beside the experiments"
-    return None
 
 
 def is_plain_name(text: str) -> bool:
