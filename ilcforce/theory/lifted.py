@@ -90,6 +90,24 @@ def band_projector(n_control: int, sample_time: float, low: float, high: float) 
     return project
 
 
+def flatten(memory: dict[str, np.ndarray], blocks: dict[str, tuple[int, int, str]], n_control: int,
+            width: int) -> np.ndarray:
+    """A learned state (name -> (n_control, columns) block) as one sample-major vector of the memory layout."""
+    grid = np.empty((n_control, width))
+    for key, (start, stop, _unit) in blocks.items():
+        grid[:, start:stop] = np.asarray(memory[key], dtype=np.float64).reshape(n_control, stop - start)
+    return grid.ravel()
+
+
+def bands_of(edges: Sequence[float], n_control: int, sample_time: float):
+    """(low, high, P_b) per band between consecutive ``edges`` (Hz) below the Nyquist frequency, the last band
+    ending there."""
+    nyquist = 0.5 / sample_time
+    cuts = [b for b in edges if b < nyquist] + [nyquist * (1 + 1e-12)]
+    return [(float(low), float(min(high, nyquist)), band_projector(n_control, sample_time, low, high))
+            for low, high in zip(cuts[:-1], cuts[1:])]
+
+
 @dataclass
 class IterationMap:
     """F_j, one noise-free iteration of ``method`` as a map of the memory it reads (flattened,
@@ -121,10 +139,7 @@ class IterationMap:
         return {key: grid[:, start:stop] for key, (start, stop, _unit) in self.blocks.items()}
 
     def flatten(self, memory: dict[str, np.ndarray]) -> np.ndarray:
-        grid = np.empty((self.n_control, self.width))
-        for key, (start, stop, _unit) in self.blocks.items():
-            grid[:, start:stop] = np.asarray(memory[key], dtype=np.float64).reshape(self.n_control, stop - start)
-        return grid.ravel()
+        return flatten(memory, self.blocks, self.n_control, self.width)
 
     def __call__(self, m: np.ndarray) -> np.ndarray:
         """F_j(m): the memory the next iteration reads, after one iteration that read ``m``."""
@@ -165,10 +180,7 @@ def iteration_map(config: Config, method: str, at: int = 20) -> IterationMap:
                 raise AnalysisError(f"{method} diverges at iteration {record.iteration} of the noise-free run, "
                                     f"before the linearisation point j = {at}: choose an earlier --at")
             memory = record.memory
-    probe = IterationMap.__new__(IterationMap)
-    probe.blocks, probe.width, probe.config = blocks, width, config
-    base = IterationMap.flatten(probe, memory)
-    return IterationMap(config, method, at, blocks, base, width)
+    return IterationMap(config, method, at, blocks, flatten(memory, blocks, config.n_control, width), width)
 
 
 def noise_amplitude(fmap: IterationMap, config: Config) -> np.ndarray:
@@ -230,12 +242,9 @@ def band_growth(apply: Callable[[np.ndarray], np.ndarray], n_control: int, width
                 seed: int = 0) -> list[tuple[float, float, float]]:
     """(low, high, growth) per band: power iteration of W P_b T P_b W from a random band-limited start."""
     window = _settled_window(n_control, sample_time, settled_from)[:, None]
-    nyquist = 0.5 / sample_time
-    edges = [b for b in bands if b < nyquist] + [nyquist * (1 + 1e-12)]
     rng = np.random.default_rng(seed)
     out = []
-    for low, high in zip(edges[:-1], edges[1:]):
-        project = band_projector(n_control, sample_time, low, high)
+    for low, high, project in bands_of(bands, n_control, sample_time):
         x = window * project(rng.standard_normal((n_control, width)))
         growth = math.nan
         for _ in range(iterations):
@@ -243,7 +252,7 @@ def band_growth(apply: Callable[[np.ndarray], np.ndarray], n_control: int, width
             y = window * project(apply(x.ravel() / norm).reshape(n_control, width))
             growth = float(np.linalg.norm(y))
             x = y
-        out.append((float(low), float(min(high, nyquist)), growth))
+        out.append((low, high, growth))
     return out
 
 
@@ -394,13 +403,10 @@ def measured_band_growth(config: Config, method: str, *, iterations: int, first:
     if last - first < 3:
         raise AnalysisError(f"{method} completes only {len(memories)} iterations: too few to measure "
                             f"growth over j = {first}..{last}")
-    nyquist = 0.5 / ts
-    edges = [b for b in bands if b < nyquist] + [nyquist * (1 + 1e-12)]
     out = []
     js = np.arange(first, last)
-    for low, high in zip(edges[:-1], edges[1:]):
-        project = band_projector(n, ts, low, high)
+    for low, high, project in bands_of(bands, n, ts):
         energy = np.array([np.linalg.norm(window * project(changes[j])) for j in js])
         slope = np.polyfit(js, np.log(np.maximum(energy, 1e-300)), 1)[0]
-        out.append((float(low), float(min(high, nyquist)), float(np.exp(slope))))
+        out.append((low, high, float(np.exp(slope))))
     return out
