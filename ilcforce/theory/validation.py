@@ -12,7 +12,6 @@ import argparse
 import csv
 import datetime
 import json
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -29,11 +28,11 @@ LONG_RUN_EXPERIMENT = "paper"
 
 
 def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], capture_output=True, text=True,
-                              check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
+    """The checkout's commit as the stores record it (ilcforce.store.provenance), said dirty when it is."""
+    from ilcforce.store.provenance import git_state
+
+    commit, dirty = git_state()
+    return (commit[:12] + (" with uncommitted changes" if dirty else "")) if commit else "unknown"
 
 
 def _long_run_truth(path: Path) -> dict[str, str]:
