@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from ilcforce.report import html
+from ilcforce.report import html, links
 from site_check import check_site
 from ilcforce.report.folder import is_report
 from ilcforce.report.table_write import inert_markdown
@@ -205,18 +205,18 @@ def test_local_target_keeps_only_files_inside_the_report(tmp_path: Path, href: s
     (tmp_path / "elsewhere").mkdir()
     (out / "exp" / "link").symlink_to(tmp_path / "elsewhere")
     (out / "exp" / "loop").symlink_to(out / "exp" / "loop")
-    assert html.local_target(out, "exp", href) is None
+    assert links.local_target(out, "exp", href) is None
 
 
 def test_local_target_keeps_what_is_inside(tmp_path: Path):
     out = tmp_path / "report"
     (out / "exp" / "inner").mkdir(parents=True)
     (out / "exp" / "alias").symlink_to(out / "exp" / "inner")
-    assert html.local_target(out, "exp", "fig%201.png") == "exp/fig 1.png"
-    assert html.local_target(out, "exp", "../studies/s/report.md#x") == "studies/s/report.md"
-    assert html.local_target(out, "exp", "alias/x.md") == "exp/alias/x.md"
+    assert links.local_target(out, "exp", "fig%201.png") == "exp/fig 1.png"
+    assert links.local_target(out, "exp", "../studies/s/report.md#x") == "studies/s/report.md"
+    assert links.local_target(out, "exp", "alias/x.md") == "exp/alias/x.md"
     # decoded once, as a browser does: a doubly encoded '..' is a folder of that literal name, inside
-    assert html.local_target(out, "exp", "%252e%252e/%252e%252e/x.md") == "exp/%2e%2e/%2e%2e/x.md"
+    assert links.local_target(out, "exp", "%252e%252e/%252e%252e/x.md") == "exp/%2e%2e/%2e%2e/x.md"
 
 
 # -- items 3 and 12: one name rule, where the name is read -----------------------------------------

@@ -21,7 +21,7 @@ link to a Markdown page becomes a link to its section on the HTML page that hold
 small); provenance (a ``Provenance`` section, a long block of TOML) is folded in ``<details>``.
 
 Nothing outside the report folder is read into the page or shown by it: every reference a page
-makes (a link followed to another page, an image) goes through :func:`local_target`, which
+makes (a link followed to another page, an image) goes through :func:`ilcforce.report.links.local_target`, which
 decodes it, resolves it (symlinks included) and keeps it only when it lands inside the report
 folder. A description's text is the user's, so it can name anything (``/home/me/notes.md``,
 ``~/x.md``, ``file:`` URLs, ``%2e%2e/``, backslashes, a symlink out): such a link stays the
@@ -31,11 +31,9 @@ offline) is said in words, never an ``<img>``.
 
 from __future__ import annotations
 
-import functools
 import html
 import posixpath
 import re
-import urllib.parse
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +41,7 @@ from pathlib import Path
 from markdown_it import MarkdownIt
 
 from ilcforce.report.figure_files import write_text_whole
+from ilcforce.report.links import linked_pages, resolver, url
 
 #: The front page, written beside index.md; every other HTML page is ``<folder>/index.html``.
 HTML_NAME = "index.html"
@@ -65,7 +64,6 @@ PAPER_EXPERIMENT = "paper"
 _ALIGN = {"right": "r", "center": "c"}
 _HEADING = re.compile(r"^(#{1,6})\s+(.*?)\s*#*\s*$")
 _FENCE = re.compile(r"^(```+|~~~+)")
-_SCHEME = re.compile(r"^[a-zA-Z][a-zA-Z0-9+.-]*:")
 #: The URLs a link may keep (a reader follows them by a click; the page never loads them).
 _FOLLOWED_SCHEMES = ("http:", "https:", "mailto:")
 
@@ -170,73 +168,6 @@ def _markdown() -> MarkdownIt:
     return MarkdownIt("commonmark", {"html": False}).enable("table")
 
 
-def local_target(out_dir: Path, folder: str, href: str) -> str | None:
-    """The file a page's reference ``href`` names, as a POSIX path relative to ``out_dir``, or None
-    when it names anything else: a URL of any scheme (``https:``, ``file:``, ``data:``), a
-    network path (``//host``), an absolute or home path (``/``, ``~``, ``C:``), a backslash, a
-    control character, or a path that leaves ``out_dir`` (``..``, percent-encoded or not, or a
-    symlink whose target is outside). ``folder`` is the referring page's folder relative to
-    ``out_dir``. The reference is decoded first (markdown-it percent-encodes what it parses) and the
-    checks run on the decoded path, so no encoding slips past them; the final check is on the
-    resolved path, so no spelling does."""
-    try:
-        path = urllib.parse.unquote(href.partition("#")[0].partition("?")[0], errors="strict") if href else ""
-    except UnicodeDecodeError:  # an encoded byte sequence that is no text names no file of the report
-        return None
-    if (not path or _SCHEME.match(path) or _SCHEME.match(href) or path.startswith(("/", "~"))
-            or "\\" in path or not path.isprintable()):
-        return None
-    relative = posixpath.normpath(posixpath.join(folder, path))
-    if relative == ".." or relative.startswith(("../", "/")):
-        return None
-    root = Path(out_dir).resolve()
-    try:
-        real = (root / relative).resolve()
-    except (OSError, RuntimeError):  # a symlink loop, a name the system refuses
-        return None
-    return relative if real == root or real.is_relative_to(root) else None
-
-
-def _url(relative: str) -> str:
-    """A report file's path as a relative URL (a space or '#' in a name is encoded; '/', '=', ',' and
-    '+', which variant folders hold, are kept readable)."""
-    return urllib.parse.quote(relative, safe="/=,+")
-
-
-#: Where a page names another: an inline link's destination (``](x.md)``, ``](<x.md>)``) or a reference
-#: definition's (``[r]: x.md``). Broad on purpose: whatever it finds is followed only through
-#: :func:`local_target`, so a form it catches that Markdown would not read as a link costs nothing;
-#: and scanning costs little where parsing every page a second time did not (a 2 MB page of tables:
-#: 9 s to parse, 0.1 s to scan).
-_DESTINATION = re.compile(r"\]\(\s*(?:<([^<>\n]+)>|([^)\s<>]+))|^ {0,3}\[[^\]]+\]:[ \t]*(?:<([^<>\n]+)>|(\S+))",
-                          re.MULTILINE)
-
-
-def _resolver(out_dir: Path) -> Callable[[str, str], str | None]:
-    """:func:`local_target` in ``out_dir``, each (folder, reference) resolved once per page built (a
-    report's tables repeat their links; a resolution costs a few system calls)."""
-    return functools.lru_cache(maxsize=None)(functools.partial(local_target, Path(out_dir)))
-
-
-def _linked_pages(out_dir: Path, start: list[str], resolve: Callable[[str, str], str | None]) -> list[str]:
-    """Every Markdown page reachable from ``start`` by links that stay inside ``out_dir``
-    (``resolve``: :func:`local_target` there), in the order first linked."""
-    seen: list[str] = []
-    queue = [p for p in start if resolve("", p) == p and (out_dir / p).is_file()]
-    while queue:
-        page = queue.pop(0)
-        if page in seen:
-            continue
-        seen.append(page)
-        folder = posixpath.dirname(page)
-        for destination in _DESTINATION.findall((out_dir / page).read_text(encoding="utf-8")):
-            linked = resolve(folder, "".join(destination))  # the one group that matched
-            if (linked is not None and linked.endswith(".md") and linked not in seen
-                    and (out_dir / linked).is_file()):
-                queue.append(linked)
-    return seen
-
-
 @dataclass(frozen=True)
 class _Unit:
     """One HTML page of the site: the Markdown pages it holds, where it is written, its place in the
@@ -285,7 +216,7 @@ def _unit_group(key: str) -> str:
 
 def _relative(target: str, folder: str) -> str:
     """A report file's URL from a page in ``folder`` (both relative to the report folder)."""
-    return _url(posixpath.relpath(target, folder or "."))
+    return url(posixpath.relpath(target, folder or "."))
 
 
 def _blocks(text: str) -> list[tuple[str, str]]:
@@ -359,7 +290,7 @@ class _Converter:
         another), a file of the report its path relative to this HTML page; a URL of a scheme the
         reader follows (``https:``, ``mailto:``) and a fragment stay as written; None (the link is
         dropped, its words kept) for a path that does not name a file of the report
-        (:func:`local_target`), or names none written (a folder included)."""
+        (:func:`ilcforce.report.links.local_target`), or names none written (a folder included)."""
         if href.startswith("#"):
             return href
         target = self.resolve(folder, href)
@@ -508,8 +439,8 @@ def write_html(out_dir: Path) -> HtmlReport | None:
     experiment, tuning and the long runs; see the module's docstring) from the Markdown pages under
     ``out_dir``; None, and nothing written, when ``out_dir`` holds neither index.md nor findings.md."""
     out_dir = Path(out_dir)
-    resolve = _resolver(out_dir)
-    pages = _linked_pages(out_dir, ["findings.md", "index.md"], resolve)
+    resolve = resolver(out_dir)
+    pages = linked_pages(out_dir, ["findings.md", "index.md"], resolve)
     if not pages:
         return None
     summary_extra = [p for p in (f"{PAPER_EXPERIMENT}/table2.md", f"{PAPER_EXPERIMENT}/table3.md")

@@ -46,7 +46,7 @@ def inert_markdown(text: str) -> str:
     HTML (``<img src=...>``, an autolink) are escaped, so no viewer of the report's Markdown pages
     loads a file or a URL the text names (the report is read offline). Its links stay links, which a
     reader follows only by a click (the HTML page keeps only those inside the report or on the web:
-    :func:`ilcforce.report.html.local_target`). Backslashes are escaped first, so none of the user's
+    :func:`ilcforce.report.links.local_target`). Backslashes are escaped first, so none of the user's
     can undo an escape."""
     return text.replace("\\", "\\\\").replace("<", "\\<").replace("![", "!\\[")
 
