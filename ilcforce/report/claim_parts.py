@@ -521,6 +521,8 @@ SHOWN_H = (("_settled", "settled (t >= 20 ms)"), ("_no_t0", "without t = 0"))
 #: The names of the terms (docs/tables.md, "Terms"): the whole grid (every logged sample of an iteration,
 #: the paper's reading) and settled (the samples from t = 20 ms on, ilcforce.metrics.SETTLED_FROM).
 WHOLE_GRID_NAME, SETTLED_NAME = "whole grid", "settled (t >= 20 ms)"
+
+
 def h_ratio_name(j: int, form: str = JUDGED_H) -> str:
     """The name of the ratio H(C1) / H(C3) at iteration ``j`` with H in ``form`` (``""``: the whole grid,
     the paper's; ``_settled``, ``_no_t0``: :data:`SHOWN_H`)."""
