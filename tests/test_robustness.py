@@ -130,19 +130,25 @@ def test_second_writer_is_refused(tmp_path):
     assert store.read_provenance(out)["run_state"] == "partial"
 
 
+_BURST_CAP = 400  # commits the writer makes at most; a starved reader sees none of them until the last
+
 _BURST_WRITER = r"""
 import sys, time
 from pathlib import Path
-sys.path.insert(0, sys.argv[3])
+sys.path.insert(0, sys.argv[4])
 import storekit
-path, go = Path(sys.argv[1]), Path(sys.argv[2])
-with storekit.writer(path, config=storekit.resumed_config(60)) as w:
-    w.append(storekit.make_record(0))
+path, go, stop = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
+cap = int(sys.argv[5])
+with storekit.writer(path, config=storekit.resumed_config(cap)) as w:
+    records = [storekit.make_record(j) for j in range(cap)]  # built before the burst: only commits in it
+    w.append(records[0])
     while not go.exists():
         time.sleep(0.001)
-    for j in range(1, 60):  # back to back: the exclusive lock is free only between two commits
-        w.append(storekit.make_record(j))
-    w.finish("complete")
+    j = 1
+    while j < cap and not stop.exists():  # back to back: the exclusive lock is free only between two commits
+        w.append(records[j])
+        j += 1
+    print(j)
 """
 
 
@@ -150,11 +156,19 @@ def test_a_reader_gets_in_between_back_to_back_commits(tmp_path):
     """A writer whose store is behind commits back to back, leaving the lock free for well under a
     millisecond between commits. Readers retried every 50 ms and waited for the whole run (a
     test's reader saw a 40-iteration run finished before it could interrupt it); they now see it
-    progress."""
-    out, go = tmp_path / "c3.h5", tmp_path / "go"
+    progress.
+
+    The writer goes on until the reader has seen three of its commits in between (then the reader
+    stops it) or until it has made ``_BURST_CAP`` commits: how many reads fit into a burst depends
+    on the machine's load (a read of this store takes 40-90 ms idle, more on a loaded CI machine,
+    and a fixed 60-commit burst of 0.35 s left a loaded CI reader three reads), the property does
+    not. Measured: the reader stops the writer after 32-37 commits, idle or beside three busy
+    loops; with the old 50 ms retry the writer reached 337-400 commits first (2 of 2 failed).
+    """
+    out, go, stop = tmp_path / "c3.h5", tmp_path / "go", tmp_path / "stop"
     tests = str(Path(__file__).resolve().parent)
-    proc = subprocess.Popen([sys.executable, "-c", _BURST_WRITER, str(out), str(go), tests],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([sys.executable, "-c", _BURST_WRITER, str(out), str(go), str(stop), tests, str(_BURST_CAP)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 60
     while not out.exists() and time.monotonic() < deadline and proc.poll() is None:
         time.sleep(0.001)
@@ -163,9 +177,13 @@ def test_a_reader_gets_in_between_back_to_back_commits(tmp_path):
     seen = []
     while proc.poll() is None:  # polled as _wait_for_iterations does
         seen.append(len(store.iterations(out)))
+        if len(set(seen) - {0, 1, _BURST_CAP}) >= 3:
+            stop.touch()
         time.sleep(0.005)
-    _, stderr = proc.communicate(timeout=60)
+    stdout, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 0, stderr
-    assert store.iterations(out) == list(range(60))
-    between = sorted(set(seen) - {0, 1, 60})
-    assert len(between) >= 3, f"the reader saw only {sorted(set(seen))} of the run's 60 commits"
+    made = int(stdout)
+    assert store.iterations(out) == list(range(made))
+    between = sorted(set(seen) - {0, 1, made})
+    assert len(between) >= 3 and made < _BURST_CAP, (
+        f"the reader saw only {sorted(set(seen))} of the run's {made} back-to-back commits")
