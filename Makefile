@@ -118,7 +118,8 @@ reproduce: $(STAMP) aot ## run every experiment (every registered method, in par
 # summary page is committed as docs/long-run/long-run.md (dated, with the commit) and the findings cite it.
 # `ilcforce report` writes the same pages into the report when these stores are in $(RESULTS)/studies/, and
 # otherwise copies the committed ones in (docs/long-run/: its long-run/ folder, on the site's long runs page).
-LONG_STUDIES := $(sort $(wildcard experiments/long/*.toml))
+# the study files only (experiments/long/ also holds experiment files the studies run, e.g. fivebar-tuned-error-only.toml)
+LONG_STUDIES := $(sort $(shell grep -l '^\[study\]' experiments/long/*.toml))
 
 long: $(STAMP) aot ## run the long studies (1,000 iterations; the growth test's validation) and write docs/long-run/
 	$(VENV)/bin/ilcforce study $(LONG_STUDIES) --results $(RESULTS) --replace-stale
