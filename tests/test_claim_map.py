@@ -1,4 +1,5 @@
-"""The claim map (noise level x sample time), the calibration to Table 2, and the findings summary."""
+"""The claim map (noise level x sample time), the shipped calibration study, and the findings summary
+(the calibration's fit: tests/test_calibration.py)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ilcforce.report import calibration, claim_map, claims, paper, readme, verdicts
+from ilcforce.report import calibration, claim_map, claims, readme, verdicts
 
 from test_report import good_case, metrics_frame, sequence
 
@@ -59,41 +60,6 @@ def test_the_heat_maps_and_csv_are_written(tmp_path) -> None:
     back = pd.read_csv(tmp_path / "claim_map.csv")
     assert len(back) == 20 and set(back["verdict"]) <= set(claims.VERDICTS)
     assert lines[2] == claim_map.sentence(rows)
-
-
-def _norms(true_scale: float) -> pd.DataFrame:
-    """Synthetic converged norms: C2's position and force reach Table 2's exactly at ``true_scale``,
-    growing as scale^0.8 (log-linear, so interpolation is exact)."""
-    rows = []
-    for scale in np.geomspace(0.003, 1.0, 11):
-        for method in ("c1", "c2", "c3"):
-            row = paper.table2_row(method)
-            for quantity, column, _unit in calibration.QUANTITIES:
-                level = getattr(row, column) if row is not None else 1.0
-                rows.append({"noise_scale": scale, "method": method, "quantity": quantity,
-                             "median": level * (scale / true_scale) ** 0.8, "low": math.nan, "high": math.nan})
-    return pd.DataFrame(rows)
-
-
-def test_the_fit_finds_the_level_where_c2_matches_table_2() -> None:
-    found = calibration.fit(_norms(0.04))
-    assert found is not None and found.scale == pytest.approx(0.04, rel=0.03)
-    assert found.ratios[("c2", "position")] == pytest.approx(1.0, rel=0.03)
-    assert found.position_only == pytest.approx(0.04, rel=0.01) and found.force_only == pytest.approx(0.04, rel=0.01)
-    assert not found.at_edge and "Calibrated noise.scale = 0.04" in found.text()
-    edge = calibration.fit(_norms(5.0))  # beyond the swept range: found at its end, and said so
-    assert edge is not None and edge.at_edge and "end of the swept range" in edge.text()
-    assert calibration.fit(_norms(0.04).iloc[:0]) is None
-    toml = calibration.calibrated_toml(found, "x.h5")
-    assert 'name = "paper-calibrated"' in toml and "scale = 0.04" in toml
-
-
-def test_the_calibration_command_refuses_bad_input_in_one_line(tmp_path, capsys) -> None:
-    assert calibration.main([]) == 2
-    missing = tmp_path / "none.h5"
-    assert calibration.main([str(missing)]) == 2
-    err = capsys.readouterr().err.strip().splitlines()
-    assert err[-1].startswith(f"{missing}: not a readable study store"), err
 
 
 def _findings() -> str:
@@ -176,22 +142,3 @@ def test_the_shipped_claim_map_and_calibration_studies() -> None:
     import dataclasses
     assert dataclasses.replace(shipped.noise, scale=1.0) == paper_setup.noise
     assert shipped.gains == paper_setup.gains and shipped.simulation == paper_setup.simulation
-
-
-def test_write_replaces_only_a_calibrated_file_and_an_unchanged_one_is_left(tmp_path, monkeypatch, capsys) -> None:
-    found = calibration.fit(_norms(0.04))
-    monkeypatch.setattr(calibration, "converged_norms", lambda results: _norms(0.04))
-    monkeypatch.setattr(calibration, "is_calibration_study", lambda results: True)
-    import ilcforce.study
-
-    monkeypatch.setattr(ilcforce.study, "read_study", lambda path: object())
-    other = tmp_path / "paper.toml"
-    other.write_text("[experiment]\nname = 'paper'\n")
-    assert calibration.main(["s.h5", "--write", str(other)]) == 2
-    assert other.read_text() == "[experiment]\nname = 'paper'\n", "a file of another kind is never replaced"
-    target = tmp_path / "paper-calibrated.toml"
-    assert calibration.main(["s.h5", "--write", str(target)]) == 0
-    assert target.read_text() == calibration.calibrated_toml(found, "s.h5")
-    before = target.stat().st_mtime_ns
-    assert calibration.main(["s.h5", "--write", str(target)]) == 0
-    assert "unchanged" in capsys.readouterr().out and target.stat().st_mtime_ns == before
