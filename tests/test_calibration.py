@@ -121,6 +121,10 @@ def test_the_text_gives_every_match_with_its_interval_and_every_grid() -> None:
     assert "x Table" not in text and not re.search(r"\d\.\d+x", text), "no match without its interval"
     assert "2001 samples" in text and "20001 samples" in text and "201 samples" in text
     assert "11 seeds" in text
+    summary = found.summary()  # the findings summary's shorter line says the same with its intervals
+    assert summary.startswith(text.split(":", 1)[0]) and len(summary) < len(text) / 2
+    assert re.search(r"position \d\.\d+ \[\d\.\d+, \d\.\d+\] of Table 2", summary), summary
+    assert "0.1 ms 0.0" in summary and "10 ms 0." in summary and not re.search(r"\d\.\d+x", summary)
     table = found.table()
     assert list(table["samples"]) == [201, 2001, 20001]
     rows = found.rows()

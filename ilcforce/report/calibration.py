@@ -110,6 +110,19 @@ class Calibration:
                 f"Table 2 taken on another grid moves the level (norm x sqrt(samples)): {others}. "
                 f"C2's position alone matches best at {fit.position_only:.2g}, its force alone at {fit.force_only:.2g}.")
 
+    def summary(self) -> str:
+        """The findings summary's line (kept short: the summary has a size limit): the level on our grid
+        and C2's match there, each with its interval, the seeds' spread, and the level on the other grids."""
+        fit = self.shipped
+        position, force = fit.ratios[("c2", "position")], fit.ratios[("c2", "force")]
+        others = ", ".join(f"{f.grid.name} {shown(f.scale, f.low, f.high)}" for f in self.fits if not f.is_ours)
+        edge = " (at the end of the swept range)" if fit.at_edge else ""
+        return (f"C2 at noise.scale {shown(fit.scale, fit.low, fit.high)}{edge}: position "
+                f"{shown(position.estimate, position.low, position.high)} of Table 2, force "
+                f"{shown(force.estimate, force.low, force.high)} (seeds 5-95%: position {_seeds(position.per_seed)}, "
+                f"force {_seeds(force.per_seed)}; {len(fit.seeds)} seeds), Table 2 read on our {fit.grid.name} grid "
+                f"({fit.grid.samples} samples); read on other grids the level is {others}.")
+
     def table(self) -> pd.DataFrame:
         """One row per grid, as text: the level with its interval, the seeds' levels, the ratios."""
         rows = []

@@ -31,7 +31,9 @@ class ConvergenceRow:
     jbar_position, jbar_force : int
         Convergence iteration j̄ of the position error (X) and of the force error (Y).
     position_error_2norm : float
-        ||e_P||_2 at j̄, in m (2-norm over the 2001 samples of the 1 ms grid, docs/model.md#metrics).
+        ||e_P||_2 at j̄, in m: a 2-norm over the paper's sample grid, which it never states (the
+        calibration reads it on each of three grids, our 1 ms log grid of 2001 samples among them,
+        docs/model.md#calibration).
     force_error_2norm : float
         ||e_F||_2 at j̄, in N.
     """

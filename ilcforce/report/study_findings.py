@@ -311,7 +311,7 @@ def write_study_findings(study_store: Path, out_dir: Path) -> tuple[list[Path], 
         files, lines, found = calibration.write_calibration(results, directory)
         written += files
         text += "\n" + "\n".join(lines)
-        extra["calibration_text"] = found.text() if found is not None else ""
+        extra["calibration_text"] = found.summary() if found is not None else ""
         extra["calibration_scale"] = found.scale if found is not None else math.nan
     table, sentence = equal_chattering.comparison(results)
     if len(table):
