@@ -114,7 +114,15 @@ def test_the_command_rewrites_a_committed_page_and_refuses_a_bad_file_in_one_lin
     table = pd.read_csv(folder / "equal_chattering.csv")
     assert len(table) == 3 * 3 and set(table["cap"]) == {"c1 (the tuning's cap)"}
     assert tuning_levels.HEADING in (folder / "index.md").read_text(encoding="utf-8")
+    capsys.readouterr()
     tuned.write_text("[tuning]\n")
     assert tuning_levels.main([str(folder), str(tuned)]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error:") and len(err.strip().splitlines()) == 1
+    assert err.startswith("error: 'cap' missing") and len(err.strip().splitlines()) == 1
+    tuned.write_text('[tuning]\ncap = [0.1, 1.0]\n')
+    _pareto().drop(columns="H_y settled").to_csv(folder / "pareto.csv", index=False)
+    assert tuning_levels.main([str(folder), str(tuned)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error: 'H_y settled' missing") and len(err.strip().splitlines()) == 1
+    assert tuning_levels.main([str(tmp_path / "absent"), str(tuned)]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1

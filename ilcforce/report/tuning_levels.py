@@ -10,7 +10,6 @@ holds the cap), without the tuning store; ``make tune`` writes them with the res
 
 from __future__ import annotations
 
-import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -129,15 +128,20 @@ def main(argv: list[str] | None = None) -> int:
         model = str(tuned.get("plant", {}).get("model", DEFAULT_MODEL))
         index = args.page / "index.md"
         page = index.read_text(encoding="utf-8")
-    except (OSError, ValueError, KeyError, TypeError, tomllib.TOMLDecodeError, pd.errors.ParserError) as error:
+        methods = list(dict.fromkeys(pareto["method"]))
+        command = f"python -m ilcforce.report.tuning_levels {args.page} {args.tuned}"
+        files, lines = write_levels(args.page, pareto, methods, axes,
+                                    caps(model, axes, cap, str(tuning.get("cap_reference", "the reference"))),
+                                    command)
+    except KeyError as error:
+        print(f"error: {error} missing: the tuned file needs [tuning] cap, pareto.csv the columns of a tuning page's",
+              file=sys.stderr)
+        return 2
+    except (OSError, ValueError, TypeError, tomllib.TOMLDecodeError, pd.errors.ParserError) as error:
         print(f"error: {' '.join(str(error).split())}", file=sys.stderr)
         return 2
-    methods = list(dict.fromkeys(pareto["method"]))
-    command = f"python -m ilcforce.report.tuning_levels {args.page} {args.tuned}"
-    files, lines = write_levels(args.page, pareto, methods, axes,
-                                caps(model, axes, cap, str(tuning.get("cap_reference", "the reference"))), command)
     write_text_whole(index, replace_section(page, lines))
-    print("\n".join(rankings(pd.read_csv(args.page / "equal_chattering.csv"), axes)))
+    print("\n".join(line for line in lines if line.startswith("- at ")))
     print(f"wrote {len(files) + 1} files under {args.page}")
     return 0
 
