@@ -118,3 +118,29 @@ def test_a_three_axis_tuned_study_compares_at_equal_chattering_on_u_v_n():
     assert [c for c in table.columns if c.startswith("H_")] == [f"H_{a} settled, j = 59" for a in "uvn"]
     assert table.set_index("method").loc["c2", "H / cap (max over axes)"] == "2.50"
     assert "H_u 0.1 N, H_v 0.2 N, H_n 0.5 N" in sentence and "over the cap here: c2 (2.50x)" in sentence
+
+
+def test_the_cap_is_checked_at_every_iteration_and_a_method_over_it_before_the_plant_changes_is_named():
+    """The cap is a settled H at the last iteration; a method under it there but over it at j = 0..9 (before
+    the plant changes) is still ranked at j = 59, and the table and sentence name those iterations and the
+    largest excess; the median over seeds decides (one seed over the cap alone is not the method over it)."""
+    frame = _frame({"c1": (1e-4, 0.1, 0.1, 0.5), "smc-bl": (1e-5, 0.02, 0.05, 0.2)})
+    early = (frame["method"] == "smc-bl") & (frame["iteration"] < 10)
+    frame.loc[early, "chattering_task_y_settled"] = 1.0  # 2x the cap on H_y at j = 0..9, every seed
+    frame.loc[early & (frame["iteration"] == 3), "chattering_task_y_settled"] = 1.5  # 3x at j = 3
+    lone = (frame["method"] == "c1") & (frame["iteration"] == 20) & (frame["seed"] == 100)
+    frame.loc[lone, "chattering_task_x_settled"] = 10.0  # one seed of three: the median stays at the cap
+    config = {"tuning": {"source": "t", "withheld": [], "cap_reference": "c1", "cap": [0.1, 0.5]}}
+    results = SimpleNamespace(settings=pd.DataFrame([{"setting": 0, "config_json": json.dumps(config)}]),
+                              setting_metrics=lambda k: frame)
+    table, sentence = equal_chattering.comparison(results)
+    rows = table.set_index("method")
+    assert rows.loc["smc-bl", "iterations over the cap"] == "0-9" and rows.loc["c1", "iterations over the cap"] == "none"
+    assert rows.loc["smc-bl", "H / cap, most over j = 0..59"] == "3.00 (j = 3)"
+    assert "2 of 2 shipped methods" in sentence, "the ranking at j = 59 is unchanged"
+    assert "over the cap at some iteration: smc-bl (j = 0-9; most 3.00x, at j = 3)" in sentence
+
+
+def test_iterations_over_the_cap_are_written_as_spans():
+    assert equal_chattering._spans([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
+    assert equal_chattering._spans([]) == ""

@@ -38,6 +38,11 @@ def test_the_page_of_a_tuning(tmp_path):
     text = (tmp_path / "out" / "tiny" / "index.md").read_text()
     assert "Check runs ran" in text and "![every method's held-out front](fronts.png)" in text
     assert lines and lines[0].startswith("- [tuning tiny](tuning/tiny/index.md)")
+    # every method's front read at equal chattering: one row per method and level, the ranking in the page
+    levels = pd.read_csv(tmp_path / "out" / "tiny" / "equal_chattering.csv")
+    # three fractions of the tuning's cap, and (the tiny tuning is on the paper's robot) Table 3's C1 and C3
+    assert "equal_chattering.csv" in names and len(levels) == (3 + 2) * len(summary.chosen)
+    assert text.count("- at 1 x c1 (the tuning's cap)") == 1 and "## At equal chattering" in text
 
 
 def test_the_figures_show_every_method():

@@ -301,6 +301,15 @@ def write_tuning_report(path, out_dir, formats: tuple[str, ...]) -> tuple[list, 
                  "Each search's feasible front, as the hypervolume it dominates (up to the reference point: error "
                  "1.0, chattering 10x the cap), against the trial: a search stopped when the last quarter of its "
                  "trials added less than the stated share.", ""]
+    if len(pareto) and cap:
+        from ilcforce.plants import DEFAULT_MODEL
+        from ilcforce.report.tuning_levels import caps, write_levels
+
+        model = json.loads(definition["experiment"]).get("plant", {}).get("model", DEFAULT_MODEL)
+        level_files, level_lines = write_levels(target, pareto, definition["methods"], axes,
+                                                caps(model, axes, cap, cap_spec["reference"]))
+        files += level_files
+        text += level_lines
     files.append(write_text_whole(target / "index.md", "\n".join(text)))
     line = f"- [tuning {path.name}](tuning/{path.name}/index.md): " + ", ".join(
         f"{m} {'ships trial ' + str(chosen[m]['trial']) if chosen.get(m) else 'none under the cap'}"
