@@ -8,6 +8,9 @@ Three kinds of study feed this page (``make long``; their files are in ``experim
 * **cause** (``long-run-cause``): C2 and C3 with one candidate cause of the divergence changed at a time
   (each noise source alone, the sample time, the initial velocity, C3's regressor acceleration): when and
   where in the iteration each run diverged, and how its memory grew, at t = 0 and settled.
+* **cause over seeds** (``long-run-cause-seeds``): the noise mechanisms alone and together on five held-out
+  seeds, each mechanism's divergence iteration as a distribution and whether they interact
+  (:mod:`ilcforce.report.cause_seeds`).
 * **long run** (``long-run-1000``): every method over 1,000 iterations on held-out seeds: H and the error
   norms against the iteration (median and band over seeds), the divergence iterations, the growth rate
   over the late half, and the test's verdict at j = 20 and 40 beside what the 1,000 iterations show.
@@ -31,7 +34,7 @@ import pandas as pd
 
 from ilcforce import stability
 from ilcforce.stability import diverged_at
-from ilcforce.report import c3_robust_ablation, growth_validation, table_write, tables
+from ilcforce.report import c3_robust_ablation, cause_seeds, growth_validation, table_write, tables
 from ilcforce.report.study import studies_provenance
 from ilcforce.report.growth_validation import (
     JUDGED_AT, TRUTH_FROM, setting_config, study_settings, confusion, confusion_text, validation_cases,
@@ -242,7 +245,7 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
     study_dir = Path(results_dir) / "studies"
     found: dict[str, object] = {}
     for path in sorted(study_dir.glob("*.h5")) if study_dir.is_dir() else []:
-        if path.stem.startswith(VALIDATION_PREFIX) or path.stem in (LONG_RUN, CAUSE):
+        if path.stem.startswith(VALIDATION_PREFIX) or path.stem in (LONG_RUN, CAUSE, cause_seeds.STUDY):
             try:
                 found[path.stem] = read_study(path)
             except (StudyStoreError, OSError, KeyError, ValueError, TypeError):
@@ -304,6 +307,17 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
         written.append(figure)
         lines += [f"## {title}", "", table_write.inert_markdown(str(getattr(found[name], "description", ""))) + after, "",
                   table_write.markdown_table(table), "", f"![{alt}]({figure.name})", "", caption, ""]
+    if cause_seeds.STUDY in found:
+        seeds = cause_seeds.per_seed_table(found[cause_seeds.STUDY])
+        summary_table = cause_seeds.summary_table(seeds)
+        written += table_write.write_table(seeds, out_dir, "cause_seeds")
+        written += table_write.write_table(summary_table, out_dir, "cause_seeds_summary")
+        lines += ["## The cause account over seeds", "",
+                  table_write.inert_markdown(str(getattr(found[cause_seeds.STUDY], "description", ""))) + ".", "",
+                  "Each mechanism's divergence iteration over the seeds (median [min, max] over the seeds that "
+                  "diverged; every seed's run in `cause_seeds.csv`):", "",
+                  table_write.markdown_table(summary_table), "",
+                  *[f"- {line}" for line in cause_seeds.account_lines(seeds)], ""]
     if ablation:
         lines += ["## C3-robust taken apart", "",
                   f"Each of C3-robust's four changes to C3 alone and left out: [{ablation[-1].name}]({ablation[-1].name}).",
@@ -370,7 +384,7 @@ def committed_summary(directory: Path | None = None) -> dict | None:
 def is_long_study(name: str) -> bool:
     """A study of ``make long`` (summarised by its committed page, not by the findings of a report)."""
     return name.startswith((VALIDATION_PREFIX, growth_validation.HELDOUT_PREFIX)) or name in (
-        LONG_RUN, CAUSE, c3_robust_ablation.STUDY, c3_robust_ablation.LEAK_CHECK)
+        LONG_RUN, CAUSE, cause_seeds.STUDY, c3_robust_ablation.STUDY, c3_robust_ablation.LEAK_CHECK)
 
 
 def main(argv: list[str] | None = None) -> int:
