@@ -142,3 +142,35 @@ def test_the_long_run_figure_says_what_its_marks_are(tmp_path, monkeypatch):
     # every mark the legend names is drawn: a cross where each diverged seed ended
     crosses = [line for ax in drawn[0].get_axes() for line in ax.get_lines() if line.get_marker() == "x"]
     assert {float(line.get_xdata()[0]) for line in crosses} == {29.0, 34.0}
+
+
+def test_the_truth_at_1000_iterations_replaces_the_300_iteration_one_case_by_case():
+    """A held-out case rerun to 1,000 iterations takes the rerun's truth (a slow divergence turns a bounded case
+    unbounded, and its flag from a false alarm into a hit); an unbounded case not rerun keeps its truth; a
+    bounded one not rerun has none; an unlabelled study's setting (its own name) is matched to the original's."""
+    def case(study, setting, seed, truth, verdict, reason="r300", runs=300):
+        return {"study": study, "setting": setting, "seed": seed, "method": "c2-robust", "truth": truth,
+                "truth_reason": reason, "iterations_run": runs, "diverged_at": float("nan"),
+                "verdict_20": verdict, "verdict_40": verdict}
+
+    cases = pd.DataFrame([case("growth-heldout-robust", "Q 400", 560, "bounded", "flagged"),
+                          case("growth-heldout-robust", "Q 400", 561, "bounded", "not flagged"),
+                          case("growth-heldout-plain", "Ts", 560, "unbounded", "flagged"),
+                          case("growth-heldout-plain", "Ts", 561, "bounded", "flagged"),
+                          case("growth-heldout-serial2r", "growth-heldout-serial2r", 560, "bounded", "not flagged")])
+    longer = pd.DataFrame([case("heldout-1000-robust", "Q 400", 560, "unbounded", "flagged", "diverged at j = 758", 759),
+                           case("heldout-1000-robust", "Q 400", 561, "bounded", "not flagged", "r1000", 1000),
+                           case("heldout-1000-serial2r", "heldout-1000-serial2r", 560, "unbounded", "flagged", "x12", 1000)])
+    out = growth_validation.with_longer_truth(cases, longer)
+    assert out["truth_1000"].tolist()[:3] == ["unbounded", "bounded", "unbounded"]
+    assert out["truth_reason_1000"].iloc[0] == "diverged at j = 758"
+    assert "not rerun" in out["truth_reason_1000"].iloc[2]
+    assert pd.isna(out["truth_1000"].iloc[3])  # bounded at 300 and not rerun: no longer truth
+    assert out["truth_1000"].iloc[4] == "unbounded" and out["iterations_run_1000"].iloc[4] == 1000
+    # the serial2r rerun says "flagged" where the original said "not flagged": the verdicts do not agree there
+    assert out["verdicts_agree"].tolist() == [True, True, True, True, False]
+    judged = out[out["truth_1000"].notna()]
+    at_1000 = growth_validation.rates(judged, 40, "truth_1000").set_index("what")
+    at_300 = growth_validation.rates(judged, 40).set_index("what")
+    assert at_300.loc["false alarms", "count"] == 1 and at_1000.loc["false alarms", "count"] == 0
+    assert at_1000.loc["misses", "count"] == 1  # the serial2r case, unbounded at 1,000 and not flagged
