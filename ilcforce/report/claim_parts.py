@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcforce.report import paper
+from ilcforce.report.claim_ranges import PassRange, above, below, within
 from ilcforce.report.seedframes import SeedMetrics
 
 CENTRAL, SECONDARY, SHOWN = "central", "secondary", "shown"
@@ -161,38 +162,17 @@ class _Stop(Exception):
         self.passed, self.note, self.diverged = passed, note, diverged
 
 
-# The margin, one definition for every part (docs/tables.md, "Terms"): the statistic's signed distance to
-# the nearest edge of its passing range, as a fraction of that edge; >= 0 passes, -0.12 is 12% of the edge
-# on the wrong side. The three forms below are that definition for the three kinds of range.
-
-
-def below(threshold: float) -> Callable[[float], float]:
-    """Margin of a statistic that must stay below ``threshold`` (the edge): (threshold - x) / threshold."""
-    return lambda x: (threshold - x) / threshold
-
-
-def above(threshold: float) -> Callable[[float], float]:
-    """Margin of a statistic that must reach ``threshold`` (the edge): (x - threshold) / threshold."""
-    return lambda x: (x - threshold) / threshold
-
-
-def within(published: float, factor: float) -> Callable[[float], float]:
-    """Margin of a ratio that must lie within ``factor`` of ``published`` either way, i.e. in
-    [published / factor, published x factor]: the distance to the nearer edge as a fraction of it, the
-    smaller of :func:`below` (published x factor) and :func:`above` (published / factor). 6.25 against
-    1.67 x 1.1 = 1.837 is -240%."""
-    high, low = below(published * factor), above(published / factor)
-    return lambda x: min(high(x), low(x))
-
-
 @dataclass(frozen=True)
 class _Part:
     """A part of a claim: ``evaluate(seed context)`` -> (statistic, passed or None for shown parts).
 
-    ``partly``: for a judged part with a weaker reading (claim 2: C3 below C2 at all), whether a value
-    that fails the threshold still meets it; a seed doing so counts toward "in part" (claims.py).
-    ``margin``: the signed distance of a value to the nearest edge of its passing range as a fraction
-    of that edge (>= 0 passing; :func:`below`, :func:`above`, :func:`within`), reported for the median."""
+    ``margin``: the part's passing range (:mod:`ilcforce.report.claim_ranges`: :func:`below`,
+    :func:`above`, :func:`within`), the same test ``evaluate`` makes; called on a value it gives the
+    value's margin, the signed distance to the nearest edge as a fraction of that edge (>= 0 passing),
+    reported for the median; its edges are what the median's interval is checked against (uncertain
+    when it crosses one, claims.py). ``partly``: for a judged part with a weaker reading (claim 2: C3
+    below C2 at all), the weaker range; a seed whose value fails the threshold but lies in it counts
+    toward "in part" (claims.py)."""
 
     claim: int
     key: str
@@ -201,9 +181,9 @@ class _Part:
     statistic: str
     evaluate: Callable[["_Seed"], tuple[float, bool | None]]
     threshold: str = ""  # the pass condition on the statistic, e.g. "< 0.613" ("" for shown parts)
-    partly: Callable[[float], bool] | None = None
+    partly: PassRange | None = None
     partial_text: str = ""  # the weaker condition, e.g. "< 1 (C3 below C2)"
-    margin: Callable[[float], float] | None = None
+    margin: PassRange | None = None
     #: the same test on other readings of the judged number, by :data:`READINGS` key (claim 5: H settled,
     #: H without t = 0, the ratio at j = p - 1 and at the last iteration): never judged, each says beside a
     #: verdict when it would change it (claims.py, rule 6)
@@ -367,7 +347,7 @@ def _claim1_parts() -> list[_Part]:
             return ratio, bool(ratio < 1.0)
         return _Part(1, f"{method}_{quantity}", f"{method.upper()} below C1, {quantity}", CENTRAL,
                      f"mean 2-norm over the last {CONVERGED_WINDOW} iterations before p, {method.upper()} / C1",
-                     evaluate, "< 1", margin=below(1.0))
+                     evaluate, "< 1", margin=below(1.0, strict=True))
 
     def whole(method: str, quantity: str, column: str) -> _Part:
         def evaluate(s: _Seed) -> tuple[float, None]:
@@ -427,8 +407,8 @@ def _claim2_parts() -> list[_Part]:
         def at_jbar(s: _Seed, column=column) -> tuple[float, None]:
             return _ratio(s.norm("c3", column, s.jbar("c3", column)), s.norm("c2", column, s.jbar("c2", column))), None
 
-        weaker = dict(partly=lambda x: x < 1.0, partial_text="< 1 (C3 below C2, by less)",
-                      margin=below(REDUCTION_RATIO))
+        weaker = dict(partly=below(1.0, strict=True), partial_text="< 1 (C3 below C2, by less)",
+                      margin=below(REDUCTION_RATIO, strict=True))
         parts.append(_Part(2, f"{quantity}_before", f"C3 below C2 by the paper's margin before the perturbation, "
                            f"{quantity}", CENTRAL,
                            f"C3 / C2, mean 2-norm over the last {CONVERGED_WINDOW} iterations before p", before,
@@ -586,7 +566,7 @@ def _claim5_parts(n: int = 2) -> list[_Part]:
             return value, bool(value > 0 and abs(math.log(value / pub)) <= math.log(RATIO_FACTOR))
 
         parts.append(_Part(5, f"direction_{axis}", f"C3 chatters less than C1, {name}", CENTRAL,
-                           CLAIM5_JUDGED, direction, "> 1", margin=above(1.0), readings=_readings(direction)))
+                           CLAIM5_JUDGED, direction, "> 1", margin=above(1.0, strict=True), readings=_readings(direction)))
         parts.append(_Part(5, f"magnitude_{axis}", f"ratio near the paper's {published}, {name}", SECONDARY,
                            CLAIM5_JUDGED, magnitude,
                            f"within x{RATIO_FACTOR:g} of {published}", margin=within(published, RATIO_FACTOR),

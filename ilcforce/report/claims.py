@@ -29,11 +29,23 @@ How a verdict is reached (stated once, used for every claim)
    themselves (where one seed would fall), and the median's **margin** to the threshold (its
    signed distance to the nearest edge of the passing range as a fraction of that edge, >= 0 on
    the passing side; for "within x1.1 of 1.67" the edges are 1.67 / 1.1 and 1.67 x 1.1).
+   A part is **uncertain** when that interval of the median crosses a threshold: a median anywhere
+   in it would give more than one of pass, in part (the weaker reading) and fail
+   (:func:`ilcforce.report.claim_ranges.interval_outcomes`). It then lies *between* those verdicts
+   (and the majority's, should the seeds with an infinite statistic, which the median leaves out,
+   decide it). With one seed the interval is the value itself, so a single run or a deterministic
+   setting is never uncertain; with 5 seeds the interval reaches about the lowest and the highest
+   seed, so a part is uncertain unless every seed's value lies on one side.
 3. Each part is **central** (what the claim is about), **secondary** (a qualifier) or **shown**
    (a number printed beside the claim, never judged). A claim is **not evaluable** when a central
    part is; otherwise it **holds** when every judged part holds, **fails** when no central part
    holds or holds in part, and holds **in part** otherwise (some of what it asserts holds: the
-   parts say which).
+   parts say which). With uncertain parts: each is read as every verdict it lies between, and the
+   claim's verdict is the one all these readings give; where they give different verdicts the
+   claim is **uncertain**, between them. So a claim holds only when every judged part holds with
+   its interval clear, and fails only when every central part fails with its interval clear of its
+   threshold (and of its weaker reading's); a central part not evaluable makes the claim not
+   evaluable whatever the others give.
 4. The same rule applied to one seed's part results gives that seed's claim verdict; the claim's
    frequency ("holds in 3 of 20 seeds") counts them. A seed where a method the claim praises diverged
    is counted under no verdict word ("a praised method diverged in 1 of 20 seeds"): the comparison it
@@ -59,6 +71,7 @@ themselves, with their thresholds, are in :mod:`ilcforce.report.claim_parts`.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import math
 from collections.abc import Mapping
 
@@ -69,8 +82,9 @@ from ilcforce.plants import changed_parameter
 from ilcforce.report import paper
 from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY, parts_for,  # noqa: F401 (re-exported)
                                          READINGS, SHOWN, _Part, _Seed, _Stop, statement_at)
+from ilcforce.report.claim_ranges import FAIL, PARTLY, PASS, interval_outcomes
 from ilcforce.report.seedframes import split_seeds
-from ilcforce.stats import frequency_interval, median_interval
+from ilcforce.stats import Interval, frequency_interval, median_interval
 
 #: Roles printed beside a claim, never judged.
 NOT_JUDGED = (SHOWN, CAUSE)
@@ -78,8 +92,13 @@ NOT_JUDGED = (SHOWN, CAUSE)
 HOLDS = "holds"
 IN_PART = "in part"
 FAILS = "fails"
+#: The interval of a median crosses a threshold (rule 2), or a claim's uncertain parts, read either way,
+#: give different verdicts (rule 3).
+UNCERTAIN = "uncertain"
 NOT_EVALUABLE = "not evaluable"
-VERDICTS = (HOLDS, IN_PART, FAILS, NOT_EVALUABLE)
+VERDICTS = (HOLDS, IN_PART, FAILS, UNCERTAIN, NOT_EVALUABLE)
+#: The verdict of each outcome of a value (:mod:`ilcforce.report.claim_ranges`).
+OUTCOME_VERDICT = {PASS: HOLDS, PARTLY: IN_PART, FAIL: FAILS}
 #: How a frequency counts a seed where a method the claim praises diverged: no verdict word (rule 4).
 DIVERGED = "a praised method diverged"
 
@@ -97,8 +116,27 @@ def _evaluate(part: _Part, seed: _Seed) -> tuple[float, bool | None, str, bool]:
         return math.nan, stop.passed, stop.note, stop.diverged
 
 
-def claim_verdict(part_verdicts: Mapping[str, str], roles: Mapping[str, str]) -> str:
-    """The stated rule (module docstring, 3): a claim's verdict from its judged parts' verdicts."""
+def claim_verdict(part_verdicts: Mapping[str, str], roles: Mapping[str, str],
+                  between: Mapping[str, frozenset[str]] | None = None) -> str:
+    """The stated rule (module docstring, 3): a claim's verdict from its judged parts' verdicts.
+    ``between``: part -> the verdicts an uncertain part lies between (all three without it)."""
+    found = claim_verdicts_between(part_verdicts, roles, between)
+    return next(iter(found)) if len(found) == 1 else UNCERTAIN
+
+
+def claim_verdicts_between(part_verdicts: Mapping[str, str], roles: Mapping[str, str],
+                           between: Mapping[str, frozenset[str]] | None = None) -> frozenset[str]:
+    """Every verdict the claim takes when each uncertain judged part is read as each verdict it lies
+    between (rule 3): one verdict, or the several an uncertain claim lies between."""
+    unsure = [k for k, v in part_verdicts.items() if v == UNCERTAIN and roles[k] in (CENTRAL, SECONDARY)]
+    if not unsure:
+        return frozenset({_certain_claim_verdict(part_verdicts, roles)})
+    options = [sorted((between or {}).get(k) or {HOLDS, IN_PART, FAILS}) for k in unsure]
+    return frozenset(_certain_claim_verdict({**part_verdicts, **dict(zip(unsure, combo, strict=True))}, roles)
+                     for combo in itertools.product(*options))
+
+
+def _certain_claim_verdict(part_verdicts: Mapping[str, str], roles: Mapping[str, str]) -> str:
     central = [v for k, v in part_verdicts.items() if roles[k] == CENTRAL]
     judged = [v for k, v in part_verdicts.items() if roles[k] in (CENTRAL, SECONDARY)]
     if NOT_EVALUABLE in central or not central:
@@ -110,10 +148,44 @@ def claim_verdict(part_verdicts: Mapping[str, str], roles: Mapping[str, str]) ->
     return IN_PART
 
 
-def part_verdict(outcomes: list[str | None], diverged: int) -> str:
+def part_verdict(outcomes: list[str | None], diverged: int, spans: frozenset[str] = frozenset()) -> str:
     """The stated rule (module docstring, 2) over one part's per-seed outcomes: "pass", "partly"
     (fails the threshold, meets the weaker reading), "fail", None (not evaluable); ``diverged``: the
-    seeds among the failures where the praised method diverged."""
+    seeds among the failures where the praised method diverged; ``spans``: the outcomes the median's
+    95% interval spans (:func:`ilcforce.report.claim_ranges.interval_outcomes`): more than one is
+    "uncertain"."""
+    verdict = _majority_verdict(outcomes, diverged)
+    return UNCERTAIN if verdict != NOT_EVALUABLE and len(spans) > 1 else verdict
+
+
+def part_between(outcomes: list[str | None], diverged: int, spans: frozenset[str]) -> frozenset[str]:
+    """The verdicts an uncertain part lies between: those of the outcomes its median's interval spans,
+    and the majority's (rule 2). Empty for a part that is not uncertain."""
+    if part_verdict(outcomes, diverged, spans) != UNCERTAIN:
+        return frozenset()
+    return frozenset({OUTCOME_VERDICT[o] for o in spans} | {_majority_verdict(outcomes, diverged)})
+
+
+def between_text(verdicts) -> str:
+    """"holds or fails", "holds, in part or fails": the verdicts an uncertain row lies between, in
+    :data:`VERDICTS` order ("" without)."""
+    words = [v for v in VERDICTS if v in set(verdicts)]
+    return ", ".join(words[:-1]) + " or " + words[-1] if len(words) > 1 else "".join(words)
+
+
+def judge_part(part: _Part, results: list[tuple[float, bool | None, str, bool]]
+               ) -> tuple[str, frozenset[str], Interval]:
+    """One judged part over seeds from its per-seed results (statistic, passed, note, diverged): its
+    verdict (rule 2), the verdicts it lies between when uncertain, and the median with its 95% interval."""
+    values = np.array([r[0] for r in results], dtype=float)
+    outcomes = [_outcome(part, r[0], r[1]) for r in results]
+    diverged = sum(1 for r in results if r[3])
+    stat = median_interval(values)  # an infinite ratio (a diverged baseline) is dropped and counted in n
+    spans = interval_outcomes(stat.low, stat.high, part.margin, part.partly) if part.margin is not None else frozenset()
+    return part_verdict(outcomes, diverged, spans), part_between(outcomes, diverged, spans), stat
+
+
+def _majority_verdict(outcomes: list[str | None], diverged: int) -> str:
     judged = [o for o in outcomes if o is not None]
     n = len(judged)
     if n == 0 or 2 * diverged > n:
@@ -129,7 +201,7 @@ def _outcome(part: _Part, value: float, passed: bool | None) -> str | None:
         return None
     if passed:
         return "pass"
-    partly = part.partly is not None and math.isfinite(value) and bool(part.partly(value))
+    partly = part.partly is not None and math.isfinite(value) and part.partly.contains(value)
     return "partly" if partly else "fail"
 
 
@@ -193,8 +265,9 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     ``margin`` (the median's signed distance to the nearest edge of the passing range as a fraction of
     that edge, >= 0 passing; NaN for shown parts), ``diverged`` (the seeds where the method the part
     praises diverged), ``verdict_beside`` (the claim's verdict on each other reading of its judged number that
-    would change it, rule 6, as the verdict line says it; "" when none would), ``spread_low``, ``spread_high``
-    (5th and 95th percentile over seeds).
+    would change it, rule 6, as the verdict line says it; "" when none would), ``verdict_between`` (an
+    uncertain claim's verdicts, e.g. "holds or in part", rule 3; "" otherwise), ``between`` (the same for an
+    uncertain part, rule 2), ``spread_low``, ``spread_high`` (5th and 95th percentile over seeds).
     :func:`claim_summary` reduces it to one row per claim. ``deterministic``: the setting draws
     nothing random (:func:`is_deterministic`); it is judged once, on its first seed (rule 5).
     ``config``: the setting's resolved configuration (TOML layout), read by the parts that name a
@@ -215,20 +288,19 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     for claim in CLAIMS:
         mine = [part for part in all_parts if part.claim == claim.number]
         verdicts: dict[str, str] = {}
+        between: dict[str, frozenset[str]] = {}
         for part in mine:
             values = np.array([r[0] for r in results[part]])
             passes = [r[1] for r in results[part]]
-            outcomes = [_outcome(part, r[0], r[1]) for r in results[part]]
             diverged = sum(1 for r in results[part] if r[3])
             judged = [x for x in passes if x is not None]
             k, n = sum(bool(x) for x in judged), len(judged)
             share = frequency_interval(k, n)
+            verdict, between[part.key], stat = judge_part(part, results[part])
             if part.role in NOT_JUDGED:
                 verdict = "-"
             else:
-                verdict = part_verdict(outcomes, diverged)
                 verdicts[part.key] = verdict
-            stat = median_interval(values)  # an infinite ratio (a diverged baseline) is dropped and counted in n
             low5, high95 = spread(values)
             margin = (float(part.margin(stat.estimate)) if part.margin is not None and math.isfinite(stat.estimate)
                       else math.nan)
@@ -246,7 +318,7 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
                          "notes": notes[0] if notes else "", "n_seeds": len(contexts),
                          "threshold": part.threshold, "deterministic": bool(deterministic),
                          "partial": part.partial_text, "margin": margin, "diverged": diverged, "spread_low": low5,
-                         "spread_high": high95})
+                         "spread_high": high95, "between": between_text(between[part.key])})
         # the same rule per seed: how often the claim as a whole holds; a seed where a method the claim
         # praises diverged is counted as such, not as a verdict (rule 4)
         per_seed = {v: 0 for v in (*VERDICTS, DIVERGED)}
@@ -262,9 +334,11 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
                 per_seed[DIVERGED] += 1
             else:
                 per_seed[claim_verdict(seed_verdicts, roles)] += 1
-        verdict = claim_verdict(verdicts, roles)
-        beside = _other_readings(mine, readings, verdicts, roles, verdict, contexts.values(), perturbation_iteration)
-        claim_rows[claim.number] = (verdict, per_seed, beside)
+        found = claim_verdicts_between(verdicts, roles, between)
+        verdict = next(iter(found)) if len(found) == 1 else UNCERTAIN
+        beside = _other_readings(mine, readings, verdicts, roles, verdict, contexts.values(), perturbation_iteration,
+                                 between)
+        claim_rows[claim.number] = (verdict, per_seed, beside, between_text(found) if len(found) > 1 else "")
     frame = pd.DataFrame(rows)
     if frame.empty:
         return frame
@@ -272,6 +346,7 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     frame.insert(3, "claim_frequency", frame["claim"].map(lambda c: _frequency_text(claim_rows[c][1], deterministic)))
     frame.insert(4, "claim_seeds_holding", frame["claim"].map(lambda c: int(claim_rows[c][1][HOLDS])))
     frame.insert(5, "verdict_beside", frame["claim"].map(lambda c: claim_rows[c][2]))
+    frame.insert(6, "verdict_between", frame["claim"].map(lambda c: claim_rows[c][3]))
     return frame
 
 
@@ -292,18 +367,17 @@ def reading_text(key: str, perturbation_iteration: int, last: tuple[int, int] | 
 
 
 def _other_readings(mine, readings, verdicts: Mapping[str, str], roles: Mapping[str, str], verdict: str,
-                    contexts, perturbation_iteration: int) -> str:
+                    contexts, perturbation_iteration: int, between: Mapping[str, frozenset[str]]) -> str:
     """Rule 6: "<verdict> <reading>" for every other reading of the judged number that would change the
     claim's verdict, joined by "; " ("" when none would). A reading not evaluable in any part (no seed
     has it: a run of 20 iterations has no later one) says nothing."""
     said = []
     for key in READINGS:
-        found = {part.key: part_verdict([_outcome(part, r[0], r[1]) for r in readings[(part, key)]],
-                                        sum(1 for r in readings[(part, key)] if r[3]))
-                 for part in mine if (part, key) in readings}
+        judged = {part.key: judge_part(part, readings[(part, key)]) for part in mine if (part, key) in readings}
+        found = {k: v[0] for k, v in judged.items()}
         if not found or all(v == NOT_EVALUABLE for v in found.values()):
             continue
-        otherwise = claim_verdict({**verdicts, **found}, roles)
+        otherwise = claim_verdict({**verdicts, **found}, roles, {**between, **{k: v[1] for k, v in judged.items()}})
         if otherwise == verdict:
             continue
         last = None

@@ -22,7 +22,7 @@ EXPERIMENT, STUDY = "experiment", "study"
 CLAIM_ROW = "claim"
 CLAIM_COLUMNS = ["source", "name", "setting", "claim", "part", "role", "verdict", "seeds_evaluated", "seeds_passed",
                  "statistic", "statistic_low", "statistic_high", "threshold", "evaluation", "part_text",
-                 "statistic_name", "note", "margin", "spread_low", "spread_high", "partial"]
+                 "statistic_name", "note", "margin", "spread_low", "spread_high", "partial", "between"]
 STABILITY_COLUMNS = ["source", "name", "setting", "method", "quantity", "judged", "window", "rate_per_iteration",
                      "rate_low", "rate_high", "seeds_growing", "seeds_fitted", "value_end", "iterations_to_10x",
                      "saturating", "inconclusive", "flagged"]
@@ -43,7 +43,8 @@ def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> 
                      "statistic": math.nan, "statistic_low": math.nan, "statistic_high": math.nan,
                      "threshold": "", "part_text": str(first["statement"]), "statistic_name": "",
                      "note": str(first.get("verdict_beside", "") or ""),
-                     "margin": math.nan, "spread_low": math.nan, "spread_high": math.nan, "partial": ""})
+                     "margin": math.nan, "spread_low": math.nan, "spread_high": math.nan, "partial": "",
+                     "between": str(first.get("verdict_between", "") or "")})
         for row in mine.itertuples(index=False):
             shown = row.role in claims_module.NOT_JUDGED
             rows.append({**base, "evaluation": part_evaluation(row), "part": row.part, "role": row.role,
@@ -55,7 +56,7 @@ def claim_rows(parts: pd.DataFrame, *, source: str, name: str, setting: str) -> 
                          "part_text": str(row.part_text), "statistic_name": str(row.statistic),
                          "note": str(row.notes or ""), "margin": float(row.margin),
                          "spread_low": float(row.spread_low), "spread_high": float(row.spread_high),
-                         "partial": str(row.partial or "")})
+                         "partial": str(row.partial or ""), "between": str(getattr(row, "between", "") or "")})
     frame = pd.DataFrame(rows, columns=CLAIM_COLUMNS)
     frame["seeds_passed"] = frame["seeds_passed"].astype("Int64")
     return frame
@@ -141,6 +142,8 @@ def claim_lines(rows: pd.DataFrame) -> list[str]:
         detail = "; ".join(f"{r.part_text}: {statistic_text(r)} ({r.threshold} {_passes(r)})"
                            for r in judged.itertuples(index=False))
         how = "one evaluation" if head["evaluation"] == claims_module.ONE_EVALUATION else head["evaluation"]
+        if str(head.get("between", "") or ""):  # rule 3: which verdicts an interval leaves open
+            how = f"{head['between']}: an interval of a median crosses its threshold; {how}"
         beside = f"; {head['note']}" if str(head["note"] or "") else ""  # a verdict the settled metric changes
         lines.append(f"* Claim {int(claim)} **{head['verdict']}** ({how}{beside}). {detail}.")
     return lines
@@ -220,7 +223,7 @@ def claim_verdicts(rows: pd.DataFrame) -> dict[int, str]:
 def read_back(path) -> pd.DataFrame:
     """A ``claims.csv`` or ``stability.csv`` as written (empty strings stay empty strings)."""
     frame = pd.read_csv(path, keep_default_na=False, na_values=[""])
-    for column in ("threshold", "part_text", "note", "evaluation", "statistic_name", "window", "partial"):
+    for column in ("threshold", "part_text", "note", "evaluation", "statistic_name", "window", "partial", "between"):
         if column in frame.columns:
             values = frame[column].astype(object)
             frame[column] = values.where(values.notna(), "").astype(str)
@@ -242,7 +245,8 @@ def bottom_line(rows: pd.DataFrame) -> str:
     head = rows[rows["role"] == CLAIM_ROW] if len(rows) else rows
     if not len(head):
         return ""
-    words = {"holds": "hold", "in part": "hold in part", "fails": "fail", "not evaluable": "cannot be judged"}
+    words = {"holds": "hold", "in part": "hold in part", "fails": "fail", "uncertain": "are uncertain",
+             "not evaluable": "cannot be judged"}
     said = []
     for verdict, word in words.items():
         claims = sorted(int(c) for c in head.loc[head["verdict"] == verdict, "claim"])
