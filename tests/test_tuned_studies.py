@@ -144,3 +144,21 @@ def test_the_cap_is_checked_at_every_iteration_and_a_method_over_it_before_the_p
 def test_iterations_over_the_cap_are_written_as_spans():
     assert equal_chattering._spans([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
     assert equal_chattering._spans([]) == ""
+
+
+def test_a_method_whose_interval_crosses_the_cap_is_uncertain_and_not_ranked():
+    """c2's settled H_x over three seeds is 0.08, 0.10, 0.13 against a cap of 0.1: its median sits on the cap and
+    the 95% interval of the median reaches both sides, so it is neither within nor over it."""
+    frame = _frame({"c1": (1e-4, 0.1, 0.05, 0.2), "c2": (1e-6, 0.001, 0.1, 0.2)})
+    by_seed = {100: 0.08, 101: 0.10, 102: 0.13}
+    is_c2 = frame["method"] == "c2"
+    frame.loc[is_c2, "chattering_task_x_settled"] = frame.loc[is_c2, "seed"].map(by_seed)
+    config = {"tuning": {"source": "t", "withheld": [], "cap_reference": "c1", "cap": [0.1, 0.5]}}
+    results = SimpleNamespace(settings=pd.DataFrame([{"setting": 0, "config_json": json.dumps(config)}]),
+                              setting_metrics=lambda k: frame)
+    table, sentence = equal_chattering.comparison(results)
+    places = table.set_index("method")["against the cap"]
+    assert places["c2"] == equal_chattering.UNCERTAIN and places["c1"] == equal_chattering.WITHIN
+    assert "1 of 2 shipped methods" in sentence and "smallest position error is c1" in sentence
+    assert "uncertain against the cap (the interval of a median H crosses it), not ranked: c2 (1.00x)" in sentence
+    assert equal_chattering.against_cap([[0.2, 0.21, 0.22]], [0.1]) == equal_chattering.OVER
