@@ -5,8 +5,11 @@ setting by setting with the same rules as every report (:mod:`ilcforce.report.cl
 lays the verdicts out as a map. Per (noise_scale, sample_time, claim): the claim's verdict and its
 **binding** part: the judged part (central or secondary) with the smallest margin to its threshold
 (the one nearest to failing, or failing worst), whose median over seeds and 95% bootstrap interval
-of the median are the cell's statistic. ``claim_map.csv`` holds the rows; one heat map per claim
-colours each cell by verdict and writes the statistic in.
+of the median are the cell's statistic. A cell is **uncertain** where an interval of a median
+crosses its threshold so that the claim's verdict is not settled (the rule: :mod:`ilcforce.report.claims`,
+rules 2 and 3); ``between`` names the verdicts it lies between and ``uncertain_parts`` the parts whose
+interval crosses. ``claim_map.csv`` holds the rows; one heat map per claim colours each cell by verdict
+and writes the statistic in.
 """
 
 from __future__ import annotations
@@ -22,13 +25,13 @@ from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 
 from ilcforce.report import figures
-from ilcforce.report.claims import FAILS, HOLDS, IN_PART, NOT_EVALUABLE, VERDICTS
+from ilcforce.report.claims import FAILS, HOLDS, IN_PART, NOT_EVALUABLE, UNCERTAIN, VERDICTS
 
 KEYS = ("noise.scale", "simulation.sample_time")
 COLUMNS = ["noise_scale", "sample_time", "claim", "verdict", "statistic", "statistic_low", "statistic_high",
-           "seeds", "part", "margin"]
-#: Cell colours by verdict (colour-blind safe: blue, yellow, vermillion, grey).
-COLORS = {HOLDS: "#56B4E9", IN_PART: "#F0E442", FAILS: "#D55E00", NOT_EVALUABLE: "#BBBBBB"}
+           "seeds", "part", "margin", "between", "uncertain_parts"]
+#: Cell colours by verdict (colour-blind safe: blue, yellow, vermillion, reddish purple, grey).
+COLORS = {HOLDS: "#56B4E9", IN_PART: "#F0E442", FAILS: "#D55E00", UNCERTAIN: "#CC79A7", NOT_EVALUABLE: "#BBBBBB"}
 
 
 def is_claim_map_study(results) -> bool:
@@ -49,6 +52,8 @@ def claim_map(claim_rows: pd.DataFrame, settings: Mapping[str, tuple[float, floa
             verdict = str(head["verdict"].iloc[0]) if len(head) else NOT_EVALUABLE
             central = parts[parts["role"].isin(["central", "secondary"]) & np.isfinite(parts["margin"].astype(float))]
             binding = central.loc[central["margin"].astype(float).idxmin()] if len(central) else None
+            judged = parts[parts["role"].isin(["central", "secondary"])]
+            unsure = judged.loc[judged["verdict"] == UNCERTAIN, "part"].astype(str)
             rows.append({"noise_scale": float(scale), "sample_time": float(sample_time), "claim": int(claim),
                          "verdict": verdict,
                          "statistic": float(binding["statistic"]) if binding is not None else math.nan,
@@ -56,7 +61,9 @@ def claim_map(claim_rows: pd.DataFrame, settings: Mapping[str, tuple[float, floa
                          "statistic_high": float(binding["statistic_high"]) if binding is not None else math.nan,
                          "seeds": int(seeds.get(name, 0)),
                          "part": str(binding["part"]) if binding is not None else "",
-                         "margin": float(binding["margin"]) if binding is not None else math.nan})
+                         "margin": float(binding["margin"]) if binding is not None else math.nan,
+                         "between": str(head["between"].iloc[0] or "") if len(head) and "between" in head else "",
+                         "uncertain_parts": ";".join(unsure)})
     frame = pd.DataFrame(rows, columns=COLUMNS)
     return frame.sort_values(["claim", "sample_time", "noise_scale"], ignore_index=True)
 
@@ -67,7 +74,7 @@ def _scale_text(value: float) -> str:
 
 def heat_map(rows: pd.DataFrame, claim: int, statement: str = "") -> Figure:
     """One claim's map: sample time across (ms), noise scale up, each cell coloured by verdict with the
-    binding part's median written in (and the part's name below it)."""
+    binding part's median written in (and the part's name below it; an uncertain cell's "?" after it)."""
     mine = rows[rows["claim"] == claim]
     scales = sorted(mine["noise_scale"].unique())
     times = sorted(mine["sample_time"].unique())
@@ -79,7 +86,8 @@ def heat_map(rows: pd.DataFrame, claim: int, statement: str = "") -> Figure:
         i, k = scales.index(row.noise_scale), times.index(row.sample_time)
         codes[i, k] = VERDICTS.index(row.verdict) if row.verdict in VERDICTS else VERDICTS.index(NOT_EVALUABLE)
         value = "-" if not math.isfinite(row.statistic) else f"{row.statistic:.3g}"
-        ax.text(k, i, f"{value}\n{row.part}", ha="center", va="center", fontsize=6.5, color="black")
+        mark = " ?" if row.verdict == UNCERTAIN else ""
+        ax.text(k, i, f"{value}{mark}\n{row.part}", ha="center", va="center", fontsize=6.5, color="black")
     ax.imshow(codes, cmap=ListedColormap([COLORS[v] for v in VERDICTS]), vmin=-0.5, vmax=len(VERDICTS) - 0.5,
               origin="lower", aspect="auto")
     ax.set_xticks(range(len(times)), [f"{t * 1e3:g}" for t in times])
@@ -104,15 +112,18 @@ def _cells_text(cells: pd.DataFrame) -> str:
 
 
 def sentence(rows: pd.DataFrame) -> str:
-    """Where each claim holds, and whether any cell has every claim holding, in plain words."""
+    """Where each claim holds and where it is uncertain, whether any cell has every claim holding, and,
+    when cells are uncertain, that their seeds are too few to settle them, in plain words."""
     if rows.empty:
         return "The claim map has no judged cell."
     n = int(rows.groupby(["noise_scale", "sample_time"]).ngroups)
     said = []
     for claim, mine in rows.groupby("claim", sort=True):
         holding = mine[mine["verdict"] == HOLDS]
+        unsure = mine[mine["verdict"] == UNCERTAIN]
         said.append(f"claim {claim} holds in {len(holding)} of {n} cells"
-                    + (f" ({_cells_text(holding)})" if 0 < len(holding) < n else ""))
+                    + (f" ({_cells_text(holding)})" if 0 < len(holding) < n else "")
+                    + (f" and is uncertain in {len(unsure)} ({_cells_text(unsure)})" if len(unsure) else ""))
     claims = rows["claim"].nunique()
     together = rows[rows["verdict"] == HOLDS].groupby(["noise_scale", "sample_time"]).filter(
         lambda g: len(g) == claims)
@@ -120,6 +131,12 @@ def sentence(rows: pd.DataFrame) -> str:
         every = "no cell has every claim holding"
     else:
         every = f"every claim holds together only at {_cells_text(together.drop_duplicates(['noise_scale', 'sample_time']))}"
+    unsure = rows[rows["verdict"] == UNCERTAIN]
+    if len(unsure):
+        seeds = sorted({int(s) for s in unsure["seeds"]})
+        few = f"{seeds[0]}" if len(seeds) == 1 else f"{seeds[0]} to {seeds[-1]}"
+        every += (f"; {len(unsure)} of {len(rows)} claim cells are uncertain (the 95% interval of a median crosses "
+                  f"its threshold): {few} seeds a cell are too few to settle them")
     return "Over the claim map, " + "; ".join(said) + f"; {every}."
 
 

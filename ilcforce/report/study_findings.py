@@ -151,7 +151,8 @@ def study_markdown(results) -> tuple[str, dict, pd.DataFrame, pd.DataFrame]:
     lines += [incomplete, ""] if incomplete else []
     lines += ["Every number is a median over seeds with the 95% percentile-bootstrap interval of the median; divergence "
               "counts the seeds whose run diverged. Claims follow the rule of the single-run reports "
-              "(a claim fails when no central part holds, and holds in part when some do); unstable learning follows the stated growth test.", ""]
+              "(a claim fails when no central part holds, and holds in part when some do; it is uncertain where the interval of a "
+              "median crosses its threshold and leaves the verdict open); unstable learning follows the stated growth test.", ""]
     overview, summary, body = [], {}, []
     claim_tables, stability_tables = [], []
     for setting in results.settings.index:
