@@ -5,10 +5,10 @@ setting by setting with the same rules as every report (:mod:`ilcforce.report.cl
 lays the verdicts out as a map. Per (noise_scale, sample_time, claim): the claim's verdict and its
 **binding** part: the judged part (central or secondary) with the smallest margin to its threshold
 (the one nearest to failing, or failing worst), whose median over seeds and 95% bootstrap interval
-of the median are the cell's statistic. A cell is **uncertain** where an interval of a median
-crosses its threshold so that the claim's verdict is not settled (the rule: :mod:`ilcforce.report.claims`,
-rules 2 and 3); ``between`` names the verdicts it lies between and ``uncertain_parts`` the parts whose
-interval crosses. ``claim_map.csv`` holds the rows; one heat map per claim colours each cell by verdict
+of the median are the cell's statistic. A cell is **uncertain** where an interval of a median crosses
+its threshold so that the claim's verdict is not settled (the rule: :mod:`ilcforce.report.claims`,
+rules 2 and 3); its binding part is then the one of its uncertain parts with the smallest margin,
+``between`` names the verdicts it lies between and ``uncertain_parts`` the parts whose interval crosses. ``claim_map.csv`` holds the rows; one heat map per claim colours each cell by verdict
 and writes the statistic in.
 """
 
@@ -51,6 +51,8 @@ def claim_map(claim_rows: pd.DataFrame, settings: Mapping[str, tuple[float, floa
             head = parts[parts["role"] == "claim"]
             verdict = str(head["verdict"].iloc[0]) if len(head) else NOT_EVALUABLE
             central = parts[parts["role"].isin(["central", "secondary"]) & np.isfinite(parts["margin"].astype(float))]
+            if verdict == UNCERTAIN and (central["verdict"] == UNCERTAIN).any():  # the part that leaves it open
+                central = central[central["verdict"] == UNCERTAIN]
             binding = central.loc[central["margin"].astype(float).idxmin()] if len(central) else None
             judged = parts[parts["role"].isin(["central", "secondary"])]
             unsure = judged.loc[judged["verdict"] == UNCERTAIN, "part"].astype(str)
