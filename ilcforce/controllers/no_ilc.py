@@ -20,17 +20,18 @@ is PD-ILC's (``ilcforce.controllers.pd_ilc``): it is smooth, so the closed loop 
 that finite differences measure (C1's sgn sigma has none: a secant of a switch is no linearisation, see
 ``ilcforce.theory.lifted``), and it is the simplest feedback every robot here already runs under.
 
-**The basis.** The feed-forward's change is parametrised on M piecewise-linear hat functions per task axis
-(knots evenly spaced over the horizon, ``knots`` = M): u_{j+1} - u_j = Phi dc, Phi (n_control x M) per
-axis, so G is (n n_log x n M) with e taken on the log grid, and is built once per process and setting by
-finite differences of the noise-free nominal closed loop (``ilcforce.theory.norm_optimal``), before the
-first update. In the coefficients the update is
+**The basis.** The feed-forward's change is parametrised on M piecewise-linear hat functions per task
+axis, their knots evenly spaced over the horizon ``knot_spacing`` apart (M = duration / spacing + 1):
+u_{j+1} - u_j = Phi dc, Phi (n_control x M) per axis. So G is (n n_log x n M), e taken on the log grid,
+and is built once per process and setting, before the first update, by finite differences of the
+noise-free nominal closed loop (``ilcforce.theory.norm_optimal``). In the coefficients the update is
 
-    dc_j = (Gt^T Gt + r lambda_max I)^-1 Gt^T et_j,   Gt = W G, et_j = W e_j, W^2 = Q
+    dc_j = (G^T Q G + R)^-1 G^T Q e_j,   R = r diag(rho_1 I, ..., rho_n I)
 
-with Q = diag(q_position on position axes, q_force on the force axis) and R = r lambda_max(Gt^T Gt) I:
-``r`` is R relative to the largest eigenvalue of the weighted model, so that it is unitless and a
-mode of gain lambda is corrected by lambda / (lambda + r lambda_max) of its error per iteration.
+with Q = diag(q_position on position axes, q_force on the force axis) and rho_i the median over axis
+i's basis functions of the weighted error one unit of one coefficient makes (:func:`norm_optimal_gain`):
+``r`` is unitless, and one basis function's own error is corrected by about 1 / (1 + r) per iteration
+on every axis, whatever the axes' units and weights.
 
 **The error is measured.** The law writes, beside the feed-forward it ran, the error a controller can
 measure: Sbar (P_d - P_meas) + S (F_d - F_meas), P_meas from the nominal kinematics of the encoder
@@ -38,13 +39,13 @@ reading (eq. 6, eq. 7). The update reads it from the memory after the iteration,
 
 Default gains, from stated rules (not tuned):
 * k = (10, 100) N s/m: PD-ILC's and C1's feedback gain (paper, Section 4.1);
-* q_position = 1e8 1/m^2 and q_force = 1e2 1/N^2: a 0.1 mm position error weighs as much as a 0.1 N
-  force error (each the order of the paper's reported settled errors);
-* r = 0.1: the model's strongest direction is corrected by 91% per iteration, weaker ones less, which
-  leaves room for the model error (the m3 change at j = 10);
+* q_position = 1.8e8 1/m^2, q_force = 1 1/N^2: the paper's settled 2-norms of C3 (Table 2: 4.3e-6 m and
+  0.058 N) weigh the same, (0.058 / 4.3e-6)^2 = 1.8e8 (only the ratio matters: R scales with Q);
+* r = 0.1: a typical basis function's error is corrected by about 91% per iteration, weaker directions
+  of G less (the regularisation that leaves room for the model error, e.g. the m3 change at j = 10);
 * q_cutoff = 5 Hz, order 2: PD-ILC's Q, one decade above the reference's highest frequency;
-* knots = 100: 20 ms spacing on the 2 s horizon, whose hat functions resolve the feed-forward to about
-  25 Hz, above the Q filter's cutoff, while G costs n x 100 simulated iterations to build.
+* knot_spacing = 20 ms: hat functions that resolve the feed-forward to about 25 Hz, above the Q filter's
+  cutoff; on the paper's 2 s horizon M = 101 per axis, so G costs n x 101 + 1 simulated iterations.
 """
 
 from __future__ import annotations
@@ -74,13 +75,13 @@ class NOILCGains:
     section: ClassVar[str] = "no-ilc"
     #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
     units: ClassVar[dict[str, str]] = {"k": "N s/m", "q_position": "1/m^2", "q_force": "1/N^2", "r": "1",
-                                       "knots": "1", "q_cutoff": "Hz", "q_order": "1", "gravity_feedforward": "1"}
+                                       "knot_spacing": "s", "q_cutoff": "Hz", "q_order": "1", "gravity_feedforward": "1"}
 
     k: tuple[float, ...] = (10.0, 100.0)  # feedback gain diagonal on sigma, N s/m
-    q_position: float = 1e8  # Q on the position-controlled axes' error, 1/m^2
-    q_force: float = 1e2  # Q on the force-controlled axis' error, 1/N^2
-    r: float = 0.1  # R relative to the largest eigenvalue of G^T Q G (> 0)
-    knots: int = 100  # M: hat functions per task axis over the horizon (>= 2)
+    q_position: float = 1.8e8  # Q on the position-controlled axes' error, 1/m^2
+    q_force: float = 1.0  # Q on the force-controlled axis' error, 1/N^2
+    r: float = 0.1  # R relative to a typical basis function's weighted reach (> 0, unitless)
+    knot_spacing: float = 0.02  # time between the knots of the hat functions, s (M = duration / spacing + 1)
     q_cutoff: float = 5.0  # Q filter cutoff, Hz (0: no filter)
     q_order: int = 2  # Butterworth order of Q (run forwards and backwards)
     gravity_feedforward: float = 0.0  # g_ff: multiple of the nominal task gravity G_nom added to the feedback (0: none)
@@ -96,17 +97,15 @@ class NOILCGains:
             raise ValueError(f"{self.section}.q_position and q_force are both 0: the update would minimise nothing")
         if not (math.isfinite(self.r) and self.r > 0):
             raise ValueError(f"{self.section}.r must be a finite number > 0 (R relative to G^T Q G), got {self.r!r}")
-        knots = self.knots
-        if isinstance(knots, bool) or not (isinstance(knots, (int, np.integer)) or float(knots).is_integer()) \
-                or not (2 <= int(knots) <= MAX_KNOTS):
-            raise ValueError(f"{self.section}.knots must be an integer 2..{MAX_KNOTS}, got {knots!r}")
+        if not (math.isfinite(self.knot_spacing) and self.knot_spacing > 0):
+            raise ValueError(f"{self.section}.knot_spacing must be a time > 0 s, got {self.knot_spacing!r}")
         check_robust_gains(self.section, 0.0, self.q_cutoff, self.q_order)
         check_gravity_feedforward(self.section, self.gravity_feedforward)
 
 
-(K_ND, _Q_POSITION_ND, _Q_FORCE_ND, _R_ND, _KNOTS_ND, _Q_CUTOFF_ND, _Q_ORDER_ND,
- GRAVITY_FEEDFORWARD_ND) = gain_offsets(NOILCGains, "k", "q_position", "q_force", "r", "knots", "q_cutoff", "q_order",
-                                        "gravity_feedforward")
+(K_ND, _Q_POSITION_ND, _Q_FORCE_ND, _R_ND, _KNOT_SPACING_ND, _Q_CUTOFF_ND, _Q_ORDER_ND,
+ GRAVITY_FEEDFORWARD_ND) = gain_offsets(NOILCGains, "k", "q_position", "q_force", "r", "knot_spacing", "q_cutoff",
+                                        "q_order", "gravity_feedforward")
 
 
 def no_ilc_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
@@ -169,6 +168,21 @@ def norm_optimal_gain(model: np.ndarray, weights: np.ndarray, r: float, axes: in
     return np.linalg.solve(normal, weighted.T)
 
 
+def knot_count(section: str, n_control: int, sample_time: float, spacing: float) -> int:
+    """M, the hat functions per axis: the horizon over ``spacing`` plus one (at least 2), or ValueError (one
+    line) if that is more than :data:`MAX_KNOTS` or the spacing is below the sample time."""
+    if not (math.isfinite(sample_time) and sample_time > 0):
+        raise ValueError(f"{section} needs the control sample time to place its knots")
+    if spacing < sample_time:
+        raise ValueError(f"{section}.knot_spacing ({spacing:g} s) must be at least the control sample time "
+                         f"{sample_time:g} s")
+    knots = max(2, int(round((n_control - 1) * sample_time / spacing)) + 1)
+    if knots > MAX_KNOTS:
+        raise ValueError(f"{section}.knot_spacing ({spacing:g} s) gives {knots} knots per axis over the horizon; "
+                         f"at most {MAX_KNOTS} (one simulated iteration each to build G)")
+    return knots
+
+
 class NOILCController(MemoryController):
     """Norm-optimal ILC: the law above, the update between iterations (``end_iteration``)."""
 
@@ -196,7 +210,7 @@ class NOILCController(MemoryController):
         axis_weights = (1.0 - selection) * gains.q_position + selection * gains.q_force
         self._error_rows = np.arange(0, n_control, self.log_every)  # e on the log grid
         self._weights = np.tile(axis_weights, self._error_rows.size)  # sample-major, as e.ravel()
-        self._basis = hat_basis(n_control, int(gains.knots))
+        self._basis = hat_basis(n_control, knot_count(gains.section, n_control, self.sample_time, gains.knot_spacing))
         self._lifted_model = lifted_model
         self._update = None  # L, made at the first update
 
