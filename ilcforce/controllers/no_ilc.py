@@ -96,7 +96,8 @@ class NOILCGains:
         if self.q_position == 0 and self.q_force == 0:
             raise ValueError(f"{self.section}.q_position and q_force are both 0: the update would minimise nothing")
         if not (math.isfinite(self.r) and self.r > 0):
-            raise ValueError(f"{self.section}.r must be a finite number > 0 (R relative to G^T Q G), got {self.r!r}")
+            raise ValueError(f"{self.section}.r must be a finite number > 0 (R relative to a basis function's reach), "
+                             f"got {self.r!r}")
         if not (math.isfinite(self.knot_spacing) and self.knot_spacing > 0):
             raise ValueError(f"{self.section}.knot_spacing must be a time > 0 s, got {self.knot_spacing!r}")
         check_robust_gains(self.section, 0.0, self.q_cutoff, self.q_order)
@@ -210,24 +211,24 @@ class NOILCController(MemoryController):
         axis_weights = (1.0 - selection) * gains.q_position + selection * gains.q_force
         self._error_rows = np.arange(0, n_control, self.log_every)  # e on the log grid
         self._weights = np.tile(axis_weights, self._error_rows.size)  # sample-major, as e.ravel()
-        self._basis = hat_basis(n_control, knot_count(gains.section, n_control, self.sample_time, gains.knot_spacing))
+        #: M: hat functions per axis; Phi is never made (n_control x M), its product is an interpolation
+        self.knots = knot_count(gains.section, n_control, self.sample_time, gains.knot_spacing)
+        self._grid, self._nodes = np.linspace(0.0, 1.0, n_control), np.linspace(0.0, 1.0, self.knots)
         self._lifted_model = lifted_model
         self._update = None  # L, made at the first update
 
     def gains(self) -> np.ndarray:
         return self._gains
 
-    def basis(self) -> np.ndarray:
-        """Phi (n_control, M), the hat functions of one axis."""
-        return self._basis
-
     def error_vector(self, memory: np.ndarray) -> np.ndarray:
         """e (n_log n,), sample-major, from a memory an iteration wrote: its measured error on the log grid."""
         return memory[self._error_rows, self.n:2 * self.n].ravel()
 
     def feedforward(self, coefficients: np.ndarray) -> np.ndarray:
-        """Phi dc on the control grid, (n_control, n), from coefficients ordered axis-major (axis i: M of them)."""
-        return self._basis @ np.asarray(coefficients, dtype=np.float64).reshape(self.n, -1).T
+        """Phi dc on the control grid, (n_control, n), from coefficients ordered axis-major (axis i: M of them):
+        the piecewise-linear interpolation of each axis' coefficients at its knots (:func:`hat_basis`'s product)."""
+        per_axis = np.asarray(coefficients, dtype=np.float64).reshape(self.n, self.knots)
+        return np.column_stack([np.interp(self._grid, self._nodes, c) for c in per_axis])
 
     def update_matrix(self) -> np.ndarray:
         """L (n M, n n_log): the norm-optimal gain on the lifted model (built on first use)."""

@@ -87,7 +87,7 @@ def build(config: Config, controller) -> tuple[np.ndarray, float]:
         selection=config.surface.selection)
     inputs = prepare_setup(inputs, controller)
     n, width = controller.n, max(stop for _a, stop, _u in controller.memory_layout.values())
-    knots = controller.basis().shape[1]
+    knots = controller.knots
 
     def error(coefficients: np.ndarray) -> np.ndarray:
         mem_prev = np.zeros((controller.n_control, width))
