@@ -75,7 +75,8 @@ class NOILCGains:
     section: ClassVar[str] = "no-ilc"
     #: unit of each field ("": text, "1": dimensionless), read by ilcforce.config_units
     units: ClassVar[dict[str, str]] = {"k": "N s/m", "q_position": "1/m^2", "q_force": "1/N^2", "r": "1",
-                                       "knot_spacing": "s", "q_cutoff": "Hz", "q_order": "1", "gravity_feedforward": "1"}
+                                       "knot_spacing": "s", "q_cutoff": "Hz", "q_order": "1",
+                                       "gravity_feedforward": "1"}
 
     k: tuple[float, ...] = (10.0, 100.0)  # feedback gain diagonal on sigma, N s/m
     q_position: float = 1.8e8  # Q on the position-controlled axes' error, 1/m^2
@@ -117,7 +118,7 @@ def no_ilc_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
     gff = gains[at(GRAVITY_FEEDFORWARD_ND, n)]
     u = at(D_U, n)
     for i in range(n):
-        # learned feed-forward u_j + PD feedback k sigma + force feed-forward w F (+ g_ff G_nom)
+        # (N3): learned feed-forward u_j + PD feedback k sigma + force feed-forward w F (+ g_ff G_nom)
         diag[u + i] = (mem_prev[k, i] + gains[at(K_ND, n) + i] * diag[i] + w * meas[at(M_FORCE, n) + i]
                        + nominal_gravity_nd(n, meas, gff, i))
     if write:
@@ -166,7 +167,7 @@ def norm_optimal_gain(model: np.ndarray, weights: np.ndarray, r: float, axes: in
             raise ValueError(f"the lifted model is zero on axis {i + 1}: its feed-forward does not reach the "
                              "weighted error (a weight of 0 on the only axis it moves?)")
         normal[block, block] += r * scale * np.eye(size)  # + R
-    return np.linalg.solve(normal, weighted.T)
+    return np.linalg.solve(normal, weighted.T)  # (N4), docs/methods.md#no-ilc
 
 
 def knot_count(section: str, n_control: int, sample_time: float, spacing: float) -> int:
@@ -244,6 +245,6 @@ class NOILCController(MemoryController):
         if record.diverged:
             return
         memory = self._new
-        step = self.update_matrix() @ self.error_vector(memory)  # (G^T Q G + R)^-1 G^T Q e_j
-        memory[:, :self.n] = self._q.apply(memory[:, :self.n] + self.feedforward(step))
+        step = self.update_matrix() @ self.error_vector(memory)  # (N4): dc_j = (G^T Q G + R)^-1 G^T Q e_j
+        memory[:, :self.n] = self._q.apply(memory[:, :self.n] + self.feedforward(step))  # (N2): Q[u_j + Phi dc_j]
         super().end_iteration(record)
