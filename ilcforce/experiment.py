@@ -19,6 +19,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import inspect
 import os
 import threading
 from collections.abc import Callable, Sequence
@@ -83,6 +84,10 @@ def make_controller(config: Config, method: str):
         # a law with the plant's own regressor (sl-adapt) also takes the nominal plant's parameters
         extra = ({"nominal": config.plant.nominal(), "frame": config.wall.frame(config.dimension)}
                  if getattr(cls, "needs_nominal_plant", False) else {})
+        if getattr(cls, "needs_lifted_model", False):  # a law learning on the nominal closed loop's lifted map (no-ilc)
+            from ilcforce.theory.norm_optimal import LiftedModel
+
+            extra.update(lifted_model=LiftedModel(config), log_every=config.simulation.log_every)
         return cls(config.n_control, config.surface, config.wall.sign, config.gains[method],
                    gravity=config.plant.has_gravity, sample_time=config.simulation.sample_time, **extra)
     except ValueError as exc:  # gains valid alone but not with this setting (e.g. a Q cutoff above Nyquist)
@@ -425,15 +430,21 @@ def preload_kernels(config, methods: Sequence[str]) -> None:
     from ilcforce.store import StoreWriter  # noqa: F401  (h5py and the writer, imported once for all workers)
 
     robot = make_plant(config.plant.links())
-    if robot.dimension != 2:  # the n-joint loop, the plant's kernel and each method's n-axis law (numba's)
+    # the n-joint loop (numba's) for every method on an n-joint plant, and for a method with an n-axis law only
+    n_axis_only = [m for m in methods
+                   if inspect.getattr_static(REGISTRY[canonical(m)].controller_class, "law", None) is None]
+    if robot.dimension != 2 or n_axis_only:
         from ilcforce.ndof import loop as nd_loop  # noqa: F401
 
         robot.nd_kernel()
-        for method in methods:
+        for method in (methods if robot.dimension != 2 else n_axis_only):
             make_controller(config, method).law_nd  # noqa: B018
-        return
+        if robot.dimension != 2:
+            return
     robot.calls()
     for method in methods:
+        if method in n_axis_only:
+            continue
         controller = make_controller(config, method)
         if aot.simulator(controller, type(robot), type(robot)) is None:  # numba's loop, law and kernels
             from ilcforce import loop  # noqa: F401

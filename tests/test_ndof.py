@@ -13,6 +13,7 @@ dimensions.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from pathlib import Path
 
 import numpy as np
@@ -29,12 +30,15 @@ ROOT = Path(__file__).resolve().parents[1]
 ARM3 = ROOT / "experiments" / "arm3.toml"
 #: every method with an n-axis law
 ND_METHODS = tuple(name for name, spec in REGISTRY.items() if has_law_nd(spec.controller_class))
-#: the methods whose n-axis law serves a 2-joint plant too: all but sl-adapt, whose n-axis law reads an n-joint
-#: plant's chain regressor (a 2-joint plant's regressor is its closed form's, read by the 2-D law only)
-ND_ON_TWO_JOINTS = tuple(name for name in ND_METHODS if name != "sl-adapt")
+#: the methods whose n-axis law serves a 2-joint plant too and has a 2-D law to be checked against: all but
+#: sl-adapt, whose n-axis law reads an n-joint plant's chain regressor (a 2-joint plant's regressor is its closed
+#: form's, read by the 2-D law only), and a method with an n-axis law only (no-ilc), which every plant runs
+#: through the n-joint loop, so there is no 2-D loop to compare
+ND_ON_TWO_JOINTS = tuple(name for name in ND_METHODS if name != "sl-adapt"
+                         and inspect.getattr_static(REGISTRY[name].controller_class, "law", None) is not None)
 #: the methods whose gains follow the shared n-axis layout (sl-adapt's Gamma is as wide as the plant's base
 #: parameters, so its n-axis layout is its own: test_sl_adapt_on_three_axes_is_slotine_li reads it)
-SHARED_LAYOUT = ND_ON_TWO_JOINTS
+SHARED_LAYOUT = tuple(name for name in ND_METHODS if name != "sl-adapt")
 
 #: the scale each logged signal is compared on: itself, or what it is a difference of
 _SCALE_OF = {"position_error": "position", "force_error": "contact_force"}

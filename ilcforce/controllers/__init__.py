@@ -116,6 +116,10 @@ _ENTRIES = (
                "alpha_hat bounded", "C3-robust", "#00573F", "ilcforce.controllers.c3_robust",
                "C3RobustController", "C3RobustGains", "within", True, False,
                "the paper's eq. (14) with a learning window, a zero-phase Q filter and projection of alpha_hat"),
+    MethodSpec("no-ilc", "NO-ILC: PD feedback + norm-optimal ILC on the nominal closed loop's lifted model, "
+               "Q-filtered", "NO-ILC", "C6", "ilcforce.controllers.no_ilc", "NOILCController", "NOILCGains",
+               "between", True, False, "Amann, Owens & Rogers (1996); the Q filter of Bristow, Tharayil & "
+               "Alleyne (2006)"),
 )
 
 #: the entry-point group through which an installed package declares a method (docs/plugins.md)
