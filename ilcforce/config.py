@@ -19,7 +19,7 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
                   initial_velocity, implicit_fallback
     [noise]       disturbance_amplitude, ..., encoder, joint_rate, force_sensor, scale
     [surface]     selection, lambda_p, lambda_f1, lambda_f2          (eq. 8, shared by all methods)
-    [tuning]      source, withheld, cap_reference, cap               (set by `ilcforce tune` in a tuned file)
+    [tuning]      source, withheld, methods, cap_reference, cap      (set by `ilcforce tune` in a tuned file)
     [c1] [c2] [c3] [smc-bl] ... one per registered method            (each method's own gains)
 
 A method family shares its keys: a key set in ``[c3]`` (or by ``--set c3.KEY=...``) reaches every
@@ -172,13 +172,17 @@ class TuningInfo:
 
     source: str = ""  # the tuning's name; "" for an experiment not written by a tuning
     withheld: tuple[str, ...] = ()
+    #: the methods the tuning searched; () in a file that does not say (every method then counts as tuned).
+    #: A method registered after the tuning ran has no tuned gains here and is refused like a withheld one.
+    methods: tuple[str, ...] = ()
     cap_reference: str = ""  # the method whose chattering (with the experiment's gains) is the cap
     cap: tuple[float, ...] = ()  # the cap: settled H per task axis (N) on the tuning's held-out seeds
 
     def __post_init__(self) -> None:
-        for method in self.withheld:
-            if method not in REGISTRY:
-                raise ValueError(f"tuning.withheld: unknown method {method!r}")
+        for key, names in (("withheld", self.withheld), ("methods", self.methods)):
+            for method in names:
+                if method not in REGISTRY:
+                    raise ValueError(f"tuning.{key}: unknown method {method!r}")
         if self.cap_reference and self.cap_reference not in REGISTRY:
             raise ValueError(f"tuning.cap_reference: unknown method {self.cap_reference!r}")
         if not all(math.isfinite(c) and c > 0 for c in self.cap):
@@ -186,6 +190,9 @@ class TuningInfo:
 
     def refusal(self, method: str) -> str | None:
         """One line saying why ``method`` may not run with this file, or None when it may."""
+        if self.methods and method not in self.methods:
+            return (f"{method} was not tuned by {self.source} (its [tuning] methods: {', '.join(self.methods)}): "
+                    "run it with the untuned experiment, or rerun the tuning with it")
         if method not in self.withheld:
             return None
         return (f"{method} has no gains in this tuned experiment: the tuning {self.source} found no stable gains "

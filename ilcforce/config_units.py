@@ -13,7 +13,7 @@ from __future__ import annotations
 SECTION_UNITS: dict[str, str] = {
     "experiment.name": "", "experiment.description": "", "experiment.seed": "1", "experiment.iterations": "1",
     "plant.model": "",
-    "tuning.source": "", "tuning.withheld": "", "tuning.cap_reference": "", "tuning.cap": "N",
+    "tuning.source": "", "tuning.withheld": "", "tuning.methods": "", "tuning.cap_reference": "", "tuning.cap": "N",
     "plant.perturbation.parameter": "", "plant.perturbation.factor": "1",
     "plant.perturbation.from_iteration": "1",
     "wall.position": "m", "wall.stiffness": "N/m", "wall.force_sign": "",

@@ -326,14 +326,15 @@ def build_study(data: dict, *, source: str = "", path: Path | None = None) -> St
             first = load_config(experiment, {**fixed, **settings[0][1], "experiment.seed": seed})
         except ConfigError as exc:
             raise StudyError(f"study.seeds: {exc}") from None
-    # a tuned experiment's withheld methods (no stable gains under its cap) are left out of the default
-    # list, and refused when named
+    # a tuned experiment's withheld methods (no stable gains under its cap) and the methods its tuning did not
+    # search (registered after it ran) are left out of the default list, and refused when named
     for method in methods if given else ():
         if (refusal := first.tuning.refusal(method)) is not None:
             raise StudyError(f"study.methods: {refusal}")
-    methods = tuple(m for m in methods if m not in first.tuning.withheld)
+    methods = tuple(m for m in methods if first.tuning.refusal(m) is None)
     if not methods:
-        raise StudyError("study.methods: every method is withheld by the tuned experiment ([tuning] withheld)")
+        raise StudyError("study.methods: every method is withheld by the tuned experiment ([tuning] withheld) "
+                         "or was not tuned by it ([tuning] methods)")
     return Study(name=name, description=description, source=source, path=path, experiment=experiment,
                  methods=methods, seeds=seeds, fixed=fixed, sweep=sweep,
                  settings=tuple(setting for setting, _overrides in settings), listed=listed)

@@ -146,7 +146,8 @@ def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: d
         if point is not None:
             document[method] = load_config(tuning.experiment, {**tuning.fixed, **point["gains"]}).to_dict()[method]
     withheld = [m for m in tuning.methods if chosen.get(m) is None]
-    document["tuning"] = {"source": tuning.name, "withheld": withheld, "cap_reference": tuning.cap_reference,
+    document["tuning"] = {"source": tuning.name, "withheld": withheld, "methods": list(tuning.methods),
+                          "cap_reference": tuning.cap_reference,
                           "cap": [float(c) for c in cap] if cap else []}  # one per task axis
     source = tuning.path.name if tuning.path is not None else tuning.name
     b = tuning.budget
