@@ -1,10 +1,9 @@
 """The true plant of the cross-check (docs/crosscheck.md): a robot of ilcforce's simulated by MuJoCo, pressing on
 a plane through MuJoCo's own soft contact.
 
-The robot comes from its model file as MuJoCo reads it (its own inertias, kinematics and integrator):
-``file_arm`` and ``spatial_arm`` plants name their file; the closed-form serial 2R arm (``serial2r``) is the
-shipped ``models/serial2r.xml`` with its lengths, centres of mass, masses, inertias and gravity set from the
-experiment's ``[plant.serial2r]`` table. Bodies fixed to a moving link are fused into it (MuJoCo's
+The robot comes from its model file as MuJoCo reads it (its own inertias, kinematics and integrator): the plant's
+parameters say which file and how (their ``mujoco_model``, :class:`ilcforce.plants.model_file.MujocoModel`; a
+closed-form arm gives its shipped file with its parameters set). Bodies fixed to a moving link are fused into it (MuJoCo's
 ``fusestatic``), so that a perturbation scales the link as ilcforce does (``<link>.mass``: the fused link's
 mass, its centre of mass and centroidal inertia kept; ``<link>.inertia``: the centroidal inertia).
 
@@ -34,9 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ilcforce.plants import make_plant
 
-__all__ = ["ContactSettings", "MujocoArm", "build_arm", "task_axes_of"]
+__all__ = ["ContactSettings", "MujocoArm", "build_arm", "simulates"]
 
 #: the end-effector sphere's radius, m: small against the path (the wall's offset absorbs it exactly)
 TIP_RADIUS = 1e-3
@@ -64,42 +62,9 @@ class ContactSettings:
             raise ValueError(f"MuJoCo steps per control sample must be an integer >= 1, got {self.steps_per_sample!r}")
 
 
-def task_axes_of(robot) -> np.ndarray:
-    """The task coordinates' axes in the model's world frame, rows (n x 3): a planar arm's plane axes
-    (``PlanarArm.task_axes``; the serial 2R arm's are the model's x and z), a spatial arm's the identity."""
-    axes = getattr(robot, "task_axes", None)
-    if axes is not None:
-        return np.asarray(axes, dtype=np.float64)
-    if robot.dimension == 3:
-        return np.eye(3)
-    return np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])  # the serial 2R arm: its plane is the file's x-z
-
-
-def _spec_of(params):
-    """(MjSpec, end-effector body or site name, is it a site, gravity g, link changes) of ilcforce's plant
-    parameters ``params``; ValueError (one line) for a plant the cross-check cannot build."""
-    import mujoco
-
-    from ilcforce.plants.model_file import resolve_model
-
-    model = getattr(params, "model", "")
-    if model in ("file_arm", "spatial_arm"):
-        path = resolve_model(params.path)
-        spec = mujoco.MjSpec.from_file(str(path))
-        return spec, params.end_effector, float(params.g), tuple(params._changes())
-    if model == "serial2r":
-        spec = mujoco.MjSpec.from_file(str(resolve_model("serial2r.xml")))
-        link1, link2 = spec.body("link1"), spec.body("link2")
-        p = params
-        link1.mass, link1.ipos = p.m1, [p.Lc1, 0.0, 0.0]
-        link1.inertia = [1e-4, p.I1, p.I1]  # the in-plane inertia about y (the axis along the link is not seen)
-        link2.pos = [p.L1, 0.0, 0.0]
-        link2.mass, link2.ipos = p.m2, [p.Lc2, 0.0, 0.0]
-        link2.inertia = [1e-4, p.I2, p.I2]
-        spec.site("tool").pos = [p.L2, 0.0, 0.0]
-        return spec, "tool", float(p.g), ()
-    raise ValueError(f"the MuJoCo cross-check simulates the serial 2R arm and robots read from a model file "
-                     f"(plant.model = serial2r, file_arm or spatial_arm), not {model!r}")
+def simulates(params) -> bool:
+    """Whether the plant of ``params`` says how MuJoCo simulates it (its ``mujoco_model``)."""
+    return callable(getattr(params, "mujoco_model", None))
 
 
 class MujocoArm:
@@ -204,9 +169,12 @@ def build_arm(true_params, wall, force_axis: int, settings: ContactSettings, sam
     angles near the wall (the run's start), from which the probe pose for the contact's A is reached."""
     import mujoco
 
-    robot = make_plant(true_params)
-    n = robot.dimension
-    spec, ee, g, changes = _spec_of(true_params)
+    if not simulates(true_params):
+        raise ValueError(f"the MuJoCo cross-check has no MuJoCo model of plant.model = "
+                         f"{getattr(true_params, 'model', '?')!r} (its parameters give none: mujoco_model)")
+    described = true_params.mujoco_model()
+    spec, ee, g, changes = described.spec, described.end_effector, described.g, described.changes
+    n = described.task_axes.shape[0]
     spec.compiler.fusestatic = True
     spec.option.gravity = [0.0, 0.0, -g]
     spec.option.timestep = sample_time / settings.steps_per_sample
@@ -225,7 +193,7 @@ def build_arm(true_params, wall, force_axis: int, settings: ContactSettings, sam
     carrier.add_geom(name=TIP, type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[TIP_RADIUS, 0, 0], pos=offset,
                      contype=1, conaffinity=1, condim=1, mass=0.0)
     frame = wall.frame(n)
-    W = frame @ task_axes_of(robot)
+    W = frame @ described.task_axes
     normal = W[force_axis]  # the wall's normal in the world frame
     w = wall.sign
     outward = -w * normal  # MuJoCo's plane pushes along its z: towards the robot's side

@@ -80,9 +80,11 @@ def _check(config: Config, method: str) -> str:
     if not has_law_nd(REGISTRY[method].controller_class):
         raise ValueError(f"{method} has no n-axis law (law_nd), which the cross-check calls; "
                          f"try one of {', '.join(CROSSCHECK_METHODS)}")
-    if config.plant.model not in ("serial2r", "file_arm", "spatial_arm"):
-        raise ValueError(f"the MuJoCo cross-check simulates the serial 2R arm and robots read from a model file "
-                         f"(plant.model = serial2r, file_arm or spatial_arm), not {config.plant.model!r}")
+    from ilcforce.crosscheck.mujoco_plant import simulates
+
+    if not simulates(config.plant.nominal()):
+        raise ValueError(f"the MuJoCo cross-check has no MuJoCo model of plant.model = {config.plant.model!r}; "
+                         "its plants are those read from a model file and the closed forms that give one")
     if config.simulation.acceleration != "filtered":
         raise ValueError("the cross-check runs the filtered acceleration scheme (crosscheck_config sets it)")
     return method
@@ -292,7 +294,7 @@ def main(argv: list[str] | None = None) -> int:
     from ilcforce.crosscheck.mujoco_plant import ContactSettings, describe
 
     parser = _OneLineParser.make("python -m ilcforce.crosscheck.mujoco_run", __doc__.splitlines()[0])
-    parser.add_argument("experiment", help="experiment file (or a shipped one's name: serial2r-model, arm3)")
+    parser.add_argument("experiment", help="experiment file (or a shipped experiment's name)")
     parser.add_argument("-m", "--method", default="c2", help=f"one method with an n-axis law, e.g. "
                                                              f"{', '.join(CROSSCHECK_METHODS)} (default c2)")
     parser.add_argument("-n", "--iters", type=int, default=5, help="iterations (default 5)")

@@ -2,7 +2,8 @@
 the spatial arm, ilcforce's plant beside MuJoCo's, for a short horizon, each MuJoCo contact variant in its own
 table; every number on the page comes from this run.
 
-``python -m ilcforce.crosscheck.page --out docs/crosscheck.md`` (options: ``--iters``, ``--seed``).
+``python -m ilcforce.crosscheck.page --experiments A.toml,B.toml --out docs/crosscheck.md`` (options: ``--iters``,
+``--seed``, ``--methods``); ``make crosscheck`` names the 2R arm's and the spatial arm's experiments.
 """
 
 from __future__ import annotations
@@ -21,8 +22,6 @@ from ilcforce.crosscheck.mujoco_run import (CROSSCHECK_METHODS, CrossRow, _OneLi
                                             mujoco_iterations, own_iterations)
 from ilcforce.records import STATUS_COMPLETE, task_axes
 
-#: the robots: the 2R arm and the spatial arm, each from its model file
-EXPERIMENTS = ("serial2r-model", "arm3")
 #: MuJoCo's contact variants: (label, settings). The first is the wall ilcforce models (an undamped spring K_e);
 #: the second adds MuJoCo's default damping ratio (its solref's 1: critically damped); the third a larger
 #: impedance, whose added mass d / (1 - d) of the contact's effective mass is 10x the first's
@@ -92,8 +91,7 @@ def _pair(o: CrossRow | None, m: CrossRow | None, get) -> str:
     return f"{a} / {b}"
 
 
-def run_cells(iterations: int, seed: int, variants=VARIANTS, say=print, experiments=EXPERIMENTS,
-              methods=CROSSCHECK_METHODS) -> tuple[list[Cell], dict[str, list[float]]]:
+def run_cells(iterations: int, seed: int, experiments, variants=VARIANTS, say=print, methods=CROSSCHECK_METHODS) -> tuple[list[Cell], dict[str, list[float]]]:
     """Every (experiment, method): ilcforce's run once, MuJoCo's per variant; and MuJoCo's seconds per
     iteration per variant (the first iteration of each cell left out: it builds the model and may compile)."""
     from ilcforce.config_load import load_config
@@ -121,6 +119,19 @@ def run_cells(iterations: int, seed: int, variants=VARIANTS, say=print, experime
     return cells, seconds
 
 
+def _model_files(cells: list[Cell]) -> str:
+    """Each experiment's model file, as its plant names it (experiment: file)."""
+    from pathlib import PurePath
+
+    from ilcforce.config_load import load_config
+
+    out = []
+    for name in dict.fromkeys(c.experiment for c in cells):
+        path = getattr(load_config(name).plant.nominal(), "path", "")
+        out.append(f"{name}: experiments/models/{PurePath(path).name}" if path else name)
+    return "; ".join(out)
+
+
 def _commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10,
@@ -144,7 +155,7 @@ def render(cells: list[Cell], seconds: dict[str, list[float]], iterations: int, 
         "ilcforce simulates its robots with its own rigid-body dynamics (RK4 with the torque held over each control "
         "sample) and a linear spring wall, F = K_e max(0, w (y - y_e)) (docs/model.md#wall). This page runs the same "
         "controllers on the same task with MuJoCo doing the physics: the arm as MuJoCo reads it from its model file "
-        "(experiments/models/serial2r.xml for the 2R arm, experiments/models/arm3.xml for the spatial arm), the wall "
+        f"({_model_files(cells)}), the wall "
         "a MuJoCo plane, the force MuJoCo's own soft contact (module `ilcforce.crosscheck`). The sensor noise and the "
         "disturbance are ilcforce's draws for the same seed and iteration, the reference, metrics and learning "
         "updates ilcforce's; each control sample reads MuJoCo's state and contact force, builds the measurement "
@@ -256,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--iters", type=int, default=20)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--methods", default=",".join(CROSSCHECK_METHODS))
-    parser.add_argument("--experiments", default=",".join(EXPERIMENTS))
+    parser.add_argument("--experiments", required=True, help="comma-separated experiment files")
     parser.add_argument("--save", type=Path, default=None, help="also keep the run's rows here (pickle)")
     parser.add_argument("--load", type=Path, default=None, help="render the rows a --save kept, without running")
     args = parser.parse_args(argv)
@@ -268,8 +279,7 @@ def main(argv: list[str] | None = None) -> int:
     command = f"python -m ilcforce.crosscheck.page --out {args.out} --iters {args.iters} --seed {args.seed}"
     if methods != CROSSCHECK_METHODS:
         command += f" --methods {','.join(methods)}"
-    if experiments != EXPERIMENTS:
-        command += f" --experiments {','.join(experiments)}"
+    command = command.replace(" --out", f" --experiments {','.join(experiments)} --out", 1)
     import pickle
 
     started = time.perf_counter()
@@ -277,8 +287,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.load is not None:
             cells, seconds, wall_time = pickle.loads(args.load.read_bytes())
         else:
-            cells, seconds = run_cells(args.iters, args.seed, say=lambda text: print(text, file=sys.stderr, flush=True),
-                                       experiments=experiments, methods=methods)
+            cells, seconds = run_cells(args.iters, args.seed, experiments,
+                                       say=lambda text: print(text, file=sys.stderr, flush=True), methods=methods)
             wall_time = time.perf_counter() - started
             if args.save is not None:
                 args.save.parent.mkdir(parents=True, exist_ok=True)
