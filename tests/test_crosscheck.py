@@ -220,3 +220,23 @@ def test_bad_input_is_one_line(args, words):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], result.stderr
     assert result.stdout == ""
+
+
+def test_the_pages_verdict_rule():
+    """The page's rule (ilcforce.crosscheck.page): both complete with every number within a factor 2, or both
+    diverge at most 2 iterations apart; anything else differs, and says what."""
+    from ilcforce.crosscheck.mujoco_run import CrossRow
+    from ilcforce.crosscheck.page import verdict
+
+    def rows(count, *, diverged=False, e_f=0.1, h=(1.0, 2.0)):
+        out = [CrossRow(j, "complete", 1e-3, e_f, h, math.nan) for j in range(count)]
+        if diverged:
+            out[-1] = CrossRow(count - 1, "diverged", math.nan, math.nan, (math.nan,) * len(h), 0.5)
+        return out
+
+    assert verdict(rows(3), rows(3, e_f=0.19), 3) == "agrees"
+    assert verdict(rows(3), rows(3, e_f=0.21), 3) == "differs: e_F"
+    assert verdict(rows(3), rows(3, h=(1.0, 4.1)), 3) == "differs: H[1]"
+    assert verdict(rows(3), rows(1, diverged=True), 3) == "differs: only MuJoCo's diverged"
+    assert verdict(rows(13, diverged=True), rows(14, diverged=True), 20).startswith("agrees (both diverged")
+    assert verdict(rows(13, diverged=True), rows(1, diverged=True), 20) == "differs: diverged in j = 12 / 0"
