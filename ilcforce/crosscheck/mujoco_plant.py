@@ -16,9 +16,9 @@ force in contact is
     f = (s r + b v) / ((1 - d) A) + d / (1 - d) (1 / A) a1,
 
 r the penetration, v its rate, A MuJoCo's constant approximation of the contact's inverse effective mass
-(from the model at qpos0; MuJoCo regularises the contact with R = (1 - d) / d A) and a1 the contact point's normal acceleration. So
-s = K_e (1 - d) A and b = c (1 - d) A give a spring K_e (N/m) and a damper c (N s/m) plus an added mass
-d / (1 - d) / A on the contact: with d = 0.001 it is 0.1 % of the arm's effective mass. c is stated by a
+(from the model at qpos0; MuJoCo regularises the contact with R = (1 - d) / d A) and a1 the contact point's
+normal acceleration. So s = K_e (1 - d) A and b = c (1 - d) A give a spring K_e (N/m) and a damper c (N s/m) plus
+an added mass d / (1 - d) / A on the contact: with the default d = 1e-4 it is 0.01 % of the arm's effective mass. c is stated by a
 damping ratio zeta of that effective mass: c = 2 zeta sqrt(K_e / A). :func:`contact_gains` reads A from a
 contact MuJoCo makes, so each true plant (a perturbed one has another A) gets K_e exactly.
 
@@ -29,10 +29,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-
 
 __all__ = ["ContactSettings", "MujocoArm", "build_arm", "simulates"]
 
@@ -254,8 +252,3 @@ def _version() -> str:
 
     return mujoco.__version__
 
-
-def model_path(params) -> Path | None:
-    """The model file a plant's parameters name (None for the closed-form serial 2R arm)."""
-    path = getattr(params, "path", None)
-    return Path(path) if path else None

@@ -235,18 +235,18 @@ def _explanations(cells: list[Cell], variants, iterations: int) -> list[str]:
     def count(label, rule):
         return sum(1 for c in cells if rule(verdict(c.ours, c.theirs.get(label, []), iterations)))
 
-    first, *others = [label for label, _ in variants]
+    first = variants[0][0]
+    base = variants[0][1]
     lines = ["## Why the numbers differ", "",
              f"- With the wall ilcforce models ({first}), {count(first, lambda v: v.startswith('agrees'))} of "
              f"{len(cells)} method-robot pairs agree by the rule above. What still differs between the plants: "
-             "MuJoCo's contact force carries the added-mass term (1e-4 of the effective mass times the contact "
+             f"MuJoCo's contact force carries the added-mass term ({base.impedance:g} of the effective mass times the contact "
              "point's acceleration, which the torque's sample-to-sample chatter makes large); the force is read "
              "from MuJoCo's forward dynamics at the sample with the previous sample's torque still held; the "
              "disturbance's joint force is held over each step at the step's middle instead of evaluated at RK4's "
              "stages; and MuJoCo integrates the true plant with its own algorithms (its composite-rigid-body mass "
              "matrix and recursive Newton-Euler bias forces). The settled H is the quantity most sensitive to "
              "these: it measures the torque's chatter, which feeds through the measured force."]
-    base = variants[0][1]
     for label, contact in variants[1:]:
         why = []
         if contact.damping_ratio != base.damping_ratio:
