@@ -137,6 +137,28 @@ def _model_files(cells: list[Cell]) -> str:
     return "; ".join(out)
 
 
+def _feedback_gains(cells: list[Cell], contact: ContactSettings) -> str:
+    """Per robot and method, the acceleration feedback k lambda_F2 c (kg) a damped wall puts in the force loop,
+    beside the contact's effective mass 1 / A (kg) at the nominal plant's start."""
+    from ilcforce.config_load import load_config
+    from ilcforce.crosscheck.mujoco_plant import build_arm
+    from ilcforce.crosscheck.mujoco_run import initial_state
+    from ilcforce.simulate import force_axis
+
+    parts = []
+    for name in dict.fromkeys(c.experiment for c in cells):
+        config = load_config(name)
+        fa = force_axis(config.surface.selection)
+        nominal = config.plant.nominal()
+        arm = build_arm(nominal, config.wall, fa, contact, config.simulation.sample_time,
+                        initial_state(config, nominal)[0])
+        A, c = arm.contact["A"], arm.contact["damping"]
+        gains = ", ".join(f"{cell.method} {getattr(config.gains[cell.method], 'k')[fa] * config.surface.lambda_f2[fa] * c:.3g}"
+                          for cell in cells if cell.experiment == name and hasattr(config.gains[cell.method], "k"))
+        parts.append(f"{name}: 1 / A = {1 / A:.3g} kg, k lambda_F2 c = {gains} kg")
+    return "; ".join(parts)
+
+
 def _commit() -> str:
     try:
         return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, timeout=10,
@@ -250,8 +272,11 @@ def _explanations(cells: list[Cell], variants, iterations: int) -> list[str]:
     for label, contact in variants[1:]:
         why = []
         if contact.damping_ratio != base.damping_ratio:
-            why.append(f"a damper (zeta = {contact.damping_ratio:g}, c = 2 zeta sqrt(K_e / A), about 100 N s/m on "
-                       "both arms: see the parameters above) adds c v to the force the sensor measures")
+            why.append(f"a damper (zeta = {contact.damping_ratio:g}; c = 2 zeta sqrt(K_e / A), in N s/m in the "
+                       "parameters above) adds c v to the force the sensor measures, so the force rate every law "
+                       "feeds back (lambda_F2 dF/dt in sigma, eq. 8) carries c times the tool's normal acceleration: "
+                       "an acceleration feedback of k lambda_F2 c kg along the force axis, against the contact's "
+                       f"effective mass 1 / A ({_feedback_gains(cells, contact)})")
         if contact.impedance != base.impedance:
             why.append(f"the impedance d = {contact.impedance:g} makes the added mass "
                        f"{contact.impedance / base.impedance:g} times the first variant's, an inertial force the "
@@ -259,8 +284,8 @@ def _explanations(cells: list[Cell], variants, iterations: int) -> list[str]:
         lines.append(f"- {label}: {count(label, lambda v: v.startswith('agrees'))} of {len(cells)} pairs agree; "
                      f"{count(label, lambda v: 'only MuJoCo' in v)} diverge on MuJoCo's plant only. Here "
                      f"{'; '.join(why) or 'nothing but the settings above differs'}. Either is fed back through the "
-                     "force axis's high gain (k = 3000 to 10000 on the 2R arm and on the spatial arm's normal), so a "
-                     "force loop that holds on a pure spring need not hold on a wall that is not one.")
+                     "force axis's high gain, so a force loop that holds on a pure spring need not hold on a wall "
+                     "that is not one.")
     lines += ["", "Reproduce: `make crosscheck` (or the command at the top of this page); one method's per-iteration "
               "table: `python -m ilcforce.crosscheck.mujoco_run experiments/arm3.toml -m c3 -n 20` (options "
               "`--damping-ratio`, `--impedance`, `--integrator`, `--seed`)."]
