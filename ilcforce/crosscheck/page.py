@@ -273,10 +273,12 @@ def _explanations(cells: list[Cell], variants, iterations: int) -> list[str]:
         why = []
         if contact.damping_ratio != base.damping_ratio:
             why.append(f"a damper (zeta = {contact.damping_ratio:g}; c = 2 zeta sqrt(K_e / A), in N s/m in the "
-                       "parameters above) adds c v to the force the sensor measures, so the force rate every law "
-                       "feeds back (lambda_F2 dF/dt in sigma, eq. 8) carries c times the tool's normal acceleration: "
-                       "an acceleration feedback of k lambda_F2 c kg along the force axis, against the contact's "
-                       f"effective mass 1 / A ({_feedback_gains(cells, contact)})")
+                       "parameters above) adds c v to the force the sensor measures. A candidate mechanism, which this "
+                       "run does not isolate: the force rate every law feeds back (lambda_F2 dF/dt in sigma, eq. 8) "
+                       "then carries c times the tool's normal acceleration, an acceleration feedback of k lambda_F2 c "
+                       "kg along the force axis, many times the contact's effective mass 1 / A "
+                       f"({_feedback_gains(cells, contact)}); the table shows that a large ratio alone does not "
+                       "decide divergence")
         if contact.impedance != base.impedance:
             why.append(f"the impedance d = {contact.impedance:g} makes the added mass "
                        f"{contact.impedance / base.impedance:g} times the first variant's, an inertial force the "
