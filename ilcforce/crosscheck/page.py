@@ -168,7 +168,7 @@ def _commit() -> str:
 
 
 def render(cells: list[Cell], seconds: dict[str, list[float]], iterations: int, seed: int, command: str,
-           wall_time: float, variants=VARIANTS, methods=CROSSCHECK_METHODS) -> str:
+           wall_time: float, variants=VARIANTS, methods=CROSSCHECK_METHODS, extra: dict | None = None) -> str:
     """The page's Markdown."""
     import mujoco
 
@@ -248,8 +248,40 @@ def render(cells: list[Cell], seconds: dict[str, list[float]], iterations: int, 
                 f"{_pair(o0, m0, lambda r: r.force_error_rms)} | {_pair(o_last, m_last, lambda r: r.force_error_rms)} | "
                 f"{h} | {verdict(c.ours, theirs, iterations)} |")
         lines.append("")
+    if extra:
+        lines += _over_seeds(cells, extra, seed, iterations, variants[0][0])
     lines += _explanations(cells, variants, iterations)
     return "\n".join(lines) + "\n"
+
+
+def _over_seeds(cells: list[Cell], extra: dict, seed: int, iterations: int, label: str) -> list[str]:
+    """The first variant's verdict and last-iteration e_F (ilcforce / MuJoCo) on every seed run."""
+    seeds = [seed, *extra]
+    by_seed = {seed: {(c.experiment, c.method): c for c in cells}}
+    by_seed.update({s: {(c.experiment, c.method): c for c in rows} for s, rows in extra.items()})
+    lines = [f"### Over seeds: {label}", "",
+             f"The same {iterations} iterations on seeds {', '.join(map(str, seeds))} (the first variant only): the "
+             "verdict, and e_F (N, RMS) at the last iteration both runs completed, ilcforce's / MuJoCo's.", "",
+             "| robot | method | " + " | ".join(f"seed {s}" for s in seeds) + " |",
+             "|---|---|" + "---|" * len(seeds)]
+    for c in cells:
+        row = []
+        for s in seeds:
+            other = by_seed[s].get((c.experiment, c.method))
+            if other is None:
+                row.append("not run")
+                continue
+            theirs = other.theirs.get(label, [])
+            both = [j for j in range(min(len(other.ours), len(theirs)))
+                    if other.ours[j].status == STATUS_COMPLETE and theirs[j].status == STATUS_COMPLETE]
+            e_f = (f"{_g(other.ours[both[-1]].force_error_rms)} / {_g(theirs[both[-1]].force_error_rms)}"
+                   if both else "-")
+            row.append(f"{verdict(other.ours, theirs, iterations)}; e_F {e_f}")
+        lines.append(f"| {c.experiment} | {c.method} | " + " | ".join(row) + " |")
+    total = sum(1 for s in seeds for c in by_seed[s].values()
+                if verdict(c.ours, c.theirs.get(label, []), iterations).startswith("agrees"))
+    lines += ["", f"{total} of {len(cells) * len(seeds)} runs agree by the rule above.", ""]
+    return lines
 
 
 def _explanations(cells: list[Cell], variants, iterations: int) -> list[str]:
@@ -302,10 +334,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", default=",".join(CROSSCHECK_METHODS))
     parser.add_argument("--experiments", required=True, help="comma-separated experiment files")
     parser.add_argument("--save", type=Path, default=None, help="also keep the run's rows here (pickle)")
-    parser.add_argument("--load", type=Path, default=None, help="render the rows a --save kept, without running")
+    parser.add_argument("--load", type=Path, default=None, help="render the rows a --save kept, without running them again")
+    parser.add_argument("--extra-seeds", default="", help="comma-separated seeds run with the first contact variant only")
     args = parser.parse_args(argv)
     methods = tuple(m for m in args.methods.split(",") if m)
     experiments = tuple(e for e in args.experiments.split(",") if e)
+    try:
+        extra_seeds = tuple(int(v) for v in args.extra_seeds.split(",") if v.strip())
+    except ValueError:
+        print(f"error: --extra-seeds must be comma-separated integers, got {args.extra_seeds!r}", file=sys.stderr)
+        return 2
     if args.iters < 1:
         print(f"error: --iters must be >= 1, got {args.iters}", file=sys.stderr)
         return 2
@@ -313,26 +351,36 @@ def main(argv: list[str] | None = None) -> int:
     if methods != CROSSCHECK_METHODS:
         command += f" --methods {','.join(methods)}"
     command = command.replace(" --out", f" --experiments {','.join(experiments)} --out", 1)
+    if extra_seeds:
+        command += f" --extra-seeds {','.join(map(str, extra_seeds))}"
     import pickle
 
     started = time.perf_counter()
     try:
-        if args.load is not None:
-            cells, seconds, wall_time = pickle.loads(args.load.read_bytes())
+        say = lambda text: print(text, file=sys.stderr, flush=True)  # noqa: E731
+        if args.load is not None:  # the rows kept, and the extra seeds they do not have yet
+            kept = pickle.loads(args.load.read_bytes())
+            cells, seconds, wall_time = kept[:3]
+            extra = kept[3] if len(kept) > 3 else {}
         else:
-            cells, seconds = run_cells(args.iters, args.seed, experiments,
-                                       say=lambda text: print(text, file=sys.stderr, flush=True), methods=methods)
-            wall_time = time.perf_counter() - started
-            if args.save is not None:
-                args.save.parent.mkdir(parents=True, exist_ok=True)
-                args.save.write_bytes(pickle.dumps((cells, seconds, wall_time)))
+            cells, seconds = run_cells(args.iters, args.seed, experiments, say=say, methods=methods)
+            wall_time, extra = time.perf_counter() - started, {}
+        for seed in extra_seeds:
+            if seed not in extra:
+                begun = time.perf_counter()
+                extra[seed] = run_cells(args.iters, seed, experiments, VARIANTS[:1], say=say, methods=methods)[0]
+                wall_time += time.perf_counter() - begun
+        if args.save is not None:
+            args.save.parent.mkdir(parents=True, exist_ok=True)
+            args.save.write_bytes(pickle.dumps((cells, seconds, wall_time, extra)))
     except KeyboardInterrupt:
         print("interrupted: the page was not written", file=sys.stderr)
         return 130
     except (ValueError, OSError) as exc:
         print(f"error: {' '.join(str(exc).split())}", file=sys.stderr)
         return 2
-    text = render(cells, seconds, args.iters, args.seed, command, wall_time, methods=methods)
+    extra = {seed: extra[seed] for seed in extra_seeds}
+    text = render(cells, seconds, args.iters, args.seed, command, wall_time, methods=methods, extra=extra)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(text, encoding="utf-8")
     print(f"wrote {args.out}", file=sys.stderr)
