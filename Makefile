@@ -134,7 +134,7 @@ lifted: $(STAMP) aot ## the lifted-system check against long runs on the five-ba
 # The contact model cross-checked (ilcforce/crosscheck/): C1, C2, C3, C2-robust and C3-robust on the 2R arm and the
 # spatial arm from their model files, ilcforce's plant beside MuJoCo's with its own soft contact (three contact
 # variants) for 20 iterations on seed 0, and the matched variant on seeds 1 and 2. One process; the page states the
-# time it took (about 40 minutes on 2 cores).
+# time it took (30.5 minutes here, on 2 shared cores).
 crosscheck: $(STAMP) aot ## MuJoCo as the plant, its own contact against a plane, beside ilcforce's: writes docs/crosscheck.md
 	$(PY) -m ilcforce.crosscheck.page --experiments experiments/serial2r-model.toml,experiments/arm3.toml \
 		--out docs/crosscheck.md --iters 20 --seed 0 --extra-seeds 1,2 --save $(RESULTS)/crosscheck/rows.pkl
