@@ -23,6 +23,7 @@ naming the element (docs/model.md#model-file-limits).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,7 @@ from ilcforce.plants.model_refs import ModelFileError, scan_model
 from ilcforce.plants.serial_arm import SerialArm
 
 __all__ = ["ModelFileError", "load_model", "check_task_dimension", "shipped_models", "resolve_model",
-           "referenced_files"]
+           "referenced_files", "MujocoModel", "mujoco_spec"]
 
 #: MuJoCo's joint types (mjtJoint)
 _FREE, _BALL, _SLIDE, _HINGE = 0, 1, 2, 3
@@ -376,3 +377,28 @@ def check_task_dimension(plant: SerialArm, task_dimension: int) -> None:
     if plant.n != int(task_dimension):
         raise ModelFileError(f"{plant.source}: the robot has {plant.n} joints but the task has {int(task_dimension)} "
                              "dimensions; they must be equal")
+
+
+@dataclass(frozen=True)
+class MujocoModel:
+    """A robot as MuJoCo simulates it (the MuJoCo cross-check, docs/crosscheck.md): ``spec`` (an ``MjSpec``, not
+    compiled), its end effector (a body or site name), gravity g (m/s^2 along -z), the link changes of a
+    perturbed true plant (``(("<link>.mass", factor), ...)``, as :meth:`~ilcforce.plants.model_plant.ModelFileParams.scaled`
+    makes them) and the task coordinates' axes in the model's world frame (n x 3)."""
+
+    spec: object
+    end_effector: str
+    g: float
+    changes: tuple
+    task_axes: np.ndarray
+
+
+def mujoco_spec(path):
+    """The ``MjSpec`` MuJoCo reads from ``path`` (a shipped model's bare name too), for MuJoCo to simulate; the
+    file was checked when its plant was configured (:func:`load_model`)."""
+    import mujoco
+
+    try:
+        return mujoco.MjSpec.from_file(str(resolve_model(path)))
+    except Exception as exc:  # noqa: BLE001 - MuJoCo's parser errors have no common base
+        raise ModelFileError(f"{path}: MuJoCo cannot read it: {_one_line(exc)}") from None

@@ -73,6 +73,14 @@ class ModelFileParams(PackedParams):
         """The last link's mass."""
         return f"{load_planar(*self._key()).link_names[-1]}.mass"
 
+    def mujoco_model(self):
+        """The robot as MuJoCo simulates it from its file (:class:`~ilcforce.plants.model_file.MujocoModel`);
+        the task axes are the plane's (:attr:`PlanarArm.task_axes`)."""
+        from ilcforce.plants.model_file import MujocoModel, mujoco_spec
+
+        return MujocoModel(mujoco_spec(self.path), self.end_effector, float(self.g), tuple(self._changes()),
+                           PlanarArm(self).task_axes)
+
     def _key(self):
         try:
             stamp = os.stat(self.path).st_mtime_ns

@@ -93,6 +93,20 @@ class Serial2RParams(PackedParams):
             object.__setattr__(self, name, float(value))
 
 
+    def mujoco_model(self):
+        """The arm as MuJoCo simulates it (:class:`~ilcforce.plants.model_file.MujocoModel`): the shipped
+        ``models/serial2r.xml`` with these lengths, centres of mass, masses, in-plane inertias and g; its plane is
+        the file's x-z (the task's y is the model's z)."""
+        from ilcforce.plants.model_file import MujocoModel, mujoco_spec
+
+        spec = mujoco_spec("serial2r.xml")
+        link1, link2 = spec.body("link1"), spec.body("link2")
+        link1.mass, link1.ipos, link1.inertia = self.m1, [self.Lc1, 0.0, 0.0], [1e-4, self.I1, self.I1]
+        link2.pos = [self.L1, 0.0, 0.0]
+        link2.mass, link2.ipos, link2.inertia = self.m2, [self.Lc2, 0.0, 0.0], [1e-4, self.I2, self.I2]
+        spec.site("tool").pos = [self.L2, 0.0, 0.0]
+        return MujocoModel(spec, "tool", self.g, (), np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]))
+
 _N_PARAMS = len(PARAM_NAMES)
 
 # --------------------------------------------------------------------------------------------

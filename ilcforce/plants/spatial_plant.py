@@ -77,6 +77,14 @@ class SpatialArmParams(PackedParams):
         """The last link's mass."""
         return f"{load_spatial(*self._key()).link_names[-1]}.mass"
 
+    def mujoco_model(self):
+        """The robot as MuJoCo simulates it from its file (:class:`~ilcforce.plants.model_file.MujocoModel`);
+        the task is the end effector's world position."""
+        from ilcforce.plants.model_file import MujocoModel, mujoco_spec
+
+        return MujocoModel(mujoco_spec(self.path), self.end_effector, float(self.g), tuple(self._changes()),
+                           np.eye(JOINTS))
+
     def _key(self):
         try:
             stamp = os.stat(self.path).st_mtime_ns
