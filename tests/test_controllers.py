@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import inspect
+
 import numpy as np
 import pytest
 
@@ -9,6 +11,7 @@ from ilcforce.config_load import default_config
 from ilcforce.controllers import REGISTRY, Controller
 from ilcforce.controllers.base import (DIAG_WIDTH, LAW_SIGNATURE, MEAS_ACCEL, MEAS_FORCE_ACCEL,
                                        MEAS_WIDTH)
+from ilcforce.controllers.nd import law_signature_nd
 from ilcforce.experiment import make_controller
 from ilcforce.plants import MODELS, make_plant, plant_class
 
@@ -49,6 +52,17 @@ def method(request):
     return request.param
 
 
+#: the methods with a 2-D law (``law``): its contract is tested here; a method with an n-axis law only (no-ilc)
+#: has that law's contract (pure unless writing, quadratic in the acceleration) tested in tests/test_ndof.py
+METHODS_2D = sorted(name for name, spec in REGISTRY.items()
+                    if inspect.getattr_static(spec.controller_class, "law", None) is not None)
+
+
+@pytest.fixture(params=METHODS_2D)
+def method_2d(request):
+    return request.param
+
+
 @pytest.fixture(params=sorted(m for m in MODELS if plant_class(m).dimension == 2))
 def plant(request):
     """Every registered 2-joint plant model: the contract holds for every method on every such robot (the
@@ -62,8 +76,12 @@ def test_contract(method, plant, plant_config):
     controller = make_controller(config, method)
     assert isinstance(controller, Controller)
     assert controller.name == method
-    assert controller.law.signatures, "law must be compiled with LAW_SIGNATURE"
-    assert controller.law.nopython_signatures[0].args == LAW_SIGNATURE.args
+    if method in METHODS_2D:
+        assert controller.law.signatures, "law must be compiled with LAW_SIGNATURE"
+        assert controller.law.nopython_signatures[0].args == LAW_SIGNATURE.args
+    else:  # an n-axis law only, which the n-joint loop runs on this plant too
+        assert controller.law is None and controller.law_nd.signatures, "law_nd must be compiled with its signature"
+        assert controller.law_nd.nopython_signatures[0].args == law_signature_nd().args
     gains = controller.gains()
     assert gains.dtype == np.float64 and gains.ndim == 1
     mem_prev, mem_new = controller.begin_iteration(0)
@@ -76,10 +94,10 @@ def test_contract(method, plant, plant_config):
         assert value.shape[0] == config.n_control, key
 
 
-def test_law_is_pure_unless_writing(method, plant, plant_config):
+def test_law_is_pure_unless_writing(method_2d, plant, plant_config):
     rng = np.random.default_rng(1)
     config = plant_config(plant)
-    controller = make_controller(config, method)
+    controller = make_controller(config, method_2d)
     width = max((stop for _a, stop, _u in controller.memory_layout.values()), default=0)
     mem_prev = rng.normal(0, 1, (N, width))
     mem_new = np.full((N, width), 7.0)
@@ -98,7 +116,7 @@ def test_law_is_pure_unless_writing(method, plant, plant_config):
         np.testing.assert_array_equal(np.delete(mem_new, 3, axis=0), 7.0, err_msg="only sample k is written")
 
 
-def test_law_is_at_most_quadratic_in_acceleration(method, plant, plant_config):
+def test_law_is_at_most_quadratic_in_acceleration(method_2d, plant, plant_config):
     """The implicit scheme relies on tau(a) being a polynomial of degree <= 2 (see simulate.py).
 
     Third finite differences of a quadratic vanish up to roundoff: with torques of order 10 N m and
@@ -106,7 +124,7 @@ def test_law_is_at_most_quadratic_in_acceleration(method, plant, plant_config):
     """
     rng = np.random.default_rng(2)
     config = plant_config(plant)
-    controller = make_controller(config, method)
+    controller = make_controller(config, method_2d)
     width = max((stop for _a, stop, _u in controller.memory_layout.values()), default=0)
     for trial in range(5):
         mem_prev = rng.normal(0, 1, (N, width))
@@ -121,7 +139,7 @@ def test_law_is_at_most_quadratic_in_acceleration(method, plant, plant_config):
                                        np.zeros(DIAG_WIDTH)))
         taus = np.array(taus)
         third = np.diff(taus, n=3, axis=0)
-        np.testing.assert_allclose(third, 0.0, atol=1e-9, err_msg=f"{method} law is not quadratic in a (trial {trial})")
+        np.testing.assert_allclose(third, 0.0, atol=1e-9, err_msg=f"{method_2d} law is not quadratic in a (trial {trial})")
 
 
 # ---------------------------------------------------------------------------------------------
