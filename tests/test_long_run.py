@@ -97,6 +97,14 @@ def test_the_findings_cite_the_committed_summary_and_leave_make_longs_studies_ou
     assert with_long == readme.findings_markdown({}, {}, **empty)
     assert "`make long`, studies run on 2026-12-05 at commit abc): C3 diverges." in with_long
     assert long_run.is_long_study("growth-validation-serial2r") and not long_run.is_long_study("long-run-mc")
+    # every study file of experiments/long/ is one of make long's, so the findings leave each out
+    import tomllib
+    from pathlib import Path
+
+    for path in Path("experiments/long").glob("*.toml"):
+        table = tomllib.loads(path.read_text(encoding="utf-8")).get("study")
+        if table:
+            assert long_run.is_long_study(table["name"]), path
 
 
 def test_heldout_rates_count_misses_false_alarms_and_not_evaluable_with_wilson_intervals():

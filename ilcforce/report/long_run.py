@@ -45,6 +45,8 @@ from ilcforce.stats import growth_rate
 VALIDATION_PREFIX = "growth-validation"
 LONG_RUN = "long-run-1000"
 CAUSE = "long-run-cause"
+#: The spatial arm's long run (experiments/long/arm3-long.toml): a study of make long, left out of the findings.
+ARM3_LONG = "arm3-long"
 #: The summary ``make long`` writes beside its page, read by the findings.
 SUMMARY = "summary.json"
 #: The iterations at which the long-run table reports settled H.
@@ -385,7 +387,7 @@ def committed_summary(directory: Path | None = None) -> dict | None:
 def is_long_study(name: str) -> bool:
     """A study of ``make long`` (summarised by its committed page, not by the findings of a report)."""
     return name.startswith((VALIDATION_PREFIX, growth_validation.HELDOUT_PREFIX, growth_validation.LONGER_PREFIX)) or name in (
-        LONG_RUN, CAUSE, cause_seeds.STUDY, c3_robust_ablation.STUDY, c3_robust_ablation.LEAK_CHECK)
+        LONG_RUN, CAUSE, cause_seeds.STUDY, ARM3_LONG, c3_robust_ablation.STUDY, c3_robust_ablation.LEAK_CHECK)
 
 
 def main(argv: list[str] | None = None) -> int:
