@@ -112,13 +112,13 @@ def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIO
         return run
 
     # the loop a command runs: the ahead-of-time compiled one (ilcforce.compiled.aot), or else numba's
-    find, kernel = aot.simulator, loop._simulate
+    find, pick = aot.simulator, loop.simulator
 
     def timed_simulator(*args):
         found = find(*args)
         return None if found is None else timed(found)
 
-    aot.simulator, loop._simulate = timed_simulator, timed(kernel)
+    aot.simulator, loop.simulator = timed_simulator, lambda n: timed(pick(n))
     try:
         out = {}
         for method in methods:
@@ -131,7 +131,7 @@ def loop_seconds(methods: Sequence[str], repeat: int, iterations: int = ITERATIO
             out[method] = statistics.median(runs)
         return out
     finally:
-        aot.simulator, loop._simulate = find, kernel
+        aot.simulator, loop.simulator = find, pick
 
 
 #: Runs the command through the entry point with each compiled-loop call timed; prints, at the

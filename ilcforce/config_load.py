@@ -250,7 +250,7 @@ def _check_consistency(config: Config) -> None:
         robot = make_plant(params)
         for pos in (start, *poses):
             try:
-                robot.inverse_kinematics(frame.T @ pos if n != 2 else pos)  # world P = R^T X
+                robot.inverse_kinematics(frame.T @ pos)  # world P = R^T X
             except UnreachableError:
                 where = "simulation.initial_position" if pos is start else "the reference"
                 shown_pos = ", ".join(f"{v:.4g}" for v in pos)

@@ -19,7 +19,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import inspect
 import os
 import threading
 from collections.abc import Callable, Sequence
@@ -430,26 +429,16 @@ def preload_kernels(config, methods: Sequence[str]) -> None:
     from ilcforce.store import StoreWriter  # noqa: F401  (h5py and the writer, imported once for all workers)
 
     robot = make_plant(config.plant.links())
-    # the n-joint loop (numba's) for every method on an n-joint plant, and for a method with an n-axis law only
-    n_axis_only = [m for m in methods
-                   if inspect.getattr_static(REGISTRY[canonical(m)].controller_class, "law", None) is None]
-    if robot.dimension != 2 or n_axis_only:
-        from ilcforce.ndof import loop as nd_loop  # noqa: F401
-
-        robot.nd_kernel()
-        for method in (methods if robot.dimension != 2 else n_axis_only):
-            make_controller(config, method).law_nd  # noqa: B018
-        if robot.dimension != 2:
-            return
-    robot.calls()
+    calls = getattr(robot, "calls", None)
+    if calls is not None:  # the kernels of a planar plant's Python API (ahead-of-time or numba's)
+        calls()
     for method in methods:
-        if method in n_axis_only:
-            continue
         controller = make_controller(config, method)
-        if aot.simulator(controller, type(robot), type(robot)) is None:  # numba's loop, law and kernels
-            from ilcforce import loop  # noqa: F401
+        if aot.simulator(controller, type(robot), type(robot)) is None:  # numba's loop, law and kernel
+            from ilcforce import loop
 
-            robot.kernels()
+            loop.simulator(robot.dimension)
+            robot.nd_kernel()
             controller.law  # noqa: B018
     desired_inputs(config.plant.links(), config.wall, config.reference_samples()[:1])  # its kernels
 

@@ -234,7 +234,7 @@ def iteration_metrics(record: IterationRecord, *, settled_from: float = SETTLED_
         n = record_dimension(record.log)
     except ValueError as error:
         raise ValueError(f"{error} (iteration {record.iteration})") from None
-    columns = METRIC_COLUMNS if n == 2 else metric_columns(n)
+    columns = metric_columns(n)
     signals = {
         name: _log_array(record, name, (n_log, n))
         for name in ("position_error", "force_error", "task_input", "desired_task_input", "torque", "desired_torque")

@@ -39,7 +39,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcforce.controllers.base import Controller
-from ilcforce.controllers.nd import has_law_nd
 from ilcforce.noise import IterationDraws, NoiseModel, disturbance
 from ilcforce.plants import make_plant
 from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
@@ -142,9 +141,6 @@ class IterationInputs:
     selection: tuple[float, ...]
     first_chunk: tuple[int, np.ndarray] | None = None
     setup: IterationSetup | None = None  # made ahead (prepare_setup); run_iteration's own otherwise
-    #: which compiled loop: "auto" (the 2-D loop for a 2-joint plant, the n-joint loop otherwise) or "nd"
-    #: (the n-joint loop for any plant: how the tests check it against the 2-D loop)
-    loop: str = "auto"
 
 
 def chunk_steps_default(settings: SimulationSettings) -> int:
@@ -198,86 +194,44 @@ class IterationSetup:
     simulate_chunk: Callable
     kernels: tuple  # numba's loop: the law's and the plants' kernels, its first arguments
     n: int = 2  # joints = task axes
-    layout: object = None  # the loop's module (its log and carry layout): ilcforce.loop or ilcforce.ndof.loop
 
 
-def _shared_setup(inputs: IterationInputs, controller) -> tuple:
-    """What both loops' set-ups make alike: the reference, the log grid's length, the control grid, the
-    true and nominal robots, and the packed float and integer settings (the 2-D loop's)."""
+def _setup(inputs: IterationInputs, controller) -> IterationSetup:
+    """The set-up of the loop (``ilcforce.loop``): the reference, the log grid's length, the control grid, the
+    true and nominal robots, the initial state on the true plant, the packed settings (the wall's frame R after
+    (y_e, K_e, w); the plants' kernel buffers' sizes after the settings) and the compiled loop to call."""
+    from ilcforce.compiled import aot  # loop: numba's, loaded on first use only
+
     s = inputs.settings
     ref = np.ascontiguousarray(inputs.reference, dtype=np.float64)
     n_control = ref.shape[0]
     n_log = (n_control - 1) // s.log_every + 1
     t_control = np.arange(n_control) * s.sample_time
     fset = np.array([s.sample_time, 1.0 - math.exp(-2.0 * math.pi * s.filter_hz * s.sample_time), s.torque_bound])
-    iset = [s.substeps, s.log_every, ACCELERATION_SCHEMES[s.acceleration], int(controller.uses_nominal_dynamics),
-            force_axis(inputs.selection), IMPLICIT_FALLBACKS[s.implicit_fallback]]
-    return ref, n_log, t_control, make_plant(inputs.true_plant), make_plant(inputs.nominal_plant), fset, iset
-
-
-def _has_law_2d(controller) -> bool:
-    """Whether a controller (its class, or the object itself) has a 2-D law, without compiling it (reading
-    ``law`` compiles)."""
-    import inspect
-
-    return inspect.getattr_static(controller, "law", None) is not None
-
-
-def _setup(inputs: IterationInputs, controller) -> IterationSetup:
-    from ilcforce import loop
-    from ilcforce.compiled import aot  # loop: numba's, loaded on first use only
-
-    shared = _shared_setup(inputs, controller)
-    ref, n_log, t_control, true_robot, nominal_robot, fset, iset = shared
-    # a method with an n-axis law only (a plugin may give either law, docs/plugins.md) runs through the n-joint
-    # loop on a 2-joint plant too, which gives the 2-D loop's numbers (tests/test_ndof.py)
-    if inputs.loop == "nd" or true_robot.dimension != 2 or not _has_law_2d(controller):
-        return _setup_nd(inputs, controller, shared)
-    s = inputs.settings
-    theta0 = true_robot.inverse_kinematics(s.initial_position)
-    dtheta0 = (0.0, 0.0)
-    if s.initial_velocity == "consistent":  # dP(0) = dP_d(0) on the true plant
-        dtheta0 = tuple(np.linalg.solve(true_robot.jacobian(theta0), ref[0, REF_VELOCITY:REF_VELOCITY + 2]))
-    iset = np.array(iset, dtype=np.int64)
-    wall = np.array([inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign])
-    # the ahead-of-time compiled loop of this law and plant (no numba in the process), or numba's
-    # with the law and the plant's kernels as arguments: the same code, the same numbers
-    simulate_chunk, kernels = aot.simulator(controller, type(true_robot), type(nominal_robot)), ()
-    if simulate_chunk is None:
-        true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
-        simulate_chunk, kernels = loop._simulate, (controller.law, true_k.accel, nominal_k.kin, nominal_k.task)
-    return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, wall,
-                          np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log, (theta0, dtheta0),
-                          simulate_chunk, kernels, 2, loop)
-
-
-def _setup_nd(inputs: IterationInputs, controller, shared: tuple) -> IterationSetup:
-    """The set-up of the n-joint loop (``ilcforce.ndof.loop``, docs/model.md#n-dof): the same steps as the
-    2-D one, the wall's frame R packed after (y_e, K_e, w), the plants' kernel buffers' sizes after the settings."""
-    from ilcforce.ndof import loop as nd_loop  # numba's, loaded on first use only
-
-    s = inputs.settings
-    if not has_law_nd(type(controller)):
-        raise ValueError(f"{controller.name} has no law for a task of other than 2 axes yet (docs/model.md#n-dof)")
-    if not getattr(controller, "runs_nd", True):
-        raise ValueError(f"{controller.name}'s n-axis law needs an n-joint plant's regressor; this plant's is a "
-                         "2-joint one, which the 2-D loop runs (loop = \"auto\")")
-    law = type(controller).law_nd
-    ref, n_log, t_control, true_robot, nominal_robot, fset, iset = shared
+    true_robot, nominal_robot = make_plant(inputs.true_plant), make_plant(inputs.nominal_plant)
     n = true_robot.dimension
     frame = inputs.wall.frame(n)
     theta0 = true_robot.inverse_kinematics(frame.T @ np.asarray(s.initial_position, dtype=np.float64))
     dtheta0 = np.zeros(n)
     if s.initial_velocity == "consistent":  # dX(0) = dX_d(0) on the true plant
         dtheta0 = np.linalg.solve(frame @ true_robot.jacobian(theta0), reference_block(ref, REF_VELOCITY, n)[0])
-    iset = np.array([*iset, true_robot.nd_width, nominal_robot.nd_width, getattr(controller, "nd_scratch", 0)],
-                    dtype=np.int64)
+    iset = np.array([s.substeps, s.log_every, ACCELERATION_SCHEMES[s.acceleration],
+                     int(controller.uses_nominal_dynamics), force_axis(inputs.selection),
+                     IMPLICIT_FALLBACKS[s.implicit_fallback], true_robot.nd_width, nominal_robot.nd_width,
+                     getattr(controller, "nd_scratch", 0)], dtype=np.int64)
     wall = np.concatenate([[inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign], frame.ravel()])
-    kernels = (law, true_robot.nd_kernel(), nominal_robot.nd_kernel())
+    # the ahead-of-time compiled loop of this law and plant (no numba in the process), or numba's
+    # with the law and the plant's kernels as arguments: the same code, the same numbers
+    simulate_chunk, kernels = aot.simulator(controller, type(true_robot), type(nominal_robot)), ()
+    if simulate_chunk is None:
+        from ilcforce import loop  # numba's, loaded on first use only
+
+        simulate_chunk = loop.simulator(n)
+        kernels = (controller.law, true_robot.nd_kernel(), nominal_robot.nd_kernel())
     return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, np.ascontiguousarray(wall),
                           np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log,
                           (np.asarray(theta0, dtype=np.float64), np.asarray(dtheta0, dtype=np.float64)),
-                          nd_loop._simulate, kernels, n, nd_loop)
+                          simulate_chunk, kernels, n)
 
 
 def prepare_setup(inputs: IterationInputs, controller) -> IterationInputs:
@@ -311,9 +265,8 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
         setup = _setup(inputs, controller)
     ref, t_control = setup.ref, setup.t_control
     # what the loop writes is made here, for this run only: a set-up may serve several
-    layout = setup.layout
-    log = np.full((setup.n_log, loop.LOG_WIDTH if layout is loop else layout.log_width(setup.n)), np.nan)
-    carry = layout.new_carry(*setup.initial_state)
+    log = np.full((setup.n_log, loop.log_width(setup.n)), np.nan)
+    carry = loop.new_carry(*setup.initial_state)
     n_control = ref.shape[0]
     gains = np.ascontiguousarray(controller.gains(), dtype=np.float64)
     head = (*setup.kernels, setup.true_robot.address, setup.nominal_robot.address, setup.wall, gains, mem_prev,
@@ -339,7 +292,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
             break
         if stop_requested is not None and stop_requested():
             raise KeyboardInterrupt
-    fallback = int(carry[loop.CARRY_FALLBACK if layout is loop else layout.carry_fallback(setup.n)])
+    fallback = int(carry[loop.carry_fallback(setup.n)])
     signals = log_signals(t_control, s.log_every, log, ref, inputs.selection)
     if status == loop.RUN_OK:
         return IterationRecord(inputs.iteration, STATUS_COMPLETE, math.nan, "", fallback, signals)
@@ -354,32 +307,12 @@ def desired_inputs(plant, wall: Wall, reference_log: np.ndarray) -> tuple[np.nda
 
     tau_d = Dq ddtheta_d + Cq dtheta_d + G_q + J^T (w F_d) is the inverse dynamics (eq. 1) of
     ``plant`` (parameters of any model) along P_d(t) = (x_d, y_e + w F_yd / K_e), including the
-    desired contact force, so the wall's reaction -w F_d is balanced. ``reference_log`` is (n, 12);
-    returns two (n, 2) arrays (N m, N).
+    desired contact force, so the wall's reaction -w F_d is balanced: the plant's ``desired_inputs``.
+    ``reference_log`` is (n_log, 6 n); returns two (n_log, n) arrays (N m, N).
     """
-    from ilcforce.compiled import aot
-    from ilcforce.plants import UnreachableError
-
     robot = make_plant(plant)
     ref = np.ascontiguousarray(reference_log, dtype=np.float64)
-    if robot.dimension != 2:
-        from ilcforce.ndof.desired import desired_inputs_nd
-
-        return desired_inputs_nd(robot, wall.frame(robot.dimension), float(wall.sign), ref)
-    tau_d = np.empty((ref.shape[0], 2))
-    task_d = np.empty((ref.shape[0], 2))
-    compiled = aot.desired(type(robot))  # ahead-of-time compiled, or numba's (same code, same numbers)
-    if compiled is not None:
-        bad = compiled(robot.address, ref, float(wall.sign), tau_d, task_d)
-    else:
-        from ilcforce import desired  # numba's, loaded on first use only
-
-        kernels = robot.kernels()
-        bad = desired.desired_kernel(kernels.dyn, kernels.ik, robot.address, ref, float(wall.sign), tau_d, task_d)
-    if bad >= 0:
-        raise UnreachableError(f"the desired pose ({ref[bad, 0]:.6g}, {ref[bad, 1]:.6g}) m is not reachable "
-                               f"in {robot.working_mode}")
-    return tau_d, task_d
+    return robot.desired_inputs(wall.frame(robot.dimension), float(wall.sign), ref)
 
 
 def complete_record(record: IterationRecord, desired: tuple[np.ndarray, np.ndarray], memory: dict,
@@ -398,15 +331,14 @@ def complete_record(record: IterationRecord, desired: tuple[np.ndarray, np.ndarr
 
 def log_signals(t_control: np.ndarray, log_every: int, log: np.ndarray, ref: np.ndarray, selection) -> dict:
     """The log signals of an iteration from the loop's log buffer (fresh per iteration)."""
-    from ilcforce import loop  # the buffer's layout
-    from ilcforce.ndof import loop as nd_loop  # (its layout only: no numba)
+    from ilcforce import loop  # the buffer's layout (no numba)
 
     n = len(selection)
     out = {"time": t_control[::log_every].copy()}
-    columns = loop.LOG_COLUMNS if n == 2 else nd_loop.log_columns(n)
+    columns = loop.log_columns(n)
     for name, col in columns.items():
         out[name] = log[:, col:col + n].copy()
-    out["implicit_fallbacks"] = log[:, loop.LOG_FALLBACKS if n == 2 else nd_loop.log_fallbacks(n)].copy()
+    out["implicit_fallbacks"] = log[:, loop.log_fallbacks(n)].copy()
     sel = np.asarray(selection, dtype=np.float64)
     ref_log = ref[::log_every]
     out["position_error"] = (1.0 - sel) * (reference_block(ref_log, REF_POSITION, n) - out["position"])  # eq. (6)

@@ -10,45 +10,56 @@ import pytest
 from numba import njit
 from scipy.integrate import solve_ivp
 
-from ilcforce.controllers.base import (DIAG_SIGMA, LAW_SIGNATURE, MEAS_ACCEL, MEAS_DTHETA,
-                                       MEAS_FORCE_ACCEL, MEAS_THETA, MemoryController)
+from ilcforce.controllers.base import MemoryController
+from ilcforce.controllers.nd import M_ACCEL, M_DTHETA, M_FORCE_ACCEL, M_THETA, at_py, law_signature
 from ilcforce.noise import draw_iteration
 from ilcforce.plants.fivebar import FiveBar
 from ilcforce.simulate import IterationInputs, run_iteration
 
 # Joint-space PD holding the pose that presses 10 mm into the wall (a smooth case: always in contact).
 _KP, _KD = 20.0, 1.0
+# the measurement vector's offsets on the planar task (2 axes)
+THETA, DTHETA, ACCEL, FORCE_ACCEL = (at_py(m, 2) for m in (M_THETA, M_DTHETA, M_ACCEL, M_FORCE_ACCEL))
 
 
-@njit(LAW_SIGNATURE)
-def pd_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return (_KP * (gains[0] - meas[MEAS_THETA]) - _KD * meas[MEAS_DTHETA],
-            _KP * (gains[1] - meas[MEAS_THETA + 1]) - _KD * meas[MEAS_DTHETA + 1])
+@njit(law_signature())
+def pd_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    tau[0] = _KP * (gains[0] - meas[THETA]) - _KD * meas[DTHETA]
+    tau[1] = _KP * (gains[1] - meas[THETA + 1]) - _KD * meas[DTHETA + 1]
+    return 0
 
 
-@njit(LAW_SIGNATURE)
-def zero_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return 0.0, 0.0
+@njit(law_signature())
+def zero_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    tau[0] = 0.0
+    tau[1] = 0.0
+    return 0
 
 
-@njit(LAW_SIGNATURE)
-def huge_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return (1e4 if k >= 5 else 0.0), 0.0
+@njit(law_signature())
+def huge_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    tau[0] = 1e4 if k >= 5 else 0.0
+    tau[1] = 0.0
+    return 0
 
 
-@njit(LAW_SIGNATURE)
-def nan_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return (math.nan if k >= 7 else 0.0), 0.0
+@njit(law_signature())
+def nan_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    tau[0] = math.nan if k >= 7 else 0.0
+    tau[1] = 0.0
+    return 0
 
 
-@njit(LAW_SIGNATURE)
-def quadratic_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    """Torque quadratic in the force-axis acceleration, like eq. (14); logs the acceleration it saw."""
-    a = meas[MEAS_ACCEL + 1]
-    f2 = meas[MEAS_FORCE_ACCEL + 1]
-    diag[DIAG_SIGMA] = a
-    diag[DIAG_SIGMA + 1] = f2
-    return 0.05 * a + 0.002 * a * a + 0.3, 0.01 * a - 0.001 * a * a + 0.2
+@njit(law_signature())
+def quadratic_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """Torque quadratic in the force-axis acceleration, like eq. (14); logs the acceleration it saw (as sigma)."""
+    a = meas[ACCEL + 1]
+    f2 = meas[FORCE_ACCEL + 1]
+    diag[0] = a
+    diag[1] = f2
+    tau[0] = 0.05 * a + 0.002 * a * a + 0.3
+    tau[1] = 0.01 * a - 0.001 * a * a + 0.2
+    return 0
 
 
 class _TestController(MemoryController):
@@ -335,27 +346,30 @@ def test_c3_learns_the_gravity_block_on_a_plant_with_gravity(short_config):
 
 # --- the run's switches: initial velocity, implicit fallback (and when it happened) ---------------
 
-@njit(LAW_SIGNATURE)
-def rootless_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+@njit(law_signature())
+def rootless_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
     """tau1 = tau2 = K a^2 + K0 (K = gains[0], K0 = gains[1]): with s = q1 + q2 the plant's
     force-axis response to torque, a = p0 + s (K a^2 + K0) has no real root once 4 s K (p0 + s K0) > 1
     (at rest on the wall p0 = 0 and s = 2.36 / (kg m) on the five-bar, so K = K0 = 10 gives 2229).
     Logs the acceleration it was given."""
-    a = meas[MEAS_ACCEL + 1]
-    diag[DIAG_SIGMA] = a
-    diag[DIAG_SIGMA + 1] = 0.0
-    tau = gains[0] * a * a + gains[1]
-    return tau, tau
+    a = meas[ACCEL + 1]
+    diag[0] = a
+    diag[1] = 0.0
+    tau[0] = gains[0] * a * a + gains[1]
+    tau[1] = tau[0]
+    return 0
 
 
-@njit(LAW_SIGNATURE)
-def cancelling_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+@njit(law_signature())
+def cancelling_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
     """tau1 = tau2 = a / s (s = gains[0]): the law cancels the plant's own response, so the loop
     residual a - (p0 + s tau(a)) = -p0 has zero slope: the degenerate branch."""
-    a = meas[MEAS_ACCEL + 1]
-    diag[DIAG_SIGMA] = a
-    diag[DIAG_SIGMA + 1] = 0.0
-    return a * gains[0], a * gains[0]
+    a = meas[ACCEL + 1]
+    diag[0] = a
+    diag[1] = 0.0
+    tau[0] = a * gains[0]
+    tau[1] = a * gains[0]
+    return 0
 
 
 def _force_axis_response(config):

@@ -199,8 +199,9 @@ def simulator_name(law: str, plant: str) -> str:
 
 
 def simulator(controller, true_plant_cls: type, nominal_plant_cls: type):
-    """The compiled loop for this law and plant, taking ``ilcforce.loop._simulate``'s arguments
-    after its four kernels; None if there is none (numba's loop is then used)."""
+    """The compiled loop for this law and plant, taking the arguments of ``ilcforce.loop.simulator``'s entry
+    after its three kernels (the law, the true and the nominal plant's ``nd_dyn``); None if there is none
+    (numba's loop is then used)."""
     mod = module()
     if mod is None or true_plant_cls is not nominal_plant_cls:
         return None
@@ -223,7 +224,7 @@ def plant_kernels(plant_cls: type, kind: type):
 
 
 def desired(plant_cls: type):
-    """``desired_kernel`` of :mod:`ilcforce.desired` for this plant, without its two kernel
+    """``desired_kernel`` of :mod:`ilcforce.plants.desired` for this plant, without its two kernel
     arguments, or None.
 
     Its solves call LAPACK through ``scipy.linalg.cython_lapack``, which the module imports at the

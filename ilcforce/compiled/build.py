@@ -7,11 +7,11 @@ the same sources; ``--force`` builds anyway.
 
 Compiles with numba.pycc, into ``ilcforce/_kernels_aot*.so`` beside the package's sources:
 
-* ``sim__<law>__<plant>``: the compiled loop ``ilcforce.loop._simulate`` with that law and that
-  plant's kernels bound (every built-in law on every built-in plant), taking the loop's other
-  arguments;
+* ``sim__<law>__<plant>``: the compiled loop (``ilcforce.loop.simulator`` for the plant's task
+  dimension) with that law and that plant's ``nd_dyn`` kernel bound (every built-in law on every built-in
+  plant), taking the loop's other arguments;
 * ``<plant>__kin`` ... ``<plant>__ik``: the plant's kernels (for the plant's Python API);
-* ``desired__<plant>``: ``ilcforce.desired.desired_kernel`` with the plant's kernels bound.
+* ``desired__<plant>``: ``ilcforce.plants.desired.desired_kernel`` with the plant's kernels bound.
 
 Each export calls the very dispatchers numba runs (same source, same compiler, same options), so
 the numbers are numba's. The code is built for the generic CPU of the machine's architecture
@@ -40,7 +40,8 @@ def _exports():
     """(name, signature, python function) of every export."""
     nb = _jit.numba()
     types = nb.types
-    from ilcforce import desired, loop
+    from ilcforce import loop
+    from ilcforce.plants import desired
     from ilcforce.controllers import REGISTRY
     from ilcforce.plants import MODELS, plant_class
     from ilcforce.plants.base import PlantKernels, kernel_signature
@@ -51,11 +52,8 @@ def _exports():
         key = aot.law_key(cls)
         if key is not None:
             laws[key] = cls.law
-    # a dispatcher's ``signatures``: the argument types of each compiled signature (numba's public API)
-    sim_args = loop._simulate.signatures[0][4:]
-    sim_sig = types.UniTuple(types.int64, 2)(*sim_args)
     desired_sig = types.int64(*desired.desired_kernel.signatures[0][2:])
-    simulate, desired_kernel = loop._simulate, desired.desired_kernel
+    desired_kernel = desired.desired_kernel
     out = []
     for model in MODELS:
         cls = plant_class(model)
@@ -66,18 +64,20 @@ def _exports():
         for kind, kernel in zip(PlantKernels._fields, kernels):
             out.append((f"{plant}__{kind}", kernel_signature(kind.upper()), kernel.py_func))
         out.append((f"desired__{plant}", desired_sig, _bind_desired(desired_kernel, kernels)))
+        # the loop's entry for the plant's task dimension; a dispatcher's ``signatures``: the argument types of
+        # each compiled signature (numba's public API)
+        simulate = loop.simulator(cls.dimension)
+        sim_sig = types.UniTuple(types.int64, 2)(*simulate.signatures[0][3:])
         for key, law in laws.items():
-            out.append((aot.simulator_name(key, plant), sim_sig, _bind_loop(simulate, law, kernels)))
+            out.append((aot.simulator_name(key, plant), sim_sig, _bind_loop(simulate, law, cls.nd_kernel())))
     return out
 
 
-def _bind_loop(simulate, law, kernels):
-    accel, kin, task = kernels.accel, kernels.kin, kernels.task
-
+def _bind_loop(simulate, law, dyn):
     def bound(p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset, log, carry,
               k_start, k_stop):
-        return simulate(law, accel, kin, task, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise,
-                        fset, iset, log, carry, k_start, k_stop)
+        return simulate(law, dyn, dyn, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset,
+                        log, carry, k_start, k_stop)
     return bound
 
 

@@ -13,8 +13,8 @@ from pathlib import Path
 #: the package folder (``ilcforce/``)
 PACKAGE = Path(__file__).resolve().parent.parent
 #: every file whose code the extension module holds (a change to any of them retires it)
-SOURCES = ("compiled/jit.py", "compiled/build.py", "loop.py", "desired.py", "task.py", "controllers/*.py",
-           "plants/*.py")
+SOURCES = ("compiled/jit.py", "compiled/build.py", "compiled/dense.py", "compiled/views.py", "loop.py", "ndof/*.py",
+           "task.py", "controllers/*.py", "plants/*.py")
 
 
 def source_files() -> list[Path]:

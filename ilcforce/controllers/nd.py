@@ -1,4 +1,4 @@
-"""The control laws' contract in n dimensions (docs/model.md#n-dof): what ``ilcforce.ndof.loop`` gives a law
+"""The control laws' contract in n dimensions (docs/model.md#n-dof): what ``ilcforce.loop`` gives a law
 and takes back when the task has n axes (n joints, non-redundant).
 
 It is the 2-D contract of :mod:`ilcforce.controllers.base` with every block n wide instead of 2::

@@ -5,7 +5,7 @@ Per control sample, in Python: MuJoCo's forward dynamics at the current state (w
 sample before) gives the joint angles and rates and the contact force (:mod:`ilcforce.crosscheck.mujoco_plant`);
 :func:`ilcforce.crosscheck.sample.control_sample` adds the sample's sensor noise, builds the law's measurement
 vector from the NOMINAL model and the filtered estimates, and calls the method's compiled ``law_nd``; the
-watchdog and the log are the loop's (``ilcforce.ndof.loop``: its log layout, its torque bound); then MuJoCo steps
+watchdog and the log are the loop's (``ilcforce.loop``: its log layout, its torque bound); then MuJoCo steps
 over Ts with the torque and the disturbance's joint force -J_X^T F_v (MuJoCo's Jacobian, F_v at the step's
 middle) held. The noise and the disturbance are ilcforce's draws (:func:`ilcforce.noise.draw_iteration`, from
 (seed, iteration)); the reference, the record, the desired inputs and the metrics are ilcforce's, and the
@@ -112,7 +112,7 @@ def mujoco_iterations(config: Config, method: str, contact=None, arms: dict | No
     the caller may share between methods of one experiment."""
     from ilcforce.crosscheck.mujoco_plant import ContactSettings, build_arm
     from ilcforce.crosscheck.sample import SAMPLE_OK, control_sample, filter_width
-    from ilcforce.ndof import loop as nd_loop
+    from ilcforce import loop as nd_loop
 
     method = _check(config, method)
     contact = contact if contact is not None else ContactSettings()

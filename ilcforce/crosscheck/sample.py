@@ -1,5 +1,5 @@
 """One control sample of the cross-check's controller side, compiled: steps 2 to 4 of ilcforce's n-joint loop
-(``ilcforce.ndof.loop``, docs/model.md#n-dof) for a true state and contact force that another engine supplies.
+(``ilcforce.loop``, docs/model.md#n-dof) for a true state and contact force that another engine supplies.
 
 Given the true joint angles and rates and the true contact force in the task frame, :func:`control_sample`
 adds the sample's sensor noise, evaluates the NOMINAL plant's kernel at the measured state (position, J_X and,
@@ -22,7 +22,7 @@ from ilcforce.controllers.nd import (
     M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_THETA, M_VELOCITY, at,
 )
 from ilcforce.ndof.algebra import task_model
-from ilcforce.ndof.loop import _to_task
+from ilcforce.loop import _to_task
 
 #: control_sample's outcomes
 SAMPLE_OK, SAMPLE_WORKING_MODE = 0, 1

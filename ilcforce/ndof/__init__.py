@@ -1,2 +1,2 @@
-"""The n-joint simulation (docs/model.md#n-dof): the compiled loop for a robot whose joint count is not 2
-(``loop``), its small dense algebra and eq. (4) (``algebra``), tau_d along the path (``desired``)."""
+"""The nominal task-space model of eq. (4) in n dimensions (``algebra``), which the loop (``ilcforce.loop``) and the
+MuJoCo cross-check's sampler write into a law's measurement vector."""

@@ -42,7 +42,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ilcforce.compiled import jit as _jit
-from ilcforce.compiled.jit import intrinsic, njit, numba_global
+from ilcforce.compiled.jit import njit
+from ilcforce.compiled.views import address_to_pointer, carray
 
 __all__ = ["UnreachableError", "PlantKernels", "Plant", "params_view", "kernel_signature", "kernel_type", "check_pair",
            "task_space", "task_from_dynamics"]
@@ -75,25 +76,10 @@ def __getattr__(name: str):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-carray = numba_global("carray")
-
-
-@intrinsic
-def _address_to_pointer(typingctx, address):
-    """An integer address as a float64 pointer (no reference counting, no bounds)."""
-    types = _jit.numba().types
-    sig = types.CPointer(types.float64)(address)
-
-    def codegen(context, builder, signature, args):
-        return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
-
-    return sig, codegen
-
-
 @njit(cache=True, error_model="numpy")
 def params_view(address, n):
     """The packed parameter vector of length n at ``address``, as a read-only-by-convention array."""
-    return carray(_address_to_pointer(address), n)
+    return carray(address_to_pointer(address), n)
 
 
 @njit(cache=True, error_model="numpy")
@@ -229,6 +215,28 @@ class Plant:
         from ilcforce.plants.nd import nd_width
 
         return nd_width(self)
+
+    def desired_inputs(self, frame, wall_sign: float, reference_log: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """tau_d and J^-T tau_d along the reference on the log grid (``ilcforce.simulate.desired_inputs``):
+        the compiled kernel of :mod:`ilcforce.plants.desired` (ahead-of-time, or numba's: the same code, the
+        same numbers). A planar plant's task frame is the world's (``frame`` is I)."""
+        from ilcforce.compiled import aot
+
+        ref = reference_log
+        tau_d = np.empty((ref.shape[0], 2))
+        task_d = np.empty((ref.shape[0], 2))
+        compiled = aot.desired(type(self))
+        if compiled is not None:
+            bad = compiled(self.address, ref, wall_sign, tau_d, task_d)
+        else:
+            from ilcforce.plants import desired  # numba's, loaded on first use only
+
+            kernels = self.kernels()
+            bad = desired.desired_kernel(kernels.dyn, kernels.ik, self.address, ref, wall_sign, tau_d, task_d)
+        if bad >= 0:
+            raise UnreachableError(f"the desired pose ({ref[bad, 0]:.6g}, {ref[bad, 1]:.6g}) m is not reachable "
+                                   f"in {self.working_mode}")
+        return tau_d, task_d
 
     def calls(self) -> PlantKernels:
         """The five kernels as Python calls them: the ahead-of-time compiled ones when built

@@ -146,6 +146,13 @@ class SpatialArm:
     ahead_of_time = False  # its kernel is numba's: any file's arm runs it
     dimension = JOINTS  # joints = task axes (an instance checks its file's arm has as many)
 
+    def desired_inputs(self, frame, wall_sign: float, reference_log: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """tau_d and J_X^-T tau_d along the reference on the log grid, by inverse kinematics and the chain's
+        inverse dynamics (:func:`ilcforce.plants.desired_nd.desired_inputs_nd`)."""
+        from ilcforce.plants.desired_nd import desired_inputs_nd
+
+        return desired_inputs_nd(self, frame, wall_sign, reference_log)
+
     def __init__(self, params=None):
         from ilcforce.plants.serial_arm import SerialArm
 

@@ -55,8 +55,6 @@ def true_gravity(config, iteration: int, positions: np.ndarray) -> np.ndarray:
 
     robot = make_plant(config.plant.true_plant(iteration))
     n = positions.shape[1]
-    if n == 2:
-        return robot.task_gravity_along(positions)
     frame = config.wall.frame(n)  # X = R P, so a row P = X R, and G in the task frame R G_world
     return robot.task_gravity_along(positions @ frame) @ frame.T
 

@@ -14,7 +14,7 @@ import numpy as np
 if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports none
     import pandas as pd
 
-from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics, metric_columns
+from ilcforce.metrics import METRICS_VERSION, column_kind, iteration_metrics, metric_columns
 from ilcforce.store import binding, schema
 from ilcforce.store.seal import ATTRS_SEAL, attrs_state
 from ilcforce.store.filecheck import check_links
@@ -293,7 +293,7 @@ def metrics_frame(rows: dict[int, dict[str, object]], dimension: int = schema.DE
     ``dimension`` axes."""
     order = sorted(rows)
     data = {}
-    table = METRIC_COLUMNS if dimension == 2 else metric_columns(dimension)
+    table = metric_columns(dimension)
     for column in table:
         if column == "iteration":
             continue

@@ -21,7 +21,7 @@ from typing import Any
 import h5py
 import numpy as np
 
-from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, metric_columns
+from ilcforce.metrics import METRICS_VERSION, column_kind, metric_columns
 from ilcforce.store import schema
 from ilcforce.store.seal import seal_attrs
 
@@ -33,7 +33,7 @@ _DESCRIPTION = ("cache of ilcforce.metrics.iteration_metrics over the stored log
 
 
 def _columns(dimension: int) -> dict[str, tuple[str, str]]:
-    return METRIC_COLUMNS if dimension == schema.DEFAULT_TASK_DIMENSION else metric_columns(dimension)
+    return metric_columns(dimension)
 
 
 def dimension_of(handle: h5py.File) -> int:

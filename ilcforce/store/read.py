@@ -23,7 +23,7 @@ import numpy as np
 if TYPE_CHECKING:  # pandas only where a frame is built: writing a run imports none
     import pandas as pd
 
-from ilcforce.metrics import METRIC_COLUMNS, METRICS_VERSION, column_kind, iteration_metrics, metric_columns
+from ilcforce.metrics import METRICS_VERSION, column_kind, iteration_metrics, metric_columns
 from ilcforce.records import IterationRecord
 from ilcforce.store import schema
 from ilcforce.store.seal import ATTRS_SEAL, attrs_state
@@ -360,7 +360,7 @@ def cached_metrics(handle: h5py.File, path: Path,
     if version is None or not schema.kind_matches(version, "int") or int(version) != METRICS_VERSION:
         return None
     columns: dict[str, np.ndarray] = {}
-    for column in (METRIC_COLUMNS if dimension == 2 else metric_columns(dimension)):
+    for column in metric_columns(dimension):
         dataset = metrics.get(column)
         if not isinstance(dataset, h5py.Dataset) or dataset.ndim != 1:
             return None

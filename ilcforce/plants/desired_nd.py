@@ -1,5 +1,6 @@
 """tau_d along the desired motion of an n-joint plant (docs/model.md#metrics, docs/model.md#n-dof): what Table 3's
-chattering H compares the applied input with, for the robots of the n-joint loop.
+chattering H compares the applied input with, for an n-joint chain moving in space (the spatial arm's
+``desired_inputs``; a planar plant's is compiled, ilcforce.plants.desired).
 
 The desired task motion X_d(t) (the reference, in the wall's frame) is followed in joint space from the
 plant's working pose: q_d by inverse kinematics from the previous sample's q_d, dq_d = J^-1 dP_d and

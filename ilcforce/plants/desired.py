@@ -1,7 +1,7 @@
-"""The reference's inverse dynamics, compiled (docs/model.md#metrics): tau_d and J^-T tau_d along the
-desired motion, for Table 3's H and the logs' ``desired_torque``. :func:`ilcforce.simulate.desired_inputs`
-calls it; like :mod:`ilcforce.loop` it reaches the plant only through the kernel signatures of
-:mod:`ilcforce.plants.base`.
+"""A planar plant's reference inverse dynamics, compiled (docs/model.md#metrics): tau_d and J^-T tau_d along
+the desired motion, for Table 3's H and the logs' ``desired_torque``. The planar plants'
+``desired_inputs`` (:class:`ilcforce.plants.base.Plant`) call it; it reaches the plant only through the
+kernel signatures of :mod:`ilcforce.plants.base`. An n-joint chain's is :mod:`ilcforce.plants.desired_nd`.
 """
 
 from __future__ import annotations
