@@ -19,7 +19,6 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
-import inspect
 import os
 import threading
 from collections.abc import Callable, Sequence
@@ -31,7 +30,7 @@ import numpy as np
 from ilcforce import pipeline, samerun
 from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY, MethodNameError, canonical_method
-from ilcforce.controllers.nd import check_widths, has_law_nd
+from ilcforce.controllers.nd import check_widths
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.simulate import (IterationInputs, complete_record, desired_inputs, prepare_first_chunk, prepare_setup,
@@ -74,9 +73,7 @@ def make_controller(config: Config, method: str):
     if refusal:
         raise ConfigError(refusal)
     cls = REGISTRY[method].controller_class
-    if config.dimension != 2 and not has_law_nd(cls):
-        raise ConfigError(f"{method} has no law for a task of {config.dimension} axes yet (docs/model.md#n-dof)")
-    try:  # a table the experiment does not give keeps the 2-D defaults: refused on a task of other axes
+    try:  # a table the experiment does not give keeps the planar task's defaults: refused on a task of other axes
         check_widths(method, config.gains[method], config.dimension)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
@@ -424,33 +421,18 @@ def preload_kernels(config, methods: Sequence[str]) -> None:
     kernels (ahead-of-time compiled, or numba's: the simulation loop, the plant's kernels, each
     method's law), so each pays for none of them again.
     """
-    from ilcforce.compiled import aot
     from ilcforce.plants import make_plant
     from ilcforce.simulate import desired_inputs
     from ilcforce.store import StoreWriter  # noqa: F401  (h5py and the writer, imported once for all workers)
 
+    from ilcforce.ndof import loop as nd_loop  # noqa: F401  (the n-joint loop, numba's)
+
     robot = make_plant(config.plant.links())
-    # the n-joint loop (numba's) for every method on an n-joint plant, and for a method with an n-axis law only
-    n_axis_only = [m for m in methods
-                   if inspect.getattr_static(REGISTRY[canonical(m)].controller_class, "law", None) is None]
-    if robot.dimension != 2 or n_axis_only:
-        from ilcforce.ndof import loop as nd_loop  # noqa: F401
-
-        robot.nd_kernel()
-        for method in (methods if robot.dimension != 2 else n_axis_only):
-            make_controller(config, method).law_nd  # noqa: B018
-        if robot.dimension != 2:
-            return
-    robot.calls()
+    robot.nd_kernel()  # the plant's kernel and each method's law
     for method in methods:
-        if method in n_axis_only:
-            continue
-        controller = make_controller(config, method)
-        if aot.simulator(controller, type(robot), type(robot)) is None:  # numba's loop, law and kernels
-            from ilcforce import loop  # noqa: F401
-
-            robot.kernels()
-            controller.law  # noqa: B018
+        make_controller(config, method).law  # noqa: B018
+    if robot.dimension != 2:
+        return
     desired_inputs(config.plant.links(), config.wall, config.reference_samples()[:1])  # its kernels
 
 

@@ -39,7 +39,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcforce.controllers.base import Controller
-from ilcforce.controllers.nd import has_law_nd
 from ilcforce.noise import IterationDraws, NoiseModel, disturbance
 from ilcforce.plants import make_plant
 from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
@@ -142,8 +141,8 @@ class IterationInputs:
     selection: tuple[float, ...]
     first_chunk: tuple[int, np.ndarray] | None = None
     setup: IterationSetup | None = None  # made ahead (prepare_setup); run_iteration's own otherwise
-    #: which compiled loop: "auto" (the 2-D loop for a 2-joint plant, the n-joint loop otherwise) or "nd"
-    #: (the n-joint loop for any plant: how the tests check it against the 2-D loop)
+    #: which compiled loop: every plant now runs through the n-joint loop with the method's one law ("auto" and
+    #: "nd" are the same)
     loop: str = "auto"
 
 
@@ -215,40 +214,8 @@ def _shared_setup(inputs: IterationInputs, controller) -> tuple:
     return ref, n_log, t_control, make_plant(inputs.true_plant), make_plant(inputs.nominal_plant), fset, iset
 
 
-def _has_law_2d(controller) -> bool:
-    """Whether a controller (its class, or the object itself) has a 2-D law, without compiling it (reading
-    ``law`` compiles)."""
-    import inspect
-
-    return inspect.getattr_static(controller, "law", None) is not None
-
-
 def _setup(inputs: IterationInputs, controller) -> IterationSetup:
-    from ilcforce import loop
-    from ilcforce.compiled import aot  # loop: numba's, loaded on first use only
-
-    shared = _shared_setup(inputs, controller)
-    ref, n_log, t_control, true_robot, nominal_robot, fset, iset = shared
-    # a method with an n-axis law only (a plugin may give either law, docs/plugins.md) runs through the n-joint
-    # loop on a 2-joint plant too, which gives the 2-D loop's numbers (tests/test_ndof.py)
-    if inputs.loop == "nd" or true_robot.dimension != 2 or not _has_law_2d(controller):
-        return _setup_nd(inputs, controller, shared)
-    s = inputs.settings
-    theta0 = true_robot.inverse_kinematics(s.initial_position)
-    dtheta0 = (0.0, 0.0)
-    if s.initial_velocity == "consistent":  # dP(0) = dP_d(0) on the true plant
-        dtheta0 = tuple(np.linalg.solve(true_robot.jacobian(theta0), ref[0, REF_VELOCITY:REF_VELOCITY + 2]))
-    iset = np.array(iset, dtype=np.int64)
-    wall = np.array([inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign])
-    # the ahead-of-time compiled loop of this law and plant (no numba in the process), or numba's
-    # with the law and the plant's kernels as arguments: the same code, the same numbers
-    simulate_chunk, kernels = aot.simulator(controller, type(true_robot), type(nominal_robot)), ()
-    if simulate_chunk is None:
-        true_k, nominal_k = true_robot.kernels(), nominal_robot.kernels()
-        simulate_chunk, kernels = loop._simulate, (controller.law, true_k.accel, nominal_k.kin, nominal_k.task)
-    return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, wall,
-                          np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log, (theta0, dtheta0),
-                          simulate_chunk, kernels, 2, loop)
+    return _setup_nd(inputs, controller, _shared_setup(inputs, controller))
 
 
 def _setup_nd(inputs: IterationInputs, controller, shared: tuple) -> IterationSetup:
@@ -257,12 +224,7 @@ def _setup_nd(inputs: IterationInputs, controller, shared: tuple) -> IterationSe
     from ilcforce.ndof import loop as nd_loop  # numba's, loaded on first use only
 
     s = inputs.settings
-    if not has_law_nd(type(controller)):
-        raise ValueError(f"{controller.name} has no law for a task of other than 2 axes yet (docs/model.md#n-dof)")
-    if not getattr(controller, "runs_nd", True):
-        raise ValueError(f"{controller.name}'s n-axis law needs an n-joint plant's regressor; this plant's is a "
-                         "2-joint one, which the 2-D loop runs (loop = \"auto\")")
-    law = type(controller).law_nd
+    law = type(controller).law
     ref, n_log, t_control, true_robot, nominal_robot, fset, iset = shared
     n = true_robot.dimension
     frame = inputs.wall.frame(n)
@@ -303,7 +265,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     ``stop_requested()`` is true the iteration is abandoned with KeyboardInterrupt. ``turns``
     (:class:`ilcforce.pipeline.Turns`), if given, is told when the compiled loop runs.
     """
-    from ilcforce import loop  # numba's (loaded on first use only) and the loop's constants
+    from ilcforce.ndof import loop  # the loop's constants (numba's, loaded on first use only)
 
     s = inputs.settings
     setup = inputs.setup
@@ -312,7 +274,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     ref, t_control = setup.ref, setup.t_control
     # what the loop writes is made here, for this run only: a set-up may serve several
     layout = setup.layout
-    log = np.full((setup.n_log, loop.LOG_WIDTH if layout is loop else layout.log_width(setup.n)), np.nan)
+    log = np.full((setup.n_log, layout.log_width(setup.n)), np.nan)
     carry = layout.new_carry(*setup.initial_state)
     n_control = ref.shape[0]
     gains = np.ascontiguousarray(controller.gains(), dtype=np.float64)
@@ -339,7 +301,7 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
             break
         if stop_requested is not None and stop_requested():
             raise KeyboardInterrupt
-    fallback = int(carry[loop.CARRY_FALLBACK if layout is loop else layout.carry_fallback(setup.n)])
+    fallback = int(carry[layout.carry_fallback(setup.n)])
     signals = log_signals(t_control, s.log_every, log, ref, inputs.selection)
     if status == loop.RUN_OK:
         return IterationRecord(inputs.iteration, STATUS_COMPLETE, math.nan, "", fallback, signals)
@@ -398,15 +360,13 @@ def complete_record(record: IterationRecord, desired: tuple[np.ndarray, np.ndarr
 
 def log_signals(t_control: np.ndarray, log_every: int, log: np.ndarray, ref: np.ndarray, selection) -> dict:
     """The log signals of an iteration from the loop's log buffer (fresh per iteration)."""
-    from ilcforce import loop  # the buffer's layout
-    from ilcforce.ndof import loop as nd_loop  # (its layout only: no numba)
+    from ilcforce.ndof import loop as nd_loop  # the buffer's layout
 
     n = len(selection)
     out = {"time": t_control[::log_every].copy()}
-    columns = loop.LOG_COLUMNS if n == 2 else nd_loop.log_columns(n)
-    for name, col in columns.items():
+    for name, col in nd_loop.log_columns(n).items():
         out[name] = log[:, col:col + n].copy()
-    out["implicit_fallbacks"] = log[:, loop.LOG_FALLBACKS if n == 2 else nd_loop.log_fallbacks(n)].copy()
+    out["implicit_fallbacks"] = log[:, nd_loop.log_fallbacks(n)].copy()
     sel = np.asarray(selection, dtype=np.float64)
     ref_log = ref[::log_every]
     out["position_error"] = (1.0 - sel) * (reference_block(ref_log, REF_POSITION, n) - out["position"])  # eq. (6)

@@ -211,7 +211,7 @@ class SpatialArm:
 #: the base parameters' units, as an adaptive law's memory describes them
 BASE_PARAMETER_UNITS = ("each a link's inertial parameter (kg, kg m or kg m^2, link frame) plus the unidentifiable "
                         "ones it absorbs")
-#: an n-joint chain's regressor serves the n-axis adaptive law (ilcforce.plants.adaptive.nd_regressor)
+#: an n-joint chain's regressor serves the adaptive law (ilcforce.plants.adaptive.regressor_rows)
 CHAIN_REGRESSOR = True
 
 
