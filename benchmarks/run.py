@@ -22,23 +22,17 @@ from benchmarks.cold import median_seconds as _median_time
 from ilcforce.config_load import default_config
 from ilcforce.controllers import REGISTRY
 from ilcforce.config import ConfigError
-from ilcforce.controllers.base import LAW_SIGNATURE, MemoryController
-from ilcforce.controllers.nd import law_signature_nd
+from ilcforce.controllers.base import MemoryController
+from ilcforce.controllers.nd import law_signature
 from ilcforce.experiment import make_controller, run_method
 from ilcforce.noise import draw_iteration
 from ilcforce.plants.fivebar import _accel_terms
 from ilcforce.simulate import IterationInputs, run_iteration
 
 
-@njit(LAW_SIGNATURE, cache=True, error_model="numpy")
-def zero_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    """A trivial controller: no torque."""
-    return 0.0, 0.0
-
-
-@njit(law_signature_nd(), cache=True, error_model="numpy")
-def zero_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    """The same for n joints."""
+@njit(law_signature(), cache=True, error_model="numpy")
+def zero_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """A trivial controller: no torque (any n)."""
     tau[:] = 0.0
     return 0
 
@@ -46,7 +40,6 @@ def zero_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
 class ZeroController(MemoryController):
     name = "zero"
     law = staticmethod(zero_law)
-    law_nd = staticmethod(zero_law_nd)
     uses_nominal_dynamics = False
     memory_layout = {}
 
