@@ -203,7 +203,7 @@ class SpatialArm:
 
 # --------------------------------------------------------------------------------------------
 # Linear parametrisation for an adaptive law (ilcforce.plants.adaptive): M ddq_r + C(q, dq) dq_r + g = Y a,
-# a the base parameters (the identifiable combinations of the links' inertial parameters). The n-axis law
+# a the base parameters (the identifiable combinations of the links' inertial parameters). The adaptive law
 # computes the chain's whole regressor (ilcforce.plants.chain_nd.slotine_li_regressor) and keeps its base
 # columns, which these functions name.
 # --------------------------------------------------------------------------------------------
