@@ -211,7 +211,7 @@ class SlotineLiController(MemoryController):
         """The law's gains (its layout: ``K`` .. ``GAMMA`` and what follows)."""
         names = self.base_parameter_names
         gamma = gains.gamma
-        if n == 2 and len(gamma) == REGRESSOR_WIDTH:  # a planar task's Gamma: one per closed-form column
+        if adaptive.has_closed_form(nominal.model):  # Gamma per closed-form column: the base parameters' first
             gamma = gamma[:len(names)]
         if len(gamma) != len(names):
             raise ValueError(f"sl-adapt.gamma must have {len(names)} entries, one per base parameter of the "

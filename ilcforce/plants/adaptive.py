@@ -30,8 +30,8 @@ from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel r
 from ilcforce.plants import MODELS, chain_nd, fivebar, planar_kernels, serial2r
 
 __all__ = ["REGRESSOR_WIDTH", "PARAM_ROOM", "code", "base_parameter_names", "base_parameter_units",
-           "base_parameters", "base_columns", "law_parameters", "work_width", "regressor_row_width", "state_terms",
-           "jacobian_rate_times", "regressor_rows", "regressor", "jacobian_derivative"]
+           "base_parameters", "has_closed_form", "base_columns", "law_parameters", "work_width", "regressor_row_width",
+           "state_terms", "jacobian_rate_times", "regressor_rows", "regressor", "jacobian_derivative"]
 
 #: columns of a 2-joint plant's closed-form regressor tuple (the most base parameters of any such plant)
 REGRESSOR_WIDTH = 6
@@ -79,7 +79,9 @@ def base_parameters(params) -> np.ndarray:
     return _module(params.model).base_parameters(params)
 
 
-def _closed_form(model: str) -> bool:
+def has_closed_form(model: str) -> bool:
+    """Whether plant ``model`` gives its closed-form regressor (a 2-joint plant: its Gamma, as a planar task's
+    ``sl-adapt.gamma``, has :data:`REGRESSOR_WIDTH` entries, one per column) rather than a chain's."""
     return not hasattr(_module(model), "CHAIN_REGRESSOR")
 
 
@@ -87,16 +89,16 @@ def base_columns(params) -> list[int]:
     """The columns of :func:`regressor_rows` that are the base parameters of the plant with parameters
     ``params``, in the base parameters' order (a closed form's first columns; a chain's own choice)."""
     module = _module(params.model)
-    if hasattr(module, "CHAIN_REGRESSOR"):
-        return list(module.base_columns_of(params))
-    return list(range(len(module.base_parameters(params))))
+    if has_closed_form(params.model):
+        return list(range(len(module.base_parameters(params))))
+    return list(module.base_columns_of(params))
 
 
 def law_parameters(params) -> np.ndarray:
     """The nominal plant's parameters as the compiled functions below read them: a closed form's packed
     vector padded with zeros to :data:`PARAM_ROOM`, a chain's packed vector."""
     packed = np.asarray(params.as_array(), dtype=np.float64)
-    if not _closed_form(params.model):
+    if not has_closed_form(params.model):
         return packed
     out = np.zeros(max(PARAM_ROOM, packed.size))
     out[:packed.size] = packed
@@ -105,7 +107,7 @@ def law_parameters(params) -> np.ndarray:
 
 def work_width(model: str, n: int) -> int:
     """The scratch floats :func:`state_terms` and the two functions after it use for plant ``model`` of n joints."""
-    return 0 if _closed_form(model) else chain_nd.width(n)
+    return 0 if has_closed_form(model) else chain_nd.width(n)
 
 
 def regressor_row_width(n: int) -> int:
