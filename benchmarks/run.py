@@ -32,7 +32,7 @@ from ilcforce.simulate import IterationInputs, run_iteration
 
 @njit(law_signature(), cache=True, error_model="numpy")
 def zero_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    """A trivial controller: no torque."""
+    """A trivial controller: no torque (any n)."""
     tau[:] = 0.0
     return 0
 

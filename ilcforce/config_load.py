@@ -24,7 +24,7 @@ import numpy as np
 from ilcforce.config import Config, ConfigError
 from ilcforce.config_ranges import MAX_RUN_BYTES, MAX_STEPS_PER_ITERATION, MAX_STRING, range_of
 from ilcforce.controllers import REGISTRY
-from ilcforce.controllers.nd import check_widths, has_law_nd
+from ilcforce.controllers.nd import check_widths
 from ilcforce.plants import UnreachableError, make_plant
 from ilcforce.tomlfile import parse_toml, read_toml, resolve_toml
 from ilcforce.config_ranges import experiment_name_problem
@@ -187,8 +187,7 @@ def config_from_dict(data: dict) -> Config:
         raise ConfigError(str(exc)) from None
     _check_consistency(config)
     for method in REGISTRY:  # a method's table, as given (or inherited), is written for this task's axes
-        runs_here = config.dimension == 2 or has_law_nd(REGISTRY[method].controller_class)
-        if (method in data or method in inherited) and runs_here:
+        if method in data or method in inherited:
             try:
                 check_widths(method, config.gains[method], config.dimension)
             except ValueError as exc:

@@ -30,7 +30,7 @@ import numpy as np
 from ilcforce import pipeline, samerun
 from ilcforce.config import Config, ConfigError
 from ilcforce.controllers import REGISTRY, MethodNameError, canonical_method
-from ilcforce.controllers.nd import check_widths, has_law_nd
+from ilcforce.controllers.nd import check_widths
 from ilcforce.noise import draw_iteration
 from ilcforce.records import REFERENCE_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
 from ilcforce.simulate import (IterationInputs, complete_record, desired_inputs, prepare_first_chunk, prepare_setup,
@@ -73,9 +73,7 @@ def make_controller(config: Config, method: str):
     if refusal:
         raise ConfigError(refusal)
     cls = REGISTRY[method].controller_class
-    if config.dimension != 2 and not has_law_nd(cls):
-        raise ConfigError(f"{method} has no law for a task of {config.dimension} axes yet (docs/model.md#n-dof)")
-    try:  # a table the experiment does not give keeps the 2-D defaults: refused on a task of other axes
+    try:  # a table the experiment does not give keeps the planar task's defaults: refused on a task of other axes
         check_widths(method, config.gains[method], config.dimension)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
@@ -423,7 +421,6 @@ def preload_kernels(config, methods: Sequence[str]) -> None:
     kernels (ahead-of-time compiled, or numba's: the simulation loop, the plant's kernels, each
     method's law), so each pays for none of them again.
     """
-    from ilcforce.compiled import aot
     from ilcforce.plants import make_plant
     from ilcforce.simulate import desired_inputs
     from ilcforce.store import StoreWriter  # noqa: F401  (h5py and the writer, imported once for all workers)

@@ -35,7 +35,7 @@ from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import Sig, njit
 from ilcforce.controllers.nd import (
     M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_THETA, M_VELOCITY, M_WIDTH,
-    at, law_signature_nd,
+    at, law_signature,
 )
 from ilcforce.compiled.dense import cholesky, cholesky_solve, lu, lu_solve_transposed
 from ilcforce.compiled.views import scratch, unowned, unowned_matrix
@@ -175,7 +175,7 @@ def _stage(dyn, p, q, dq, tau, wall, fa, fv, out, X, JX, dJv, r, L, acc):
 def _sim_signature():
     types = _jit.numba().types
     return types.UniTuple(types.int64, 2)(
-        types.FunctionType(law_signature_nd()),
+        types.FunctionType(law_signature()),
         nd_type(),  # true plant
         nd_type(),  # nominal plant
         types.intp, types.intp,  # their packed parameters (addresses)

@@ -2,20 +2,39 @@
 
 from __future__ import annotations
 
-import inspect
-
 import numpy as np
 import pytest
 
 from ilcforce.config_load import default_config
 from ilcforce.controllers import REGISTRY, Controller
-from ilcforce.controllers.base import (DIAG_WIDTH, LAW_SIGNATURE, MEAS_ACCEL, MEAS_FORCE_ACCEL,
-                                       MEAS_WIDTH)
-from ilcforce.controllers.nd import law_signature_nd
+from ilcforce.controllers.nd import (
+    M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_TASK_CORIOLIS, M_TASK_GRAVITY,
+    M_TASK_INERTIA, M_THETA, M_VELOCITY, M_WIDTH, at_py, diag_width, law_signature,
+)
 from ilcforce.experiment import make_controller
 from ilcforce.plants import MODELS, make_plant, plant_class
 
 N = 50  # control samples of the toy memory
+AXES = 2  # the planar robots' task: the one law with n = 2
+
+
+def _at(offset) -> int:
+    """Where a measurement block starts for the planar task (``ilcforce.controllers.nd``'s layout at n = 2)."""
+    return at_py(offset, AXES)
+
+
+THETA, DTHETA, FORCE, POSITION, VELOCITY = (_at(o) for o in (M_THETA, M_DTHETA, M_FORCE, M_POSITION, M_VELOCITY))
+JACOBIAN, ACCEL, FORCE_RATE, FORCE_ACCEL = (_at(o) for o in (M_JACOBIAN, M_ACCEL, M_FORCE_RATE, M_FORCE_ACCEL))
+INERTIA, CORIOLIS, GRAVITY = (_at(o) for o in (M_TASK_INERTIA, M_TASK_CORIOLIS, M_TASK_GRAVITY))
+
+
+def _law(controller, k, t, meas, ref, mem_prev, mem_new, write, diag=None) -> np.ndarray:
+    """The controller's compiled law at sample k: the joint torque (AXES,)."""
+    tau = np.full(AXES, np.nan)
+    if diag is None:
+        diag = np.zeros(diag_width(AXES) + getattr(controller, "nd_scratch", 0))
+    assert controller.law(k, t, meas, ref, controller.gains(), mem_prev, mem_new, write, diag, tau) == 0
+    return tau
 
 
 def _random_measurement(rng, config, k_accel=None):
@@ -25,26 +44,24 @@ def _random_measurement(rng, config, k_accel=None):
     theta = robot.inverse_kinematics(pos)
     dtheta = rng.normal(0.0, 0.5, 2)
     J = robot.jacobian(theta)
-    meas = np.zeros(MEAS_WIDTH)
-    meas[0:2] = theta
-    meas[2:4] = dtheta
-    meas[4:6] = [rng.normal(0, 0.01), config.wall.contact_force(pos[1])]
-    meas[6:8] = pos
-    meas[8:10] = J @ dtheta
-    meas[10:14] = J.ravel()
-    meas[14:16] = rng.normal(0, 1.0, 2)
-    meas[16:18] = [0.0, config.wall.stiffness * meas[9]]
-    meas[18:20] = [0.0, config.wall.stiffness * meas[15]]
-    D = robot.task_inertia(theta)
-    C = robot.task_coriolis(theta, dtheta)
-    meas[20:23] = [D[0, 0], D[0, 1], D[1, 1]]
-    meas[23:27] = C.ravel()
-    meas[27:29] = robot.task_gravity(theta)  # zero for the five-bar
+    meas = np.zeros(_at(M_WIDTH))
+    meas[THETA:THETA + 2] = theta
+    meas[DTHETA:DTHETA + 2] = dtheta
+    meas[FORCE:FORCE + 2] = [rng.normal(0, 0.01), config.wall.contact_force(pos[1])]
+    meas[POSITION:POSITION + 2] = pos
+    meas[VELOCITY:VELOCITY + 2] = J @ dtheta
+    meas[JACOBIAN:JACOBIAN + 4] = J.ravel()
+    meas[ACCEL:ACCEL + 2] = rng.normal(0, 1.0, 2)
+    meas[FORCE_RATE:FORCE_RATE + 2] = [0.0, config.wall.stiffness * meas[VELOCITY + 1]]
+    meas[FORCE_ACCEL:FORCE_ACCEL + 2] = [0.0, config.wall.stiffness * meas[ACCEL + 1]]
+    meas[INERTIA:INERTIA + 4] = robot.task_inertia(theta).ravel()
+    meas[CORIOLIS:CORIOLIS + 4] = robot.task_coriolis(theta, dtheta).ravel()
+    meas[GRAVITY:GRAVITY + 2] = robot.task_gravity(theta)  # zero for the five-bar
     return meas
 
 
 def _reference(rng):
-    return np.ascontiguousarray(rng.normal(0.0, 1.0, (N, 12)))
+    return np.ascontiguousarray(rng.normal(0.0, 1.0, (N, 6 * AXES)))
 
 
 @pytest.fixture(params=sorted(REGISTRY))
@@ -52,21 +69,10 @@ def method(request):
     return request.param
 
 
-#: the methods with a 2-D law (``law``): its contract is tested here; a method with an n-axis law only (no-ilc)
-#: has that law's contract (pure unless writing, quadratic in the acceleration) tested in tests/test_ndof.py
-METHODS_2D = sorted(name for name, spec in REGISTRY.items()
-                    if inspect.getattr_static(spec.controller_class, "law", None) is not None)
-
-
-@pytest.fixture(params=METHODS_2D)
-def method_2d(request):
-    return request.param
-
-
 @pytest.fixture(params=sorted(m for m in MODELS if plant_class(m).dimension == 2))
 def plant(request):
-    """Every registered 2-joint plant model: the contract holds for every method on every such robot (the
-    n-axis laws' contract on the spatial arm: tests/test_ndof.py)."""
+    """Every registered 2-joint plant model: the contract holds for every method on every such robot (on the
+    spatial arm: tests/test_ndof.py)."""
     return request.param
 
 
@@ -76,12 +82,8 @@ def test_contract(method, plant, plant_config):
     controller = make_controller(config, method)
     assert isinstance(controller, Controller)
     assert controller.name == method
-    if method in METHODS_2D:
-        assert controller.law.signatures, "law must be compiled with LAW_SIGNATURE"
-        assert controller.law.nopython_signatures[0].args == LAW_SIGNATURE.args
-    else:  # an n-axis law only, which the n-joint loop runs on this plant too
-        assert controller.law is None and controller.law_nd.signatures, "law_nd must be compiled with its signature"
-        assert controller.law_nd.nopython_signatures[0].args == law_signature_nd().args
+    assert controller.law.signatures, "law must be compiled with the contract's signature"
+    assert controller.law.nopython_signatures[0].args == law_signature().args
     gains = controller.gains()
     assert gains.dtype == np.float64 and gains.ndim == 1
     mem_prev, mem_new = controller.begin_iteration(0)
@@ -94,29 +96,29 @@ def test_contract(method, plant, plant_config):
         assert value.shape[0] == config.n_control, key
 
 
-def test_law_is_pure_unless_writing(method_2d, plant, plant_config):
+def test_law_is_pure_unless_writing(method, plant, plant_config):
     rng = np.random.default_rng(1)
     config = plant_config(plant)
-    controller = make_controller(config, method_2d)
+    controller = make_controller(config, method)
     width = max((stop for _a, stop, _u in controller.memory_layout.values()), default=0)
     mem_prev = rng.normal(0, 1, (N, width))
     mem_new = np.full((N, width), 7.0)
     ref = _reference(rng)
     meas = _random_measurement(rng, config)
-    diag = np.zeros(DIAG_WIDTH)
+    diag = np.zeros(diag_width(AXES) + getattr(controller, "nd_scratch", 0))
     before = mem_prev.copy()
-    tau = controller.law(3, 0.0003, meas, ref, controller.gains(), mem_prev, mem_new, False, diag)
+    tau = _law(controller, 3, 0.0003, meas, ref, mem_prev, mem_new, False, diag)
     assert np.all(np.isfinite(tau))
     np.testing.assert_array_equal(mem_new, 7.0, err_msg="write=False must not touch mem_new")
-    tau_w = controller.law(3, 0.0003, meas, ref, controller.gains(), mem_prev, mem_new, True, diag)
-    assert tau_w == tau, "writing must not change the torque"
+    tau_w = _law(controller, 3, 0.0003, meas, ref, mem_prev, mem_new, True, diag)
+    np.testing.assert_array_equal(tau_w, tau, err_msg="writing must not change the torque")
     np.testing.assert_array_equal(mem_prev, before, err_msg="the law must never modify mem_prev")
     if width:
         assert not np.any(mem_new[3] == 7.0), "write=True must store this sample's memory"
         np.testing.assert_array_equal(np.delete(mem_new, 3, axis=0), 7.0, err_msg="only sample k is written")
 
 
-def test_law_is_at_most_quadratic_in_acceleration(method_2d, plant, plant_config):
+def test_law_is_at_most_quadratic_in_acceleration(method, plant, plant_config):
     """The implicit scheme relies on tau(a) being a polynomial of degree <= 2 (see simulate.py).
 
     Third finite differences of a quadratic vanish up to roundoff: with torques of order 10 N m and
@@ -124,7 +126,7 @@ def test_law_is_at_most_quadratic_in_acceleration(method_2d, plant, plant_config
     """
     rng = np.random.default_rng(2)
     config = plant_config(plant)
-    controller = make_controller(config, method_2d)
+    controller = make_controller(config, method)
     width = max((stop for _a, stop, _u in controller.memory_layout.values()), default=0)
     for trial in range(5):
         mem_prev = rng.normal(0, 1, (N, width))
@@ -133,13 +135,12 @@ def test_law_is_at_most_quadratic_in_acceleration(method_2d, plant, plant_config
         ref = _reference(rng)
         taus = []
         for a in np.arange(-2, 3) * 0.7:
-            meas[MEAS_ACCEL + 1] = a
-            meas[MEAS_FORCE_ACCEL + 1] = config.wall.stiffness * a
-            taus.append(controller.law(5, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, False,
-                                       np.zeros(DIAG_WIDTH)))
+            meas[ACCEL + 1] = a
+            meas[FORCE_ACCEL + 1] = config.wall.stiffness * a
+            taus.append(_law(controller, 5, 0.0, meas, ref, mem_prev, mem_new, False))
         taus = np.array(taus)
         third = np.diff(taus, n=3, axis=0)
-        np.testing.assert_allclose(third, 0.0, atol=1e-9, err_msg=f"{method_2d} law is not quadratic in a (trial {trial})")
+        np.testing.assert_allclose(third, 0.0, atol=1e-9, err_msg=f"{method} law is not quadratic in a (trial {trial})")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -150,8 +151,8 @@ def _reference_surface(meas, ref_row, config, psi_desired=False):
     S = np.diag(config.surface.selection)
     Sbar = np.eye(2) - S
     lam_p, lam_f1, lam_f2 = (np.diag(getattr(config.surface, n)) for n in ("lambda_p", "lambda_f1", "lambda_f2"))
-    P, dP, ddP = meas[6:8], meas[8:10], meas[14:16]
-    F, dF, ddF = meas[4:6], meas[16:18], meas[18:20]
+    P, dP, ddP = meas[POSITION:POSITION + 2], meas[VELOCITY:VELOCITY + 2], meas[ACCEL:ACCEL + 2]
+    F, dF, ddF = meas[FORCE:FORCE + 2], meas[FORCE_RATE:FORCE_RATE + 2], meas[FORCE_ACCEL:FORCE_ACCEL + 2]
     Pd, dPd, ddPd = ref_row[0:2], ref_row[2:4], ref_row[4:6]
     Fd, dFd, ddFd = ref_row[6:8], ref_row[8:10], ref_row[10:12]
     e_p, de_p = Sbar @ (Pd - P), Sbar @ (dPd - dP)  # eq. (6)
@@ -177,13 +178,12 @@ def test_c1_matches_eq26(seed):
     controller = make_controller(config, "c1")
     g = config.gains["c1"]
     sigma, psi = _reference_surface(meas, ref[4], config)
-    D = np.array([[meas[20], meas[21]], [meas[21], meas[22]]])
-    C = meas[23:27].reshape(2, 2)
+    D = meas[INERTIA:INERTIA + 4].reshape(2, 2)
+    C = meas[CORIOLIS:CORIOLIS + 4].reshape(2, 2)
     Xi = np.vstack([D.T, C.T])  # Xi = [D C]^T, (4, 2); Xi^T Psi = D psi1 + C psi2
-    J = meas[10:14].reshape(2, 2)
-    u = np.diag(g.k) @ sigma + g.alpha * np.sign(sigma) + Xi.T @ psi + meas[4:6]  # eq. (26), +F (erratum 1)
-    tau = controller.law(4, 0.0, meas, ref, controller.gains(), np.zeros((N, 0)), np.zeros((N, 0)), True,
-                         np.zeros(DIAG_WIDTH))
+    J = meas[JACOBIAN:JACOBIAN + 4].reshape(2, 2)
+    u = np.diag(g.k) @ sigma + g.alpha * np.sign(sigma) + Xi.T @ psi + meas[FORCE:FORCE + 2]  # eq. (26), +F (erratum 1)
+    tau = _law(controller, 4, 0.0, meas, ref, np.zeros((N, 0)), np.zeros((N, 0)), True)
     np.testing.assert_allclose(tau, J.T @ u, rtol=1e-12, atol=1e-14, err_msg="C1 law differs from eq. (26)")
 
 
@@ -193,11 +193,11 @@ def test_c2_matches_eq27(seed):
     controller = make_controller(config, "c2")
     g = config.gains["c2"]
     sigma, _ = _reference_surface(meas, ref[4], config)
-    J = meas[10:14].reshape(2, 2)
+    J = meas[JACOBIAN:JACOBIAN + 4].reshape(2, 2)
     v = mem_prev[4] + J.T @ np.diag(g.k) @ sigma  # eq. (27)
     mem_new = np.zeros((N, 2))
-    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
-    np.testing.assert_allclose(tau, v + J.T @ meas[4:6], rtol=1e-12, atol=1e-14, err_msg="C2 torque differs from eq. (27)")
+    tau = _law(controller, 4, 0.0, meas, ref, mem_prev, mem_new, True)
+    np.testing.assert_allclose(tau, v + J.T @ meas[FORCE:FORCE + 2], rtol=1e-12, atol=1e-14, err_msg="C2 torque differs from eq. (27)")
     np.testing.assert_allclose(mem_new[4], v, rtol=1e-12, atol=1e-14, err_msg="C2 memory differs from eq. (27)")
 
 
@@ -216,10 +216,10 @@ def test_c3_matches_eq14(seed, psi_acceleration):
     Gamma = np.diag(gains3.gamma)
     theta = mem_prev[4, :8] + Gamma @ Phi @ sigma  # eq. (14)
     alpha = mem_prev[4, 8] + gains3.eta * sigma @ np.sign(sigma)  # eq. (14)
-    J = meas[10:14].reshape(2, 2)
-    u = np.diag(gains3.k) @ sigma + Phi.T @ theta + meas[4:6] + alpha * np.sign(sigma)  # eq. (14), +F
+    J = meas[JACOBIAN:JACOBIAN + 4].reshape(2, 2)
+    u = np.diag(gains3.k) @ sigma + Phi.T @ theta + meas[FORCE:FORCE + 2] + alpha * np.sign(sigma)  # eq. (14), +F
     mem_new = np.zeros((N, 9))
-    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
+    tau = _law(controller, 4, 0.0, meas, ref, mem_prev, mem_new, True)
     np.testing.assert_allclose(tau, J.T @ u, rtol=1e-11, atol=1e-13, err_msg="C3 torque differs from eq. (14)")
     np.testing.assert_allclose(mem_new[4, :8], theta, rtol=1e-12, err_msg="Theta_hat update differs from eq. (14)")
     assert mem_new[4, 8] == pytest.approx(alpha, rel=1e-12)
@@ -253,8 +253,8 @@ def test_memory_round_trip(method, plant, plant_config):
 # ---------------------------------------------------------------------------------------------
 
 def _task_model(meas):
-    D = np.array([[meas[20], meas[21]], [meas[21], meas[22]]])
-    C = meas[23:27].reshape(2, 2)
+    D = meas[INERTIA:INERTIA + 4].reshape(2, 2)
+    C = meas[CORIOLIS:CORIOLIS + 4].reshape(2, 2)
     return D, C
 
 
@@ -266,11 +266,10 @@ def test_smc_bl_matches_eq26_with_a_boundary_layer(seed):
     g = config.gains["smc-bl"]
     sigma, psi = _reference_surface(meas, ref[4], config)
     D, C = _task_model(meas)
-    J = meas[10:14].reshape(2, 2)
+    J = meas[JACOBIAN:JACOBIAN + 4].reshape(2, 2)
     sat = np.clip(sigma / np.array(g.phi), -1.0, 1.0)
-    u = np.diag(g.k) @ sigma + g.alpha * sat + D @ psi[:2] + C @ psi[2:] + meas[4:6]
-    tau = controller.law(4, 0.0, meas, ref, controller.gains(), np.zeros((N, 0)), np.zeros((N, 0)), True,
-                         np.zeros(DIAG_WIDTH))
+    u = np.diag(g.k) @ sigma + g.alpha * sat + D @ psi[:2] + C @ psi[2:] + meas[FORCE:FORCE + 2]
+    tau = _law(controller, 4, 0.0, meas, ref, np.zeros((N, 0)), np.zeros((N, 0)), True)
     np.testing.assert_allclose(tau, J.T @ u, rtol=1e-12, atol=1e-14, err_msg="SMC-BL differs from eq. (26) with sat")
 
 
@@ -284,10 +283,10 @@ def test_smc_bl_is_c1_outside_its_boundary_layer():
     bl = replace(config.gains["smc-bl"], k=config.gains["c1"].k, alpha=config.gains["c1"].alpha, phi=(1e-300, 1e-300))
     config = replace(config, gains={**config.gains, "smc-bl": bl})
     args = (4, 0.0, meas, ref)
-    tail = (np.zeros((N, 0)), np.zeros((N, 0)), False, np.zeros(DIAG_WIDTH))
+    tail = (np.zeros((N, 0)), np.zeros((N, 0)), False)
     c1 = make_controller(config, "c1")
     blc = make_controller(config, "smc-bl")
-    assert blc.law(*args, blc.gains(), *tail) == c1.law(*args, c1.gains(), *tail)
+    np.testing.assert_array_equal(_law(blc, *args, *tail), _law(c1, *args, *tail))
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -307,10 +306,10 @@ def test_c3_leak_matches_eq14_with_leakage_and_bound(seed):
     theta = keep * mem_prev[4, :8] + np.diag(g.gamma) @ Phi @ sigma
     alpha = min(g.alpha_max, keep * mem_prev[4, 8] + g.eta * sigma @ np.sign(sigma))
     assert alpha == g.alpha_max
-    J = meas[10:14].reshape(2, 2)
-    u = np.diag(g.k) @ sigma + Phi.T @ theta + meas[4:6] + alpha * np.sign(sigma)
+    J = meas[JACOBIAN:JACOBIAN + 4].reshape(2, 2)
+    u = np.diag(g.k) @ sigma + Phi.T @ theta + meas[FORCE:FORCE + 2] + alpha * np.sign(sigma)
     mem_new = np.zeros((N, 9))
-    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
+    tau = _law(controller, 4, 0.0, meas, ref, mem_prev, mem_new, True)
     np.testing.assert_allclose(tau, J.T @ u, rtol=1e-11, atol=1e-13, err_msg="C3-leak torque")
     np.testing.assert_allclose(mem_new[4, :8], theta, rtol=1e-12, err_msg="leaky Theta_hat update")
     assert mem_new[4, 8] == alpha
@@ -319,9 +318,9 @@ def test_c3_leak_matches_eq14_with_leakage_and_bound(seed):
     config = replace(config, gains={**config.gains, "c3-leak": off})
     leak, c3 = make_controller(config, "c3-leak"), make_controller(config, "c3")
     mem_a, mem_b = np.zeros((N, 9)), np.zeros((N, 9))
-    ta = leak.law(4, 0.0, meas, ref, leak.gains(), mem_prev, mem_a, True, np.zeros(DIAG_WIDTH))
-    tb = c3.law(4, 0.0, meas, ref, c3.gains(), mem_prev, mem_b, True, np.zeros(DIAG_WIDTH))
-    assert ta == tb
+    ta = _law(leak, 4, 0.0, meas, ref, mem_prev, mem_a, True)
+    tb = _law(c3, 4, 0.0, meas, ref, mem_prev, mem_b, True)
+    np.testing.assert_array_equal(ta, tb)
     np.testing.assert_array_equal(mem_a, mem_b)
 
 
@@ -345,7 +344,7 @@ def test_sl_adapt_is_slotine_li_with_the_plants_regressor(seed, model, plant_con
     nominal = config.plant.nominal()
     width = len(module.base_parameters(nominal))
     sigma, psi = _reference_surface(meas, ref[4], config, psi_desired=g.psi_acceleration == "desired")
-    theta, dtheta = meas[0:2], meas[2:4]
+    theta, dtheta = meas[THETA:THETA + 2], meas[DTHETA:DTHETA + 2]
     robot = make_plant(nominal)
     J, dJ = robot.jacobian(theta), robot.jacobian_derivative(theta, dtheta)
     dq_r = np.linalg.solve(J, psi[2:4])
@@ -355,14 +354,14 @@ def test_sl_adapt_is_slotine_li_with_the_plants_regressor(seed, model, plant_con
     mem_new = rng.normal(0.0, 1.0, (N, width))  # row 3: a_hat(t_3), written at the previous sample
     a_0 = g.initial_estimate * module.base_parameters(nominal)  # the memory holds a_hat - a_0
     change = mem_new[3] + ts * np.diag(g.gamma[:width]) @ Y.T @ np.linalg.solve(J, sigma)  # eq. 9.27
-    tau_ref = Y @ (a_0 + change) + J.T @ (np.diag(g.k) @ sigma + meas[4:6])  # eq. 9.25
-    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
+    tau_ref = Y @ (a_0 + change) + J.T @ (np.diag(g.k) @ sigma + meas[FORCE:FORCE + 2])  # eq. 9.25
+    tau = _law(controller, 4, 0.0, meas, ref, mem_prev, mem_new, True)
     # round-off of J^-1 and of sums of N m-sized terms
     np.testing.assert_allclose(tau, tau_ref, rtol=1e-9, atol=1e-12, err_msg=f"SL-adapt torque on {model}")
     np.testing.assert_allclose(mem_new[4], change, rtol=1e-10, err_msg=f"SL-adapt a_hat update on {model}")
     # k = 0 starts from the previous iteration's last row
     mem0 = np.full((N, width), 5.0)
-    controller.law(0, 0.0, meas, ref, controller.gains(), mem_prev, mem0, True, np.zeros(DIAG_WIDTH))
+    _law(controller, 0, 0.0, meas, ref, mem_prev, mem0, True)
     sigma0, psi0 = _reference_surface(meas, ref[0], config, psi_desired=g.psi_acceleration == "desired")
     dq0 = np.linalg.solve(J, psi0[2:4])
     Y0 = np.array(module.regressor(nominal.as_array(), *theta, *dtheta, *dq0,
@@ -389,10 +388,10 @@ def test_pd_ilc_law_is_pd_feedback_plus_last_iterations_feedforward(seed):
     g = config.gains["pd-ilc"]
     controller = make_controller(config, "pd-ilc")
     sigma, _ = _reference_surface(meas, ref[4], config)
-    J = meas[10:14].reshape(2, 2)
+    J = meas[JACOBIAN:JACOBIAN + 4].reshape(2, 2)
     mem_new = np.zeros((N, 2))
-    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
-    np.testing.assert_allclose(tau, mem_prev[4] + J.T @ (np.diag(g.k) @ sigma + meas[4:6]), rtol=1e-12, atol=1e-14)
+    tau = _law(controller, 4, 0.0, meas, ref, mem_prev, mem_new, True)
+    np.testing.assert_allclose(tau, mem_prev[4] + J.T @ (np.diag(g.k) @ sigma + meas[FORCE:FORCE + 2]), rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(mem_new[4], mem_prev[4] + J.T @ np.diag(g.learning) @ sigma, rtol=1e-12, atol=1e-14)
 
 
@@ -422,10 +421,10 @@ def test_c3_with_gravity_matches_eq14_with_the_full_theta(seed, method, plant_co
     Gamma = np.diag([*g.gamma[0:4], *g.gamma_gravity[0:2], *g.gamma[4:8], *g.gamma_gravity[2:4]])
     theta = keep * mem_prev[4, :12] + Gamma @ Phi @ sigma  # eq. (14)
     alpha = min(getattr(g, "alpha_max", np.inf), keep * mem_prev[4, 12] + g.eta * sigma @ np.sign(sigma))
-    J = meas[10:14].reshape(2, 2)
-    u = np.diag(g.k) @ sigma + Phi.T @ theta + meas[4:6] + alpha * np.sign(sigma)
+    J = meas[JACOBIAN:JACOBIAN + 4].reshape(2, 2)
+    u = np.diag(g.k) @ sigma + Phi.T @ theta + meas[FORCE:FORCE + 2] + alpha * np.sign(sigma)
     mem_new = np.zeros((N, 13))
-    tau = controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True, np.zeros(DIAG_WIDTH))
+    tau = _law(controller, 4, 0.0, meas, ref, mem_prev, mem_new, True)
     np.testing.assert_allclose(tau, J.T @ u, rtol=1e-11, atol=1e-13, err_msg=f"{method} torque with the G block")
     np.testing.assert_allclose(mem_new[4, :12], theta, rtol=1e-12, err_msg=f"{method} Theta_hat with the G block")
     assert mem_new[4, 12] == pytest.approx(alpha, rel=1e-12)
@@ -493,13 +492,12 @@ def test_gravity_feedforward_adds_the_nominal_task_gravity(method, plant_config)
         mem_prev, _ = controller.begin_iteration(0)
         mem_prev = rng.normal(0, 1, mem_prev.shape) if g_ff == 0.0 else memories[0][0]
         mem_new = np.zeros_like(mem_prev)
-        taus.append(np.array(controller.law(4, 0.0, meas, ref, controller.gains(), mem_prev, mem_new, True,
-                                            np.zeros(DIAG_WIDTH))))
+        taus.append(_law(controller, 4, 0.0, meas, ref, mem_prev, mem_new, True))
         memories.append((mem_prev, mem_new))
-    J = meas[10:14].reshape(2, 2)
-    assert np.linalg.norm(meas[27:29]) > 1.0  # the 2R arm's task gravity is N-sized
+    J = meas[JACOBIAN:JACOBIAN + 4].reshape(2, 2)
+    assert np.linalg.norm(meas[GRAVITY:GRAVITY + 2]) > 1.0  # the 2R arm's task gravity is N-sized
     # round-off of a sum of N m-sized terms: 1e-12 relative to the torque
-    np.testing.assert_allclose(taus[1] - taus[0], J.T @ (0.75 * meas[27:29]), rtol=1e-9, atol=1e-12 * np.abs(taus[0]).max(),
+    np.testing.assert_allclose(taus[1] - taus[0], J.T @ (0.75 * meas[GRAVITY:GRAVITY + 2]), rtol=1e-9, atol=1e-12 * np.abs(taus[0]).max(),
                                err_msg=f"{method}: g_ff J^T G_nom")
     np.testing.assert_array_equal(memories[0][1], memories[1][1], err_msg=f"{method}: g_ff changes no memory")
     assert default_config().gains[method].gravity_feedforward == 0.0

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from ilcforce.config_load import load_config
-from ilcforce.controllers.nd import M_WIDTH, at_py, compile_law, law_signature_nd
+from ilcforce.controllers.nd import M_WIDTH, at_py, compile_law, law_signature
 from ilcforce.crosscheck.mujoco_plant import ContactSettings, build_arm
 from ilcforce.crosscheck.mujoco_run import crosscheck_config, initial_state
 from ilcforce.plants import make_plant
@@ -131,11 +131,11 @@ def _spy_law():
             diag[j] = 0.0
         return 0
 
-    return compile_law(spy, law_signature_nd())
+    return compile_law(spy, law_signature())
 
 
 class _Spy:
-    """A controller with only an n-axis law (ilcforce's loop then runs its n-joint loop)."""
+    """A controller whose law is the spy (set on a class of its own: the simulator reads a law from the class)."""
 
     name = "spy"
     uses_nominal_dynamics = True  # the task-model blocks of eq. (4) are filled, and compared
@@ -162,7 +162,7 @@ def test_the_measurement_vector_is_the_loops_on_the_same_states(name):
     config = crosscheck_config(load_config(name, {"reference.duration": 0.004, "simulation.log_every": 1}))
     n = config.dimension
     law = _spy_law()
-    spy_class = type("SpyController", (_Spy,), {"law_nd": law})
+    spy_class = type("SpyController", (_Spy,), {"law": law})
     nominal = make_plant(config.plant.nominal())
     theta0, _ = initial_state(config, config.plant.true_plant(0))
     # the spy's torque: gravity held and the tool pressed into the wall with 5 N, so the contact force is tested

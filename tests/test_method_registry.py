@@ -20,7 +20,8 @@ from scipy import signal
 from ilcforce import store
 from ilcforce.config_load import default_config, load_config
 from ilcforce.controllers import LEARNS, PAPER_METHODS, REGISTRY, MethodNameError, canonical_method
-from ilcforce.controllers.base import GAIN_OWN_FIRST, gain_layout
+from ilcforce.controllers.base import gain_layout
+from ilcforce.controllers.nd import G_OWN_FIRST, at_py
 from ilcforce.experiment import make_controller, run_method
 from ilcforce.plants import MODELS
 from ilcforce.records import STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
@@ -64,19 +65,31 @@ def test_registry_order_and_paper_methods():
 
 @pytest.mark.parametrize("method", METHODS)
 def test_gains_are_packed_by_name(method):
-    """Each gain sits where gain_layout says, whatever its position in the dataclass."""
+    """Each gain sits where gain_layout says, whatever its position in the dataclass (sl-adapt: where its own
+    layout says, as its Gamma is as wide as the plant's base parameters)."""
     config = default_config()
     controller = make_controller(config, method)
     gains = config.gains[method]
     packed = controller.gains()
     layout = gain_layout(type(gains))
+    if method == "sl-adapt":
+        from ilcforce.controllers import sl_adapt
+
+        n, width = 2, len(controller.base_parameter_names)
+        layout = {"k": slice(at_py(sl_adapt.K, n), at_py(sl_adapt.K, n) + n),
+                  "gamma": slice(at_py(sl_adapt.GAMMA, n), at_py(sl_adapt.GAMMA, n) + width)}
+        assert width == len(gains.gamma) == 6, "the five-bar: one Gamma entry per base parameter"
+        np.testing.assert_array_equal(controller.initial_estimate(),
+                                      packed[at_py(sl_adapt.GAMMA, n) + 2 * width:at_py(sl_adapt.GAMMA, n) + 3 * width])
     for f in dataclasses.fields(gains):
         value = getattr(gains, f.name)
         if isinstance(value, str):
             continue  # encoded (e.g. psi_acceleration), checked by the law's reference test
+        if f.name not in layout:
+            continue  # sl-adapt's initial estimate: a_hat_0, checked above
         expected = np.atleast_1d(np.asarray(value, dtype=float))
         np.testing.assert_array_equal(packed[layout[f.name]], expected, err_msg=f"{method}.{f.name} misplaced")
-    last = max(s.stop for s in layout.values()) if layout else GAIN_OWN_FIRST
+    last = max(s.stop for s in layout.values()) if layout else at_py(G_OWN_FIRST, 2)
     assert packed.size >= last, "packed vector shorter than its layout"
 
 
@@ -161,13 +174,6 @@ def test_runs_deterministic_resumable_and_valid(tmp_path, plant_config, method, 
     """
     straight, resumed = tmp_path / "straight.h5", tmp_path / "resumed.h5"
     config = _short(plant_config, plant, 3)
-    if config.dimension != 2 and getattr(REGISTRY[method].controller_class, "law_nd", None) is None:
-        from ilcforce.config import ConfigError  # a method without an n-axis law is refused, in one line
-
-        with pytest.raises(ConfigError, match=f"^{method} has no law for a task of {config.dimension} axes"):
-            run_method(config, method, straight)
-        assert not straight.exists()
-        return
     summary = run_method(config, method, straight)
     assert summary.status == STATUS_COMPLETE, f"{method} on {plant} diverged in a 0.2 s run"
     run_method(_short(plant_config, plant, 2), method, resumed)

@@ -1,13 +1,7 @@
-"""The n-joint loop and laws (docs/model.md#n-dof): the same physics and the same laws as the 2-D loop, in n
-dimensions.
-
-* On both 2-joint robots, the n-joint loop (``IterationInputs.loop = "nd"``) reproduces the 2-D loop's every
-  logged signal for every method it has a law for, over three iterations (learning included): the two loops
-  share no code between the law's arithmetic and the integrator's, so agreement is a check of both. The
-  tolerance is round-off relative to each signal's own scale (an error signal is a difference of positions or
-  forces, so it is compared on the scale of the positions or forces it is a difference of).
-* On the 3-joint spatial arm (experiments/arm3.toml) the desired input tau_d equals the task-space model of
-  eq. (4) along the path, the methods learn, and the configuration refuses what cannot run in one line.
+"""The n-joint loop and the laws in n dimensions (docs/model.md#n-dof), on the 3-joint spatial arm
+(experiments/arm3.toml): the desired input tau_d equals the task-space model of eq. (4) along the path, the
+methods learn, each law against a readable reference, and the configuration refuses what cannot run in one
+line. (The planar robots run the same loop and laws with n = 2: tests/test_controllers.py, tests/test_simulate.py.)
 """
 
 from __future__ import annotations
@@ -21,70 +15,17 @@ import pytest
 
 from ilcforce import simulate
 from ilcforce.config import ConfigError
-from ilcforce.config_load import default_config, load_config
+from ilcforce.config_load import load_config
 from ilcforce.controllers import REGISTRY
-from ilcforce.controllers.nd import has_law_nd
-from ilcforce.experiment import iteration_inputs, make_controller, simulate_iterations
+from ilcforce.experiment import make_controller, simulate_iterations
 
 ROOT = Path(__file__).resolve().parents[1]
 ARM3 = ROOT / "experiments" / "arm3.toml"
-#: every method with an n-axis law
-ND_METHODS = tuple(name for name, spec in REGISTRY.items() if has_law_nd(spec.controller_class))
-#: the methods whose n-axis law serves a 2-joint plant too and has a 2-D law to be checked against: all but
-#: sl-adapt, whose n-axis law reads an n-joint plant's chain regressor (a 2-joint plant's regressor is its closed
-#: form's, read by the 2-D law only), and a method with an n-axis law only (no-ilc), which every plant runs
-#: through the n-joint loop, so there is no 2-D loop to compare
-ND_ON_TWO_JOINTS = tuple(name for name in ND_METHODS if name != "sl-adapt"
-                         and inspect.getattr_static(REGISTRY[name].controller_class, "law", None) is not None)
-#: the methods whose gains follow the shared n-axis layout (sl-adapt's Gamma is as wide as the plant's base
-#: parameters, so its n-axis layout is its own: test_sl_adapt_on_three_axes_is_slotine_li reads it)
-SHARED_LAYOUT = tuple(name for name in ND_METHODS if name != "sl-adapt")
-
-#: the scale each logged signal is compared on: itself, or what it is a difference of
-_SCALE_OF = {"position_error": "position", "force_error": "contact_force"}
-#: the tolerance: relative round-off. Why not 1e-15: the 2-D loop inverts the inertia and the Jacobian in
-#: closed form, the n-joint loop by Cholesky and LU, and over 60,000 steps of a loop that learns (C3 resolves
-#: an algebraic loop 140 times by falling back) the difference grows to about 2e-11 of a signal's scale.
-RTOL = 1e-9
-
-
-def _run(config, method, loop, iterations=3):
-    from ilcforce import loop as loop_2d
-    from ilcforce.ndof import loop as loop_nd
-
-    reference = config.reference_samples()
-    controller = make_controller(config, method)
-    setup = simulate._setup(dataclasses.replace(iteration_inputs(config, 0, reference), loop=loop), controller)
-    assert setup.layout is (loop_nd if loop == "nd" else loop_2d)  # the loop asked for is the loop that runs
-    records = []
-    for j in range(iterations):
-        inputs = dataclasses.replace(iteration_inputs(config, j, reference), loop=loop)
-        mem_prev, mem_new = controller.begin_iteration(j)
-        record = simulate.run_iteration(inputs, controller, mem_prev, mem_new)
-        controller.end_iteration(record)
-        records.append(record)
-    return records
-
-
-def _configs():
-    yield "fivebar", default_config()
-    yield "serial2r", load_config(ROOT / "experiments" / "serial2r.toml")
-
-
-@pytest.mark.parametrize("robot, config", list(_configs()), ids=lambda v: v if isinstance(v, str) else "")
-@pytest.mark.parametrize("method", ND_ON_TWO_JOINTS)
-def test_the_n_joint_loop_equals_the_2d_loop_on_a_2_joint_robot(robot, config, method):
-    two_d = _run(config, method, "auto")
-    n_d = _run(config, method, "nd")
-    for a, b in zip(two_d, n_d):
-        assert (a.status, a.fallback_count) == (b.status, b.fallback_count)
-        for name, x in a.log.items():
-            if name == "implicit_fallbacks":
-                np.testing.assert_array_equal(x, b.log[name])
-                continue
-            scale = np.max(np.abs(a.log[_SCALE_OF.get(name, name)]))
-            err = np.max(np.abs(x - b.log[name])) / max(scale, 1e-300)
-            assert err < RTOL, f"{robot} {method} j={a.iteration} {name}: {err:.3g} of its scale"
+#: every method (each has one law, for any n)
+METHODS = tuple(REGISTRY)
+#: the methods whose gains follow the shared layout (sl-adapt's Gamma is as wide as the plant's base
+#: parameters, so its layout is its own: test_sl_adapt_on_three_axes_is_slotine_li reads it)
+SHARED_LAYOUT = tuple(name for name in METHODS if name != "sl-adapt")
 
 
 @pytest.fixture(scope="module")
@@ -184,18 +125,10 @@ def test_arm3_refusals_are_one_line(arm3, tmp_path):
     assert "\n" not in str(caught.value)
 
 
-def test_sl_adapt_on_a_2_joint_plant_is_refused_by_the_n_joint_loop():
-    config = load_config(ROOT / "experiments" / "serial2r.toml")
-    controller = make_controller(config, "sl-adapt")
-    inputs = dataclasses.replace(iteration_inputs(config, 0, config.reference_samples()), loop="nd")
-    with pytest.raises(ValueError, match="needs an n-joint plant's regressor") as caught:
-        simulate._setup(inputs, controller)
-    assert "\n" not in str(caught.value)
-
-
 @pytest.mark.parametrize("method", SHARED_LAYOUT)
-def test_the_n_axis_gain_layout_is_the_2d_layout_at_n_2(method):
-    """Every field of every method with an n-axis law sits, for n = 2, where the 2-D law reads it."""
+def test_the_gains_are_packed_where_the_law_reads_them(method):
+    """Every field of every method sits, for n = 2 and n = 3, where the law's offsets (gain_offsets) say, and
+    the fields follow each other without a gap (pack_gains fills gain_layout)."""
     import dataclasses as dc
 
     from ilcforce.controllers.base import gain_layout
@@ -203,12 +136,10 @@ def test_the_n_axis_gain_layout_is_the_2d_layout_at_n_2(method):
 
     gains_cls = REGISTRY[method].gains_class
     names = tuple(f.name for f in dc.fields(gains_cls))
-    two_d = gain_layout(gains_cls)
-    for name, offset in zip(names, gain_offsets(gains_cls, *names)):
-        assert at_py(offset, 2) == two_d[name].start, (method, name)
-    three_d = gain_layout(gains_cls, n=3)  # and for n = 3 the fields follow each other without a gap
-    starts = [three_d[name].start for name in names]
-    assert starts == [at_py(offset, 3) for offset in gain_offsets(gains_cls, *names)]
+    for n in (2, 3):
+        layout = gain_layout(gains_cls, n=n)
+        assert [layout[name].start for name in names] == [at_py(o, n) for o in gain_offsets(gains_cls, *names)]
+        assert all(layout[a].stop == layout[b].start for a, b in zip(names, names[1:])), (method, n)
 
 
 # --- the n-axis laws' contract on the spatial arm, and C1 and C3 against readable references -----------
@@ -253,7 +184,7 @@ def _diag(controller, n):
     return np.zeros(nd.diag_width(n) + getattr(controller, "nd_scratch", 0))
 
 
-def _law_nd_inputs(config, method, seed):
+def _law_inputs(config, method, seed):
     rng = np.random.default_rng(seed)
     controller = make_controller(config, method)
     width = max((stop for _a, stop, _u in controller.memory_layout.values()), default=0)
@@ -262,14 +193,14 @@ def _law_nd_inputs(config, method, seed):
     return controller, meas, JX, ref, rng.normal(0.0, 1.0, (50, width))
 
 
-@pytest.mark.parametrize("method", ND_METHODS)
-def test_an_n_axis_law_is_pure_unless_writing_and_quadratic_in_the_normal_acceleration(arm3, method):
+@pytest.mark.parametrize("method", METHODS)
+def test_a_law_on_three_axes_is_pure_unless_writing_and_quadratic_in_the_normal_acceleration(arm3, method):
     from ilcforce.controllers import nd
 
     n = arm3.dimension
-    controller, meas, _JX, ref, mem_prev = _law_nd_inputs(arm3, method, 1)
-    law = type(controller).law_nd
-    assert law.nopython_signatures[0].args == nd.law_signature_nd().args
+    controller, meas, _JX, ref, mem_prev = _law_inputs(arm3, method, 1)
+    law = type(controller).law
+    assert law.nopython_signatures[0].args == nd.law_signature().args
     mem_new = np.full_like(mem_prev, 7.0)
     before = mem_prev.copy()
     tau, tau_w = np.zeros(n), np.zeros(n)
@@ -321,7 +252,7 @@ def test_c1_on_three_axes_is_eq26(arm3, seed):
     from ilcforce.controllers import nd
 
     n = arm3.dimension
-    controller, meas, JX, ref, _ = _law_nd_inputs(arm3, "c1", seed)
+    controller, meas, JX, ref, _ = _law_inputs(arm3, "c1", seed)
     sigma, psi1, psi2, F = _reference_surface_nd(arm3, meas, ref[4], False)
     D = meas[nd.at_py(nd.M_TASK_INERTIA, n):][:n * n].reshape(n, n)
     C = meas[nd.at_py(nd.M_TASK_CORIOLIS, n):][:n * n].reshape(n, n)
@@ -329,8 +260,8 @@ def test_c1_on_three_axes_is_eq26(arm3, seed):
     g = arm3.gains["c1"]
     u = np.diag(g.k) @ sigma + g.alpha * np.sign(sigma) + D @ psi1 + C @ psi2 + G + arm3.wall.sign * F  # eq. (26)
     tau = np.zeros(n)
-    type(controller).law_nd(4, 0.0004, meas, ref, controller.gains(), np.zeros((50, 0)), np.zeros((50, 0)), False,
-                            _diag(controller, n), tau)
+    type(controller).law(4, 0.0004, meas, ref, controller.gains(), np.zeros((50, 0)), np.zeros((50, 0)), False,
+                         _diag(controller, n), tau)
     np.testing.assert_allclose(tau, JX.T @ u, rtol=1e-12, atol=1e-12)
 
 
@@ -342,7 +273,7 @@ def test_c3_on_three_axes_is_eq14_with_theta_in_r_3n2(arm3, seed):
     from ilcforce.controllers import nd
 
     n = arm3.dimension
-    controller, meas, JX, ref, mem_prev = _law_nd_inputs(arm3, "c3", seed)
+    controller, meas, JX, ref, mem_prev = _law_inputs(arm3, "c3", seed)
     assert mem_prev.shape[1] == 3 * n * n + 1
     g = arm3.gains["c3"]
     sigma, psi1, psi2, F = _reference_surface_nd(arm3, meas, ref[4], g.psi_acceleration == "desired")
@@ -355,8 +286,8 @@ def test_c3_on_three_axes_is_eq14_with_theta_in_r_3n2(arm3, seed):
     u = np.diag(g.k) @ sigma + Phi.T @ theta + arm3.wall.sign * F + alpha * np.sign(sigma)  # eq. (14)
     tau = np.zeros(n)
     mem_new = np.zeros_like(mem_prev)
-    type(controller).law_nd(4, 0.0004, meas, ref, controller.gains(), mem_prev, mem_new, True,
-                            _diag(controller, n), tau)
+    type(controller).law(4, 0.0004, meas, ref, controller.gains(), mem_prev, mem_new, True,
+                         _diag(controller, n), tau)
     np.testing.assert_allclose(tau, JX.T @ u, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(mem_new[4], np.r_[theta, alpha], rtol=1e-13, atol=1e-13)
 
@@ -370,7 +301,7 @@ def test_sl_adapt_on_three_axes_is_slotine_li(arm3, seed):
     from ilcforce.plants import adaptive, chain
 
     n = arm3.dimension
-    controller, meas, JX, ref, mem_prev = _law_nd_inputs(arm3, "sl-adapt", seed)
+    controller, meas, JX, ref, mem_prev = _law_inputs(arm3, "sl-adapt", seed)
     nominal = arm3.plant.nominal()
     columns = adaptive.base_columns(nominal)
     assert mem_prev.shape[1] == len(columns) == len(controller.base_parameter_names)
@@ -389,8 +320,8 @@ def test_sl_adapt_on_three_axes_is_slotine_li(arm3, seed):
     tau = np.zeros(n)
     mem_new = np.zeros_like(mem_prev)
     mem_new[3] = mem_prev[3]  # this iteration's previous sample's change, which k = 4 steps from
-    type(controller).law_nd(4, 0.0004, meas, ref, controller.gains(), mem_prev, mem_new, True, _diag(controller, n),
-                            tau)
+    type(controller).law(4, 0.0004, meas, ref, controller.gains(), mem_prev, mem_new, True, _diag(controller, n),
+                         tau)
     np.testing.assert_allclose(tau, tau_expected, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(mem_new[4], a_hat - controller.initial_estimate(), rtol=1e-12, atol=1e-15)
 
@@ -406,17 +337,15 @@ def test_the_api_page_spatial_arm_example_runs(capsys):
     assert lines[0].startswith("3 ") and [line.split()[1] for line in lines[-3:]] == ["complete"] * 3
 
 
-def test_has_law_nd_reads_the_class_without_compiling():
-    """A method has an n-axis law if its class holds one (a compiled_law_nd descriptor, or any function as the
-    benchmark's zero-torque controller holds it), and asking compiles nothing."""
-    from ilcforce.controllers.nd import compiled_law_nd
+def test_a_law_is_compiled_on_first_use_only():
+    """A compiled_law compiles when the law is first read from its class, not when the class is made or the
+    registry checks that it has a law (it looks without reading): importing a method loads no kernel."""
+    from ilcforce.controllers.nd import compiled_law
 
     def law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
         return 0
 
-    descriptor = compiled_law_nd(law)
-    with_descriptor = type("WithDescriptor", (), {"law_nd": descriptor})
-    with_function = type("WithFunction", (), {"law_nd": staticmethod(law)})
-    assert has_law_nd(with_descriptor) and has_law_nd(with_function)
-    assert not has_law_nd(type("Without", (), {"law": staticmethod(law)}))
-    assert descriptor._dispatcher is None  # not compiled by the question
+    descriptor = compiled_law(law)
+    holder = type("Holder", (), {"law": descriptor})
+    assert inspect.getattr_static(holder, "law") is descriptor and descriptor._dispatcher is None
+    assert holder.law is descriptor._dispatcher is not None

@@ -200,8 +200,7 @@ def test_a_broken_plugin_is_one_line_and_the_shipped_methods_run(tmp_path):
     (bad_law / "bad_law" / "__init__.py").write_text((source / "__init__.py").read_text()
                                                      .replace("p-ilc", "bad-law").replace("ilcforce_ptype", "bad_law"))
     law = (source / "law.py").read_text().replace('"p-ilc"', '"bad-law"')
-    law = law.replace("return _torque(k, meas, ref, gains, mem_prev, mem_new, write, diag)",
-                      "return _torque(k, meas, ref, gains, mem_prev, mem_new, write, no_such_name)")
+    law = law.replace("surface(n, k, meas, ref, gains, False, diag)", "surface(n, k, meas, ref, gains, False, no_such_name)")
     assert "no_such_name" in law
     (bad_law / "bad_law" / "law.py").write_text(law)
     (bad_law / "pyproject.toml").write_text(textwrap.dedent("""
@@ -256,7 +255,7 @@ _GOOD = """
 
     class Controller(MemoryController):
         name = "{name}"
-        law = staticmethod(lambda *args: (0.0, 0.0))
+        law = staticmethod(lambda *args: 0)
         memory_layout = {{}}
 
     METHOD_SPEC = MethodSpec("{name}", "Mine", "Mine", "C0", "my_method", "Controller", "Gains", "none", False, {in_paper}, "me")
@@ -303,14 +302,14 @@ def test_each_plugin_fault_is_one_line_naming_it(tmp_path, monkeypatch, capsys, 
 
 def test_a_controller_without_a_law_or_gains_defaults_is_left_out(tmp_path, monkeypatch, capsys):
     _plugin_module(tmp_path, monkeypatch, _GOOD.format(name="mine", in_paper=False)
-                   .replace("law = staticmethod(lambda *args: (0.0, 0.0))", "pass")
+                   .replace("law = staticmethod(lambda *args: 0)", "pass")
                    .replace("k: tuple = (1.0, 1.0)", "k: tuple"))
     assert list(_registry(monkeypatch, ("mine", "my_method:METHOD_SPEC"))) == list(SHIPPED)
     assert "Gains() with its defaults fails" in capsys.readouterr().err
     (tmp_path / "my_method.py").write_text((tmp_path / "my_method.py").read_text().replace("k: tuple\n", "k: tuple = (1.0, 1.0)\n"))
     sys.modules.pop("my_method", None)
     assert list(_registry(monkeypatch, ("mine", "my_method:METHOD_SPEC"))) == list(SHIPPED)
-    assert "Controller has neither a law (2-D) nor a law_nd (n axes)" in capsys.readouterr().err
+    assert "Controller has no law (law = compiled_law(...), docs/plugins.md)" in capsys.readouterr().err
 
 
 def test_entry_points_are_read_once_and_only_when_the_registry_is_used(monkeypatch):
@@ -322,52 +321,13 @@ def test_entry_points_are_read_once_and_only_when_the_registry_is_used(monkeypat
     assert calls == [1]
 
 
-def test_a_method_with_an_n_axis_law_only_runs_on_a_2_joint_robot(short_config):
-    """A plugin may give a 2-D ``law``, an n-axis ``law_nd`` or both, as a shipped method: with ``law_nd``
-    alone it runs through the n-joint loop on the five-bar too, the very numbers C2 gives there."""
-    import dataclasses
-
-    import numpy as np
-
-    from ilcforce import simulate
-    from ilcforce.controllers.c2 import C2Controller
-    from ilcforce.ndof import loop as loop_nd
-    from ilcforce.experiment import iteration_inputs
-
-    class NAxisOnly(C2Controller):
-        law = None  # no 2-D law
-
-    config = short_config(**{"experiment.iterations": 2})
-    reference = config.reference_samples()
-
-    def run(controller, loop):
-        setup = simulate._setup(dataclasses.replace(iteration_inputs(config, 0, reference), loop=loop), controller)
-        assert setup.layout is loop_nd
-        records = []
-        for j in range(2):
-            mem_prev, mem_new = controller.begin_iteration(j)
-            record = simulate.run_iteration(dataclasses.replace(iteration_inputs(config, j, reference), loop=loop),
-                                            controller, mem_prev, mem_new)
-            controller.end_iteration(record)
-            records.append(record)
-        return records
-
-    args = (config.n_control, config.surface, config.wall.sign, config.gains["c2"])
-    plugin = run(NAxisOnly(*args, sample_time=config.simulation.sample_time), "auto")
-    shipped = run(C2Controller(*args, sample_time=config.simulation.sample_time), "nd")
-    for a, b in zip(plugin, shipped):
-        assert a.status == b.status == "complete"
-        for name, x in a.log.items():
-            np.testing.assert_array_equal(x, b.log[name], err_msg=f"j={a.iteration} {name}: same law, same loop")
-
-
-def _law_with_a_typo(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return meas[0] * no_such_gain, 0.0  # noqa: F821 - the fault under test
+def _law_with_a_typo(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    tau[0] = meas[0] * no_such_gain  # noqa: F821 - the fault under test
+    return 0
 
 
 def test_a_law_numba_cannot_compile_is_one_line_naming_it():
-    from ilcforce.controllers.base import compiled_law
-    from ilcforce.controllers.nd import LawError
+    from ilcforce.controllers.nd import LawError, compiled_law
 
     with pytest.raises(LawError) as caught:
         compiled_law(_law_with_a_typo).dispatcher()

@@ -16,10 +16,11 @@ from ilcforce.noise import draw_iteration
 from ilcforce.plants.fivebar import FiveBar
 from ilcforce.simulate import IterationInputs, run_iteration
 
+# where the test laws read the measurement on the five-bar (the contract's layout at n = 2)
+THETA, DTHETA, ACCEL, FORCE_ACCEL = (at_py(offset, 2) for offset in (M_THETA, M_DTHETA, M_ACCEL, M_FORCE_ACCEL))
+
 # Joint-space PD holding the pose that presses 10 mm into the wall (a smooth case: always in contact).
 _KP, _KD = 20.0, 1.0
-# the measurement vector's offsets on the planar task (2 axes)
-THETA, DTHETA, ACCEL, FORCE_ACCEL = (at_py(m, 2) for m in (M_THETA, M_DTHETA, M_ACCEL, M_FORCE_ACCEL))
 
 
 @njit(law_signature())
@@ -52,7 +53,7 @@ def nan_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
 
 @njit(law_signature())
 def quadratic_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    """Torque quadratic in the force-axis acceleration, like eq. (14); logs the acceleration it saw (as sigma)."""
+    """Torque quadratic in the force-axis acceleration, like eq. (14); logs the acceleration it saw."""
     a = meas[ACCEL + 1]
     f2 = meas[FORCE_ACCEL + 1]
     diag[0] = a
@@ -67,13 +68,17 @@ class _TestController(MemoryController):
     uses_nominal_dynamics = False
     memory_layout = {}
 
-    def __init__(self, n_control, law, gains=(0.0,) * 9):
+    def __init__(self, n_control, gains=(0.0,) * 9):
         super().__init__(n_control)
-        self.law = law
         self._gains = np.array(gains, dtype=np.float64)
 
     def gains(self):
         return self._gains
+
+
+def _test_controller(n_control, law, gains=(0.0,) * 9) -> _TestController:
+    """A controller of its own class whose law is ``law`` (the simulator reads a method's law from its class)."""
+    return type("TestController", (_TestController,), {"law": staticmethod(law)})(n_control, gains)
 
 
 def _inputs(config, iteration=0):
@@ -103,7 +108,7 @@ def test_pd_against_solve_ivp(short_config):
     config = short_config(**QUIET, **{"reference.duration": 0.05})
     robot = FiveBar(config.plant.links())
     target = robot.inverse_kinematics((0.35, 0.41))  # 10 mm into the wall
-    controller = _TestController(config.n_control, pd_law, (*target, *([0.0] * 7)))
+    controller = _test_controller(config.n_control, pd_law, (*target, *([0.0] * 7)))
     record = _run(config, controller)
     assert record.status == "complete", record.diverged_reason
 
@@ -139,25 +144,25 @@ def test_zero_torque_at_rest_stays_at_rest(short_config):
     far above that roundoff and far below any real motion.
     """
     config = short_config(**QUIET)
-    record = _run(config, _TestController(config.n_control, zero_law))
+    record = _run(config, _test_controller(config.n_control, zero_law))
     assert record.status == "complete"
     np.testing.assert_allclose(record.log["joint_rate"], 0.0, rtol=0, atol=1e-10, err_msg="a resting robot moved")
 
 
 def test_same_seed_identical_different_seed_differs(short_config):
     config = short_config()
-    a = _run(config, _TestController(config.n_control, zero_law))
-    b = _run(config, _TestController(config.n_control, zero_law))
+    a = _run(config, _test_controller(config.n_control, zero_law))
+    b = _run(config, _test_controller(config.n_control, zero_law))
     for name in a.log:
         np.testing.assert_array_equal(a.log[name], b.log[name], err_msg=f"{name} differs between identical runs")
-    c = _run(short_config(**{"experiment.seed": 1}), _TestController(config.n_control, zero_law))
+    c = _run(short_config(**{"experiment.seed": 1}), _test_controller(config.n_control, zero_law))
     assert not np.array_equal(a.log["joint_angle_measured"], c.log["joint_angle_measured"])
     assert not np.array_equal(a.log["disturbance"], c.log["disturbance"])
 
 
 def test_noise_is_bounded_and_scaled(short_config):
     config = short_config()
-    record = _run(config, _TestController(config.n_control, zero_law))
+    record = _run(config, _test_controller(config.n_control, zero_law))
     noise = record.log["joint_angle_measured"] - record.log["joint_angle"]
     assert np.abs(noise).max() <= config.noise.encoder
     assert np.abs(noise).max() > 0.5 * config.noise.encoder, "uniform noise should reach near its bound"
@@ -169,7 +174,7 @@ def test_noise_is_bounded_and_scaled(short_config):
 @pytest.mark.parametrize("law, reason", [(huge_law, "torque bound"), (nan_law, "non-finite")])
 def test_watchdog_stops_the_iteration(short_config, law, reason):
     config = short_config()
-    record = _run(config, _TestController(config.n_control, law))
+    record = _run(config, _test_controller(config.n_control, law))
     assert record.status == "diverged"
     assert reason in record.diverged_reason
     assert record.diverged_time == pytest.approx((5 if law is huge_law else 7) * config.simulation.sample_time)
@@ -184,7 +189,7 @@ def test_implicit_scheme_solves_the_algebraic_loop(short_config):
     arithmetic on the same state, so they agree to roundoff (relative 1e-9 of the acceleration scale).
     """
     config = short_config(**QUIET, **{"reference.duration": 0.1})
-    record = _run(config, _TestController(config.n_control, quadratic_law))
+    record = _run(config, _test_controller(config.n_control, quadratic_law))
     assert record.status == "complete"
     robot = FiveBar(config.plant.links())
     a_given = record.log["sliding_surface"][:, 0]
@@ -250,7 +255,7 @@ def test_stop_request_takes_effect_within_a_chunk(short_config):
         calls.append(1)
         return len(calls) >= 2
 
-    controller = _TestController(config.n_control, zero_law)
+    controller = _test_controller(config.n_control, zero_law)
     mem_prev, mem_new = controller.begin_iteration(0)
     with pytest.raises(KeyboardInterrupt):
         run_iteration(_inputs(config), controller, mem_prev, mem_new, stop_requested=stop, chunk_steps=100)
@@ -387,7 +392,7 @@ def test_no_root_branch(short_config, fallback):
     s = _force_axis_response(config)
     K = K0 = 10.0
     assert 4.0 * s * s * K * K0 > 100, "the constructed law must have no root at k = 0"
-    record = _run(config, _TestController(config.n_control, rootless_law, (K, K0) + (0.0,) * 7))
+    record = _run(config, _test_controller(config.n_control, rootless_law, (K, K0) + (0.0,) * 7))
     assert record.log["implicit_fallbacks"][0] == 1, "the fallback at k = 0 is logged where it happened"
     assert np.nansum(record.log["implicit_fallbacks"]) == record.fallback_count
     a0 = record.log["sliding_surface"][0, 0]
@@ -404,7 +409,7 @@ def test_degenerate_branch(short_config, fallback):
     config = short_config(**QUIET, **{"simulation.implicit_fallback": fallback,
                                       "reference.duration": 0.01, "simulation.log_every": 1})
     s = _force_axis_response(config)
-    record = _run(config, _TestController(config.n_control, cancelling_law, (1.0 / s,) + (0.0,) * 8))
+    record = _run(config, _test_controller(config.n_control, cancelling_law, (1.0 / s,) + (0.0,) * 8))
     assert record.log["implicit_fallbacks"][0] == 1, "the cancelling law is degenerate at k = 0"
     assert np.nansum(record.log["implicit_fallbacks"]) == record.fallback_count
     # a linear law has no curvature: both fallbacks keep the previous (zero) acceleration
@@ -414,7 +419,7 @@ def test_degenerate_branch(short_config, fallback):
 def test_fallback_switch_changes_nothing_where_every_root_exists(short_config):
     """With the quadratic test law every sample has a root: the switch must not matter."""
     runs = [_run(short_config(**QUIET, **{"simulation.implicit_fallback": f}),
-                 _TestController(2001, quadratic_law)) for f in ("previous", "least_residual")]
+                 _test_controller(2001, quadratic_law)) for f in ("previous", "least_residual")]
     assert runs[0].fallback_count == runs[1].fallback_count == 0
     np.testing.assert_array_equal(runs[0].log["torque"], runs[1].log["torque"])
 

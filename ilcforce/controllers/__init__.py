@@ -10,7 +10,7 @@ outside ilcforce, a plugin: below).
 
 The registry is cheap to import: a spec names its module by path and imports it only when its
 controller or gains class is asked for, and a law's kernel is loaded only when first used
-(:class:`~ilcforce.controllers.base.compiled_law`).
+(:class:`~ilcforce.controllers.nd.compiled_law`).
 
 **Plugins.** An installed package adds a method of its own, without a fork, through the entry-point
 group :data:`ENTRY_POINT_GROUP` (``ilcforce.methods``, Gymnasium's convention): each entry point is
@@ -176,8 +176,8 @@ def _plugin_spec(entry_point, taken: Mapping[str, MethodSpec]) -> MethodSpec:
         raise PluginError(f"{spec.gains}() with its defaults fails: {_first_line(exc)}") from None
     if not isinstance(controller, type):
         raise PluginError(f"{spec.module}.{spec.controller} is not a class")
-    if all(inspect.getattr_static(controller, law, None) is None for law in ("law", "law_nd")):
-        raise PluginError(f"{spec.controller} has neither a law (2-D) nor a law_nd (n axes)")
+    if inspect.getattr_static(controller, "law", None) is None:
+        raise PluginError(f"{spec.controller} has no law (law = compiled_law(...), docs/plugins.md)")
     if getattr(controller, "name", None) != spec.name:
         raise PluginError(f"{spec.controller}.name is {getattr(controller, 'name', None)!r}, not {spec.name!r}")
     layout = getattr(controller, "memory_layout", None)

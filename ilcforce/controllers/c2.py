@@ -17,13 +17,10 @@ from typing import ClassVar
 import numpy as np
 
 from ilcforce.compiled.jit import njit
-from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
-    compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, surface_terms,
-)
+from ilcforce.controllers.base import MemoryController, check_gravity_feedforward, check_vector, pack_gains
 from ilcforce.controllers.nd import (
-    D_U, G_FEEDFORWARD_SIGN, M_FORCE, add_joint_torque_nd, at, check_widths, compiled_law_nd, gain_offsets,
-    joint_torque_nd, nominal_gravity_nd, surface_nd,
+    D_U, G_FEEDFORWARD_SIGN, M_FORCE, add_joint_torque, at, check_widths, compiled_law, gain_offsets, joint_torque,
+    nominal_gravity, surface,
 )
 
 
@@ -43,79 +40,48 @@ class C2Gains:
         check_gravity_feedforward("c2", self.gravity_feedforward)
 
 
-K, GRAVITY_FEEDFORWARD = gain_indices(C2Gains, "k", "gravity_feedforward")
-K_ND, GRAVITY_FEEDFORWARD_ND = gain_offsets(C2Gains, "k", "gravity_feedforward")
+K, GRAVITY_FEEDFORWARD = gain_offsets(C2Gains, "k", "gravity_feedforward")
 
 
 @njit(inline="always", error_model="numpy")
-def c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, learn):
-    """Eq. (27) at sample k. Where ``learn`` is False (C2-robust's samples before its learning window)
-    the memory is carried unchanged and J^T k sigma acts as feedback only; the paper's C2 is learn = True."""
-    sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)  # eq. (8)
-    w = gains[GAIN_FEEDFORWARD_SIGN]
-    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])
-    ux = w * meas[MEAS_FORCE] + gx  # +w F (erratum 1) (+ g_ff G_nom)
-    uy = w * meas[MEAS_FORCE + 1] + gy
-    if learn:
-        lx, ly = joint_torque(meas, gains[K] * sx, gains[K + 1] * sy)
-    else:  # nothing learned here: the same J^T k sigma, as feedback
-        lx, ly = 0.0, 0.0
-        ux += gains[K] * sx
-        uy += gains[K + 1] * sy
-    v1 = mem_prev[k, 0] + lx  # eq. (27), v_j = v_{j-1} + J^T k sigma_j
-    v2 = mem_prev[k, 1] + ly
-    if write:
-        mem_new[k, 0] = v1
-        mem_new[k, 1] = v2
-    fx, fy = joint_torque(meas, ux, uy)
-    diag[DIAG_SIGMA] = sx
-    diag[DIAG_SIGMA + 1] = sy
-    return v1 + fx, v2 + fy  # eq. (27), tau_j = v_j + w J^T F_j (erratum 1) (+ g_ff J^T G_nom)
-
-
-def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, True)
-
-
-@njit(inline="always", error_model="numpy")
-def c2_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, learn):
-    """Eq. (27) on n task axes (docs/model.md#n-dof), ``c2_torque``'s arithmetic axis by axis."""
+def c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, learn):
+    """Eq. (27) at sample k on the task's n axes. Where ``learn`` is False (C2-robust's samples before its
+    learning window) the memory is carried unchanged and J^T k sigma acts as feedback only; the paper's C2 is
+    learn = True."""
     n = tau.shape[0]
-    surface_nd(n, k, meas, ref, gains, False, diag)  # eq. (8)
+    surface(n, k, meas, ref, gains, False, diag)  # eq. (8)
     w = gains[at(G_FEEDFORWARD_SIGN, n)]
     u = at(D_U, n)
-    gff = gains[at(GRAVITY_FEEDFORWARD_ND, n)]
+    gff = gains[at(GRAVITY_FEEDFORWARD, n)]
     if learn:
         for i in range(n):
-            diag[u + i] = gains[at(K_ND, n) + i] * diag[i]
-        joint_torque_nd(n, meas, diag, u, tau)  # J^T k sigma_j, learned
+            diag[u + i] = gains[at(K, n) + i] * diag[i]
+        joint_torque(n, meas, diag, u, tau)  # J^T k sigma_j, learned
     for j in range(n):
         v = mem_prev[k, j] + (tau[j] if learn else 0.0)  # eq. (27), v_j = v_{j-1} + J^T k sigma_j
         if write:
             mem_new[k, j] = v
         tau[j] = v
     for i in range(n):  # +w F (erratum 1) (+ g_ff G_nom); without learning J^T k sigma as feedback
-        f = w * meas[at(M_FORCE, n) + i] + nominal_gravity_nd(n, meas, gff, i)
-        diag[u + i] = f if learn else f + gains[at(K_ND, n) + i] * diag[i]
-    add_joint_torque_nd(n, meas, diag, u, tau)  # eq. (27), tau_j = v_j + w J^T F_j
+        f = w * meas[at(M_FORCE, n) + i] + nominal_gravity(n, meas, gff, i)
+        diag[u + i] = f if learn else f + gains[at(K, n) + i] * diag[i]
+    add_joint_torque(n, meas, diag, u, tau)  # eq. (27), tau_j = v_j + w J^T F_j
     return 0
 
 
-def c2_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    return c2_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, True)
+def c2_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    return c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, True)
 
 
 class C2Controller(MemoryController):
     name = "c2"
     law = compiled_law(c2_law)
-    law_nd = compiled_law_nd(c2_law_nd)
     uses_nominal_dynamics = False
-    memory_layout = {"v": (0, 2, "N m")}
+    memory_layout = {"v": (0, 2, "N m")}  # on a planar robot; n columns on a task of n axes
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C2Gains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
-        if len(surface.selection) != 2:
-            self.memory_layout = {"v": (0, len(surface.selection), "N m")}
+        self.memory_layout = {"v": (0, len(surface.selection), "N m")}
         super().__init__(n_control, sample_time)
         self.uses_nominal_dynamics = gains.gravity_feedforward != 0.0  # the simulator then fills G_nom
         self._gains = pack_gains(surface, wall_sign, gains)

@@ -24,9 +24,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar
 
-from ilcforce.controllers.base import compiled_law, gain_indices
-from ilcforce.controllers.c2 import GRAVITY_FEEDFORWARD, K, C2Controller, C2Gains, c2_torque, c2_torque_nd
-from ilcforce.controllers.nd import at, compiled_law_nd, gain_offsets
+from ilcforce.controllers.c2 import GRAVITY_FEEDFORWARD, K, C2Controller, C2Gains, c2_torque
+from ilcforce.controllers.nd import at, compiled_law, gain_offsets
 from ilcforce.controllers.robust import QFiltered, check_robust_gains
 
 
@@ -45,23 +44,15 @@ class C2RobustGains(C2Gains):
         check_robust_gains(self.section, self.learn_from, self.q_cutoff, self.q_order)
 
 
-*_SHARED, LEARN_FROM, Q_CUTOFF, Q_ORDER = gain_indices(
+*_SHARED, LEARN_FROM, _Q_CUTOFF, _Q_ORDER = gain_offsets(
     C2RobustGains, "k", "gravity_feedforward", "learn_from", "q_cutoff", "q_order")
-assert tuple(_SHARED) == (K, GRAVITY_FEEDFORWARD), "C2-robust packs C2's gains at C2's indices (the shared kernel reads them)"
+assert tuple(_SHARED) == (K, GRAVITY_FEEDFORWARD), "C2-robust packs C2's gains at C2's offsets (the shared kernel reads them)"
 
 
-*_SHARED_ND, LEARN_FROM_ND, _Q_CUTOFF_ND, _Q_ORDER_ND = gain_offsets(
-    C2RobustGains, "k", "gravity_feedforward", "learn_from", "q_cutoff", "q_order")
-
-
-def c2_robust_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    n = tau.shape[0]
-    return c2_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, t >= gains[at(LEARN_FROM_ND, n)])
-
-
-def c2_robust_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+def c2_robust_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
     # eq. (27) learning only from t_L on; before it J^T k sigma feeds back (Q runs after the iteration)
-    return c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, t >= gains[LEARN_FROM])
+    n = tau.shape[0]
+    return c2_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, t >= gains[at(LEARN_FROM, n)])
 
 
 class C2RobustController(QFiltered, C2Controller):
@@ -69,4 +60,3 @@ class C2RobustController(QFiltered, C2Controller):
 
     name = "c2-robust"
     law = compiled_law(c2_robust_law)
-    law_nd = compiled_law_nd(c2_robust_law_nd)

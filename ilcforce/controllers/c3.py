@@ -24,13 +24,10 @@ from typing import ClassVar
 import numpy as np
 
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
-from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
-    compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, sgn, surface_terms,
-)
+from ilcforce.controllers.base import MemoryController, check_gravity_feedforward, check_vector, pack_gains, sgn
 from ilcforce.controllers.nd import (
-    D_U, G_FEEDFORWARD_SIGN, M_FORCE, at, check_widths, compiled_law_nd, gain_offsets, joint_torque_nd,
-    nominal_gravity_nd, surface_nd,
+    D_U, G_FEEDFORWARD_SIGN, M_FORCE, at, check_widths, compiled_law, gain_offsets, joint_torque, nominal_gravity,
+    surface,
 )
 
 PSI_ACCELERATION = {"measured": 0.0, "desired": 1.0}
@@ -77,49 +74,8 @@ class C3Gains:
                              f"got {self.psi_acceleration!r}")
 
 
-K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEEDFORWARD = gain_indices(
+K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEEDFORWARD = gain_offsets(
     C3Gains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration", "gravity_feedforward")
-K_ND, ETA_ND, GAMMA_ND, GAMMA_GRAVITY_ND, PSI_ACCELERATION_FLAG_ND, GRAVITY_FEEDFORWARD_ND = gain_offsets(
-    C3Gains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration", "gravity_feedforward")
-
-
-@njit(cache=True, error_model="numpy")
-def gamma_entry(gains, axis, r):
-    """Gamma's diagonal entry for Theta row r (0..na-1) of task axis ``axis`` (0 = x, 1 = y).
-
-    Rows 0-3 are the D and C entries (``gamma``, Theta order), rows 4-5 the G block
-    (``gamma_gravity``: G11 G12 for x, G21 G22 for y), present only with gravity."""
-    if r < 4:
-        return gains[GAMMA + 4 * axis + r]
-    return gains[GAMMA_GRAVITY + 2 * axis + r - 4]
-
-
-@njit(inline="always", error_model="numpy")
-def _theta_terms(k, na, p1x, p1y, p2x, p2y, sx, sy, gains, mem_prev, mem_new, write, keep):
-    """(Phi^T Theta_hat_j)_x, _y with Theta_hat_j = keep Theta_hat_{j-1} + Gamma Phi sigma (eq. 14):
-    rows 0..na-1 of the memory see Psi sigma_x, the next na Psi sigma_y (``sx``, ``sy``: the
-    learning signal, sigma itself in the paper's law)."""
-    mx = 0.0
-    my = 0.0
-    for r in range(4):  # the D and C blocks (a constant trip count, so it is unrolled)
-        psi = p1x if r == 0 else (p1y if r == 1 else (p2x if r == 2 else p2y))  # eq. (12)
-        th_x = keep * mem_prev[k, r] + gamma_entry(gains, 0, r) * psi * sx  # eq. (14), Theta update
-        th_y = keep * mem_prev[k, na + r] + gamma_entry(gains, 1, r) * psi * sy
-        mx += th_x * psi
-        my += th_y * psi
-        if write:
-            mem_new[k, r] = th_x
-            mem_new[k, na + r] = th_y
-    if na == 6:  # the G block: Psi's third block is the ones vector (eq. 12), so psi = 1
-        for r in range(4, 6):
-            th_x = keep * mem_prev[k, r] + gamma_entry(gains, 0, r) * sx  # eq. (14), Theta update
-            th_y = keep * mem_prev[k, na + r] + gamma_entry(gains, 1, r) * sy
-            mx += th_x
-            my += th_y
-            if write:
-                mem_new[k, r] = th_x
-                mem_new[k, na + r] = th_y
-    return mx, my
 
 
 @njit(inline="always", error_model="numpy")
@@ -139,64 +95,29 @@ def alpha_update(previous, increment, alpha_max, alpha_leak, alpha_nominal):
     return alpha
 
 
-@njit(inline="always", error_model="numpy")  # inlined into each law: a called c3_torque costs ~8% of a step
-def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, keep, alpha_max, learn, alpha_leak, alpha_nominal):
-    """Eq. (14) at sample k, with the previous iteration's memory scaled by ``keep``, alpha_hat_j
-    capped at ``alpha_max``, and Theta_hat and alpha_hat updated only where ``learn`` is True (their
+@njit(inline="always", error_model="numpy")
+def c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, keep, alpha_max, learn, alpha_leak,
+              alpha_nominal):
+    """Eq. (14) at sample k on the task's n axes, with the previous iteration's memory scaled by ``keep``,
+    alpha_hat_j capped at ``alpha_max``, and Theta_hat and alpha_hat updated only where ``learn`` is True (their
     learning signal is sigma there, 0 elsewhere); alpha_hat_{j-1} leaks towards ``alpha_nominal`` by the
     fraction ``alpha_leak`` before the update (:func:`alpha_update`). The paper's C3 is keep = 1,
     alpha_max = inf, learn = True, alpha_leak = 0 (all exact no-ops); C3-leak (``c3_leak``) uses
     keep = 1 - leakage and a finite bound; C3-robust (``c3_robust``) a bound, a learning window and
-    optionally the leak of alpha_hat."""
-    psi_desired = gains[PSI_ACCELERATION_FLAG] > 0.5
-    sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, psi_desired)
-    lx = sx if learn else 0.0  # sigma as the updates of eq. (14) see it
-    ly = sy if learn else 0.0
-    w = gains[GAIN_FEEDFORWARD_SIGN]
-    # Psi's length na is 4 (G = 0) or 6 (the G block), read from the memory width 2 na + 1; each
-    # branch inlines _theta_terms with a constant na, so the five-bar's rows use constant offsets
-    if mem_prev.shape[1] == 9:
-        na = 4
-        mx, my = _theta_terms(k, 4, p1x, p1y, p2x, p2y, lx, ly, gains, mem_prev, mem_new, write, keep)
-    else:
-        na = 6
-        mx, my = _theta_terms(k, 6, p1x, p1y, p2x, p2y, lx, ly, gains, mem_prev, mem_new, write, keep)
-    sgx = sgn(sx)
-    sgy = sgn(sy)
-    alpha = alpha_update(keep * mem_prev[k, 2 * na], gains[ETA] * (lx * sgn(lx) + ly * sgn(ly)), alpha_max,
-                         alpha_leak, alpha_nominal)
-    if write:
-        mem_new[k, 2 * na] = alpha
-    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])  # g_ff G_nom (0 in the paper's law)
-    # eq. (14), control law with +w F (erratum 1)
-    ux = gains[K] * sx + mx + w * meas[MEAS_FORCE] + alpha * sgx + gx
-    uy = gains[K + 1] * sy + my + w * meas[MEAS_FORCE + 1] + alpha * sgy + gy
-    diag[DIAG_SIGMA] = sx
-    diag[DIAG_SIGMA + 1] = sy
-    return joint_torque(meas, ux, uy)
-
-
-def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0, np.inf, True, 0.0, 0.0)
-
-
-@njit(inline="always", error_model="numpy")
-def c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, keep, alpha_max, learn, alpha_leak,
-                 alpha_nominal):
-    """Eq. (14) on n task axes (docs/model.md#n-dof), ``c3_torque``'s arithmetic axis by axis.
+    optionally the leak of alpha_hat.
 
     Psi = [psi1; dP + sigma; 1] in R^(3n) with gravity (na = 3n entries of Theta per axis), [psi1; dP +
     sigma] in R^(2n) without (na = 2n); the memory is Theta_hat axis by axis (n na columns), then alpha_hat.
     Theta row r of axis i has Gamma entry gamma[2 n i + r] (r < 2n) or gamma_gravity[n i + r - 2n]."""
     n = tau.shape[0]
-    psi_desired = gains[at(PSI_ACCELERATION_FLAG_ND, n)] > 0.5
-    surface_nd(n, k, meas, ref, gains, psi_desired, diag)
+    psi_desired = gains[at(PSI_ACCELERATION_FLAG, n)] > 0.5
+    surface(n, k, meas, ref, gains, psi_desired, diag)
     na = (mem_prev.shape[1] - 1) // n
     w = gains[at(G_FEEDFORWARD_SIGN, n)]
     u = at(D_U, n)
-    gamma = at(GAMMA_ND, n)
-    gamma_g = at(GAMMA_GRAVITY_ND, n)
-    gff = gains[at(GRAVITY_FEEDFORWARD_ND, n)]
+    gamma = at(GAMMA, n)
+    gamma_g = at(GAMMA_GRAVITY, n)
+    gff = gains[at(GRAVITY_FEEDFORWARD, n)]
     a_sum = 0.0
     for i in range(n):
         sigma = diag[i]
@@ -215,29 +136,29 @@ def c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, keep,
                 mem_new[k, na * i + r] = th
         a_sum += l * sgn(l)
         diag[u + i] = m
-    alpha = alpha_update(keep * mem_prev[k, n * na], gains[at(ETA_ND, n)] * a_sum, alpha_max, alpha_leak, alpha_nominal)
+    alpha = alpha_update(keep * mem_prev[k, n * na], gains[at(ETA, n)] * a_sum, alpha_max, alpha_leak, alpha_nominal)
     if write:
         mem_new[k, n * na] = alpha
     for i in range(n):
         sigma = diag[i]
         # eq. (14), control law with +w F (erratum 1)
-        diag[u + i] = (gains[at(K_ND, n) + i] * sigma + diag[u + i] + w * meas[at(M_FORCE, n) + i] + alpha * sgn(sigma)
-                       + nominal_gravity_nd(n, meas, gff, i))
-    joint_torque_nd(n, meas, diag, u, tau)
+        diag[u + i] = (gains[at(K, n) + i] * sigma + diag[u + i] + w * meas[at(M_FORCE, n) + i] + alpha * sgn(sigma)
+                       + nominal_gravity(n, meas, gff, i))
+    joint_torque(n, meas, diag, u, tau)
     return 0
 
 
-def c3_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    return c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0, np.inf, True, 0.0, 0.0)
+def c3_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0, np.inf, True, 0.0, 0.0)
 
 
 class C3Controller(MemoryController):
     name = "c3"
     law = compiled_law(c3_law)
-    law_nd = compiled_law_nd(c3_law_nd)
     uses_nominal_dynamics = False
+    #: on a planar robot without gravity; in general n axes of na Theta entries each, then alpha_hat (__init__)
     memory_layout = {"theta_hat": (0, 8, "mixed: kg (D entries), kg/s (C entries)"), "alpha_hat": (8, 9, "N")}
-    #: Theta's entries in memory order (G = 0)
+    #: Theta's entries in memory order (a planar robot, G = 0)
     theta_names = ("D11", "D12", "C11", "C12", "D21", "D22", "C21", "C22")
 
     @property
@@ -247,17 +168,15 @@ class C3Controller(MemoryController):
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: C3Gains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
+        # Theta in R^(2 n^2), or R^(3 n^2) with the G block of eq. (13) when the plant has gravity
+        # (docs/model.md#serial2r, docs/model.md#n-dof): n axes of na entries, then alpha_hat; the law reads na from
+        # the memory width. On a planar robot: D11 D12 C11 C12 (G11 G12) D21 D22 C21 C22 (G21 G22), alpha_hat
         n = len(surface.selection)
-        if n != 2:  # Theta in R^(2 n^2) or R^(3 n^2) (docs/model.md#n-dof): n axes of na entries, then alpha_hat
-            na = 3 * n if gravity else 2 * n
-            blocks = ("D", "C", "G") if gravity else ("D", "C")
-            self.memory_layout = {"theta_hat": (0, n * na, "mixed: kg (D entries), kg/s (C entries), N (G entries)"),
-                                  "alpha_hat": (n * na, n * na + 1, "N")}
-            self.theta_names = tuple(f"{b}{i + 1}{j + 1}" for i in range(n) for b in blocks for j in range(n))
-        elif gravity:  # the full Theta of eq. (13), decided by the plant (docs/model.md#serial2r); the law reads na from the memory width
-            self.memory_layout = {"theta_hat": (0, 12, "mixed: kg (D entries), kg/s (C entries), N (G entries)"),
-                                  "alpha_hat": (12, 13, "N")}
-            self.theta_names = ("D11", "D12", "C11", "C12", "G11", "G12", "D21", "D22", "C21", "C22", "G21", "G22")
+        na = 3 * n if gravity else 2 * n
+        blocks = ("D", "C", "G") if gravity else ("D", "C")
+        unit = "mixed: kg (D entries), kg/s (C entries)" + (", N (G entries)" if gravity else "")
+        self.memory_layout = {"theta_hat": (0, n * na, unit), "alpha_hat": (n * na, n * na + 1, "N")}
+        self.theta_names = tuple(f"{b}{i + 1}{j + 1}" for i in range(n) for b in blocks for j in range(n))
         super().__init__(n_control, sample_time)
         self.uses_nominal_dynamics = gains.gravity_feedforward != 0.0  # the simulator then fills G_nom
         # gains by name: gamma_gravity is packed whether or not the plant has gravity (fixed layout)

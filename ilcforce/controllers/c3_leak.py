@@ -31,12 +31,10 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
-from ilcforce.controllers.base import compiled_law, gain_indices
 from ilcforce.controllers.c3 import (
     ETA, GAMMA, GAMMA_GRAVITY, GRAVITY_FEEDFORWARD, K, PSI_ACCELERATION_FLAG, C3Controller, C3Gains, c3_torque,
-    c3_torque_nd,
 )
-from ilcforce.controllers.nd import at, compiled_law_nd, gain_offsets
+from ilcforce.controllers.nd import at, compiled_law, gain_offsets
 
 
 @dataclass(frozen=True)
@@ -56,26 +54,17 @@ class C3LeakGains(C3Gains):
             raise ValueError(f"c3-leak.alpha_max must be >= 0, got {self.alpha_max!r}")
 
 
-_C3_INDICES = (K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEEDFORWARD)
-*_SHARED, LEAKAGE, ALPHA_MAX = gain_indices(C3LeakGains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration",
+_C3_OFFSETS = (K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEEDFORWARD)
+*_SHARED, LEAKAGE, ALPHA_MAX = gain_offsets(C3LeakGains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration",
                                             "gravity_feedforward", "leakage", "alpha_max")
-assert tuple(_SHARED) == _C3_INDICES, "C3-leak packs C3's gains at C3's indices (the shared kernel reads them)"
+assert tuple(_SHARED) == _C3_OFFSETS, "C3-leak packs C3's gains at C3's offsets (the shared kernel reads them)"
 
 
-*_SHARED_ND, LEAKAGE_ND, ALPHA_MAX_ND = gain_offsets(
-    C3LeakGains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration", "gravity_feedforward", "leakage", "alpha_max")
-
-
-def c3_leak_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    n = tau.shape[0]
-    return c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0 - gains[at(LEAKAGE_ND, n)],
-                        gains[at(ALPHA_MAX_ND, n)], True, 0.0, 0.0)
-
-
-def c3_leak_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+def c3_leak_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
     # eq. (14) with (1 - lambda) on the previous iteration's memory and alpha_hat <= alpha_max
-    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0 - gains[LEAKAGE], gains[ALPHA_MAX], True,
-                     0.0, 0.0)
+    n = tau.shape[0]
+    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0 - gains[at(LEAKAGE, n)],
+                     gains[at(ALPHA_MAX, n)], True, 0.0, 0.0)
 
 
 class C3LeakController(C3Controller):
@@ -83,4 +72,3 @@ class C3LeakController(C3Controller):
 
     name = "c3-leak"
     law = compiled_law(c3_leak_law)
-    law_nd = compiled_law_nd(c3_leak_law_nd)

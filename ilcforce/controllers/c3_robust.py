@@ -52,12 +52,10 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar
 
-from ilcforce.controllers.base import compiled_law, gain_indices
 from ilcforce.controllers.c3 import (
     ETA, GAMMA, GAMMA_GRAVITY, GRAVITY_FEEDFORWARD, K, PSI_ACCELERATION_FLAG, C3Controller, C3Gains, c3_torque,
-    c3_torque_nd,
 )
-from ilcforce.controllers.nd import at, compiled_law_nd, gain_offsets
+from ilcforce.controllers.nd import at, compiled_law, gain_offsets
 from ilcforce.controllers.robust import QFiltered, check_robust_gains
 
 
@@ -89,28 +87,18 @@ class C3RobustGains(C3Gains):
             raise ValueError(f"{self.section}.alpha_nominal must be a finite gain >= 0 N, got {self.alpha_nominal!r}")
 
 
-_C3_INDICES = (K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEEDFORWARD)
-*_SHARED, LEARN_FROM, Q_CUTOFF, Q_ORDER, ALPHA_MAX, ALPHA_LEAK, ALPHA_NOMINAL = gain_indices(
+_C3_OFFSETS = (K, ETA, GAMMA, GAMMA_GRAVITY, PSI_ACCELERATION_FLAG, GRAVITY_FEEDFORWARD)
+*_SHARED, LEARN_FROM, _Q_CUTOFF, _Q_ORDER, ALPHA_MAX, ALPHA_LEAK, ALPHA_NOMINAL = gain_offsets(
     C3RobustGains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration", "gravity_feedforward",
     "learn_from", "q_cutoff", "q_order", "alpha_max", "alpha_leak", "alpha_nominal")
-assert tuple(_SHARED) == _C3_INDICES, "C3-robust packs C3's gains at C3's indices (the shared kernel reads them)"
+assert tuple(_SHARED) == _C3_OFFSETS, "C3-robust packs C3's gains at C3's offsets (the shared kernel reads them)"
 
 
-*_SHARED_ND, LEARN_FROM_ND, _Q_CUTOFF_ND, _Q_ORDER_ND, ALPHA_MAX_ND, ALPHA_LEAK_ND, ALPHA_NOMINAL_ND = gain_offsets(
-    C3RobustGains, "k", "eta", "gamma", "gamma_gravity", "psi_acceleration", "gravity_feedforward",
-    "learn_from", "q_cutoff", "q_order", "alpha_max", "alpha_leak", "alpha_nominal")
-
-
-def c3_robust_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    n = tau.shape[0]
-    return c3_torque_nd(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0, gains[at(ALPHA_MAX_ND, n)],
-                        t >= gains[at(LEARN_FROM_ND, n)], gains[at(ALPHA_LEAK_ND, n)], gains[at(ALPHA_NOMINAL_ND, n)])
-
-
-def c3_robust_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
+def c3_robust_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
     # eq. (14) learning only from t_L on, with alpha_hat <= alpha_max and its leak (Q runs after the iteration)
-    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, 1.0, gains[ALPHA_MAX],
-                     t >= gains[LEARN_FROM], gains[ALPHA_LEAK], gains[ALPHA_NOMINAL])
+    n = tau.shape[0]
+    return c3_torque(k, meas, ref, gains, mem_prev, mem_new, write, diag, tau, 1.0, gains[at(ALPHA_MAX, n)],
+                     t >= gains[at(LEARN_FROM, n)], gains[at(ALPHA_LEAK, n)], gains[at(ALPHA_NOMINAL, n)])
 
 
 class C3RobustController(QFiltered, C3Controller):
@@ -118,4 +106,3 @@ class C3RobustController(QFiltered, C3Controller):
 
     name = "c3-robust"
     law = compiled_law(c3_robust_law)
-    law_nd = compiled_law_nd(c3_robust_law_nd)

@@ -1,18 +1,17 @@
-"""The control laws' contract in n dimensions (docs/model.md#n-dof): what ``ilcforce.loop`` gives a law
-and takes back when the task has n axes (n joints, non-redundant).
+"""The control laws' contract (docs/model.md#n-dof): what the simulation loop gives a law and takes back, for a
+task of n axes (n joints, non-redundant; n = 2 for the planar robots, 3 for the spatial arm). The contract as a
+whole (the law and the controller object around it) is described in :mod:`ilcforce.controllers.base`; this
+module holds the law's signature and layouts and the terms every law shares::
 
-It is the 2-D contract of :mod:`ilcforce.controllers.base` with every block n wide instead of 2::
-
-    law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau) -> 0
+    law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau) -> 0
 
 ``tau`` (n,) receives the joint torque (N m); ``diag`` (:func:`diag_width` (n),) receives sigma in its
 first n entries and is the law's scratch space after them. ``meas`` holds the blocks below, each at an
 offset a + b n + c n^2 (so that one compiled law serves every n); matrices are n x n, row-major, in the
-task frame (the wall's frame, docs/model.md#wall-plane). ``ref`` is (n_control, 6 n): P_d, dP_d, ddP_d,
-F_d, dF_d, ddF_d, n columns each. ``gains`` starts with the shared prefix (selection, lambda_P,
-lambda_F1, lambda_F2: n each; the feed-forward sign w), then the method's own fields in declaration order,
-each as wide as :func:`field_width` says. For n = 2 every layout here is the 2-D one except the task
-inertia, which the 2-D layout packs as its 3 distinct entries.
+task frame (the wall's frame, docs/model.md#wall-plane; the identity for a planar robot). ``ref`` is
+(n_control, 6 n): P_d, dP_d, ddP_d, F_d, dF_d, ddF_d, n columns each. ``gains`` starts with the shared
+prefix (selection, lambda_P, lambda_F1, lambda_F2: n each; the feed-forward sign w), then the method's own
+fields in declaration order, each as wide as :func:`field_width` says.
 
 Every offset is a triple (a, b, c) read with :func:`at`; the laws read them as compile-time constants.
 """
@@ -21,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import inspect
 import re
 
 from ilcforce.compiled import jit as _jit
@@ -73,9 +71,9 @@ def at(offset, n):
     return offset[0] + offset[1] * n + offset[2] * n * n
 
 
-#: how a gains field's width grows with n, from its 2-D default width: a number stays one; a per-axis
-#: vector (2 entries) has n; a per-axis-pair block (4 entries: C3's G block) n^2; C3's D and C blocks
-#: (8 entries: 2 per axis pair) 2 n^2
+#: how a gains field's width grows with n, from its default's width (the defaults are written for the planar
+#: task, n = 2): a number stays one; a per-axis vector (2 entries) has n; a per-axis-pair block (4 entries:
+#: C3's G block) n^2; C3's D and C blocks (8 entries: 2 per axis pair) 2 n^2
 _GROWTH = {1: (1, 0, 0), 2: (0, 1, 0), 4: (0, 0, 1), 8: (0, 0, 2)}
 
 
@@ -83,7 +81,7 @@ def field_growth(gains_cls) -> dict[str, tuple[int, int, int]]:
     """Each field of a gains dataclass -> its width as a triple (a, b, c) (width a + b n + c n^2)."""
     out = {}
     for f in dataclasses.fields(gains_cls):
-        value = f.default  # the 2-D default (not an instance: making one runs the checks that call this)
+        value = f.default  # the planar task's default (not an instance: making one runs the checks that call this)
         width = len(value) if isinstance(value, tuple) else 1
         out[f.name] = _GROWTH.get(width, (width, 0, 0))  # any other width: a list of its own length (sl-adapt's Gamma)
     return out
@@ -94,7 +92,8 @@ def field_width(gains_cls, name: str, n: int) -> int:
 
 
 def gain_offsets(gains_cls, *names: str) -> tuple[tuple[int, int, int], ...]:
-    """The offset triple of each named field (all fields, in order, as ``base.gain_indices`` asks)."""
+    """The offset triple of each named field: ``names`` must list every field of ``gains_cls`` in order, so that
+    a field added to the dataclass cannot be forgotten by the law module."""
     growth = field_growth(gains_cls)
     if tuple(growth) != names:
         raise TypeError(f"{gains_cls.__name__}: gain names {names} must be the fields in order: {tuple(growth)}")
@@ -115,9 +114,9 @@ def dimension_of(gains) -> int:
 
 def check_widths(section: str, gains, n: int | None = None) -> int:
     """Every field of ``gains`` as wide as a task of ``n`` axes needs (default: the n its first per-axis field
-    implies); returns n (ValueError, one line, naming the first field that is not). For n = 2 this is the 2-D
-    check. The gains dataclasses check themselves with it, the configuration against its task's axes. A field
-    the gains class lists in ``plant_sized`` is as wide as the plant says; its controller checks it."""
+    implies); returns n (ValueError, one line, naming the first field that is not). The gains dataclasses check
+    themselves with it, the configuration against its task's axes. A field the gains class lists in
+    ``plant_sized`` is as wide as the plant says; its controller checks it."""
     given = n is not None
     n = dimension_of(gains) if n is None else n
     if n < 1:
@@ -157,7 +156,8 @@ def compile_law(py_func, signature):
 
 
 @functools.cache
-def law_signature_nd():
+def law_signature():
+    """The numba signature of every law (imports numba)."""
     types = _jit.numba().types
     return types.int64(
         types.int64, types.float64, types.float64[::1], types.float64[:, ::1], types.float64[::1],
@@ -165,30 +165,39 @@ def law_signature_nd():
     )
 
 
-class compiled_law_nd:  # noqa: N801 (a descriptor, as base.compiled_law)
-    """A law compiled with :func:`law_signature_nd` on first access, then cached."""
+class compiled_law:  # noqa: N801 (used as a decorator-like descriptor)
+    """A law function compiled with :func:`law_signature` on first access, then cached.
+
+    ``law = compiled_law(my_law)`` as a controller class attribute: ``Controller.law`` and
+    ``controller.law`` return the numba dispatcher, so only the methods a process runs load (or
+    compile) their kernels. numba's on-disk cache works as with the decorator.
+    """
 
     def __init__(self, py_func):
         self.py_func = py_func
         self._dispatcher = None
 
-    def __get__(self, obj, owner=None):
+    def dispatcher(self):
         if self._dispatcher is None:
-            self._dispatcher = compile_law(self.py_func, law_signature_nd())
+            self._dispatcher = compile_law(self.py_func, law_signature())  # LawError if it does not compile
         return self._dispatcher
 
-
-def has_law_nd(controller_class) -> bool:
-    """Whether a controller class has an n-axis law, without compiling it (reading ``law_nd`` compiles)."""
-    return inspect.getattr_static(controller_class, "law_nd", None) is not None
+    def __get__(self, obj, owner=None):
+        return self.dispatcher()
 
 
 # --- the shared terms --------------------------------------------------------------------------------
 
 @njit(inline="always", error_model="numpy")
-def surface_nd(n, k, meas, ref, gains, psi_desired, diag):
-    """sigma (eq. 8) and Psi's blocks psi1, dP + sigma (eq. 12) per task axis, into diag (D_SIGMA, D_PSI1,
-    D_PSI2); the arithmetic of ``base._axis_terms``, axis by axis."""
+def surface(n, k, meas, ref, gains, psi_desired, diag):
+    """The errors (eqs. 6-7), sigma (eq. 8) and Psi's blocks psi1, dP + sigma (eq. 12) per task axis, into diag
+    (D_SIGMA, D_PSI1, D_PSI2):
+
+    sigma = lambda_P e_P + de_P + lambda_F1 e_F + lambda_F2 de_F                     (eq. 8)
+    psi1 = lambda_P de_P + lambda_F1 de_F + lambda_F2 dde_F + Sbar ddP_d + S ddP        (eq. 12)
+    psi2 = dP + sigma                                                                (eq. 12)
+
+    With ``psi_desired`` the S ddP term uses the desired acceleration S ddP_d instead (docs/model.md#acceleration)."""
     for i in range(n):
         s = gains[at(G_SELECTION, n) + i]
         sbar = 1.0 - s
@@ -208,7 +217,7 @@ def surface_nd(n, k, meas, ref, gains, psi_desired, diag):
 
 
 @njit(inline="always", error_model="numpy")
-def add_joint_torque_nd(n, meas, u, u0, tau):
+def add_joint_torque(n, meas, u, u0, tau):
     """tau += J_X^T u for the task command u = u[u0:u0 + n] (N), J_X nominal at the measured angles."""
     J = at(M_JACOBIAN, n)
     for j in range(n):
@@ -219,15 +228,15 @@ def add_joint_torque_nd(n, meas, u, u0, tau):
 
 
 @njit(inline="always", error_model="numpy")
-def joint_torque_nd(n, meas, u, u0, tau):
+def joint_torque(n, meas, u, u0, tau):
     """tau = J_X^T u[u0:u0 + n] (0 + s is s: the same numbers as assigning the sum)."""
     for j in range(n):
         tau[j] = 0.0
-    add_joint_torque_nd(n, meas, u, u0, tau)
+    add_joint_torque(n, meas, u, u0, tau)
 
 
 @njit(inline="always", error_model="numpy")
-def nominal_gravity_nd(n, meas, scale, i):
+def nominal_gravity(n, meas, scale, i):
     """scale G_nom,i (N); 0 when scale is 0 (the block is then not filled)."""
     if scale == 0.0:
         return 0.0
@@ -235,7 +244,7 @@ def nominal_gravity_nd(n, meas, scale, i):
 
 
 @njit(inline="always", error_model="numpy")
-def nominal_model_force_nd(n, meas, diag, i):
+def nominal_model_force(n, meas, diag, i):
     """(Xi_nom^T Psi)_i = (D_nom psi1 + C_nom (dP + sigma) + G_nom)_i (eqs. 11-12), psi1 and dP + sigma from diag."""
     D = at(M_TASK_INERTIA, n) + i * n
     C = at(M_TASK_CORIOLIS, n) + i * n

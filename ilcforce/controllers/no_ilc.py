@@ -60,7 +60,7 @@ import numpy as np
 from ilcforce.controllers.base import MemoryController, check_gravity_feedforward, check_vector, pack_gains
 from ilcforce.controllers.nd import (
     D_U, G_FEEDFORWARD_SIGN, G_SELECTION, M_FORCE, M_POSITION, R_FORCE, R_POSITION, at, check_widths,
-    compiled_law_nd, gain_offsets, joint_torque_nd, nominal_gravity_nd, surface_nd,
+    compiled_law, gain_offsets, joint_torque, nominal_gravity, surface,
 )
 from ilcforce.controllers.robust import QFilter, check_robust_gains
 
@@ -105,22 +105,22 @@ class NOILCGains:
         check_gravity_feedforward(self.section, self.gravity_feedforward)
 
 
-(K_ND, _Q_POSITION_ND, _Q_FORCE_ND, _R_ND, _KNOT_SPACING_ND, _Q_CUTOFF_ND, _Q_ORDER_ND,
- GRAVITY_FEEDFORWARD_ND) = gain_offsets(NOILCGains, "k", "q_position", "q_force", "r", "knot_spacing", "q_cutoff",
+(K, _Q_POSITION, _Q_FORCE, _R, _KNOT_SPACING, _Q_CUTOFF, _Q_ORDER,
+ GRAVITY_FEEDFORWARD) = gain_offsets(NOILCGains, "k", "q_position", "q_force", "r", "knot_spacing", "q_cutoff",
                                         "q_order", "gravity_feedforward")
 
 
-def no_ilc_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+def no_ilc_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
     """tau = J^T (u_j + k sigma + w F + g_ff G_nom); writes u_j and the measured error e_j (n axes each)."""
     n = tau.shape[0]
-    surface_nd(n, k, meas, ref, gains, False, diag)  # eq. (8)
+    surface(n, k, meas, ref, gains, False, diag)  # eq. (8)
     w = gains[at(G_FEEDFORWARD_SIGN, n)]
-    gff = gains[at(GRAVITY_FEEDFORWARD_ND, n)]
+    gff = gains[at(GRAVITY_FEEDFORWARD, n)]
     u = at(D_U, n)
     for i in range(n):
         # (N3): learned feed-forward u_j + PD feedback k sigma + force feed-forward w F (+ g_ff G_nom)
-        diag[u + i] = (mem_prev[k, i] + gains[at(K_ND, n) + i] * diag[i] + w * meas[at(M_FORCE, n) + i]
-                       + nominal_gravity_nd(n, meas, gff, i))
+        diag[u + i] = (mem_prev[k, i] + gains[at(K, n) + i] * diag[i] + w * meas[at(M_FORCE, n) + i]
+                       + nominal_gravity(n, meas, gff, i))
     if write:
         for i in range(n):
             s = gains[at(G_SELECTION, n) + i]
@@ -128,7 +128,7 @@ def no_ilc_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
             e_f = s * (ref[k, R_FORCE * n + i] - meas[at(M_FORCE, n) + i])  # eq. (7), measured
             mem_new[k, i] = mem_prev[k, i]
             mem_new[k, n + i] = e_p + e_f
-    joint_torque_nd(n, meas, diag, u, tau)
+    joint_torque(n, meas, diag, u, tau)
     return 0
 
 
@@ -189,7 +189,7 @@ class NOILCController(MemoryController):
     """Norm-optimal ILC: the law above, the update between iterations (``end_iteration``)."""
 
     name = "no-ilc"
-    law_nd = compiled_law_nd(no_ilc_law_nd)
+    law = compiled_law(no_ilc_law)
     uses_nominal_dynamics = False
     #: u: the feed-forward iteration j + 1 applies (after the update and Q); error: the measured error of
     #: iteration j that made it (Sbar e_P + S e_F, m on position axes, N on the force axis)

@@ -30,13 +30,10 @@ from typing import ClassVar
 
 import numpy as np
 
-from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_gravity_feedforward, check_vector,
-    compiled_law, gain_indices, joint_torque, nominal_gravity, pack_gains, surface_terms,
-)
+from ilcforce.controllers.base import MemoryController, check_gravity_feedforward, check_vector, pack_gains
 from ilcforce.controllers.nd import (
-    D_U, G_FEEDFORWARD_SIGN, M_FORCE, add_joint_torque_nd, at, check_widths, compiled_law_nd, gain_offsets,
-    joint_torque_nd, nominal_gravity_nd, surface_nd,
+    D_U, G_FEEDFORWARD_SIGN, M_FORCE, add_joint_torque, at, check_widths, compiled_law, gain_offsets, joint_torque,
+    nominal_gravity, surface,
 )
 
 
@@ -65,65 +62,45 @@ class PDILCGains:
         check_gravity_feedforward("pd-ilc", self.gravity_feedforward)
 
 
-K, LEARNING, Q_CUTOFF, Q_ORDER, GRAVITY_FEEDFORWARD = gain_indices(
-    PDILCGains, "k", "learning", "q_cutoff", "q_order", "gravity_feedforward")
-K_ND, LEARNING_ND, _Q_CUTOFF_ND, _Q_ORDER_ND, GRAVITY_FEEDFORWARD_ND = gain_offsets(
+K, LEARNING, _Q_CUTOFF, _Q_ORDER, GRAVITY_FEEDFORWARD = gain_offsets(
     PDILCGains, "k", "learning", "q_cutoff", "q_order", "gravity_feedforward")
 
 
-def pd_ilc_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)  # eq. (8)
-    w = gains[GAIN_FEEDFORWARD_SIGN]
-    fb1, fb2 = joint_torque(meas, gains[K] * sx, gains[K + 1] * sy)  # PD feedback J^T k sigma
-    if write:
-        # v_j + J^T L sigma_j: filtered by Q into v_{j+1} after the iteration (Bristow et al. eq. 13)
-        l1, l2 = joint_torque(meas, gains[LEARNING] * sx, gains[LEARNING + 1] * sy)
-        mem_new[k, 0] = mem_prev[k, 0] + l1
-        mem_new[k, 1] = mem_prev[k, 1] + l2
-    gx, gy = nominal_gravity(meas, gains[GRAVITY_FEEDFORWARD])  # g_ff G_nom (0 by default)
-    ff1, ff2 = joint_torque(meas, w * meas[MEAS_FORCE] + gx, w * meas[MEAS_FORCE + 1] + gy)
-    diag[DIAG_SIGMA] = sx
-    diag[DIAG_SIGMA + 1] = sy
-    return mem_prev[k, 0] + fb1 + ff1, mem_prev[k, 1] + fb2 + ff2
-
-
-def pd_ilc_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    """``pd_ilc_law`` on n task axes (docs/model.md#n-dof)."""
+def pd_ilc_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """tau = v_j + J^T (k sigma + w F + g_ff G_nom) on the task's n axes; writes v_j + J^T L sigma."""
     n = tau.shape[0]
-    surface_nd(n, k, meas, ref, gains, False, diag)  # eq. (8)
+    surface(n, k, meas, ref, gains, False, diag)  # eq. (8)
     w = gains[at(G_FEEDFORWARD_SIGN, n)]
     u = at(D_U, n)
     if write:
         # v_j + J^T L sigma_j: filtered by Q into v_{j+1} after the iteration (Bristow et al. eq. 13)
         for i in range(n):
-            diag[u + i] = gains[at(LEARNING_ND, n) + i] * diag[i]
-        joint_torque_nd(n, meas, diag, u, tau)
+            diag[u + i] = gains[at(LEARNING, n) + i] * diag[i]
+        joint_torque(n, meas, diag, u, tau)
         for j in range(n):
             mem_new[k, j] = mem_prev[k, j] + tau[j]
-    gff = gains[at(GRAVITY_FEEDFORWARD_ND, n)]
+    gff = gains[at(GRAVITY_FEEDFORWARD, n)]
     for i in range(n):  # PD feedback J^T k sigma
-        diag[u + i] = gains[at(K_ND, n) + i] * diag[i]
-    joint_torque_nd(n, meas, diag, u, tau)
+        diag[u + i] = gains[at(K, n) + i] * diag[i]
+    joint_torque(n, meas, diag, u, tau)
     for j in range(n):
         tau[j] = mem_prev[k, j] + tau[j]
     for i in range(n):  # + J^T (w F + g_ff G_nom)
-        diag[u + i] = w * meas[at(M_FORCE, n) + i] + nominal_gravity_nd(n, meas, gff, i)
-    add_joint_torque_nd(n, meas, diag, u, tau)
+        diag[u + i] = w * meas[at(M_FORCE, n) + i] + nominal_gravity(n, meas, gff, i)
+    add_joint_torque(n, meas, diag, u, tau)
     return 0
 
 
 class PDILCController(MemoryController):
     name = "pd-ilc"
     law = compiled_law(pd_ilc_law)
-    law_nd = compiled_law_nd(pd_ilc_law_nd)
     uses_nominal_dynamics = False
     #: v: the feed-forward iteration j + 1 applies (after Q); an unfinished iteration's is unfiltered
-    memory_layout = {"v": (0, 2, "N m")}
+    memory_layout = {"v": (0, 2, "N m")}  # on a planar robot; n columns on a task of n axes
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: PDILCGains, *,
                  gravity: bool = False, sample_time: float = float("nan")):
-        if len(surface.selection) != 2:
-            self.memory_layout = {"v": (0, len(surface.selection), "N m")}
+        self.memory_layout = {"v": (0, len(surface.selection), "N m")}
         super().__init__(n_control, sample_time)
         if not (math.isfinite(self.sample_time) and self.sample_time > 0):
             raise ValueError("pd-ilc needs the control sample time to design its Q filter")

@@ -43,20 +43,16 @@ from typing import ClassVar
 import numpy as np
 
 from ilcforce.compiled.dense import lu, lu_solve
-from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_DTHETA, MEAS_FORCE, MEAS_JACOBIAN, MEAS_THETA, MemoryController,
-    check_vector, compiled_law, gain_indices, pack_common_gains, pack_gains, surface_terms,
-)
+from ilcforce.controllers.base import MemoryController, check_vector, pack_common_gains
 from ilcforce.controllers.c3 import PSI_ACCELERATION
 from ilcforce.controllers.nd import (
-    D_U, G_FEEDFORWARD_SIGN, G_OWN_FIRST, M_DTHETA, M_FORCE, M_JACOBIAN, M_THETA, add_joint_torque_nd, at, at_py,
-    check_widths, compiled_law_nd, surface_nd,
+    D_U, G_FEEDFORWARD_SIGN, G_OWN_FIRST, M_DTHETA, M_FORCE, M_JACOBIAN, M_THETA, add_joint_torque, at, at_py,
+    check_widths, compiled_law, surface,
 )
 from ilcforce.plants import adaptive
 
-#: Room for the nominal plant's packed parameters in the gain vector (the most of any plant).
-MAX_PLANT_PARAMS = adaptive.PARAM_ROOM
-#: Columns of every plant's regressor tuple (a plant with fewer base parameters pads with zeros).
+#: Gamma's entries on a 2-joint plant: its closed-form regressor's columns (a plant with fewer base parameters
+#: leaves the last unused)
 REGRESSOR_WIDTH = adaptive.REGRESSOR_WIDTH
 
 
@@ -86,8 +82,9 @@ class SlotineLiGains:
     def __post_init__(self) -> None:
         n = check_widths("sl-adapt", self)  # k: one entry per task axis
         check_vector("sl-adapt.k", self.k, n)
-        # Gamma: the 2-D plants' padded regressor width; an n-joint plant's base parameters (checked by the controller)
-        check_vector("sl-adapt.gamma", self.gamma, REGRESSOR_WIDTH if n == 2 else len(self.gamma))
+        # Gamma: one per column of a closed-form regressor (REGRESSOR_WIDTH), or one per base parameter of a chain:
+        # the plant decides, so the controller checks the count against it
+        check_vector("sl-adapt.gamma", self.gamma, len(self.gamma))
         if min(self.gamma) < 0:
             raise ValueError("sl-adapt.gamma must be non-negative (Gamma is positive semi-definite)")
         if self.psi_acceleration not in PSI_ACCELERATION:
@@ -97,116 +94,70 @@ class SlotineLiGains:
             raise ValueError(f"sl-adapt.initial_estimate must be finite and >= 0, got {self.initial_estimate!r}")
 
 
-K, GAMMA, INITIAL, PSI_ACCELERATION_FLAG, SAMPLE_TIME, PLANT, PARAMS = gain_indices(
-    SlotineLiGains, "k", "gamma", "initial_estimate", "psi_acceleration", "sample_time", "plant", "params",
-    derived=("sample_time", "plant", "params"))
+# --- the law's own gains layout, as Gamma is as wide as the plant's base parameters P, not a function of n: the
+# shared prefix, k (n), the sample time, the psi_acceleration flag, the plant's code (ilcforce.plants.adaptive),
+# the wall's frame R (n^2, dJ_X = R dJ), Gamma (P), the base columns of the plant's regressor rows (P), a_hat_0 (P),
+# then the nominal plant's parameters (adaptive.law_parameters) to the end
+K = G_OWN_FIRST
+SAMPLE_TIME = (G_OWN_FIRST[0], G_OWN_FIRST[1] + 1, 0)
+PSI_ACCELERATION_FLAG = (G_OWN_FIRST[0] + 1, G_OWN_FIRST[1] + 1, 0)
+PLANT = (G_OWN_FIRST[0] + 2, G_OWN_FIRST[1] + 1, 0)
+FRAME = (G_OWN_FIRST[0] + 3, G_OWN_FIRST[1] + 1, 0)
+GAMMA = (G_OWN_FIRST[0] + 3, G_OWN_FIRST[1] + 1, 1)
 
 
-def sl_adapt_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, gains[PSI_ACCELERATION_FLAG] > 0.5)  # eqs. (8), (12)
-    w = gains[GAIN_FEEDFORWARD_SIGN]
-    ts = gains[SAMPLE_TIME]
-    p = gains[PARAMS:PARAMS + MAX_PLANT_PARAMS]  # the nominal plant's packed parameters (lengths known)
-    start = PARAMS + MAX_PLANT_PARAMS  # a_hat_0, the estimate iteration 0 starts from
-    th1 = meas[MEAS_THETA]
-    th2 = meas[MEAS_THETA + 1]
-    d1 = meas[MEAS_DTHETA]
-    d2 = meas[MEAS_DTHETA + 1]
-    J00 = meas[MEAS_JACOBIAN]
-    J01 = meas[MEAS_JACOBIAN + 1]
-    J10 = meas[MEAS_JACOBIAN + 2]
-    J11 = meas[MEAS_JACOBIAN + 3]
-    det = J00 * J11 - J01 * J10
-    # joint reference velocity dq_r = J^-1 (dP + sigma) and sliding variable J^-1 sigma = -s
-    r1 = (J11 * p2x - J01 * p2y) / det
-    r2 = (-J10 * p2x + J00 * p2y) / det
-    sj1 = (J11 * sx - J01 * sy) / det
-    sj2 = (-J10 * sx + J00 * sy) / det
-    dJ00, dJ01, dJ10, dJ11 = adaptive.jacobian_derivative(gains[PLANT], p, th1, th2, d1, d2)
-    bx = p1x - (dJ00 * r1 + dJ01 * r2)  # ddq_r = J^-1 (ddP_r - dJ dq_r), ddP_r = psi1
-    by = p1y - (dJ10 * r1 + dJ11 * r2)
-    rr1 = (J11 * bx - J01 * by) / det
-    rr2 = (-J10 * bx + J00 * by) / det
-    Y = adaptive.regressor(gains[PLANT], p, th1, th2, d1, d2, r1, r2, rr1, rr2)
-    last = mem_prev.shape[0] - 1
-    tau1 = 0.0
-    tau2 = 0.0
-    for r in range(mem_new.shape[1]):
-        y0 = Y[r]
-        y1 = Y[REGRESSOR_WIDTH + r]
-        # a_hat(t_{k-1}) - a_hat_0: this iteration's previous sample, at k = 0 the last iteration's end
-        before = mem_new[k - 1, r] if k > 0 else mem_prev[last, r]
-        change = before + ts * gains[GAMMA + r] * (y0 * sj1 + y1 * sj2)  # Slotine & Li eq. 9.27, backward Euler
-        if write:
-            mem_new[k, r] = change
-        a_hat = gains[start + r] + change
-        tau1 += y0 * a_hat
-        tau2 += y1 * a_hat
-    # Slotine & Li eq. 9.25: Y a_hat - K_D s with K_D = J^T k J, plus w J^T F (erratum 1)
-    ux = gains[K] * sx + w * meas[MEAS_FORCE]
-    uy = gains[K + 1] * sy + w * meas[MEAS_FORCE + 1]
-    diag[DIAG_SIGMA] = sx
-    diag[DIAG_SIGMA + 1] = sy
-    return tau1 + J00 * ux + J10 * uy, tau2 + J01 * ux + J11 * uy
-
-
-# --- the n-axis law (docs/model.md#n-dof): its own gains layout, as Gamma is as wide as the plant's base
-# parameters P, not a function of n: the shared prefix, k (n), the sample time, the psi_acceleration flag, the
-# wall's frame R (n^2, dJ_X = R dJ), Gamma (P), the base columns of the chain's regressor (P), a_hat_0 (P),
-# then the nominal chain's packed vector (ilcforce.plants.chain) to the end
-K_ND = G_OWN_FIRST
-SAMPLE_TIME_ND = (G_OWN_FIRST[0], G_OWN_FIRST[1] + 1, 0)
-PSI_ACCELERATION_FLAG_ND = (G_OWN_FIRST[0] + 1, G_OWN_FIRST[1] + 1, 0)
-FRAME_ND = (G_OWN_FIRST[0] + 2, G_OWN_FIRST[1] + 1, 0)
-GAMMA_ND = (G_OWN_FIRST[0] + 2, G_OWN_FIRST[1] + 1, 1)
-
-
-def scratch_nd(n: int) -> int:
+def scratch(model: str, n: int) -> int:
     """The law's scratch after the shared diag (:func:`ilcforce.controllers.nd.diag_width`): LU of J_X (n^2),
-    its pivots, dq_r, J_X^-1 sigma and ddq_r (n each), the chain's whole regressor (n x 10 n), the chain's work."""
-    return n * n + 4 * n + 10 * n * n + adaptive.nd_work_width(n)
+    its pivots, dq_r, J_X^-1 sigma, ddq_r and dJ dq_r (n each), the regressor's rows (n x
+    ``adaptive.regressor_row_width(n)``), the plant's work (``adaptive.work_width``)."""
+    return n * n + 5 * n + n * adaptive.regressor_row_width(n) + adaptive.work_width(model, n)
 
 
-def sl_adapt_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    """Slotine & Li eqs. 9.25-9.27 on n task axes, the 2-D law's steps with n-wide blocks: dq_r = J_X^-1 (dX +
-    sigma), ddq_r = J_X^-1 (ddX_r - dJ_X dq_r), Y(q, dq, dq_r, ddq_r) on the chain's base columns, the estimate's
-    backward-Euler step and tau = Y a_hat + J_X^T (k sigma + w F)."""
+def sl_adapt_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """Slotine & Li eqs. 9.25-9.27 on the task's n axes: dq_r = J_X^-1 (dX + sigma), ddq_r = J_X^-1 (ddX_r -
+    R dJ dq_r), Y(q, dq, dq_r, ddq_r) on the plant's base columns, the estimate's backward-Euler step and
+    tau = Y a_hat + J_X^T (k sigma + w F)."""
     n = tau.shape[0]
     nb = mem_prev.shape[1]  # the base parameters
-    surface_nd(n, k, meas, ref, gains, gains[at(PSI_ACCELERATION_FLAG_ND, n)] > 0.5, diag)  # eqs. (8), (12)
-    frame = at(FRAME_ND, n)
-    gamma = at(GAMMA_ND, n)
+    surface(n, k, meas, ref, gains, gains[at(PSI_ACCELERATION_FLAG, n)] > 0.5, diag)  # eqs. (8), (12)
+    plant = gains[at(PLANT, n)]
+    frame = at(FRAME, n)
+    gamma = at(GAMMA, n)
     columns = gamma + nb
     start = columns + nb  # a_hat_0
-    p = gains[start + nb:]  # the nominal chain
-    ts = gains[at(SAMPLE_TIME_ND, n)]
+    p = gains[start + nb:]  # the nominal plant
+    ts = gains[at(SAMPLE_TIME, n)]
     o_lu = at(D_U, n) + n  # after the shared diag (diag_width)
     o_piv = o_lu + n * n
     o_r = o_piv + n  # dq_r
     o_s = o_r + n  # J_X^-1 sigma = -s
     o_rr = o_s + n  # ddq_r
-    o_y = o_rr + n  # Y (n x 10 n)
-    width = 10 * n
+    o_dj = o_rr + n  # dJ dq_r, in the plant's task coordinates
+    o_y = o_dj + n  # Y (n rows)
+    width = 10 * n  # adaptive.regressor_row_width(n)
     o_work = o_y + n * width
     if not lu(n, meas, at(M_JACOBIAN, n), diag[o_lu:o_piv], diag[o_piv:o_r]):
         for i in range(n):
             tau[i] = np.nan  # a singular J_X: the watchdog stops the iteration
         return 0
     for i in range(n):
-        diag[o_r + i] = diag[2 * n + i]  # dX + sigma (surface_nd's third block)
+        diag[o_r + i] = diag[2 * n + i]  # dX + sigma (surface's third block)
         diag[o_s + i] = diag[i]  # sigma
     lu_solve(n, diag[o_lu:o_piv], diag[o_piv:o_r], diag[o_r:o_s])
     lu_solve(n, diag[o_lu:o_piv], diag[o_piv:o_r], diag[o_s:o_rr])
     q = meas[at(M_THETA, n):at(M_THETA, n) + n]
     dq = meas[at(M_DTHETA, n):at(M_DTHETA, n) + n]
     work = diag[o_work:]
-    adaptive.nd_frames(p, q, dq, work)
-    c0, c1, c2 = adaptive.nd_jacobian_rate_times(p, dq, diag[o_r:o_s], work)  # dJ dq_r, world frame
-    for i in range(n):  # ddq_r = J_X^-1 (ddX_r - R dJ dq_r), ddX_r = psi1 (surface_nd's second block)
+    adaptive.state_terms(plant, p, q, dq, work)
+    adaptive.jacobian_rate_times(plant, p, q, dq, diag[o_r:o_s], work, diag, o_dj)  # dJ dq_r
+    for i in range(n):  # ddq_r = J_X^-1 (ddX_r - R dJ dq_r), ddX_r = psi1 (surface's second block)
         f = frame + n * i
-        diag[o_rr + i] = diag[n + i] - (gains[f] * c0 + gains[f + 1] * c1 + gains[f + 2] * c2)
-    lu_solve(n, diag[o_lu:o_piv], diag[o_piv:o_r], diag[o_rr:o_y])
-    adaptive.nd_regressor(p, dq, diag[o_r:o_s], diag[o_rr:o_y], work, diag, o_y)
+        c = 0.0
+        for j in range(n):
+            c += gains[f + j] * diag[o_dj + j]
+        diag[o_rr + i] = diag[n + i] - c
+    lu_solve(n, diag[o_lu:o_piv], diag[o_piv:o_r], diag[o_rr:o_dj])
+    adaptive.regressor_rows(plant, p, q, dq, diag[o_r:o_s], diag[o_rr:o_dj], work, diag, o_y)
     last = mem_prev.shape[0] - 1
     for i in range(n):
         tau[i] = 0.0
@@ -215,6 +166,7 @@ def sl_adapt_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau)
         grad = 0.0
         for i in range(n):
             grad += diag[col + i * width] * diag[o_s + i]
+        # a_hat(t_{k-1}) - a_hat_0: this iteration's previous sample, at k = 0 the last iteration's end
         before = mem_new[k - 1, r] if k > 0 else mem_prev[last, r]
         change = before + ts * gains[gamma + r] * grad  # Slotine & Li eq. 9.27, backward Euler
         if write:
@@ -226,15 +178,14 @@ def sl_adapt_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau)
     w = gains[at(G_FEEDFORWARD_SIGN, n)]
     u = at(D_U, n)
     for i in range(n):
-        diag[u + i] = gains[at(K_ND, n) + i] * diag[i] + w * meas[at(M_FORCE, n) + i]
-    add_joint_torque_nd(n, meas, diag, u, tau)
+        diag[u + i] = gains[at(K, n) + i] * diag[i] + w * meas[at(M_FORCE, n) + i]
+    add_joint_torque(n, meas, diag, u, tau)
     return 0
 
 
 class SlotineLiController(MemoryController):
     name = "sl-adapt"
     law = compiled_law(sl_adapt_law)
-    law_nd = compiled_law_nd(sl_adapt_law_nd)
     uses_nominal_dynamics = False
     memory_layout = {"a_hat_change": (0, 6, "a_hat - a_hat_0, base parameters (five-bar: kg m^2)")}
     #: make_controller passes the nominal plant's parameters (the regressor needs the lengths)
@@ -252,41 +203,32 @@ class SlotineLiController(MemoryController):
         super().__init__(n_control, sample_time)
         if not (np.isfinite(self.sample_time) and self.sample_time > 0):
             raise ValueError("sl-adapt needs the control sample time to integrate its adaptation")
-        if n != 2:
-            self._gains = self._pack_nd(n, surface, wall_sign, gains, nominal, frame)
-            self._initial = slice(at_py(GAMMA_ND, n) + 2 * width, at_py(GAMMA_ND, n) + 3 * width)
-            self.nd_scratch = scratch_nd(n)
-            return
-        self.runs_nd = False  # a 2-joint plant's regressor: the 2-D law only (the n-joint loop refuses it)
-        code = adaptive.code(nominal.model)
-        packed = np.zeros(MAX_PLANT_PARAMS)
-        packed[:len(nominal.as_array())] = nominal.as_array()
-        head = pack_gains(surface, wall_sign, gains, encode={"psi_acceleration": PSI_ACCELERATION}, derived={"sample_time": self.sample_time, "plant": code,
-                                                              "params": packed[0]})
-        initial = np.zeros(REGRESSOR_WIDTH)
-        initial[:width] = gains.initial_estimate * adaptive.base_parameters(nominal)  # a_hat_0
-        self._gains = np.concatenate([head, packed[1:], initial])
-        self._initial = slice(PARAMS + MAX_PLANT_PARAMS, PARAMS + MAX_PLANT_PARAMS + width)
+        self._gains = self._pack(n, surface, wall_sign, gains, nominal, frame)
+        self._initial = slice(at_py(GAMMA, n) + 2 * width, at_py(GAMMA, n) + 3 * width)
+        self.nd_scratch = scratch(nominal.model, n)
 
-    def _pack_nd(self, n, surface, wall_sign, gains, nominal, frame) -> np.ndarray:
-        """The n-axis law's gains (its layout: ``K_ND`` .. ``GAMMA_ND`` and what follows)."""
-        if not adaptive.has_chain_regressor(nominal.model):
-            raise ValueError(f"sl-adapt's law for {n} task axes needs an n-joint plant's regressor, which "
-                             f"plant.model = {nominal.model!r} does not provide")
+    def _pack(self, n, surface, wall_sign, gains, nominal, frame) -> np.ndarray:
+        """The law's gains (its layout: ``K`` .. ``GAMMA`` and what follows)."""
         names = self.base_parameter_names
-        if len(gains.gamma) != len(names):
+        gamma = gains.gamma
+        if adaptive.has_closed_form(nominal.model):  # Gamma per closed-form column: the base parameters' first
+            if len(gamma) != REGRESSOR_WIDTH:
+                raise ValueError(f"sl-adapt.gamma must have {REGRESSOR_WIDTH} entries for the {nominal.model}, one per "
+                                 f"column of its closed-form regressor ({', '.join(names)}, then unused ones), "
+                                 f"got {len(gamma)}")
+            gamma = gamma[:len(names)]
+        if len(gamma) != len(names):
             raise ValueError(f"sl-adapt.gamma must have {len(names)} entries, one per base parameter of the "
                              f"{nominal.model} ({', '.join(names)}), got {len(gains.gamma)}")
         frame = np.eye(n) if frame is None else np.asarray(frame, dtype=np.float64)
         if frame.shape != (n, n):
             raise ValueError(f"sl-adapt needs the wall's frame as an {n} x {n} matrix, got shape {frame.shape}")
-        columns = adaptive.base_columns(nominal)
         values = [*pack_common_gains(surface, wall_sign), *gains.k, self.sample_time,
-                  PSI_ACCELERATION[gains.psi_acceleration], *frame.ravel()]
-        assert len(values) == at_py(GAMMA_ND, n)
+                  PSI_ACCELERATION[gains.psi_acceleration], adaptive.code(nominal.model), *frame.ravel()]
+        assert len(values) == at_py(GAMMA, n)
         a0 = gains.initial_estimate * adaptive.base_parameters(nominal)  # a_hat_0
-        return np.concatenate([values, gains.gamma, np.asarray(columns, dtype=np.float64), a0,
-                               nominal.as_array()]).astype(np.float64)
+        columns = np.asarray(adaptive.base_columns(nominal), dtype=np.float64)
+        return np.concatenate([values, gamma, columns, a0, adaptive.law_parameters(nominal)]).astype(np.float64)
 
     @property
     def memory_labels(self) -> dict[str, tuple[str, ...]]:

@@ -23,14 +23,10 @@ from typing import ClassVar
 import numpy as np
 
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
-from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law,
-    gain_indices, joint_torque, pack_gains, surface_terms,
-)
-from ilcforce.controllers.c1 import nominal_model_force
+from ilcforce.controllers.base import MemoryController, check_vector, pack_gains
 from ilcforce.controllers.nd import (
-    D_U, G_FEEDFORWARD_SIGN, M_FORCE, at, check_widths, compiled_law_nd, gain_offsets, joint_torque_nd,
-    nominal_model_force_nd, surface_nd,
+    D_U, G_FEEDFORWARD_SIGN, M_FORCE, at, check_widths, compiled_law, gain_offsets, joint_torque, nominal_model_force,
+    surface,
 )
 
 
@@ -55,8 +51,7 @@ class SMCBoundaryLayerGains:
             raise ValueError(f"smc-bl.phi must be positive (phi -> 0 is C1), got {self.phi!r}")
 
 
-K, ALPHA, PHI = gain_indices(SMCBoundaryLayerGains, "k", "alpha", "phi")
-K_ND, ALPHA_ND, PHI_ND = gain_offsets(SMCBoundaryLayerGains, "k", "alpha", "phi")
+K, ALPHA, PHI = gain_offsets(SMCBoundaryLayerGains, "k", "alpha", "phi")
 
 
 @njit(cache=True, error_model="numpy")
@@ -69,39 +64,25 @@ def sat(z):
     return z
 
 
-def smc_bl_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    sx, sy, p1x, p1y, p2x, p2y = surface_terms(k, meas, ref, gains, False)  # eqs. (8), (12)
-    w = gains[GAIN_FEEDFORWARD_SIGN]
-    mx, my = nominal_model_force(meas, p1x, p1y, p2x, p2y)  # Xi_nom^T Psi, eqs. (11)-(12)
-    alpha = gains[ALPHA]
-    # eq. (26) with sgn(sigma) -> sat(sigma / phi) (Slotine & Li 1991, eq. 7.30), +w F (erratum 1)
-    ux = gains[K] * sx + alpha * sat(sx / gains[PHI]) + mx + w * meas[MEAS_FORCE]
-    uy = gains[K + 1] * sy + alpha * sat(sy / gains[PHI + 1]) + my + w * meas[MEAS_FORCE + 1]
-    diag[DIAG_SIGMA] = sx
-    diag[DIAG_SIGMA + 1] = sy
-    return joint_torque(meas, ux, uy)
-
-
-def smc_bl_law_nd(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    """``smc_bl_law`` on n task axes (docs/model.md#n-dof)."""
+def smc_bl_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """Eq. (26) with sgn -> sat on the task's n axes, axis by axis."""
     n = tau.shape[0]
-    surface_nd(n, k, meas, ref, gains, False, diag)  # eqs. (8), (12)
+    surface(n, k, meas, ref, gains, False, diag)  # eqs. (8), (12)
     w = gains[at(G_FEEDFORWARD_SIGN, n)]
-    alpha = gains[at(ALPHA_ND, n)]
+    alpha = gains[at(ALPHA, n)]
     for i in range(n):
         sigma = diag[i]
-        m = nominal_model_force_nd(n, meas, diag, i)  # Xi_nom^T Psi, eqs. (11)-(12)
+        m = nominal_model_force(n, meas, diag, i)  # Xi_nom^T Psi, eqs. (11)-(12)
         # eq. (26) with sgn(sigma) -> sat(sigma / phi) (Slotine & Li 1991, eq. 7.30), +w F (erratum 1)
-        diag[at(D_U, n) + i] = (gains[at(K_ND, n) + i] * sigma + alpha * sat(sigma / gains[at(PHI_ND, n) + i]) + m
+        diag[at(D_U, n) + i] = (gains[at(K, n) + i] * sigma + alpha * sat(sigma / gains[at(PHI, n) + i]) + m
                                 + w * meas[at(M_FORCE, n) + i])
-    joint_torque_nd(n, meas, diag, at(D_U, n), tau)
+    joint_torque(n, meas, diag, at(D_U, n), tau)
     return 0
 
 
 class SMCBoundaryLayerController(MemoryController):
     name = "smc-bl"
     law = compiled_law(smc_bl_law)
-    law_nd = compiled_law_nd(smc_bl_law_nd)
     uses_nominal_dynamics = True
     memory_layout = {}
 

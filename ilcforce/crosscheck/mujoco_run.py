@@ -4,7 +4,7 @@ doing the physics, and the same run on ilcforce's own plant beside it.
 Per control sample, in Python: MuJoCo's forward dynamics at the current state (with the torque held from the
 sample before) gives the joint angles and rates and the contact force (:mod:`ilcforce.crosscheck.mujoco_plant`);
 :func:`ilcforce.crosscheck.sample.control_sample` adds the sample's sensor noise, builds the law's measurement
-vector from the NOMINAL model and the filtered estimates, and calls the method's compiled ``law_nd``; the
+vector from the NOMINAL model and the filtered estimates, and calls the method's compiled ``law``; the
 watchdog and the log are the loop's (``ilcforce.loop``: its log layout, its torque bound); then MuJoCo steps
 over Ts with the torque and the disturbance's joint force -J_X^T F_v (MuJoCo's Jacobian, F_v at the step's
 middle) held. The noise and the disturbance are ilcforce's draws (:func:`ilcforce.noise.draw_iteration`, from
@@ -39,7 +39,7 @@ from ilcforce.task import REF_VELOCITY, reference_block
 
 __all__ = ["CROSSCHECK_METHODS", "CrossRow", "crosscheck_config", "mujoco_iterations", "own_iterations", "compare"]
 
-#: the methods whose n-axis laws the cross-check runs (every method with ``law_nd`` works; these are its table)
+#: the methods whose laws the cross-check runs (every method's law works; these are its table)
 CROSSCHECK_METHODS = ("c1", "c2", "c3", "c2-robust", "c3-robust")
 
 
@@ -73,14 +73,9 @@ def crosscheck_config(config: Config, iterations: int | None = None) -> Config:
 
 
 def _check(config: Config, method: str) -> str:
-    from ilcforce.controllers import REGISTRY
-    from ilcforce.controllers.nd import has_law_nd
+    from ilcforce.crosscheck.mujoco_plant import simulates
 
     method = canonical(method)
-    if not has_law_nd(REGISTRY[method].controller_class):
-        raise ValueError(f"{method} has no n-axis law (law_nd), which the cross-check calls; "
-                         f"try one of {', '.join(CROSSCHECK_METHODS)}")
-    from ilcforce.crosscheck.mujoco_plant import simulates
 
     if not simulates(config.plant.nominal()):
         raise ValueError(f"the MuJoCo cross-check has no MuJoCo model of plant.model = {config.plant.model!r}; "
@@ -118,7 +113,7 @@ def mujoco_iterations(config: Config, method: str, contact=None, arms: dict | No
     contact = contact if contact is not None else ContactSettings()
     arms = arms if arms is not None else {}
     controller = make_controller(config, method)
-    law = type(controller).law_nd
+    law = controller.law
     n = config.dimension
     s = config.simulation
     fa = force_axis(config.surface.selection)

@@ -106,7 +106,7 @@ def _control_sample(law, dyn_nom, p_nom, wall, gains, mem_prev, mem_new, ref, no
 def control_sample(law, dyn_nom):
     """The compiled ``control_sample(p_nom, wall, gains, mem_prev, mem_new, ref, noise, ts, beta, nominal_dyn,
     filters, k, th, d, force, meas, diag, out_n, tau, qm, dqm, fmeas) -> SAMPLE_OK or SAMPLE_WORKING_MODE``
-    of the law ``law`` (a method's compiled ``law_nd``) and the nominal plant's kernel ``dyn_nom``; arrays are
+    of the law ``law`` (a method's compiled ``law``) and the nominal plant's kernel ``dyn_nom``; arrays are
     float64 and contiguous: wall (3 + n^2: y_e, K_e, w, R), the loop's gains, memory (n_control, width) and
     reference (n_control, 6 n), the sensor noise (n_control, 3 n), the filters (:func:`filter_width`), the
     state and the contact force in the task frame (n each, rad, rad/s, N), and the outputs: meas, diag (sigma,

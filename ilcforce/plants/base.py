@@ -3,7 +3,7 @@
 Compiled kernels
 ----------------
 The simulation loop calls a plant only through numba first-class function pointers with the fixed
-signatures below (as it calls control laws, ``ilcforce.controllers.base.LAW_TYPE``), so the loop is
+signatures below (as it calls control laws, ``ilcforce.controllers.nd.law_signature``), so the loop is
 compiled once for every plant. Every kernel takes the plant's packed parameter vector ``p`` and
 scalars, allocates nothing, and returns a tuple of floats whose first entry ``ok`` is 1.0, or 0.0
 (the rest NaN or meaningless) when the pose is outside the plant's working mode:

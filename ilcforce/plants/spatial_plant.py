@@ -210,7 +210,7 @@ class SpatialArm:
 
 # --------------------------------------------------------------------------------------------
 # Linear parametrisation for an adaptive law (ilcforce.plants.adaptive): M ddq_r + C(q, dq) dq_r + g = Y a,
-# a the base parameters (the identifiable combinations of the links' inertial parameters). The n-axis law
+# a the base parameters (the identifiable combinations of the links' inertial parameters). The adaptive law
 # computes the chain's whole regressor (ilcforce.plants.chain_nd.slotine_li_regressor) and keeps its base
 # columns, which these functions name.
 # --------------------------------------------------------------------------------------------
@@ -218,7 +218,7 @@ class SpatialArm:
 #: the base parameters' units, as an adaptive law's memory describes them
 BASE_PARAMETER_UNITS = ("each a link's inertial parameter (kg, kg m or kg m^2, link frame) plus the unidentifiable "
                         "ones it absorbs")
-#: an n-joint chain's regressor serves the n-axis adaptive law (ilcforce.plants.adaptive.nd_regressor)
+#: an n-joint chain's regressor serves the adaptive law (ilcforce.plants.adaptive.regressor_rows)
 CHAIN_REGRESSOR = True
 
 

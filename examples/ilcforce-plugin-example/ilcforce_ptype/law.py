@@ -2,10 +2,10 @@
 
     tau_j = v_j + J^T (k_p sigma_j + w F_j),   v_j(t) = v_{j-1}(t) + J^T gamma sigma_j(t),   v_{-1} = 0.
 
-The contract is ilcforce's (ilcforce/controllers/base.py): a law with the fixed signature, compiled by
-ilcforce on first use (``compiled_law``), and a controller object that packs the gains and owns the
-memory (``MemoryController``). This law is 2-D only (the planar five-bar and serial arms); a law for
-n axes is a second function, ``law_nd = compiled_law_nd(...)``, as ilcforce/controllers/c2.py has.
+The contract is ilcforce's (ilcforce/controllers/base.py): one law with the fixed signature, compiled by
+ilcforce on first use (``compiled_law``), which serves a task of any number of axes n (n = 2 on the
+planar robots, 3 on the spatial arm: it reads n from tau), and a controller object that packs the gains
+and owns the memory (``MemoryController``). ilcforce/controllers/c2.py is the shipped law closest to it.
 """
 
 from __future__ import annotations
@@ -15,12 +15,11 @@ from typing import ClassVar
 
 import numpy as np
 
-from ilcforce.compiled.jit import njit
-from ilcforce.controllers.base import (
-    DIAG_SIGMA, GAIN_FEEDFORWARD_SIGN, MEAS_FORCE, MemoryController, check_vector, compiled_law, gain_indices,
-    joint_torque, pack_gains, surface_terms,
+from ilcforce.controllers.base import MemoryController, check_vector, pack_gains
+from ilcforce.controllers.nd import (
+    D_U, G_FEEDFORWARD_SIGN, M_FORCE, add_joint_torque, at, check_widths, compiled_law, gain_offsets, joint_torque,
+    surface,
 )
-from ilcforce.controllers.nd import check_widths
 
 
 @dataclass(frozen=True)
@@ -39,37 +38,37 @@ class PTypeGains:
         check_vector("p-ilc.kp", self.kp, len(self.kp))
 
 
-GAMMA, KP = gain_indices(PTypeGains, "gamma", "kp")  # where each gain sits in the packed vector
+GAMMA, KP = gain_offsets(PTypeGains, "gamma", "kp")  # where each gain sits in the packed vector (read with at)
 
 
-@njit(inline="always", error_model="numpy")
-def _torque(k, meas, ref, gains, mem_prev, mem_new, write, diag):
-    sx, sy, _p1x, _p1y, _p2x, _p2y = surface_terms(k, meas, ref, gains, False)  # sigma, eq. (8)
-    lx, ly = joint_torque(meas, gains[GAMMA] * sx, gains[GAMMA + 1] * sy)
-    v1 = mem_prev[k, 0] + lx  # v_j = v_{j-1} + J^T gamma sigma_j
-    v2 = mem_prev[k, 1] + ly
-    if write:
-        mem_new[k, 0] = v1
-        mem_new[k, 1] = v2
-    w = gains[GAIN_FEEDFORWARD_SIGN]
-    fx, fy = joint_torque(meas, gains[KP] * sx + w * meas[MEAS_FORCE], gains[KP + 1] * sy + w * meas[MEAS_FORCE + 1])
-    diag[DIAG_SIGMA] = sx
-    diag[DIAG_SIGMA + 1] = sy
-    return v1 + fx, v2 + fy  # tau_j = v_j + J^T (k_p sigma_j + w F_j)
-
-
-def ptype_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag):
-    return _torque(k, meas, ref, gains, mem_prev, mem_new, write, diag)
+def ptype_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    n = tau.shape[0]  # the task's axes
+    surface(n, k, meas, ref, gains, False, diag)  # sigma (eq. 8) into diag[:n]
+    u = at(D_U, n)  # diag's scratch for a task-space command
+    for i in range(n):
+        diag[u + i] = gains[at(GAMMA, n) + i] * diag[i]
+    joint_torque(n, meas, diag, u, tau)  # J^T gamma sigma_j
+    for j in range(n):
+        v = mem_prev[k, j] + tau[j]  # v_j = v_{j-1} + J^T gamma sigma_j
+        if write:
+            mem_new[k, j] = v
+        tau[j] = v
+    w = gains[at(G_FEEDFORWARD_SIGN, n)]
+    for i in range(n):
+        diag[u + i] = gains[at(KP, n) + i] * diag[i] + w * meas[at(M_FORCE, n) + i]
+    add_joint_torque(n, meas, diag, u, tau)  # tau_j = v_j + J^T (k_p sigma_j + w F_j)
+    return 0
 
 
 class PTypeController(MemoryController):
     name = "p-ilc"  # the registry's name
     law = compiled_law(ptype_law)
     uses_nominal_dynamics = False  # reads no nominal D, C, G
-    memory_layout = {"v": (0, 2, "N m")}  # the learned torque, stored as /memory/v
+    memory_layout = {"v": (0, 2, "N m")}  # the learned torque, stored as /memory/v (n columns for n axes)
 
     def __init__(self, n_control: int, surface, wall_sign: float, gains: PTypeGains, *, gravity: bool = False,
                  sample_time: float = float("nan")):
+        self.memory_layout = {"v": (0, len(surface.selection), "N m")}
         super().__init__(n_control, sample_time)
         self._gains = pack_gains(surface, wall_sign, gains)
 
