@@ -34,7 +34,7 @@ def arm3():
 
 
 def test_arm3_desired_input_is_the_task_space_model_along_the_path(arm3):
-    """tau_d (inverse dynamics by the chain's RNEA, ilcforce.ndof.desired) against eq. (4)'s task-space model
+    """tau_d (inverse dynamics by the chain's RNEA, ilcforce.plants.desired_nd) against eq. (4)'s task-space model
     D ddX + C dX + G + w F (the chain's CRBA and Christoffel symbols), rotated into the wall's frame."""
     from ilcforce.plants import make_plant
 
@@ -349,3 +349,41 @@ def test_a_law_is_compiled_on_first_use_only():
     holder = type("Holder", (), {"law": descriptor})
     assert inspect.getattr_static(holder, "law") is descriptor and descriptor._dispatcher is None
     assert holder.law is descriptor._dispatcher is not None
+
+
+def _robot_configs():
+    yield "fivebar", load_config(None)
+    yield "serial2r", load_config(ROOT / "experiments" / "serial2r.toml")
+    yield "arm3", load_config(ARM3)
+
+
+@pytest.mark.parametrize("robot, config", list(_robot_configs()), ids=lambda v: v if isinstance(v, str) else "")
+@pytest.mark.parametrize("method", ["c1", "c3", "sl-adapt"])
+def test_the_loop_compiled_for_n_equals_the_loop_for_any_n(robot, config, method):
+    """The loop is one source compiled per task dimension (n a number: ilcforce.loop.simulate_2, simulate_3) and
+    once for any n (simulate_any, n read from the carry): the same arithmetic, so the same numbers, bit for
+    bit, over two iterations of learning (C3's implicit scheme, sl-adapt's adaptation within an iteration)."""
+    from ilcforce import loop
+    from ilcforce.experiment import iteration_inputs
+
+    reference = config.reference_samples()
+    runs = {}
+    for entry in (loop.simulator(config.dimension), loop.simulate_any):
+        controller = make_controller(config, method)
+        records = []
+        for j in range(2):
+            inputs = iteration_inputs(config, j, reference)
+            setup = simulate._setup(inputs, controller)
+            setup = dataclasses.replace(setup, simulate_chunk=entry, kernels=(
+                controller.law, setup.true_robot.nd_kernel(), setup.nominal_robot.nd_kernel()))
+            mem_prev, mem_new = controller.begin_iteration(j)
+            record = simulate.run_iteration(dataclasses.replace(inputs, setup=setup), controller, mem_prev, mem_new)
+            controller.end_iteration(record)
+            records.append(record)
+        runs[entry] = records
+    specific, generic = runs.values()
+    assert loop.simulator(config.dimension) is not loop.simulate_any
+    for a, b in zip(specific, generic):
+        assert (a.status, a.fallback_count) == (b.status, b.fallback_count)
+        for name, x in a.log.items():
+            np.testing.assert_array_equal(x, b.log[name], err_msg=f"{robot} {method} j={a.iteration} {name}")
