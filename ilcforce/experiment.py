@@ -421,6 +421,7 @@ def preload_kernels(config, methods: Sequence[str]) -> None:
     kernels (ahead-of-time compiled, or numba's: the simulation loop, the plant's kernels, each
     method's law), so each pays for none of them again.
     """
+    from ilcforce.compiled import aot
     from ilcforce.plants import make_plant
     from ilcforce.simulate import desired_inputs
     from ilcforce.store import StoreWriter  # noqa: F401  (h5py and the writer, imported once for all workers)
