@@ -24,7 +24,20 @@ deliberately, from the commit that makes the change, and say so in that commit:
         .venv/bin/python tests/test_reference_run.py tests/data/reference_run.npz
     git worktree remove /tmp/ref-tree
 
-(on an AVX-512 host; on one without, write ``reference_run_no_avx512.npz``; regenerate both.)
+(on an AVX-512 host; on one without, write ``reference_run_no_avx512.npz``; regenerate both.) On an AVX-512
+host the other kind can be had by turning the AVX-512 code paths of NumPy and OpenBLAS off:
+
+    OPENBLAS_CORETYPE=Haswell NPY_DISABLE_CPU_FEATURES="AVX512_ICL AVX512_SPR X86_V4" \\
+        NUMBA_CACHE_DIR=... PYTHONPATH=/tmp/ref-tree .venv/bin/python tests/test_reference_run.py \\
+        tests/data/reference_run_no_avx512.npz
+
+(checked before use: the code that made the AMD EPYC file, run so on an AVX-512 host, reproduced that file
+exactly, every dataset). Both files were last regenerated so at the commit that made one loop for every
+robot (issue 45): against the two-loop code's files the AVX-512 one moved by at most 2.7e-14 of a dataset's
+largest value, the other by at most 1.1e-16 m in C1's position error (whose largest value is 2.9e-7 m, so
+3.8e-10 of it, 3e-16 of the positions it is a difference of) and 7e-12 in the metrics made from it; they also
+hold the datasets a run has stored since the files were first made (the newer metric columns, the
+implicit-fallback log, the control time).
 
 (``PYTHONPATH`` makes the subprocess import ilcforce from that tree; the script checks it did.)
 A dataset that only moved in the store's layout is mapped in ``RENAMED`` instead; never loosen the
