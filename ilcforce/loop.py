@@ -35,7 +35,7 @@ from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import Sig, njit
 from ilcforce.controllers.nd import (
     M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_THETA, M_VELOCITY, M_WIDTH,
-    at, law_signature,
+    at, at_py, law_signature,
 )
 from ilcforce.compiled.dense import cholesky, cholesky_solve, lu, lu_solve_transposed
 from ilcforce.compiled.views import scratch, unowned, unowned_matrix
@@ -80,12 +80,13 @@ def carry_fallback(n: int) -> int:
 _SCRATCH_VECTORS, _SCRATCH_MATRICES = 27, 8
 
 
-@njit(cache=True, error_model="numpy")
-def work_width(n, width_true, width_nominal, law_scratch):
-    """The floats of the loop's scratch buffer: the plants' kernel buffers, the measurement vector, the law's
-    diag and scratch, then the loop's own vectors and matrices."""
-    return (width_true + width_nominal + at(M_WIDTH, n) + 4 * n + law_scratch + _SCRATCH_VECTORS * n
-            + _SCRATCH_MATRICES * n * n)
+def work_width(n: int, iset) -> int:
+    """The floats of the loop's scratch buffer ``work`` for a task of n axes and the integer settings ``iset``:
+    the plants' kernel buffers, the measurement vector, the law's diag and scratch, then the loop's own vectors
+    and matrices. The caller makes it and holds it for the call: the loop's scratch arrays are views of it
+    without an owner (``ilcforce.compiled.views``), valid only while it lives."""
+    return (int(iset[IS_WIDTH_TRUE]) + int(iset[IS_WIDTH_NOMINAL]) + at_py(M_WIDTH, n) + 4 * n
+            + int(iset[IS_LAW_SCRATCH]) + _SCRATCH_VECTORS * n + _SCRATCH_MATRICES * n * n)
 
 
 def new_carry(theta0, dtheta0) -> np.ndarray:
@@ -188,13 +189,14 @@ def _sim_signature():
         types.float64[::1], types.int64[::1],  # float and integer settings
         types.float64[:, ::1],  # log (n_log, 12 n + 1)
         types.float64[::1],  # carry (7 n + 3)
+        types.float64[::1],  # work: the scratch buffer, work_width floats, the caller's (held for the call)
         types.int64, types.int64,  # k_start, k_stop
     )
 
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset,
-           log, carry, k_start, k_stop):
+           log, carry, work, k_start, k_stop):
     """Control samples k_start .. k_stop - 1 of one iteration of a task of n axes; (status, failing sample or
     -1). Inlined into each entry below, which gives n: a number there, so that numba compiles the loops over
     the axes for that n."""
@@ -212,9 +214,11 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
     h = ts / substeps
     nn = n * n
 
-    # scratch, once per chunk, and every array as a view without an owner (ilcforce.compiled.views): no
-    # reference counting in the hot path
-    work = np.zeros(work_width(n, iset[IS_WIDTH_TRUE], iset[IS_WIDTH_NOMINAL], iset[IS_LAW_SCRATCH]))
+    # the scratch, carved from the caller's buffer ``work`` (which the caller holds for the call: a buffer made
+    # here would be freed after its last use, under the views), and every array as a view without an owner
+    # (ilcforce.compiled.views): no reference counting in the hot path
+    for i in range(work.shape[0]):  # the scratch starts each chunk at zero, as a fresh allocation would
+        work[i] = 0.0
     o = 0
     wall = unowned(wall)
     gains = unowned(gains)
@@ -304,8 +308,8 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
     o += n
     fmeas = scratch(work, o, n)
     o += n
-    if o != work.shape[0]:
-        raise AssertionError("the loop's scratch buffer is not the size work_width gives")
+    if o != work.shape[0]:  # before any write: a buffer of another size than work_width's is the caller's bug
+        raise ValueError("the loop's scratch buffer is not the size work_width gives")
 
     for i in range(n):
         th[i] = carry[i]
@@ -542,26 +546,26 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
 
 @njit(Sig(_sim_signature), cache=True, error_model="numpy", nogil=True)  # nogil: the store writes beside it
 def simulate_2(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset,
-               log, carry, k_start, k_stop):
+               log, carry, work, k_start, k_stop):
     """:func:`_chunk` for a task of 2 axes (the planar robots)."""
     return _chunk(2, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset,
-                  iset, log, carry, k_start, k_stop)
+                  iset, log, carry, work, k_start, k_stop)
 
 
 @njit(Sig(_sim_signature), cache=True, error_model="numpy", nogil=True)
 def simulate_3(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset,
-               log, carry, k_start, k_stop):
+               log, carry, work, k_start, k_stop):
     """:func:`_chunk` for a task of 3 axes (the spatial arm)."""
     return _chunk(3, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset,
-                  iset, log, carry, k_start, k_stop)
+                  iset, log, carry, work, k_start, k_stop)
 
 
 @njit(Sig(_sim_signature), cache=True, error_model="numpy", nogil=True)
 def simulate_any(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset,
-                 iset, log, carry, k_start, k_stop):
+                 iset, log, carry, work, k_start, k_stop):
     """:func:`_chunk` for a task of any number of axes, read from the carry's length (7 n + 3)."""
     return _chunk((carry.shape[0] - 3) // 7, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new,
-                  ref, dist, noise, fset, iset, log, carry, k_start, k_stop)
+                  ref, dist, noise, fset, iset, log, carry, work, k_start, k_stop)
 
 
 #: the entry compiled for each task dimension it names; any other runs through :func:`simulate_any`

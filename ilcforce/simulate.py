@@ -271,7 +271,9 @@ def run_iteration(inputs: IterationInputs, controller: Controller, mem_prev: np.
     gains = np.ascontiguousarray(controller.gains(), dtype=np.float64)
     head = (*setup.kernels, setup.true_robot.address, setup.nominal_robot.address, setup.wall, gains, mem_prev,
             mem_new, ref)
-    tail = (setup.sensor, setup.fset, setup.iset, log, carry)
+    # the loop's scratch: made here and held for every chunk's call (the loop views it without an owner)
+    work = np.zeros(loop.work_width(setup.n, setup.iset))
+    tail = (setup.sensor, setup.fset, setup.iset, log, carry, work)
     simulate_chunk = setup.simulate_chunk
     chunk = chunk_steps if chunk_steps is not None else chunk_steps_default(s)
     k = 0

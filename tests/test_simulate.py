@@ -542,3 +542,47 @@ def test_a_setup_made_ahead_gives_the_same_record_for_its_controller_only(short_
     assert_same_records([fresh(controller, inputs)], [plain])
     assert_same_records([fresh(make_controller(config, "c3"), inputs)], [plain])  # not its controller
     assert_same_records([fresh(controller, inputs)], [plain])  # again: a set-up is not used up
+
+
+def test_the_loop_gives_the_same_numbers_while_another_thread_allocates(short_config):
+    """The loop's scratch arrays are views without an owner (ilcforce.compiled.views) of a buffer the caller holds
+    for the call, and the loop releases the GIL: an iteration run while another thread allocates and fills
+    arrays of the scratch's size stores the numbers of a quiet run, bit for bit. (A first version made the
+    buffer inside the loop, where numba freed it after its last use under the views: this thread's arrays
+    then took its memory, and runs crashed or changed.)"""
+    import threading
+
+    from ilcforce.experiment import make_controller
+    from ilcforce.loop import work_width
+
+    config = short_config()
+    controller = make_controller(config, "c3")
+    quiet = _run(config, controller)
+    setup_width = work_width(2, simulate_setup_iset(config, controller))
+    done = threading.Event()
+    runs = []
+
+    def simulate_beside():
+        try:
+            for _ in range(3):
+                runs.append(_run(config, controller))
+        finally:
+            done.set()
+
+    worker = threading.Thread(target=simulate_beside)
+    worker.start()
+    kept = []
+    while not done.is_set():  # arrays of the scratch buffer's size and smaller, filled, some kept, some freed
+        for width in (setup_width, setup_width // 2, 64):
+            kept.append(np.full(width, 1e300))
+        del kept[: max(0, len(kept) - 30)]
+    worker.join()
+    for record in runs:
+        for name, x in quiet.log.items():
+            np.testing.assert_array_equal(x, record.log[name], err_msg=name)
+
+
+def simulate_setup_iset(config, controller):
+    from ilcforce import simulate
+
+    return simulate._setup(_inputs(config), controller).iset

@@ -74,10 +74,10 @@ def _exports():
 
 
 def _bind_loop(simulate, law, dyn):
-    def bound(p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset, log, carry,
+    def bound(p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset, log, carry, work,
               k_start, k_stop):
         return simulate(law, dyn, dyn, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset,
-                        log, carry, k_start, k_stop)
+                        log, carry, work, k_start, k_stop)
     return bound
 
 

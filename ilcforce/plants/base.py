@@ -34,7 +34,6 @@ of shape (2,) or (2, 2), SI units); a subclass provides its parameters class and
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import replace
 from typing import NamedTuple
@@ -44,36 +43,15 @@ import numpy as np
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import njit
 from ilcforce.compiled.views import address_to_pointer, carray
+from ilcforce.plants.kernel_types import __getattr__ as _kernel_types_getattr
+from ilcforce.plants.kernel_types import kernel_signature, kernel_type
 
 __all__ = ["UnreachableError", "PlantKernels", "Plant", "params_view", "kernel_signature", "kernel_type", "check_pair",
            "task_space", "task_from_dynamics"]
 
-#: the kernels' outputs (a tuple of this many floats) and scalar inputs after ``p``, in
-#: PlantKernels order; their numba signatures are made on first use (importing this module does
-#: not import numba): ``KIN_SIGNATURE`` ... and the first-class function types ``KIN_TYPE`` ...
-_SHAPES = {"KIN": (7, 2), "ACCEL": (14, 4), "TASK": (18, 4), "DYN": (20, 4), "IK": (3, 2)}
-
-
-@functools.cache
-def kernel_signature(kind: str):
-    """The numba signature of kernel ``kind`` ("KIN", "ACCEL", "TASK", "DYN" or "IK")."""
-    types = _jit.numba().types
-    n_out, n_in = _SHAPES[kind]
-    return types.UniTuple(types.float64, n_out)(types.intp, *([types.float64] * n_in))
-
-
-def kernel_type(kind: str):
-    """The first-class function type of kernel ``kind``, as the compiled loop takes it."""
-    return _jit.numba().types.FunctionType(kernel_signature(kind))
-
-
 def __getattr__(name: str):
-    kind, _, suffix = name.partition("_")
-    if kind in _SHAPES and suffix == "SIGNATURE":
-        return kernel_signature(kind)
-    if kind in _SHAPES and suffix == "TYPE":
-        return kernel_type(kind)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    """``KIN_SIGNATURE`` ... and ``KIN_TYPE`` ... (:mod:`ilcforce.plants.kernel_types`)."""
+    return _kernel_types_getattr(name)
 
 
 @njit(cache=True, error_model="numpy")

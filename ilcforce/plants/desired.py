@@ -12,7 +12,7 @@ import numpy as np
 
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import Sig, njit  # numba's, imported only when this runs through numba (ilcforce/compiled/jit.py)
-from ilcforce.plants.base import kernel_type
+from ilcforce.plants.kernel_types import kernel_type
 
 
 def _desired_signature():
