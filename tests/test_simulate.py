@@ -544,45 +544,53 @@ def test_a_setup_made_ahead_gives_the_same_record_for_its_controller_only(short_
     assert_same_records([fresh(controller, inputs)], [plain])  # again: a set-up is not used up
 
 
-def test_the_loop_gives_the_same_numbers_while_another_thread_allocates(short_config):
-    """The loop's scratch arrays are views without an owner (ilcforce.compiled.views) of a buffer the caller holds
-    for the call, and the loop releases the GIL: an iteration run while another thread allocates and fills
-    arrays of the scratch's size stores the numbers of a quiet run, bit for bit. (A first version made the
-    buffer inside the loop, where numba freed it after its last use under the views: this thread's arrays
-    then took its memory, and runs crashed or changed.)"""
-    import threading
+_ALLOCATIONS = """
+import sys
+import numpy as np
+from numba.core.runtime import rtsys
+from ilcforce.config_load import load_config
+from ilcforce.experiment import make_controller
+from ilcforce.noise import draw_iteration
+from ilcforce.simulate import IterationInputs, run_iteration, _setup
 
-    from ilcforce.experiment import make_controller
-    from ilcforce.loop import work_width
-
-    config = short_config()
-    controller = make_controller(config, "c3")
-    quiet = _run(config, controller)
-    setup_width = work_width(2, simulate_setup_iset(config, controller))
-    done = threading.Event()
-    runs = []
-
-    def simulate_beside():
-        try:
-            for _ in range(3):
-                runs.append(_run(config, controller))
-        finally:
-            done.set()
-
-    worker = threading.Thread(target=simulate_beside)
-    worker.start()
-    kept = []
-    while not done.is_set():  # arrays of the scratch buffer's size and smaller, filled, some kept, some freed
-        for width in (setup_width, setup_width // 2, 64):
-            kept.append(np.full(width, 1e300))
-        del kept[: max(0, len(kept) - 30)]
-    worker.join()
-    for record in runs:
-        for name, x in quiet.log.items():
-            np.testing.assert_array_equal(x, record.log[name], err_msg=name)
+config = load_config(None, {"reference.duration": 0.05})
+controller = make_controller(config, "c3")
+inputs = IterationInputs(0, config.plant.links(), config.plant.links(), config.wall, config.reference_samples(),
+                         config.simulation, config.noise, draw_iteration(0, 0, config.n_control, config.noise),
+                         config.surface.selection)
+setup = _setup(inputs, controller)
+from numba import types
+arrays = sum(1 for t in setup.simulate_chunk.signatures[0] if isinstance(t, types.Array))
+mem_prev, mem_new = controller.begin_iteration(0)
+run_iteration(inputs, controller, mem_prev, mem_new)  # compiled or loaded
+chunks = []
+def counted(*args):
+    before = rtsys.get_allocation_stats().alloc
+    out = setup.simulate_chunk(*args)
+    chunks.append(rtsys.get_allocation_stats().alloc - before)
+    return out
+import dataclasses
+mem_prev, mem_new = controller.begin_iteration(0)
+run_iteration(dataclasses.replace(inputs, setup=dataclasses.replace(setup, simulate_chunk=counted)), controller,
+              mem_prev, mem_new)
+print(arrays, *chunks)
+"""
 
 
-def simulate_setup_iset(config, controller):
-    from ilcforce import simulate
+def test_the_loop_allocates_nothing_its_views_could_outlive():
+    """The loop's scratch arrays are views without an owner (ilcforce.compiled.views), valid only while what they
+    view lives; so the loop allocates nothing: its scratch buffer is the caller's, held for the call. numba's
+    runtime counts every allocation it makes (NUMBA_NRT_STATS=1, numba's loop): a chunk's call makes exactly one,
+    the reference that boxes each array argument. (A first version made the buffer inside the loop, where numba
+    freed it after its last use, under the views: one allocation more, and crashes once other threads allocated.)"""
+    import os
+    import subprocess
+    import sys
 
-    return simulate._setup(_inputs(config), controller).iset
+    env = {**os.environ, "NUMBA_NRT_STATS": "1", "ILCFORCE_AOT": "0"}
+    proc = subprocess.run([sys.executable, "-c", _ALLOCATIONS], capture_output=True, text=True, env=env,
+                          timeout=600, cwd=Path(__file__).resolve().parents[1])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    arrays, *chunks = (int(v) for v in proc.stdout.split())
+    assert arrays >= 10 and chunks, proc.stdout
+    assert all(c == arrays for c in chunks), f"{arrays} array arguments, allocations per chunk: {chunks}"
