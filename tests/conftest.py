@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import pytest
 
 from ilcforce.config_load import load_config
@@ -39,17 +41,29 @@ def plant_experiment(model: str):
     """
     from pathlib import Path
 
+    return _plant_experiments(Path.cwd()).get(model)
+
+
+@functools.lru_cache(maxsize=None)
+def _plant_experiments(cwd) -> dict:
+    """Plant model -> the first experiment file (in :func:`plant_experiment`'s order) that runs it,
+    read once per test process (and per working folder): the shipped experiment files do not change
+    while the tests run, and reading them all (the spatial arm's files check their reference's
+    reachability, about 0.1 s each) on every call of ``plant_config`` took about a minute of the
+    suite."""
+    from pathlib import Path
+
     # paper.toml first, then the hand-written experiments, the tuned ones (make tune's) last
-    files = sorted(Path("experiments").glob("*.toml"),
+    files = sorted(Path(cwd, "experiments").glob("*.toml"),
                    key=lambda p: (p.name != "paper.toml", p.stem.endswith("-tuned"), p.name))
     from ilcforce.study.spec import is_study_file
 
+    found = {}
     for path in files:
         if is_study_file(path):  # a study file names an experiment; it is not one
             continue
-        if load_config(path).plant.model == model:
-            return path
-    return None
+        found.setdefault(load_config(path).plant.model, path.relative_to(cwd))
+    return found
 
 
 @pytest.fixture

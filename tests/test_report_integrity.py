@@ -276,7 +276,31 @@ def small_results(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return results
 
 
-def test_report_never_replaces_a_folder_that_is_not_a_report(small_results: Path, tmp_path: Path):
+@pytest.fixture(scope="module")
+def one_result(small_results: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A results folder of one experiment, ``e5`` (a copy of e4's run under a name small_results
+    does not hold): its report takes a third of small_results' time. Where a test only needs *a*
+    report to be written (the folder rules, the clean-up after a stop), this one serves: those rules
+    do not depend on how many experiments a report holds."""
+    import shutil
+
+    results = tmp_path_factory.mktemp("one") / "results"
+    shutil.copytree(small_results / "e4", results / "e5")
+    return results
+
+
+@pytest.fixture(scope="module")
+def small_report(small_results: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """small_results' report, built once by the command line; tests copy it (shutil.copytree keeps
+    every byte) rather than build it again."""
+    out = tmp_path_factory.mktemp("small-report") / "report"
+    done = _cli("report", "--results", str(small_results), "--out", str(out), "-j", "1", "-q")
+    assert done.returncode == 0, done.stderr
+    assert "index.html" in _files(out) and is_report(out)
+    return out
+
+
+def test_report_never_replaces_a_folder_that_is_not_a_report(one_result: Path, tmp_path: Path):
     """Issue 46 item 4: ``report --out`` into a user's folder replaced its index.md, findings.md,
     index.html and claims.csv without asking (``export`` refuses the same)."""
     mine = tmp_path / "mine"
@@ -284,17 +308,17 @@ def test_report_never_replaces_a_folder_that_is_not_a_report(small_results: Path
     for name in ("index.md", "findings.md", "index.html", "claims.csv"):
         (mine / name).write_text(f"my own {name}\n", encoding="utf-8")
     before = _files(mine)
-    _one_line_exit_2(_cli("report", "--results", str(small_results), "--out", str(mine), "-q"), str(mine),
+    _one_line_exit_2(_cli("report", "--results", str(one_result), "--out", str(mine), "-q"), str(mine),
                      "not an ilcforce report")
     assert _files(mine) == before and sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
     # a folder holding the results is refused too (the report replaces its folder whole)
-    _one_line_exit_2(_cli("report", "--results", str(small_results), "--out", str(small_results.parent), "-q"),
+    _one_line_exit_2(_cli("report", "--results", str(one_result), "--out", str(one_result.parent), "-q"),
                      "holds the results")
     # an empty folder, an absent one and a report of its own are written
     empty = tmp_path / "empty"
     empty.mkdir()
     for target in (empty, tmp_path / "new", tmp_path / "new"):
-        done = _cli("report", "--results", str(small_results), "--out", str(target), "-j", "1", "-q")
+        done = _cli("report", "--results", str(one_result), "--out", str(target), "-j", "1", "-q")
         assert done.returncode == 0, done.stderr
         assert (target / "index.html").is_file() and (target / REPORT_MARKER).is_file() and is_report(target)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["empty", "mine", "new"], "no building folder left"
@@ -322,9 +346,16 @@ def _stop_midway(small_results: Path, out: Path, how: int) -> subprocess.Complet
 
 
 @pytest.mark.parametrize("how", [signal.SIGINT, signal.SIGTERM, signal.SIGKILL], ids=["int", "term", "kill"])
-def test_a_stopped_report_leaves_the_previous_one_whole_and_a_new_folder_absent(small_results, tmp_path, how):
+def test_a_stopped_report_leaves_the_previous_one_whole_and_a_new_folder_absent(small_results, small_report,
+                                                                                 one_result, tmp_path, how):
     """Issue 47 item 7: a stopped report left 53 files and no index.html in a new folder, or new
-    figures beside an old index.html in an existing one."""
+    figures beside an old index.html in an existing one.
+
+    The report stopped is small_results' (four experiments: long enough to be stopped midway); the
+    previous report is a copy of the one the fixture built; the reports after the stop, which must
+    clear what it left and replace the old folder whole, are one_result's (one experiment, e5)."""
+    import shutil
+
     fresh = tmp_path / "fresh"
     code = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGKILL: -signal.SIGKILL}[how]
     stopped = _stop_midway(small_results, fresh, how)
@@ -333,21 +364,20 @@ def test_a_stopped_report_leaves_the_previous_one_whole_and_a_new_folder_absent(
     if how != signal.SIGKILL:
         assert _staging(fresh) == [] and "Traceback" not in stopped.stderr, stopped.stderr
     old = tmp_path / "old"
-    assert _cli("report", "--results", str(small_results), "--out", str(old), "-j", "1", "-q").returncode == 0
+    shutil.copytree(small_report, old)
     before = _files(old)
-    assert "index.html" in before
+    assert "index.html" in before and "e4/report.md" in before
     stopped = _stop_midway(small_results, old, how)
     assert stopped.returncode == code, stopped.stderr
     assert _files(old) == before, "a stopped report changed the previous one"
     # whatever a killed report left beside is removed by the next report, which replaces the old one
-    (small_results / "e4").rename(small_results / "e5")
-    try:
-        done = _cli("report", "--results", str(small_results), "--out", str(old), "-j", "1", "-q")
-    finally:
-        (small_results / "e5").rename(small_results / "e4")
-    assert done.returncode == 0, done.stderr
+    # (built in this process: the command's own exit codes are tested above and by
+    # test_report_never_replaces_a_folder_that_is_not_a_report; the clean-up is write_report's)
+    from ilcforce.report.build import write_report
+
+    write_report(one_result, old, jobs=1)
     assert (old / "e5" / "report.md").is_file() and not (old / "e4").exists(), "replaced whole, not merged"
-    assert _cli("report", "--results", str(small_results), "--out", str(fresh), "-j", "1", "-q").returncode == 0
+    write_report(one_result, fresh, jobs=1)
     assert _staging(old) == [] and _staging(fresh) == [] and is_report(fresh)
 
 
