@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ilcforce.controllers.base import Controller
+from ilcforce.controllers.base import Controller, law_of
 from ilcforce.noise import IterationDraws, NoiseModel, disturbance
 from ilcforce.plants import make_plant
 from ilcforce.records import LOG_SIGNALS, STATUS_COMPLETE, STATUS_DIVERGED, IterationRecord
@@ -227,7 +227,7 @@ def _setup(inputs: IterationInputs, controller) -> IterationSetup:
         from ilcforce import loop  # numba's, loaded on first use only
 
         simulate_chunk = loop.simulator(n)
-        kernels = (controller.law, true_robot.nd_kernel(), nominal_robot.nd_kernel())
+        kernels = (law_of(controller), true_robot.nd_kernel(), nominal_robot.nd_kernel())
     return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, np.ascontiguousarray(wall),
                           np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log,
                           (np.asarray(theta0, dtype=np.float64), np.asarray(dtheta0, dtype=np.float64)),

@@ -439,6 +439,7 @@ def test_the_metrics_group_is_copied_from_the_one_built(tmp_path):
     property, and take rows the same way."""
     import h5py
 
+    from ilcforce.metrics import metric_columns
     from ilcforce.store import metrics_cache, schema
 
     with h5py.File(tmp_path / "copied.h5", "w", libver=schema.LIBVER) as copied, \
@@ -453,7 +454,7 @@ def test_the_metrics_group_is_copied_from_the_one_built(tmp_path):
                    (y.dtype, y.shape, y.maxshape, y.chunks, y.fletcher32, y.compression), name
             assert dict(x.attrs) == dict(y.attrs), name
         row = {column: (0 if metrics_cache.column_kind(column) == "int" else "complete"
-                        if metrics_cache.column_kind(column) == "str" else 0.5) for column in metrics_cache.METRIC_COLUMNS}
+                        if metrics_cache.column_kind(column) == "str" else 0.5) for column in metric_columns(2)}
         for handle in (copied, built):
             metrics_cache.append_rows(handle, [dict(row, iteration=0), dict(row, iteration=1)])
             metrics_cache.append_rows(handle, [dict(row, iteration=1)])  # already held: skipped

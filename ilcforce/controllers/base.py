@@ -118,6 +118,13 @@ def pack_gains(surface, wall_sign: float, gains, *,
     return np.array(values, dtype=np.float64)
 
 
+def law_of(controller):
+    """The compiled law of ``controller``: the one set on the object itself, else its class's, read from the class
+    (a numba dispatcher set on a class would be bound to the object, as a method, if read from the object)."""
+    own = getattr(controller, "__dict__", {}).get("law")
+    return own if own is not None else type(controller).law
+
+
 @runtime_checkable
 class Controller(Protocol):
     """What the iteration loop needs from a method. See the module docstring."""

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcforce.config import Config
+from ilcforce.controllers.base import law_of
 from ilcforce.experiment import canonical, make_controller
 from ilcforce.metrics import iteration_metrics
 from ilcforce.noise import disturbance, draw_iteration
@@ -113,7 +114,7 @@ def mujoco_iterations(config: Config, method: str, contact=None, arms: dict | No
     contact = contact if contact is not None else ContactSettings()
     arms = arms if arms is not None else {}
     controller = make_controller(config, method)
-    law = controller.law
+    law = law_of(controller)
     n = config.dimension
     s = config.simulation
     fa = force_axis(config.surface.selection)
