@@ -37,11 +37,12 @@ from ilcforce.controllers.nd import (
     M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_THETA, M_VELOCITY, M_WIDTH,
     at, at_py, law_signature,
 )
-from ilcforce.compiled.dense import cholesky, cholesky_solve, lu, lu_solve_transposed
+from ilcforce.compiled.dense import cholesky_solve, lu, lu_solve_transposed
 from ilcforce.compiled.views import scratch, unowned, unowned_matrix
-from ilcforce.ndof.algebra import OUT_B, OUT_DJ, OUT_DJV, OUT_M, task_model
+from ilcforce.ndof.algebra import task_model
+from ilcforce.ndof.contact import drift as _drift, stage as _stage, to_task as _to_task
 from ilcforce.plants.nd import nd_type
-from ilcforce.task import wall_force, wall_stiffness
+from ilcforce.task import wall_stiffness
 
 RUN_OK, RUN_NONFINITE, RUN_TORQUE_BOUND, RUN_WORKING_MODE, RUN_CONTINUE = 0, 1, 2, 3, 4
 
@@ -104,73 +105,6 @@ _PROBE = 1.0
 #: this: the law then cancels the plant's own response (e.g. C1 with an exact model out of contact,
 #: where D_nom S ddP cancels D ddP exactly) and any root is roundoff amplified by more than 1e6.
 _DEGENERATE = 1e-6
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _to_task(n, R, out, X, JX, dJv, DJ, level):
-    """Rotate the kernel's world quantities into the task frame: X = R P, J_X = R J (and R dJ dq, R dJ)."""
-    for i in range(n):
-        s = 0.0
-        for k in range(n):
-            s += R[3 + i * n + k] * out[k]
-        X[i] = s
-        for j in range(n):
-            s = 0.0
-            for k in range(n):
-                s += R[3 + i * n + k] * out[n + k * n + j]
-            JX[i * n + j] = s
-    if level >= 1:
-        d0 = at(OUT_DJV, n)
-        for i in range(n):
-            s = 0.0
-            for k in range(n):
-                s += R[3 + i * n + k] * out[d0 + k]
-            dJv[i] = s
-    if level >= 2:
-        d0 = at(OUT_DJ, n)
-        for i in range(n):
-            for j in range(n):
-                s = 0.0
-                for k in range(n):
-                    s += R[3 + i * n + k] * out[d0 + k * n + j]
-                DJ[i * n + j] = s
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _drift(dyn, p, q, dq, wall, fa, fv, out, X, JX, dJv, r, L, at_sample):
-    """The true plant pressed against the wall, torque left out (eq. 1): M ddq = tau + r, r = J_X^T f - b,
-    f the force on the robot in the task frame (the disturbance and the wall's reaction). Fills X, J_X, r,
-    the Cholesky factor L of M and, ``at_sample`` (the implicit scheme needs it, an RK4 stage does not),
-    dJ_X dq. Returns (ok, F_wall)."""
-    n = q.shape[0]
-    ok = dyn(p, q, dq, 1, out)
-    if ok == 0.0:
-        return False, 0.0
-    _to_task(n, wall, out, X, JX, dJv, JX, 1 if at_sample else 0)
-    ye, ke, w = wall[0], wall[1], wall[2]
-    f_wall = wall_force(X[fa], ye, ke, w)
-    b0 = at(OUT_B, n)
-    for j in range(n):
-        s = 0.0
-        for i in range(n):  # the disturbance on the robot (eq. 1, tau_v = J^T F_v) ...
-            s -= JX[i * n + j] * fv[i]
-        r[j] = s - JX[fa * n + j] * w * f_wall - out[b0 + j]  # ... and the wall's reaction
-    if not cholesky(n, out, at(OUT_M, n), L):
-        return False, f_wall
-    return True, f_wall
-
-
-@njit(cache=True, error_model="numpy", inline="always")
-def _stage(dyn, p, q, dq, tau, wall, fa, fv, out, X, JX, dJv, r, L, acc):
-    """Joint accelerations of the true plant under torque tau into acc. Returns ok."""
-    n = q.shape[0]
-    ok, _f = _drift(dyn, p, q, dq, wall, fa, fv, out, X, JX, dJv, r, L, False)
-    if not ok:
-        return False
-    for j in range(n):
-        acc[j] = tau[j] + r[j]
-    cholesky_solve(n, L, acc, acc)
-    return True
 
 
 def _sim_signature():

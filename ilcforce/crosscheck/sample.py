@@ -22,7 +22,7 @@ from ilcforce.controllers.nd import (
     M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_THETA, M_VELOCITY, at,
 )
 from ilcforce.ndof.algebra import task_model
-from ilcforce.loop import _to_task
+from ilcforce.ndof.contact import to_task as _to_task
 
 #: control_sample's outcomes
 SAMPLE_OK, SAMPLE_WORKING_MODE = 0, 1
