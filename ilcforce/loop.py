@@ -34,13 +34,13 @@ import numpy as np
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import Sig, njit
 from ilcforce.controllers.nd import (
-    M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_THETA, M_VELOCITY, M_WIDTH,
+    M_ACCEL, M_FORCE_ACCEL, M_FORCE_RATE, M_VELOCITY, M_WIDTH,
     at, at_py, law_signature,
 )
 from ilcforce.compiled.dense import cholesky_solve, lu, lu_solve_transposed
 from ilcforce.compiled.views import scratch, unowned, unowned_matrix
-from ilcforce.ndof.algebra import task_model
-from ilcforce.ndof.contact import drift as _drift, stage as _stage, to_task as _to_task
+from ilcforce.ndof.contact import drift as _drift, stage as _stage
+from ilcforce.ndof.sensing import filtered_estimates, measure, sense_joints
 from ilcforce.plants.nd import nd_type
 from ilcforce.task import wall_stiffness
 
@@ -254,7 +254,6 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
     fallback_logged = int(carry[7 * n + 2])
     status = RUN_CONTINUE
     k_fail = -1
-    M0 = at(M_THETA, n)
     cols = n  # column blocks of the log are n wide
 
     for k in range(k_start, min(k_stop, n_steps + 1)):
@@ -270,30 +269,11 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
         cholesky_solve(n, L, a0, a0)
 
         # 2. sensors, then the nominal model at the measured state
-        for j in range(n):
-            qm[j] = th[j] + noise[k, j]
-            dqm[j] = d[j] + noise[k, n + j]
+        sense_joints(n, k, th, d, noise, qm, dqm)
         for i in range(n):
             fmeas[i] = (f_wall if i == fa else 0.0) + noise[k, 2 * n + i]  # the wall is frictionless
-        level = 2 if nominal_dyn else 0
-        okn = dyn_nom(p_nom, qm, dqm, level, out_n)
-        if okn == 0.0:
-            status, k_fail = RUN_WORKING_MODE, k
-            break
-        P0 = at(M_POSITION, n)
-        J0 = at(M_JACOBIAN, n)
-        _to_task(n, wall, out_n, Xs, JXs, dJvs, DJ, level)
-        for i in range(n):
-            meas[P0 + i] = Xs[i]
-            s = 0.0
-            for j in range(n):
-                meas[J0 + i * n + j] = JXs[i * n + j]
-                s += JXs[i * n + j] * dqm[j]
-            meas[at(M_VELOCITY, n) + i] = s
-            meas[M0 + i] = qm[i]
-            meas[at(M_DTHETA, n) + i] = dqm[i]
-            meas[at(M_FORCE, n) + i] = fmeas[i]
-        if nominal_dyn and not task_model(n, out_n, JXs, DJ, LU, piv, col, Ji, tmp, meas):  # eq. (4)
+        if not measure(n, dyn_nom, p_nom, wall, qm, dqm, fmeas, 2 if nominal_dyn else 0, out_n, Xs, JXs, dJvs, DJ,
+                       LU, piv, col, Ji, tmp, meas):
             status, k_fail = RUN_WORKING_MODE, k
             break
 
@@ -355,24 +335,7 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
             meas[A0 + fa] = a
             meas[FA0 + fa] = dfdy * a
         else:
-            for i in range(n):
-                v_i = meas[at(M_VELOCITY, n) + i]
-                f_i = fmeas[i]
-                if k == 0:
-                    carry[f0 + i] = v_i
-                    carry[f0 + n + i] = f_i
-                acc = carry[f0 + 2 * n + i] + beta * ((v_i - carry[f0 + i]) / ts - carry[f0 + 2 * n + i])
-                dfo = carry[f0 + 3 * n + i]
-                dfn = dfo + beta * ((f_i - carry[f0 + n + i]) / ts - dfo)
-                ddf = carry[f0 + 4 * n + i] + beta * ((dfn - dfo) / ts - carry[f0 + 4 * n + i])
-                carry[f0 + 2 * n + i] = acc
-                carry[f0 + 3 * n + i] = dfn
-                carry[f0 + 4 * n + i] = ddf
-                carry[f0 + i] = v_i
-                carry[f0 + n + i] = f_i
-                meas[A0 + i] = acc
-                meas[FR0 + i] = dfn
-                meas[FA0 + i] = ddf
+            filtered_estimates(n, k, ts, beta, meas, fmeas, carry, f0)
         law(k, t, meas, ref, gains, mem_prev, mem_new, True, diag, tau)
 
         # 5. watchdog and log

@@ -6,8 +6,9 @@ adds the sample's sensor noise, evaluates the NOMINAL plant's kernel at the meas
 if the law asks, the task-space model of eq. (4)), forms the "filtered" acceleration, force-rate and
 force-acceleration estimates (docs/model.md#acceleration: first-order low-pass filtered differences; the
 implicit scheme needs ilcforce's own plant and is not available here), fills the law's measurement vector in
-the layout of ``ilcforce.controllers.nd`` and calls the law with ``write=True``. The arithmetic is the loop's,
-line for line (tests/test_crosscheck.py holds the two measurement vectors equal on the same states).
+the layout of ``ilcforce.controllers.nd`` and calls the law with ``write=True``. The sensing is the loop's own
+code (``ilcforce.ndof.sensing``; tests/test_crosscheck.py holds the two measurement vectors equal on the same
+states).
 """
 
 from __future__ import annotations
@@ -18,11 +19,7 @@ import functools
 
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import njit
-from ilcforce.controllers.nd import (
-    M_ACCEL, M_DTHETA, M_FORCE, M_FORCE_ACCEL, M_FORCE_RATE, M_JACOBIAN, M_POSITION, M_THETA, M_VELOCITY, at,
-)
-from ilcforce.ndof.algebra import task_model
-from ilcforce.ndof.contact import to_task as _to_task
+from ilcforce.ndof.sensing import filtered_estimates, measure, sense_joints
 
 #: control_sample's outcomes
 SAMPLE_OK, SAMPLE_WORKING_MODE = 0, 1
@@ -51,51 +48,14 @@ def _control_sample(law, dyn_nom, p_nom, wall, gains, mem_prev, mem_new, ref, no
     tmp = np.empty(nn)
     col = np.empty(n)
     # 2. sensors, then the nominal model at the measured state
-    for j in range(n):
-        qm[j] = th[j] + noise[k, j]
-        dqm[j] = d[j] + noise[k, n + j]
+    sense_joints(n, k, th, d, noise, qm, dqm)
     for i in range(n):
         fmeas[i] = force[i] + noise[k, 2 * n + i]
-    level = 2 if nominal_dyn != 0 else 0
-    if dyn_nom(p_nom, qm, dqm, level, out_n) == 0.0:
-        return SAMPLE_WORKING_MODE
-    _to_task(n, wall, out_n, Xs, JXs, dJvs, DJ, level)
-    P0 = at(M_POSITION, n)
-    J0 = at(M_JACOBIAN, n)
-    for i in range(n):
-        meas[P0 + i] = Xs[i]
-        s = 0.0
-        for j in range(n):
-            meas[J0 + i * n + j] = JXs[i * n + j]
-            s += JXs[i * n + j] * dqm[j]
-        meas[at(M_VELOCITY, n) + i] = s
-        meas[at(M_THETA, n) + i] = qm[i]
-        meas[at(M_DTHETA, n) + i] = dqm[i]
-        meas[at(M_FORCE, n) + i] = fmeas[i]
-    if level == 2 and not task_model(n, out_n, JXs, DJ, LU, piv, col, Ji, tmp, meas):  # eq. (4)
+    if not measure(n, dyn_nom, p_nom, wall, qm, dqm, fmeas, 2 if nominal_dyn != 0 else 0, out_n, Xs, JXs, dJvs, DJ,
+                   LU, piv, col, Ji, tmp, meas):
         return SAMPLE_WORKING_MODE
     # 3. the filtered estimates (docs/model.md#acceleration)
-    A0 = at(M_ACCEL, n)
-    FR0 = at(M_FORCE_RATE, n)
-    FA0 = at(M_FORCE_ACCEL, n)
-    for i in range(n):
-        v_i = meas[at(M_VELOCITY, n) + i]
-        f_i = fmeas[i]
-        if k == 0:
-            filters[i] = v_i
-            filters[n + i] = f_i
-        acc = filters[2 * n + i] + beta * ((v_i - filters[i]) / ts - filters[2 * n + i])
-        dfo = filters[3 * n + i]
-        dfn = dfo + beta * ((f_i - filters[n + i]) / ts - dfo)
-        ddf = filters[4 * n + i] + beta * ((dfn - dfo) / ts - filters[4 * n + i])
-        filters[2 * n + i] = acc
-        filters[3 * n + i] = dfn
-        filters[4 * n + i] = ddf
-        filters[i] = v_i
-        filters[n + i] = f_i
-        meas[A0 + i] = acc
-        meas[FR0 + i] = dfn
-        meas[FA0 + i] = ddf
+    filtered_estimates(n, k, ts, beta, meas, fmeas, filters, 0)
     # 4. the law, writing its memory
     law(k, t, meas, ref, gains, mem_prev, mem_new, True, diag, tau)
     return SAMPLE_OK
