@@ -117,7 +117,7 @@ def _guard(func):
 def _load(config: Optional[Path], seed: Optional[int], iters: Optional[int], sets: Optional[list[str]]):
     from ilcforce.compiled.note import announce_compiles
 
-    # a first run compiles before iteration 0 (about 10 s without the ahead-of-time kernels): say so on
+    # a first run compiles before iteration 0 (minutes without the ahead-of-time kernels): say so on
     # stderr, terminal or not, so that a piped or logged first run does not look hung
     announce_compiles(lambda text: _say(text, stderr=True))
     from ilcforce.config_load import command_overrides, load_config
