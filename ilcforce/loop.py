@@ -21,18 +21,20 @@ to Python between chunks (to honour Ctrl-C) and resume bit for bit.
 
 Speed: the chunk works on views without an owner (``ilcforce.compiled.views``: no reference counting in
 the hot path), and it is compiled once per task dimension with n a number (:func:`simulate_2`,
-:func:`simulate_3`; any other n through :func:`simulate_any`), so that the loops over the axes are unrolled.
+:func:`simulate_3`; any other n through :func:`simulate_any`; :func:`simulator` compiles the one a run needs), so
+that the loops over the axes are unrolled.
 One source for every n; docs/design.md has the figures.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
 
 from ilcforce.compiled import jit as _jit
-from ilcforce.compiled.jit import Sig, njit
+from ilcforce.compiled.jit import njit
 from ilcforce.controllers.nd import (
     M_ACCEL, M_FORCE_ACCEL, M_FORCE_RATE, M_VELOCITY, M_WIDTH,
     at, at_py, law_signature,
@@ -441,7 +443,6 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
     return status, k_fail
 
 
-@njit(Sig(_sim_signature), cache=True, error_model="numpy", nogil=True)  # nogil: the store writes beside it
 def simulate_2(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset,
                log, carry, work, k_start, k_stop):
     """:func:`_chunk` for a task of 2 axes (the planar robots)."""
@@ -449,7 +450,6 @@ def simulate_2(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem
                   iset, log, carry, work, k_start, k_stop)
 
 
-@njit(Sig(_sim_signature), cache=True, error_model="numpy", nogil=True)
 def simulate_3(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset, iset,
                log, carry, work, k_start, k_stop):
     """:func:`_chunk` for a task of 3 axes (the spatial arm)."""
@@ -457,7 +457,6 @@ def simulate_3(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem
                   iset, log, carry, work, k_start, k_stop)
 
 
-@njit(Sig(_sim_signature), cache=True, error_model="numpy", nogil=True)
 def simulate_any(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_new, ref, dist, noise, fset,
                  iset, log, carry, work, k_start, k_stop):
     """:func:`_chunk` for a task of any number of axes, read from the carry's length (7 n + 3)."""
@@ -465,10 +464,25 @@ def simulate_any(law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, m
                   ref, dist, noise, fset, iset, log, carry, work, k_start, k_stop)
 
 
-#: the entry compiled for each task dimension it names; any other runs through :func:`simulate_any`
-ENTRIES = {2: "simulate_2", 3: "simulate_3"}
+#: the entry for each task dimension it names; any other runs through :func:`simulate_any`
+ENTRIES = {2: simulate_2, 3: simulate_3}
+
+
+@functools.cache
+def _compiled(entry):
+    """``entry`` compiled (or loaded from numba's cache) with the loop's signature, on first request: numba
+    compiles a function with an explicit signature when it is made, so the entries are made only when a run
+    needs one (each holds the whole loop; all three together took a first run about 2.5 minutes)."""
+    return _jit.numba().njit(_sim_signature(), cache=True, error_model="numpy", nogil=True)(entry)  # nogil: the
+    # store writes beside it (pipeline.py)
 
 
 def simulator(n: int):
     """The compiled loop for a task of ``n`` axes (one of the entries above: the same code and numbers)."""
-    return globals()[ENTRIES.get(int(n), "simulate_any")]
+    return _compiled(ENTRIES.get(int(n), simulate_any))
+
+
+def simulator_any():
+    """The compiled loop that reads n from the carry, for any n (what :func:`simulator` gives for an n without an
+    entry of its own)."""
+    return _compiled(simulate_any)

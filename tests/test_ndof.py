@@ -368,7 +368,7 @@ def test_the_loop_compiled_for_n_equals_the_loop_for_any_n(robot, config, method
 
     reference = config.reference_samples()
     runs = {}
-    for entry in (loop.simulator(config.dimension), loop.simulate_any):
+    for entry in (loop.simulator(config.dimension), loop.simulator_any()):
         controller = make_controller(config, method)
         records = []
         for j in range(2):
@@ -382,7 +382,7 @@ def test_the_loop_compiled_for_n_equals_the_loop_for_any_n(robot, config, method
             records.append(record)
         runs[entry] = records
     specific, generic = runs.values()
-    assert loop.simulator(config.dimension) is not loop.simulate_any
+    assert loop.simulator(config.dimension) is not loop.simulator_any()
     for a, b in zip(specific, generic):
         assert (a.status, a.fallback_count) == (b.status, b.fallback_count)
         for name, x in a.log.items():
