@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
+from ilcforce.records import TASK_DIMENSIONS  # a position in the plane or in space
 
 FORCE_SIGNS = {"applied": 1.0, "paper": -1.0}
 
@@ -27,8 +28,6 @@ REF_ACCELERATION = 4  # d2P_d/dt2, m/s^2
 REF_FORCE = 6  # F_d (x, y), N
 REF_FORCE_RATE = 8  # dF_d/dt, N/s
 REF_FORCE_ACCEL = 10  # d2F_d/dt2, N/s^2
-#: The task dimensions the wall's frame and the reference are defined for: a position in the plane or in space.
-TASK_AXES = (2, 3)
 
 
 def _axis(k: int, n: int) -> tuple[float, ...]:
@@ -81,8 +80,8 @@ class Wall:
             raise ValueError(f"wall.position must be finite, got {self.position!r}")
         if self.normal or self.tangent:
             given = len(self.normal or self.tangent)
-            if given not in TASK_AXES:
-                raise ValueError(f"wall.normal and wall.tangent take {' or '.join(map(str, TASK_AXES))} numbers (a "
+            if given not in TASK_DIMENSIONS:
+                raise ValueError(f"wall.normal and wall.tangent take {' or '.join(map(str, TASK_DIMENSIONS))} numbers (a "
                                  f"task in the plane or in space), got {list(self.normal)}, {list(self.tangent)}")
             self.frame(given)
 
@@ -91,8 +90,8 @@ class Wall:
         axes. The rows are t1 = ``tangent`` projected onto the plane, then (in space) t2 = normal x t1, and last
         the unit ``normal``, so that the force axis is the last and the frame is right-handed. Left empty, the
         normal is the y axis and the tangent the x axis, which makes R the identity for a planar robot."""
-        if n not in TASK_AXES:
-            raise ValueError(f"a task has {' or '.join(map(str, TASK_AXES))} axes (a position in the plane or in "
+        if n not in TASK_DIMENSIONS:
+            raise ValueError(f"a task has {' or '.join(map(str, TASK_DIMENSIONS))} axes (a position in the plane or in "
                              f"space), not {n}")
         normal = np.asarray(self.normal or _axis(1, n), dtype=np.float64)
         t1 = np.asarray(self.tangent or _axis(0, n), dtype=np.float64)
@@ -156,8 +155,8 @@ class Reference:
         (docs/model.md#wall-plane). P_d's normal column is the pose that produces F_d on the wall
         (y_e + w F_yd / K_e); the laws use only Sbar P_d, so it serves tau_d and plots.
         """
-        if n not in TASK_AXES:
-            raise ValueError(f"the reference is defined for tasks of {' or '.join(map(str, TASK_AXES))} axes, "
+        if n not in TASK_DIMENSIONS:
+            raise ValueError(f"the reference is defined for tasks of {' or '.join(map(str, TASK_DIMENSIONS))} axes, "
                              f"not {n}")
         t = np.asarray(t, dtype=np.float64)
         wx = 2.0 * math.pi * self.x_frequency
