@@ -182,3 +182,23 @@ def test_the_truth_at_1000_iterations_replaces_the_300_iteration_one_case_by_cas
     at_300 = growth_validation.rates(judged, 40).set_index("what")
     assert at_300.loc["false alarms", "count"] == 1 and at_1000.loc["false alarms", "count"] == 0
     assert at_1000.loc["misses", "count"] == 1  # the serial2r case, unbounded at 1,000 and not flagged
+
+
+def test_the_stated_target_is_met_only_with_no_miss_and_at_most_a_tenth_flagged():
+    """The fresh set's verdict: no unbounded case missed and at most 10% of the bounded ones flagged at the stated
+    horizon (the point counts decide; their Wilson intervals are printed beside)."""
+    h = growth_validation.STATED_HORIZON
+
+    def cases(missed: int, flagged: int, bounded: int = 10):
+        rows = [{"truth": "unbounded", "diverged_at": float("nan"), f"verdict_{h}": "flagged"} for _ in range(3)]
+        rows += [{"truth": "unbounded", "diverged_at": float("nan"), f"verdict_{h}": "not flagged"}
+                 for _ in range(missed)]
+        rows += [{"truth": "bounded", "diverged_at": float("nan"),
+                  f"verdict_{h}": "flagged" if k < flagged else "not flagged"} for k in range(bounded)]
+        return pd.DataFrame(rows)
+
+    assert growth_validation.target_text(cases(0, 1)).startswith("met: 0 of 3 unbounded cases")
+    assert "1 of 10 bounded cases flagged (10% [2%, 40%]" in growth_validation.target_text(cases(0, 1))
+    assert growth_validation.target_text(cases(0, 2)).startswith("not met")
+    assert growth_validation.target_text(cases(1, 0)).startswith("not met: 1 of 4")
+    assert growth_validation.target_text(cases(0, 0, bounded=0)).startswith("not met")  # nothing bounded to count

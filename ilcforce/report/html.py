@@ -47,7 +47,8 @@ from ilcforce.report.links import linked_pages, resolver, url
 HTML_NAME = "index.html"
 #: make long's pages as the report holds them (``ilcforce.report.long_run``), and their HTML page: the
 #: folder is shared with a run of the experiment ``long-run``, whose page is ``long-run/index.html``.
-LONG_RUN_PAGES = ("long-run/long-run.md", "long-run/growth-heldout.md", "long-run/c3-robust-ablation.md")  # in the order shown
+LONG_RUN_PAGES = ("long-run/long-run.md", "long-run/growth-heldout.md", "long-run/growth-fresh.md",
+                  "long-run/c3-robust-ablation.md")  # in the order shown
 LONG_RUN_UNIT = "long runs"
 LONG_RUN_HTML = "long-run/long-runs.html"
 #: A fenced block longer than this many lines is folded (configurations as stored run to 150 lines).

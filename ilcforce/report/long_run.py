@@ -321,11 +321,17 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
                   "diverged; every seed's run in `cause_seeds.csv`):", "",
                   table_write.markdown_table(summary_table), "",
                   *[f"- {line}" for line in cause_seeds.account_lines(seeds)], ""]
+    lines += ["## The growth test out of sample", "",
+              "The cases above are in sample: the test's rules were changed on them. Its validation on cases drawn "
+              "after its rules were frozen: [growth-heldout.md](growth-heldout.md) (seeds 560-562, on which its "
+              "stated horizon was then chosen) and [growth-fresh.md](growth-fresh.md) (seeds 600-602, drawn after "
+              "the horizon was frozen too).", ""]
     if ablation:
         lines += ["## C3-robust taken apart", "",
                   f"Each of C3-robust's four changes to C3 alone and left out: [{ablation[-1].name}]({ablation[-1].name}).",
                   ""]
-    summary = {"provenance": provenance, "headline": headline_lines(found, cases)}
+    fresh = growth_validation.fresh_headline(results_dir)  # the test out of sample: what the findings state
+    summary = {"provenance": provenance, "headline": headline_lines(found, cases) + ([fresh] if fresh else [])}
     (out_dir / SUMMARY).write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     written.append(out_dir / SUMMARY)
     page = out_dir / "long-run.md"
@@ -370,7 +376,8 @@ def report_pages(results_dir: Path, out_dir: Path) -> list[Path]:
     for what they did not write; nothing where there are neither (an installed package has no docs)."""
     from ilcforce.report.figure_files import copy_committed
 
-    written = write_page(results_dir, out_dir) + growth_validation.write_heldout_page(results_dir, out_dir)
+    written = (write_page(results_dir, out_dir) + growth_validation.write_heldout_page(results_dir, out_dir)
+               + growth_validation.write_fresh_page(results_dir, out_dir))
     return written + copy_committed(COMMITTED, out_dir, skip=frozenset(path.name for path in written))
 
 
@@ -396,7 +403,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results", type=Path, default=Path("results"))
     parser.add_argument("--out", type=Path, default=Path("docs/long-run"))
     args = parser.parse_args(argv)
-    written = write_page(args.results, args.out) + growth_validation.write_heldout_page(args.results, args.out)
+    written = (write_page(args.results, args.out) + growth_validation.write_heldout_page(args.results, args.out)
+               + growth_validation.write_fresh_page(args.results, args.out))
     if not written:
         print(f"error: no long-run or growth-validation study in {args.results / 'studies'} (run make long)",
               file=sys.stderr)
