@@ -229,7 +229,8 @@ def _check_consistency(config: Config) -> None:
         raise ConfigError(str(exc)) from None
     # the task has as many axes as the robot has joints (docs/model.md#n-dof)
     n = config.dimension
-    robot_n = make_plant(config.plant.nominal()).dimension
+    nominal_robot = make_plant(config.plant.nominal())
+    robot_n = nominal_robot.dimension
     if robot_n != n:
         raise ConfigError(f"the robot of plant.model = {config.plant.model!r} has {robot_n} joints, so its task needs "
                           f"{robot_n} axes; surface.selection has {n} entries")
@@ -238,6 +239,7 @@ def _check_consistency(config: Config) -> None:
                           f"{len(config.simulation.initial_position)}")
     try:
         frame = config.wall.frame(n)
+        nominal_robot.check_frame(frame)
     except ValueError as exc:
         raise ConfigError(str(exc)) from None
     # the reference must stay in the reachable workspace (the working mode) of the nominal and true plants

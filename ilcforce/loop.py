@@ -41,7 +41,7 @@ from ilcforce.controllers.nd import (
     at, at_py, law_signature,
 )
 from ilcforce.compiled.dense import cholesky_solve, lu, lu_solve_transposed
-from ilcforce.compiled.views import scratch, unowned, unowned_matrix
+from ilcforce.compiled.views import carve, unowned, unowned_matrix
 from ilcforce.ndof.contact import drift as _drift, stage as _stage
 from ilcforce.ndof.sensing import filtered_estimates, measure, sense_force, sense_joints
 from ilcforce.plants.nd import nd_type
@@ -80,7 +80,8 @@ def carry_fallback(n: int) -> int:
     return 7 * n + 1
 
 
-#: the loop's scratch vectors (n entries each) and matrices (n x n), carved from one buffer per chunk
+#: the loop's scratch vectors (n entries each) and matrices (n x n), carved from one buffer per chunk: the counts of
+#: the `carve(work, o, n)` and `carve(work, o, nn)` lines of `_chunk`; a miscount stops every run at its first chunk
 _SCRATCH_VECTORS, _SCRATCH_MATRICES = 29, 8
 
 
@@ -167,88 +168,47 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
     dist = unowned_matrix(dist)
     noise = unowned_matrix(noise)
     log = unowned_matrix(log)
-    out_t = scratch(work, o, iset[IS_WIDTH_TRUE])
-    o += iset[IS_WIDTH_TRUE]
-    out_n = scratch(work, o, iset[IS_WIDTH_NOMINAL])
-    o += iset[IS_WIDTH_NOMINAL]
-    meas = scratch(work, o, at(M_WIDTH, n))
-    o += at(M_WIDTH, n)
-    diag = scratch(work, o, 4 * n + iset[IS_LAW_SCRATCH])  # controllers.nd.diag_width, then the law's scratch
-    o += 4 * n + iset[IS_LAW_SCRATCH]
-    X = scratch(work, o, n)
-    o += n
-    JX = scratch(work, o, nn)
-    o += nn
-    dJv = scratch(work, o, n)
-    o += n
-    r = scratch(work, o, n)
-    o += n
-    L = scratch(work, o, nn)
-    o += nn
-    a0 = scratch(work, o, n)  # joint acceleration at zero torque
-    o += n
-    Xs = scratch(work, o, n)
-    o += n
-    JXs = scratch(work, o, nn)
-    o += nn
-    dJvs = scratch(work, o, n)
-    o += n
-    rs = scratch(work, o, n)
-    o += n
-    Ls = scratch(work, o, nn)
-    o += nn
-    tau = scratch(work, o, n)
-    o += n
-    t0 = scratch(work, o, n)
-    o += n
-    tp = scratch(work, o, n)
-    o += n
-    tn = scratch(work, o, n)
-    o += n
-    qrow = scratch(work, o, n)
-    o += n
-    qm = scratch(work, o, n)
-    o += n
-    dqm = scratch(work, o, n)
-    o += n
-    DJ = scratch(work, o, nn)
-    o += nn
-    LU = scratch(work, o, nn)
-    o += nn
-    piv = scratch(work, o, n)
-    o += n
-    Ji = scratch(work, o, nn)  # J_X^-1
-    o += nn
-    tmp = scratch(work, o, nn)
-    o += nn
-    col = scratch(work, o, n)
-    o += n
-    th = scratch(work, o, n)
-    o += n
-    d = scratch(work, o, n)
-    o += n
-    qs = scratch(work, o, n)
-    o += n
-    k1 = scratch(work, o, n)
-    o += n
-    k2 = scratch(work, o, n)
-    o += n
-    k3 = scratch(work, o, n)
-    o += n
-    k4 = scratch(work, o, n)
-    o += n
-    v2 = scratch(work, o, n)
-    o += n
-    v3 = scratch(work, o, n)
-    o += n
-    v4 = scratch(work, o, n)
-    o += n
-    fmeas = scratch(work, o, n)
-    o += n
-    fc = scratch(work, o, n)  # the true contact force in the task frame at the sample (the log's)
-    o += n
-    fcs = scratch(work, o, n)  # the same at an RK4 stage (written, not read)
-    o += n
+    out_t, o = carve(work, o, iset[IS_WIDTH_TRUE])
+    out_n, o = carve(work, o, iset[IS_WIDTH_NOMINAL])
+    meas, o = carve(work, o, at(M_WIDTH, n))
+    diag, o = carve(work, o, 4 * n + iset[IS_LAW_SCRATCH])  # controllers.nd.diag_width, then the law's scratch
+    X, o = carve(work, o, n)
+    JX, o = carve(work, o, nn)
+    dJv, o = carve(work, o, n)
+    r, o = carve(work, o, n)
+    L, o = carve(work, o, nn)
+    a0, o = carve(work, o, n)  # joint acceleration at zero torque
+    Xs, o = carve(work, o, n)
+    JXs, o = carve(work, o, nn)
+    dJvs, o = carve(work, o, n)
+    rs, o = carve(work, o, n)
+    Ls, o = carve(work, o, nn)
+    tau, o = carve(work, o, n)
+    t0, o = carve(work, o, n)
+    tp, o = carve(work, o, n)
+    tn, o = carve(work, o, n)
+    qrow, o = carve(work, o, n)
+    qm, o = carve(work, o, n)
+    dqm, o = carve(work, o, n)
+    DJ, o = carve(work, o, nn)
+    LU, o = carve(work, o, nn)
+    piv, o = carve(work, o, n)
+    Ji, o = carve(work, o, nn)  # J_X^-1
+    tmp, o = carve(work, o, nn)
+    col, o = carve(work, o, n)
+    th, o = carve(work, o, n)
+    d, o = carve(work, o, n)
+    qs, o = carve(work, o, n)
+    k1, o = carve(work, o, n)
+    k2, o = carve(work, o, n)
+    k3, o = carve(work, o, n)
+    k4, o = carve(work, o, n)
+    v2, o = carve(work, o, n)
+    v3, o = carve(work, o, n)
+    v4, o = carve(work, o, n)
+    fmeas, o = carve(work, o, n)
+    fc, o = carve(work, o, n)  # the true contact force in the task frame at the sample (the log's)
+    fcs, o = carve(work, o, n)  # the same at an RK4 stage (written, not read)
     if o != work.shape[0]:  # before any write: a buffer of another size than work_width's is the caller's bug
         raise ValueError("the loop's scratch buffer is not the size work_width gives")
 

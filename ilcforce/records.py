@@ -103,23 +103,23 @@ REFERENCE_SIGNALS: dict[str, tuple[tuple[str, ...] | None, str, str]] = {
     "force_desired": (TASK_AXES, "N", "F_d"),
 }
 
-_POSITION_DESIRED_ND = "P_d; the in-plane axes are position-controlled, the normal one is the pose that produces F_d"
+#: P_d's description per task dimension: the planar one names its axes
+_POSITION_DESIRED = {2: REFERENCE_SIGNALS["position_desired"][2],
+                     3: "P_d; the in-plane axes are position-controlled, the normal one is the pose that produces F_d"}
 
 
 def log_signals(n: int) -> dict[str, tuple[tuple[str, ...] | None, str, str]]:
     """The logged signals of a task of ``n`` axes: :data:`LOG_SIGNALS` with (n_log, n) arrays whose
     columns are :func:`task_axes` or :func:`joint_axes` of ``n``; exactly :data:`LOG_SIGNALS` for 2."""
-    return LOG_SIGNALS if _dimension(n) == 2 else _with_axes(LOG_SIGNALS, n)
+    return _with_axes(LOG_SIGNALS, _dimension(n))
 
 
 def reference_signals(n: int) -> dict[str, tuple[tuple[str, ...] | None, str, str]]:
     """The reference signals of a task of ``n`` axes, (n_log, n) each but ``time``; exactly
     :data:`REFERENCE_SIGNALS` for 2 (whose P_d description names x and y)."""
-    if _dimension(n) == 2:
-        return REFERENCE_SIGNALS
-    table = _with_axes(REFERENCE_SIGNALS, n)
+    table = _with_axes(REFERENCE_SIGNALS, _dimension(n))
     axes, unit, _description = table["position_desired"]
-    table["position_desired"] = (axes, unit, _POSITION_DESIRED_ND)
+    table["position_desired"] = (axes, unit, _POSITION_DESIRED[n])
     return table
 
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ilcforce.compiled.jit import njit  # numba's, imported only when a kernel runs through numba (ilcforce/compiled/jit.py)
+from ilcforce.records import TASK_DIMENSIONS  # a position in the plane or in space
 
 FORCE_SIGNS = {"applied": 1.0, "paper": -1.0}
 
@@ -27,7 +28,11 @@ REF_ACCELERATION = 4  # d2P_d/dt2, m/s^2
 REF_FORCE = 6  # F_d (x, y), N
 REF_FORCE_RATE = 8  # dF_d/dt, N/s
 REF_FORCE_ACCEL = 10  # d2F_d/dt2, N/s^2
-REF_WIDTH = 12
+
+
+def _axis(k: int, n: int) -> tuple[float, ...]:
+    """The unit vector along the world's axis k in n dimensions."""
+    return tuple(1.0 if i == k else 0.0 for i in range(n))
 
 
 def reference_block(ref: np.ndarray, column_2d: int, n: int) -> np.ndarray:
@@ -114,28 +119,36 @@ class Wall:
             raise ValueError(f"wall.friction_velocity must be finite and positive (m/s), "
                              f"got {self.friction_velocity!r}")
         if self.normal or self.tangent:
-            self.frame(3)
+            given = len(self.normal or self.tangent)
+            if given not in TASK_DIMENSIONS:
+                raise ValueError(f"wall.normal and wall.tangent take {' or '.join(map(str, TASK_DIMENSIONS))} numbers (a "
+                                 f"task in the plane or in space), got {list(self.normal)}, {list(self.tangent)}")
+            self.frame(given)
 
     def frame(self, n: int) -> np.ndarray:
-        """R (n x n): the task frame's axes as rows, X = R P (docs/model.md#wall-plane). The identity for a
-        planar robot (n = 2: the wall normal to y); for n = 3 the rows t1 = tangent projected onto the plane,
-        t2 = n x t1 and the normal n, so that the force axis is the last."""
-        if n == 2 and not (self.normal or self.tangent):
-            return np.eye(2)
-        if n != 3 or len(self.normal) != 3 or len(self.tangent) != 3:
-            raise ValueError(f"wall.normal and wall.tangent must be 3 numbers each for a robot with a task of {n} axes "
-                             f"(a planar robot's wall, normal to y, takes neither); got {list(self.normal)}, "
+        """R (n x n): the task frame's axes as rows, X = R P (docs/model.md#wall-plane), for a task of n = 2 or 3
+        axes. The rows are t1 = ``tangent`` projected onto the plane, then (in space) t2 = normal x t1, and last
+        the unit ``normal``, so that the force axis is the last and the frame is right-handed. Left empty, the
+        normal is the y axis and the tangent the x axis, which makes R the identity for a planar robot."""
+        if n not in TASK_DIMENSIONS:
+            raise ValueError(f"a task has {' or '.join(map(str, TASK_DIMENSIONS))} axes (a position in the plane or in "
+                             f"space), not {n}")
+        normal = np.asarray(self.normal or _axis(1, n), dtype=np.float64)
+        t1 = np.asarray(self.tangent or _axis(0, n), dtype=np.float64)
+        if normal.shape != (n,) or t1.shape != (n,):
+            raise ValueError(f"wall.normal and wall.tangent must be {n} numbers each for a robot with a task of {n} "
+                             f"axes (or left out: the wall normal to y); got {list(self.normal)}, "
                              f"{list(self.tangent)}")
-        normal = np.asarray(self.normal, dtype=np.float64)
         if not (np.all(np.isfinite(normal)) and np.linalg.norm(normal) > 0):
             raise ValueError(f"wall.normal must be a finite non-zero vector, got {list(self.normal)}")
         normal = normal / np.linalg.norm(normal)
-        t1 = np.asarray(self.tangent, dtype=np.float64)
         t1 = t1 - (t1 @ normal) * normal
         if not (np.all(np.isfinite(t1)) and np.linalg.norm(t1) > 1e-9):
             raise ValueError(f"wall.tangent must not be parallel to wall.normal, got {list(self.tangent)}")
-        t1 = t1 / np.linalg.norm(t1)
-        return np.array([t1, np.cross(normal, t1), normal])
+        rows = [t1 / np.linalg.norm(t1)]
+        for _ in range(n - 2):  # the in-plane axes after t1: in space the one axis t2 = normal x t1
+            rows.append(np.cross(normal, rows[-1]))
+        return np.array([*rows, normal])
 
     @property
     def sign(self) -> float:
@@ -184,50 +197,38 @@ class Reference:
     v_frequency: float = 0.5  # Hz
 
     def sample(self, t: np.ndarray, wall: Wall, n: int = 2) -> np.ndarray:
-        """Reference and its analytic derivatives at times ``t`` (s), shape (n,).
+        """Reference and its analytic derivatives at times ``t`` (s), for a task of n axes in the wall's frame.
 
-        Returns an (n, 12) array with column blocks (x, y) of P_d, dP_d, ddP_d, F_d, dF_d, ddF_d
-        (offsets REF_POSITION ... REF_FORCE_ACCEL). P_d's y column is the pose that produces F_d on
-        the wall (y_e + w F_yd / K_e); the laws use only Sbar P_d, so it serves tau_d and plots.
+        Returns a (t.size, 6 n) array of six blocks of n columns: P_d, dP_d, ddP_d, F_d, dF_d, ddF_d (the block
+        of a REF_* constant: :func:`reference_block`). In every block the first axis carries x_d's law, the last
+        axis (the wall's normal) carries F_d, and a spatial task's middle axis v_d's law
+        (docs/model.md#wall-plane). P_d's normal column is the pose that produces F_d on the wall
+        (y_e + w F_yd / K_e); the laws use only Sbar P_d, so it serves tau_d and plots.
         """
+        if n not in TASK_DIMENSIONS:
+            raise ValueError(f"the reference is defined for tasks of {' or '.join(map(str, TASK_DIMENSIONS))} axes, "
+                             f"not {n}")
         t = np.asarray(t, dtype=np.float64)
-        if n == 3:
-            return self._sample_spatial(t, wall)
-        if n != 2:
-            raise ValueError(f"the reference is defined for tasks of 2 or 3 axes, not {n}")
         wx = 2.0 * math.pi * self.x_frequency
         wf = 2.0 * math.pi * self.force_sine_frequency
-        a, c = self.x_amplitude, self.x_offset
+        wv = 2.0 * math.pi * self.v_frequency
+        a, c, av = self.x_amplitude, self.x_offset, self.v_amplitude
         A, B = self.force_sine_amplitude, self.force_exp_amplitude
-        out = np.zeros((t.size, REF_WIDTH))
-        out[:, REF_POSITION] = a * np.cos(wx * t) + c
-        out[:, REF_VELOCITY] = -a * wx * np.sin(wx * t)
-        out[:, REF_ACCELERATION] = -a * wx * wx * np.cos(wx * t)
         et = np.exp(t)
         f = A * np.sin(wf * t) + B * (et - 1.0)
         df = A * wf * np.cos(wf * t) + B * et
         ddf = -A * wf * wf * np.sin(wf * t) + B * et
-        out[:, REF_FORCE + 1] = f
-        out[:, REF_FORCE_RATE + 1] = df
-        out[:, REF_FORCE_ACCEL + 1] = ddf
         w, k = wall.sign, wall.stiffness
-        out[:, REF_POSITION + 1] = wall.position + w * f / k
-        out[:, REF_VELOCITY + 1] = w * df / k
-        out[:, REF_ACCELERATION + 1] = w * ddf / k
-        return out
-
-    def _sample_spatial(self, t: np.ndarray, wall: Wall) -> np.ndarray:
-        """The task of a spatial robot in the wall's frame (docs/model.md#wall-plane), shape (n, 18), blocks of 3
-        in the order of :meth:`sample`: in-plane axes u (x_d's law) and v (v_d), the normal carrying F_d."""
-        planar = self.sample(t, wall, 2)
-        out = np.zeros((t.size, 18))
-        wv = 2.0 * math.pi * self.v_frequency
-        av = self.v_amplitude
-        v = (self.v_offset + 0.5 * av * (1.0 - np.cos(wv * t)), 0.5 * av * wv * np.sin(wv * t),
-             0.5 * av * wv * wv * np.cos(wv * t))
-        for block in range(6):
-            out[:, 3 * block] = planar[:, 2 * block]  # u: the planar task's x
-            out[:, 3 * block + 2] = planar[:, 2 * block + 1]  # the normal: the planar task's y (F_d, its pose)
+        # the three laws, each as (value, rate, acceleration) per block: P_d's blocks, then F_d's
+        along = (a * np.cos(wx * t) + c, -a * wx * np.sin(wx * t), -a * wx * wx * np.cos(wx * t))
+        across = (self.v_offset + 0.5 * av * (1.0 - np.cos(wv * t)), 0.5 * av * wv * np.sin(wv * t),
+                  0.5 * av * wv * wv * np.cos(wv * t))
+        normal = (wall.position + w * f / k, w * df / k, w * ddf / k)
+        out = np.zeros((t.size, 6 * n))
         for block in range(3):
-            out[:, 3 * block + 1] = v[block]
+            out[:, block * n] = along[block]  # the first in-plane axis: x_d
+            for axis in range(1, n - 1):  # a spatial task's second in-plane axis: v_d
+                out[:, block * n + axis] = across[block]
+            out[:, block * n + n - 1] = normal[block]  # the normal: the pose that produces F_d
+            out[:, (3 + block) * n + n - 1] = (f, df, ddf)[block]  # F_d along the normal
         return out

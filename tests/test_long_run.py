@@ -159,7 +159,7 @@ def test_the_truth_at_1000_iterations_replaces_the_300_iteration_one_case_by_cas
     def case(study, setting, seed, truth, verdict, reason="r300", runs=300):
         return {"study": study, "setting": setting, "seed": seed, "method": "c2-robust", "truth": truth,
                 "truth_reason": reason, "iterations_run": runs, "diverged_at": float("nan"),
-                "verdict_20": verdict, "verdict_40": verdict}
+                **{f"verdict_{h}": verdict for h in growth_validation.JUDGED_AT}}
 
     cases = pd.DataFrame([case("growth-heldout-robust", "Q 400", 560, "bounded", "flagged"),
                           case("growth-heldout-robust", "Q 400", 561, "bounded", "not flagged"),

@@ -14,7 +14,7 @@ from __future__ import annotations
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import intrinsic, njit, numba_global
 
-__all__ = ["address_to_pointer", "carray", "unowned", "unowned_matrix", "scratch"]
+__all__ = ["address_to_pointer", "carray", "unowned", "unowned_matrix", "scratch", "carve"]
 
 carray = numba_global("carray")
 
@@ -47,3 +47,10 @@ def unowned_matrix(a):
 def scratch(buffer, offset, length):
     """``buffer[offset:offset + length]`` as a view without an owner (``buffer`` a float64 vector)."""
     return carray(address_to_pointer(buffer.ctypes.data + 8 * offset), length)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def carve(buffer, offset, length):
+    """(:func:`scratch` of ``length`` floats at ``offset``, the offset after it): the next view carved from a
+    buffer, so that a run of carvings reads one line each (``x, o = carve(work, o, n)``)."""
+    return scratch(buffer, offset, length), offset + length

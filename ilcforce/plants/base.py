@@ -194,12 +194,20 @@ class Plant:
 
         return nd_width(self)
 
+    def check_frame(self, frame: np.ndarray) -> None:
+        """Raise ValueError unless the wall's task frame ``frame`` (``Wall.frame``) is one this plant works in: a
+        planar plant's closed forms (its tau_d) take the world's axes, the wall normal to y (``frame`` is I)."""
+        if not np.array_equal(frame, np.eye(2)):
+            raise ValueError("a planar robot's wall is normal to y: leave wall.normal and wall.tangent out, or give "
+                             f"(0, 1) and (1, 0); they make the frame {np.asarray(frame).round(6).tolist()}")
+
     def desired_inputs(self, frame, wall_sign: float, reference_log: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """tau_d and J^-T tau_d along the reference on the log grid (``ilcforce.simulate.desired_inputs``):
         the compiled kernel of :mod:`ilcforce.plants.desired` (ahead-of-time, or numba's: the same code, the
-        same numbers). A planar plant's task frame is the world's (``frame`` is I)."""
+        same numbers). A planar plant's task frame is the world's (``frame`` is I: :meth:`check_frame`)."""
         from ilcforce.compiled import aot
 
+        self.check_frame(frame)
         ref = reference_log
         tau_d = np.empty((ref.shape[0], 2))
         task_d = np.empty((ref.shape[0], 2))

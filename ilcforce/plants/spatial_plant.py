@@ -146,6 +146,9 @@ class SpatialArm:
     ahead_of_time = False  # its kernel is numba's: any file's arm runs it
     dimension = JOINTS  # joints = task axes (an instance checks its file's arm has as many)
 
+    def check_frame(self, frame: np.ndarray) -> None:
+        """Every wall frame suits a spatial arm (``Wall.frame`` has made it orthonormal)."""
+
     def desired_inputs(self, frame, wall_sign: float, reference_log: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """tau_d and J_X^-T tau_d along the reference on the log grid, by inverse kinematics and the chain's
         inverse dynamics (:func:`ilcforce.plants.desired_nd.desired_inputs_nd`)."""

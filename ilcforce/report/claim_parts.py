@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ilcforce.records import task_axes
 from ilcforce.report import paper
 from ilcforce.report.claim_ranges import PassRange, above, below, within
 from ilcforce.report.seedframes import SeedMetrics
@@ -588,12 +589,12 @@ def _claim5_parts(n: int = 2) -> list[_Part]:
                                    SHOWN, f"our H ({what}) / the paper's {theirs} N",
                                    lambda s, m=method, a=axis, t=theirs, form=form: (
                                        s.chattering(m, f"chattering_task_{a}{form}") / t, None)))
-    if n == 3:  # the plane's second axis: no paper number, shown beside
-        parts.append(_Part(5, "direction_v", "H(C1) / H(C3) along v (no counterpart in the paper)", SHOWN,
+    for axis in task_axes(n)[1:-1]:  # a spatial task's second in-plane axis v: no paper number, shown beside
+        parts.append(_Part(5, f"direction_{axis}", f"H(C1) / H(C3) along {axis} (no counterpart in the paper)", SHOWN,
                            f"H(C1) / H(C3) at j = {paper.CHATTERING_ITERATION}, H on the {WHOLE_GRID_NAME} "
-                           "(shown: v has no counterpart in the paper)",
-                           lambda s: (_ratio(s.chattering("c1", f"chattering_task_v{JUDGED_H}"),
-                                             s.chattering("c3", f"chattering_task_v{JUDGED_H}")), None)))
+                           f"(shown: {axis} has no counterpart in the paper)",
+                           lambda s, a=axis: (_ratio(s.chattering("c1", f"chattering_task_{a}{JUDGED_H}"),
+                                                     s.chattering("c3", f"chattering_task_{a}{JUDGED_H}")), None)))
     return parts
 
 

@@ -386,7 +386,8 @@ def committed_summary(directory: Path | None = None) -> dict | None:
 
 def is_long_study(name: str) -> bool:
     """A study of ``make long`` (summarised by its committed page, not by the findings of a report)."""
-    return name.startswith((VALIDATION_PREFIX, growth_validation.HELDOUT_PREFIX, growth_validation.LONGER_PREFIX)) or name in (
+    return name.startswith((VALIDATION_PREFIX, growth_validation.HELDOUT_PREFIX, growth_validation.LONGER_PREFIX,
+                            growth_validation.FRESH_PREFIX)) or name in (
         LONG_RUN, CAUSE, cause_seeds.STUDY, ARM3_LONG, c3_robust_ablation.STUDY, c3_robust_ablation.LEAK_CHECK)
 
 
