@@ -13,7 +13,7 @@ TOML layout (every table and key optional; see ``experiments/paper.toml``)::
     [plant.<model>]  each robot's nominal parameters (five-bar: L1 ... I4, Table 1; 2R arm: L1 ... I2, g;
                   a model file's robot: path, end_effector, elbow, g)
     [plant.perturbation]  parameter, factor, from_iteration
-    [wall]        position, stiffness, force_sign
+    [wall]        position, stiffness, damping, friction, friction_velocity, force_sign (normal, tangent: a spatial arm)
     [reference]   duration, x_amplitude, ...
     [simulation]  sample_time, substeps, log_every, acceleration, filter_hz, torque_bound, initial_position,
                   initial_velocity, implicit_fallback

@@ -17,6 +17,7 @@ SECTION_UNITS: dict[str, str] = {
     "plant.perturbation.parameter": "", "plant.perturbation.factor": "1",
     "plant.perturbation.from_iteration": "1",
     "wall.position": "m", "wall.stiffness": "N/m", "wall.force_sign": "",
+    "wall.damping": "N s/m", "wall.friction": "1", "wall.friction_velocity": "m/s",
     "wall.normal": "1", "wall.tangent": "1",  # directions (normalised)
     "reference.duration": "s", "reference.x_amplitude": "m", "reference.x_offset": "m",
     "reference.x_frequency": "Hz", "reference.force_sine_amplitude": "N", "reference.force_sine_frequency": "Hz",

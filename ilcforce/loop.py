@@ -7,7 +7,8 @@ the log, then RK4 with the torque held. Every quantity is an n-vector or an n x 
 the plant's joints). The loop calls the plant only through one kernel (``nd_dyn`` of ``ilcforce.plants.nd``:
 position, Jacobian, and at higher levels dJ dq, M, C dq + g, C, g, dJ) and the law only through the
 signature of ``ilcforce.controllers.nd``, both numba function pointers, so it knows no robot and no method.
-The wall's contact law is ``ilcforce.task.wall_force`` (its one definition).
+The wall's contact law is ``ilcforce.task.wall_force`` (its one definition), with friction in the wall's plane;
+the force sensor reads its normal component (``ilcforce.ndof.sensing.sense_force``).
 
 The task frame is the wall's (docs/model.md#wall-plane): X = R P with R's rows the frame's axes, the
 wall's normal among them at the force axis, so J_X = R J and the contact force acts along that axis.
@@ -42,7 +43,7 @@ from ilcforce.controllers.nd import (
 from ilcforce.compiled.dense import cholesky_solve, lu, lu_solve_transposed
 from ilcforce.compiled.views import carve, unowned, unowned_matrix
 from ilcforce.ndof.contact import drift as _drift, stage as _stage
-from ilcforce.ndof.sensing import filtered_estimates, measure, sense_joints
+from ilcforce.ndof.sensing import filtered_estimates, measure, sense_force, sense_joints
 from ilcforce.plants.nd import nd_type
 from ilcforce.task import wall_stiffness
 
@@ -81,7 +82,7 @@ def carry_fallback(n: int) -> int:
 
 #: the loop's scratch vectors (n entries each) and matrices (n x n), carved from one buffer per chunk: the counts of
 #: the `carve(work, o, n)` and `carve(work, o, nn)` lines of `_chunk`; a miscount stops every run at its first chunk
-_SCRATCH_VECTORS, _SCRATCH_MATRICES = 27, 8
+_SCRATCH_VECTORS, _SCRATCH_MATRICES = 29, 8
 
 
 def work_width(n: int, iset) -> int:
@@ -117,7 +118,7 @@ def _sim_signature():
         nd_type(),  # true plant
         nd_type(),  # nominal plant
         types.intp, types.intp,  # their packed parameters (addresses)
-        types.float64[::1],  # wall: y_e (the wall's offset along its normal), K_e, w, then R (n x n, row-major)
+        types.float64[::1],  # wall (ilcforce.task.Wall.packed): y_e, K_e, w, R (n x n, row-major), D_e, mu, v_eps
         types.float64[::1],  # gains
         types.float64[:, ::1], types.float64[:, ::1],  # mem_prev, mem_new
         types.float64[:, ::1],  # reference (n_control, 6 n)
@@ -206,6 +207,8 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
     v3, o = carve(work, o, n)
     v4, o = carve(work, o, n)
     fmeas, o = carve(work, o, n)
+    fc, o = carve(work, o, n)  # the true contact force in the task frame at the sample (the log's)
+    fcs, o = carve(work, o, n)  # the same at an RK4 stage (written, not read)
     if o != work.shape[0]:  # before any write: a buffer of another size than work_width's is the caller's bug
         raise ValueError("the loop's scratch buffer is not the size work_width gives")
 
@@ -224,7 +227,7 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
         t = k * ts
         base = 2 * substeps * (k - k_start)
         # 1. true plant at the sample (reused as RK4's first stage)
-        ok, f_wall = _drift(dyn_true, p_true, th, d, wall, fa, dist[base], out_t, X, JX, dJv, r, L, True)
+        ok, _f_normal = _drift(dyn_true, p_true, th, d, wall, fa, dist[base], out_t, X, JX, dJv, r, L, fc, True)
         if not ok:
             status, k_fail = RUN_WORKING_MODE, k
             break
@@ -234,8 +237,7 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
 
         # 2. sensors, then the nominal model at the measured state
         sense_joints(n, k, th, d, noise, qm, dqm)
-        for i in range(n):
-            fmeas[i] = (f_wall if i == fa else 0.0) + noise[k, 2 * n + i]  # the wall is frictionless
+        sense_force(n, k, fa, fc, noise, fmeas)  # the normal force, not the friction (ilcforce.ndof.sensing)
         if not measure(n, dyn_nom, p_nom, wall, qm, dqm, fmeas, 2 if nominal_dyn else 0, out_n, Xs, JXs, dJvs, DJ,
                        LU, piv, col, Ji, tmp, meas):
             status, k_fail = RUN_WORKING_MODE, k
@@ -331,7 +333,7 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
                 for j in range(n):
                     s += JX[i * n + j] * d[j]
                 log[row, 5 * cols + i] = s
-                log[row, 6 * cols + i] = f_wall if i == fa else 0.0
+                log[row, 6 * cols + i] = fc[i]
                 log[row, 7 * cols + i] = fmeas[i]
                 log[row, 8 * cols + i] = dist[base, i]
                 log[row, 11 * cols + i] = diag[i]
@@ -358,23 +360,23 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
                     k1[j] = tau[j] + r[j]
                 cholesky_solve(n, L, k1, k1)
             else:
-                ok1 = _stage(dyn_true, p_true, th, d, tau, wall, fa, dist[m], out_t, Xs, JXs, dJvs, rs, Ls, k1)
+                ok1 = _stage(dyn_true, p_true, th, d, tau, wall, fa, dist[m], out_t, Xs, JXs, dJvs, rs, Ls, fcs, k1)
                 if not ok1:
                     break
             for j in range(n):
                 v2[j] = d[j] + 0.5 * h * k1[j]
                 qs[j] = th[j] + 0.5 * h * d[j]
-            ok2 = _stage(dyn_true, p_true, qs, v2, tau, wall, fa, dist[m + 1], out_t, Xs, JXs, dJvs, rs, Ls, k2)
+            ok2 = _stage(dyn_true, p_true, qs, v2, tau, wall, fa, dist[m + 1], out_t, Xs, JXs, dJvs, rs, Ls, fcs, k2)
             for j in range(n):
                 v3[j] = d[j] + 0.5 * h * k2[j]
                 qs[j] = th[j] + 0.5 * h * v2[j]
             ok3 = ok2 and _stage(dyn_true, p_true, qs, v3, tau, wall, fa, dist[m + 1], out_t, Xs, JXs, dJvs, rs,
-                                 Ls, k3)
+                                 Ls, fcs, k3)
             for j in range(n):
                 v4[j] = d[j] + h * k3[j]
                 qs[j] = th[j] + h * v3[j]
             ok4 = ok3 and _stage(dyn_true, p_true, qs, v4, tau, wall, fa, dist[m + 2], out_t, Xs, JXs, dJvs, rs,
-                                 Ls, k4)
+                                 Ls, fcs, k4)
             if not ok4:
                 ok1 = False
                 break

@@ -199,7 +199,8 @@ class IterationSetup:
 def _setup(inputs: IterationInputs, controller) -> IterationSetup:
     """The set-up of the loop (``ilcforce.loop``): the reference, the log grid's length, the control grid, the
     true and nominal robots, the initial state on the true plant, the packed settings (the wall's frame R after
-    (y_e, K_e, w); the plants' kernel buffers' sizes after the settings) and the compiled loop to call."""
+    (y_e, K_e, w), then its damper and friction: ``Wall.packed``; the plants' kernel buffers' sizes after the
+    settings) and the compiled loop to call."""
     from ilcforce.compiled import aot  # loop: numba's, loaded on first use only
 
     s = inputs.settings
@@ -219,7 +220,7 @@ def _setup(inputs: IterationInputs, controller) -> IterationSetup:
                      int(controller.uses_nominal_dynamics), force_axis(inputs.selection),
                      IMPLICIT_FALLBACKS[s.implicit_fallback], true_robot.nd_width, nominal_robot.nd_width,
                      getattr(controller, "nd_scratch", 0)], dtype=np.int64)
-    wall = np.concatenate([[inputs.wall.position, inputs.wall.stiffness, inputs.wall.sign], frame.ravel()])
+    wall = inputs.wall.packed(n)
     # the ahead-of-time compiled loop of this law and plant (no numba in the process), or numba's
     # with the law and the plant's kernels as arguments: the same code, the same numbers
     simulate_chunk, kernels = aot.simulator(controller, type(true_robot), type(nominal_robot)), ()
@@ -228,7 +229,7 @@ def _setup(inputs: IterationInputs, controller) -> IterationSetup:
 
         simulate_chunk = loop.simulator(n)
         kernels = (law_of(controller), true_robot.nd_kernel(), nominal_robot.nd_kernel())
-    return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, np.ascontiguousarray(wall),
+    return IterationSetup(controller, ref, t_control, true_robot, nominal_robot, wall,
                           np.ascontiguousarray(inputs.draws.sensor), fset, iset, n_log,
                           (np.asarray(theta0, dtype=np.float64), np.asarray(dtheta0, dtype=np.float64)),
                           simulate_chunk, kernels, n)
@@ -310,11 +311,33 @@ def desired_inputs(plant, wall: Wall, reference_log: np.ndarray) -> tuple[np.nda
     tau_d = Dq ddtheta_d + Cq dtheta_d + G_q + J^T (w F_d) is the inverse dynamics (eq. 1) of
     ``plant`` (parameters of any model) along P_d(t) = (x_d, y_e + w F_yd / K_e), including the
     desired contact force, so the wall's reaction -w F_d is balanced: the plant's ``desired_inputs``.
-    ``reference_log`` is (n_log, 6 n); returns two (n_log, n) arrays (N m, N).
+    On a wall with friction F_d also holds, in the plane, the friction the desired motion meets (mu F_d,n
+    against the desired in-plane velocity, :func:`desired_friction`), so tau_d stays the input that moves
+    the true plant along P_d. ``reference_log`` is (n_log, 6 n); returns two (n_log, n) arrays (N m, N).
     """
     robot = make_plant(plant)
     ref = np.ascontiguousarray(reference_log, dtype=np.float64)
+    if wall.friction != 0.0:
+        ref = desired_friction(wall, ref, robot.dimension)
     return robot.desired_inputs(wall.frame(robot.dimension), float(wall.sign), ref)
+
+
+def desired_friction(wall: Wall, reference: np.ndarray, n: int) -> np.ndarray:
+    """``reference`` (rows, 6 n; ilcforce.task's layout) with the wall's friction along the desired motion in its
+    force block's in-plane columns, in the convention of F (the force the end-effector applies: F = -w f, f the
+    force on the robot): F_i = w mu F_d,n tanh(|V| / v_eps) V_i / |V|, V the desired in-plane velocity, F_d,n
+    the desired normal force (the frame's last axis, ``Wall.frame``), the law of ``ilcforce.ndof.contact.drift``
+    (``ilcforce.task.friction_scale``, here in numpy on the whole grid). A copy."""
+    out = np.array(reference, dtype=np.float64)
+    force = reference_block(out, REF_FORCE, n)  # a view into out
+    velocity = reference_block(out, REF_VELOCITY, n)[:, :n - 1]
+    speed = np.sqrt(np.sum(velocity * velocity, axis=1))
+    moving = speed > 0.0
+    scale = np.zeros_like(speed)
+    scale[moving] = np.tanh(speed[moving] / wall.friction_velocity) / speed[moving]
+    normal = np.maximum(force[:, n - 1], 0.0)
+    force[:, :n - 1] = wall.sign * wall.friction * (normal * scale)[:, None] * velocity
+    return np.ascontiguousarray(out)
 
 
 def complete_record(record: IterationRecord, desired: tuple[np.ndarray, np.ndarray], memory: dict,

@@ -42,31 +42,64 @@ def reference_block(ref: np.ndarray, column_2d: int, n: int) -> np.ndarray:
     return ref[:, start:start + n]
 
 
+#: The packed wall (:meth:`Wall.packed`), what the compiled loop reads: y_e, K_e, w at these offsets, the task
+#: frame's R (n x n, row-major) from WALL_FRAME, then, after R (at WALL_FRAME + n n + these), D_e, mu, v_eps.
+WALL_POSITION, WALL_STIFFNESS, WALL_SIGN, WALL_FRAME = 0, 1, 2, 3
+AFTER_FRAME_DAMPING, AFTER_FRAME_FRICTION, AFTER_FRAME_FRICTION_VELOCITY = 0, 1, 2
+
+
 @njit(cache=True, error_model="numpy")
-def wall_force(y, ye, ke, w):
-    """The wall's contact law, its one definition: F_y = K_e max(0, w (y - y_e)) (N), the force the
-    end-effector applies at height y (m) (docs/model.md#wall; the robot feels -w F_y)."""
+def wall_force(y, vy, ye, ke, de, w):
+    """The wall's normal contact law, its one definition (docs/model.md#wall): the force F_y (N) the end-effector
+    applies at height y (m) moving at vy (m/s), a unilateral Kelvin-Voigt wall of stiffness K_e (N/m) and damping
+    D_e (N s/m): with the penetration pen = w (y - y_e), F_y = max(0, K_e pen + D_e dpen/dt) while pen > 0, else 0
+    (the robot feels -w F_y). The clamp at 0 keeps the wall from pulling: leaving the wall fast, the damper's
+    term would exceed the spring's and pull the robot back, which a surface it only touches cannot do. With
+    D_e = 0 this is the spring K_e max(0, pen), computed as before the damper existed, to the last bit."""
     pen = w * (y - ye)
-    return ke * pen if pen > 0.0 else 0.0
+    if pen <= 0.0:
+        return 0.0
+    f = ke * pen
+    if de != 0.0:
+        f += de * w * vy
+    return f if f > 0.0 else 0.0
+
+
+@njit(cache=True, error_model="numpy")
+def friction_scale(speed, v_eps):
+    """tanh(speed / v_eps) / speed (1/(m/s)): the in-plane velocity v (speed |v|, m/s) times this is the smoothed unit
+    vector of v, so the friction on the robot is -mu F_n scale v (docs/model.md#wall). Its length tanh(|v| / v_eps)
+    is 1 to within 1e-4 above 5 v_eps and goes smoothly to 0 at rest (the slope 1 / v_eps there): a smooth sign,
+    since RK4 on a right-hand side with a jump (Coulomb's sign at v = 0) chatters across it and loses its order.
+    0 at rest."""
+    if speed <= 0.0:
+        return 0.0
+    return math.tanh(speed / v_eps) / speed
 
 
 @njit(cache=True, error_model="numpy")
 def wall_stiffness(y, vy, ye, ke, w):
-    """dF_y/dy of :func:`wall_force` along the motion (the stiffness relation of docs/model.md#acceleration): w K_e in
+    """dF_y/dy of the wall's spring along the motion (the stiffness relation of docs/model.md#acceleration): w K_e in
     contact, 0 out of it; exactly on the surface, the one-sided derivative in the direction of the
-    velocity vy (w K_e when entering the wall, 0 when leaving or at rest)."""
+    velocity vy (w K_e when entering the wall, 0 when leaving or at rest). The spring's alone, also on a damped
+    wall: the estimates take dF = K_e dy and ddF = K_e ddy, what a controller's model of a spring wall gives
+    (the damper's D_e ddy and D_e dddy are left to the measured force; docs/model.md#wall says why)."""
     pen = w * (y - ye)
     return w * ke if pen > 0.0 or (pen == 0.0 and w * vy > 0.0) else 0.0
 
 
 @dataclass(frozen=True)
 class Wall:
-    """A frictionless compliant wall: normal to y for a planar robot; for a spatial one (docs/model.md#wall-plane)
-    the plane n . P = y_e with unit normal ``normal``, its first in-plane axis along ``tangent`` (projected
-    onto the plane), the second n x t."""
+    """A compliant wall, a unilateral spring and damper along its normal with Coulomb friction in its plane
+    (docs/model.md#wall; frictionless and undamped by default): normal to y for a planar robot; for a spatial one
+    (docs/model.md#wall-plane) the plane n . P = y_e with unit normal ``normal``, its first in-plane axis along
+    ``tangent`` (projected onto the plane), the second n x t."""
 
     position: float = 0.4  # y_e, the wall's surface along its normal, m
     stiffness: float = 1000.0  # K_e, N/m
+    damping: float = 0.0  # D_e, the normal damper (Kelvin-Voigt, the force clamped at 0: it never pulls), N s/m
+    friction: float = 0.0  # mu, Coulomb's coefficient: the in-plane force is mu times the normal force, 1
+    friction_velocity: float = 0.01  # v_eps, the in-plane speed below which friction's sign is smoothed (tanh), m/s
     force_sign: str = "applied"  # "applied" (the default, docs/model.md#wall) or "paper" (literal signs of eqs. 9-14)
     normal: tuple[float, ...] = ()  # a spatial robot's wall normal in the world frame (3 numbers); () for a planar one
     tangent: tuple[float, ...] = ()  # the direction of the task frame's first in-plane axis (3 numbers)
@@ -78,6 +111,13 @@ class Wall:
             raise ValueError(f"wall.stiffness must be finite and positive, got {self.stiffness!r}")
         if not math.isfinite(self.position):
             raise ValueError(f"wall.position must be finite, got {self.position!r}")
+        if not (math.isfinite(self.damping) and self.damping >= 0):
+            raise ValueError(f"wall.damping must be finite and >= 0 (N s/m), got {self.damping!r}")
+        if not (math.isfinite(self.friction) and self.friction >= 0):
+            raise ValueError(f"wall.friction must be finite and >= 0 (a Coulomb coefficient), got {self.friction!r}")
+        if not (math.isfinite(self.friction_velocity) and self.friction_velocity > 0):
+            raise ValueError(f"wall.friction_velocity must be finite and positive (m/s), "
+                             f"got {self.friction_velocity!r}")
         if self.normal or self.tangent:
             given = len(self.normal or self.tangent)
             if given not in TASK_DIMENSIONS:
@@ -115,11 +155,21 @@ class Wall:
         """w: +1 for the applied-force convention, -1 for the paper's literal reading."""
         return FORCE_SIGNS[self.force_sign]
 
-    def contact_force(self, y: np.ndarray) -> np.ndarray:
-        """Measured-convention contact force F_y (N) for end-effector heights y (m); any shape."""
+    def contact_force(self, y: np.ndarray, vy: np.ndarray | float = 0.0) -> np.ndarray:
+        """Measured-convention normal contact force F_y (N) for end-effector heights y (m) moving at vy (m/s, along
+        the normal; it matters only on a damped wall); any shape (vy broadcast to y's)."""
         y = np.asarray(y, dtype=np.float64)
-        out = np.array([wall_force(v, self.position, self.stiffness, self.sign) for v in y.ravel()])
+        vy = np.broadcast_to(np.asarray(vy, dtype=np.float64), y.shape)
+        out = np.array([wall_force(p, v, self.position, self.stiffness, self.damping, self.sign)
+                        for p, v in zip(y.ravel(), vy.ravel())])
         return out.reshape(y.shape)
+
+    def packed(self, n: int) -> np.ndarray:
+        """The wall as the compiled loop reads it (layout: WALL_* above), for a task of n axes: y_e, K_e, w, the
+        frame R (n x n, row-major), D_e, mu, v_eps; shape (3 + n n + 3,), contiguous float64."""
+        return np.ascontiguousarray(np.concatenate([[self.position, self.stiffness, self.sign], self.frame(n).ravel(),
+                                                    [self.damping, self.friction, self.friction_velocity]]),
+                                    dtype=np.float64)
 
     def pose_for_force(self, force: np.ndarray) -> np.ndarray:
         """The height y (m) at which the wall's force equals ``force`` (N) >= 0."""

@@ -182,9 +182,7 @@ def test_the_measurement_vector_is_the_loops_on_the_same_states(name):
     log = record.log
 
     sample = control_sample(law, nominal.nd_kernel())
-    frame = config.wall.frame(n)
-    wall = np.ascontiguousarray(np.concatenate([[config.wall.position, config.wall.stiffness, config.wall.sign],
-                                                frame.ravel()]))
+    wall = config.wall.packed(n)
     s = config.simulation
     beta = 1.0 - math.exp(-2.0 * math.pi * s.filter_hz * s.sample_time)
     ours_mem = np.zeros((n_control, width))
@@ -196,7 +194,8 @@ def test_the_measurement_vector_is_the_loops_on_the_same_states(name):
     for k in range(n_control):
         ok = sample(nominal.address, wall, spy.gains(), np.zeros((n_control, width)), ours_mem, ref, noise,
                     s.sample_time, beta, 1, filters, k, np.ascontiguousarray(log["joint_angle"][k]),
-                    np.ascontiguousarray(log["joint_rate"][k]), np.ascontiguousarray(log["contact_force"][k]),
+                    np.ascontiguousarray(log["joint_rate"][k]), force_axis(config.surface.selection),
+                    np.ascontiguousarray(log["contact_force"][k]),
                     meas, diag, out_n, tau, qm, dqm, fmeas)
         assert ok == SAMPLE_OK
         np.testing.assert_allclose(tau, log["torque"][k], rtol=1e-12, atol=1e-14, err_msg=f"torque at k = {k}")

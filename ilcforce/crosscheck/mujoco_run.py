@@ -121,9 +121,7 @@ def mujoco_iterations(config: Config, method: str, contact=None, arms: dict | No
     nominal = make_plant(config.plant.nominal())
     p_nom = nominal.address
     sample = control_sample(law, nominal.nd_kernel())
-    frame = config.wall.frame(n)
-    wall = np.ascontiguousarray(np.concatenate([[config.wall.position, config.wall.stiffness, config.wall.sign],
-                                                frame.ravel()]))
+    wall = config.wall.packed(n)
     ref = np.ascontiguousarray(config.reference_samples())
     ref_log = ref[::s.log_every]
     n_control = ref.shape[0]
@@ -161,7 +159,7 @@ def mujoco_iterations(config: Config, method: str, contact=None, arms: dict | No
             d = np.array(arm.data.qvel)
             force = arm.contact_force()
             ok = sample(p_nom, wall, gains, mem_prev, mem_new, ref, noise, s.sample_time, beta,
-                                nominal_dyn, filters, k, th, d, force, meas, diag, out_n, tau, qm, dqm, fmeas)
+                                nominal_dyn, filters, k, th, d, fa, force, meas, diag, out_n, tau, qm, dqm, fmeas)
             why = ("a pose outside the nominal model's working mode" if ok != SAMPLE_OK
                    else "a non-finite state or torque" if not np.all(np.isfinite(tau))
                    else "|tau| above the torque bound" if np.max(np.abs(tau)) > s.torque_bound else "")

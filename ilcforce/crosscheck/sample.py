@@ -19,7 +19,7 @@ import functools
 
 from ilcforce.compiled import jit as _jit
 from ilcforce.compiled.jit import njit
-from ilcforce.ndof.sensing import filtered_estimates, measure, sense_joints
+from ilcforce.ndof.sensing import filtered_estimates, measure, sense_force, sense_joints
 
 #: control_sample's outcomes
 SAMPLE_OK, SAMPLE_WORKING_MODE = 0, 1
@@ -32,7 +32,7 @@ def filter_width(n: int) -> int:
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _control_sample(law, dyn_nom, p_nom, wall, gains, mem_prev, mem_new, ref, noise, ts, beta, nominal_dyn,
-                   filters, k, th, d, force, meas, diag, out_n, tau, qm, dqm, fmeas):
+                   filters, k, th, d, fa, force, meas, diag, out_n, tau, qm, dqm, fmeas):
     """The torque of control sample k into ``tau``; SAMPLE_OK, or SAMPLE_WORKING_MODE when the nominal model
     finds the measured pose outside its working mode (as the loop's step 2)."""
     n = th.shape[0]
@@ -49,8 +49,7 @@ def _control_sample(law, dyn_nom, p_nom, wall, gains, mem_prev, mem_new, ref, no
     col = np.empty(n)
     # 2. sensors, then the nominal model at the measured state
     sense_joints(n, k, th, d, noise, qm, dqm)
-    for i in range(n):
-        fmeas[i] = force[i] + noise[k, 2 * n + i]
+    sense_force(n, k, fa, force, noise, fmeas)  # the normal component, as the loop's sensor
     if not measure(n, dyn_nom, p_nom, wall, qm, dqm, fmeas, 2 if nominal_dyn != 0 else 0, out_n, Xs, JXs, dJvs, DJ,
                    LU, piv, col, Ji, tmp, meas):
         return SAMPLE_WORKING_MODE
@@ -65,11 +64,12 @@ def _control_sample(law, dyn_nom, p_nom, wall, gains, mem_prev, mem_new, ref, no
 @functools.lru_cache(maxsize=16)
 def control_sample(law, dyn_nom):
     """The compiled ``control_sample(p_nom, wall, gains, mem_prev, mem_new, ref, noise, ts, beta, nominal_dyn,
-    filters, k, th, d, force, meas, diag, out_n, tau, qm, dqm, fmeas) -> SAMPLE_OK or SAMPLE_WORKING_MODE``
+    filters, k, th, d, fa, force, meas, diag, out_n, tau, qm, dqm, fmeas) -> SAMPLE_OK or SAMPLE_WORKING_MODE``
     of the law ``law`` (a method's compiled ``law``) and the nominal plant's kernel ``dyn_nom``; arrays are
-    float64 and contiguous: wall (3 + n^2: y_e, K_e, w, R), the loop's gains, memory (n_control, width) and
+    float64 and contiguous: wall (``ilcforce.task.Wall.packed``: y_e, K_e, w, R, D_e, mu, v_eps), the loop's gains, memory (n_control, width) and
     reference (n_control, 6 n), the sensor noise (n_control, 3 n), the filters (:func:`filter_width`), the
-    state and the contact force in the task frame (n each, rad, rad/s, N), and the outputs: meas, diag (sigma,
+    state, the force axis fa (the wall's normal) and the contact force in the task frame (n each, rad, rad/s, N; the
+    sensor reads its component fa), and the outputs: meas, diag (sigma,
     then the law's scratch), the kernel's buffer, tau (N m), the measured angles, rates and force.
 
     The law and the kernel are compiled into it as constants: passing them as first-class function
@@ -77,9 +77,9 @@ def control_sample(law, dyn_nom):
     which here is every control sample (about 0.4 ms, 20 times the rest of the sample). Made once per
     (law, plant kernel) pair in a process; numba compiles it in a few seconds."""
 
-    def run(p_nom, wall, gains, mem_prev, mem_new, ref, noise, ts, beta, nominal_dyn, filters, k, th, d, force,
+    def run(p_nom, wall, gains, mem_prev, mem_new, ref, noise, ts, beta, nominal_dyn, filters, k, th, d, fa, force,
             meas, diag, out_n, tau, qm, dqm, fmeas):
         return _control_sample(law, dyn_nom, p_nom, wall, gains, mem_prev, mem_new, ref, noise, ts, beta,
-                               nominal_dyn, filters, k, th, d, force, meas, diag, out_n, tau, qm, dqm, fmeas)
+                               nominal_dyn, filters, k, th, d, fa, force, meas, diag, out_n, tau, qm, dqm, fmeas)
 
     return _jit.numba().njit(error_model="numpy")(run)

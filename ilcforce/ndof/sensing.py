@@ -13,7 +13,7 @@ from ilcforce.controllers.nd import (
 from ilcforce.ndof.algebra import task_model
 from ilcforce.ndof.contact import to_task
 
-__all__ = ["sense_joints", "measure", "filtered_estimates"]
+__all__ = ["sense_joints", "sense_force", "measure", "filtered_estimates"]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
@@ -22,6 +22,17 @@ def sense_joints(n, k, th, d, noise, qm, dqm):
     for j in range(n):
         qm[j] = th[j] + noise[k, j]
         dqm[j] = d[j] + noise[k, n + j]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def sense_force(n, k, fa, force, noise, fmeas):
+    """The force sensor's reading (docs/model.md#wall): the true contact force's normal component ``force[fa]``
+    (the wall's spring and damper together, what a load cell between tool and wall feels) plus the sample's
+    sensor noise on every axis; the in-plane axes read noise alone. A one-axis sensor along the wall's normal, as
+    the paper's F = (0, F_y): the friction in the plane is not measured, so the laws' feed-forward w F does not
+    cancel it and it acts on the position loop as an unmeasured disturbance."""
+    for i in range(n):
+        fmeas[i] = (force[fa] if i == fa else 0.0) + noise[k, 2 * n + i]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
