@@ -54,10 +54,11 @@ def to_task(n, R, out, X, JX, dJv, DJ, level):
 def drift(dyn, p, q, dq, wall, fa, fv, out, X, JX, dJv, r, L, fc, at_sample):
     """The true plant pressed against the wall, torque left out (eq. 1): M ddq = tau + r, r = J_X^T f - b,
     f the force on the robot in the task frame (the disturbance and the wall's reaction: -w F_n along the normal
-    axis fa, friction in the plane). Fills X, J_X, r, the Cholesky factor L of M, the contact force F in the
-    task frame into fc (the force the end-effector applies in the convention of ``ilcforce.task``, F = -w f:
-    F_n at fa, w mu F_n u in the plane, u the smoothed unit of the in-plane velocity) and, ``at_sample`` (the
-    implicit scheme needs it, an RK4 stage does not), dJ_X dq. Returns (ok, F_n)."""
+    axis fa, friction in the plane). Fills X, J_X, r, the Cholesky factor L of M and, ``at_sample`` (the loop
+    reads them there; an RK4 stage does not), dJ_X dq and the contact force F in the task frame into fc (the
+    force the end-effector applies in the convention of ``ilcforce.task``, F = -w f: F_n at fa, w mu F_n u in
+    the plane, u the smoothed unit of the in-plane velocity; at a stage fc is the friction's scratch).
+    Returns (ok, F_n)."""
     n = q.shape[0]
     ok = dyn(p, q, dq, 1, out)
     if ok == 0.0:
@@ -72,9 +73,10 @@ def drift(dyn, p, q, dq, wall, fa, fv, out, X, JX, dJv, r, L, fc, at_sample):
         for j in range(n):
             vn += JX[fa * n + j] * dq[j]
     f_wall = wall_force(X[fa], vn, ye, ke, de, w)
-    for i in range(n):
-        fc[i] = 0.0
-    fc[fa] = f_wall
+    if at_sample:  # the contact force is read at the sample only (an RK4 stage uses fc as the friction's scratch)
+        for i in range(n):
+            fc[i] = 0.0
+        fc[fa] = f_wall
     b0 = at(OUT_B, n)
     for j in range(n):
         s = 0.0
