@@ -183,6 +183,30 @@ def confusion_text(cases: pd.DataFrame, horizon: int, truth: str = "truth", *, n
             + (f" ({alarms})" if alarms else "") + f"; {len(unsure)} not evaluable")
 
 
+
+def _with_intervals(shares: pd.DataFrame) -> pd.DataFrame:
+    """:func:`rates`' rows as a page shows them: what, count, of, among and the share with its 95% interval."""
+    shown = [f"{a:.0%} [{lo:.0%}, {hi:.0%}]" if of else "-"
+             for a, lo, hi, of in zip(shares["rate"], shares["rate_low"], shares["rate_high"], shares["of"])]
+    return shares.assign(**{"95% interval": shown})[["what", "count", "of", "among", "95% interval"]]
+
+
+def _horizon_sections(cases: pd.DataFrame, out_dir: Path, stem: str, written: list) -> list[str]:
+    """A page's section per horizon of JUDGED_AT: the confusion of truth and verdict, the misses, false alarms and
+    "not evaluable" with their intervals, and the cases named; the tables written beside the page
+    (``<stem>_confusion_<horizon>``, ``<stem>_rates_<horizon>``)."""
+    from ilcforce.report import table_write
+
+    lines = []
+    for horizon in JUDGED_AT:
+        table = confusion(cases, horizon).reset_index()
+        shares = rates(cases, horizon)
+        written += table_write.write_table(table, out_dir, f"{stem}_confusion_{horizon}")
+        written += table_write.write_table(shares, out_dir, f"{stem}_rates_{horizon}")
+        lines += [f"## The test on the first {horizon} iterations", "", table_write.markdown_table(table), "",
+                  table_write.markdown_table(_with_intervals(shares)), "", confusion_text(cases, horizon) + ".", ""]
+    return lines
+
 def write_heldout_page(results_dir: Path, out_dir: Path) -> list[Path]:
     """Write ``growth-heldout.md`` (and its CSVs) into ``out_dir`` from the held-out growth studies under
     ``results_dir/studies`` (``growth-heldout-*``, drawn after the test's rules were frozen); nothing when none
@@ -217,16 +241,7 @@ def write_heldout_page(results_dir: Path, out_dir: Path) -> list[Path]:
              "changed on its own cases.", "",
              f"{len(cases)} cases ({', '.join(sorted(found))}): {int((cases['truth'] == 'unbounded').sum())} "
              f"unbounded, {int((cases['truth'] == 'bounded').sum())} bounded.", ""]
-    for horizon in JUDGED_AT:
-        table = confusion(cases, horizon).reset_index()
-        shares = rates(cases, horizon)
-        written += table_write.write_table(table, out_dir, f"heldout_confusion_{horizon}")
-        written += table_write.write_table(shares, out_dir, f"heldout_rates_{horizon}")
-        said = shares.assign(**{"95% interval": [f"{a:.0%} [{lo:.0%}, {hi:.0%}]" for a, lo, hi in
-                                                 zip(shares["rate"], shares["rate_low"], shares["rate_high"])]})
-        lines += [f"## The test on the first {horizon} iterations", "", table_write.markdown_table(table), "",
-                  table_write.markdown_table(said[["what", "count", "of", "among", "95% interval"]]), "",
-                  confusion_text(cases, horizon) + ".", ""]
+    lines += _horizon_sections(cases, out_dir, "heldout", written)
     if longer:
         lines += _longer_section(cases, longer, out_dir, written)
     lines += ["## If every memory's growth counts", "",
@@ -236,11 +251,10 @@ def write_heldout_page(results_dir: Path, out_dir: Path) -> list[Path]:
               "growth (whole grid and t = 0, more than 10x from j = 20 to the end) as unbounded:", ""]
     for horizon in JUDGED_AT:
         shares = rates(cases, horizon, "truth_with_memories")
-        said = shares.assign(**{"95% interval": [f"{a:.0%} [{lo:.0%}, {hi:.0%}]" for a, lo, hi in
-                                                 zip(shares["rate"], shares["rate_low"], shares["rate_high"])]})
+        said = _with_intervals(shares)
         written += table_write.write_table(shares, out_dir, f"heldout_rates_memories_{horizon}")
         lines += [f"### The first {horizon} iterations, every memory counted", "",
-                  table_write.markdown_table(said[["what", "count", "of", "among", "95% interval"]]), ""]
+                  table_write.markdown_table(said), ""]
     shown = ["study", "setting", "seed", "method", "iterations_run", "truth", "truth_reason", "memory_growth",
              "truth_with_memories", "test_20", "test_40"]
     if "truth_1000" in cases:
@@ -316,11 +330,10 @@ def _longer_section(cases: pd.DataFrame, longer: dict, out_dir: Path, written: l
     for horizon in JUDGED_AT:
         shares = rates(judged, horizon, "truth_1000")
         written += table_write.write_table(shares, out_dir, f"heldout_rates_1000_{horizon}")
-        said = shares.assign(**{"95% interval": [f"{a:.0%} [{lo:.0%}, {hi:.0%}]" for a, lo, hi in
-                                                 zip(shares["rate"], shares["rate_low"], shares["rate_high"])]})
+        said = _with_intervals(shares)
         lines += [f"### The first {horizon} iterations against the truth at 1,000", "",
                   table_write.markdown_table(confusion(judged, horizon, "truth_1000").reset_index()), "",
-                  table_write.markdown_table(said[["what", "count", "of", "among", "95% interval"]]), "",
+                  table_write.markdown_table(said), "",
                   confusion_text(judged, horizon, "truth_1000") + ".", ""]
     return lines
 
@@ -379,17 +392,7 @@ def write_fresh_page(results_dir: Path, out_dir: Path) -> list[Path]:
              f"unbounded, {int((cases['truth'] == 'bounded').sum())} bounded.", "",
              f"**The target at {STATED_HORIZON} iterations** (no miss, at most {TARGET_FALSE_ALARMS:.0%} false "
              f"alarms): {target_text(cases)}.", ""]
-    for horizon in JUDGED_AT:
-        table = confusion(cases, horizon).reset_index()
-        shares = rates(cases, horizon)
-        written += table_write.write_table(table, out_dir, f"fresh_confusion_{horizon}")
-        written += table_write.write_table(shares, out_dir, f"fresh_rates_{horizon}")
-        said = shares.assign(**{"95% interval": [f"{a:.0%} [{lo:.0%}, {hi:.0%}]" if of else "-" for a, lo, hi, of in
-                                                 zip(shares["rate"], shares["rate_low"], shares["rate_high"],
-                                                     shares["of"])]})
-        lines += [f"## The test on the first {horizon} iterations", "", table_write.markdown_table(table), "",
-                  table_write.markdown_table(said[["what", "count", "of", "among", "95% interval"]]), "",
-                  confusion_text(cases, horizon) + ".", ""]
+    lines += _horizon_sections(cases, out_dir, "fresh", written)
     lines += ["## If every memory's growth counts", "",
               "The truth above, frozen with the rules, counts settled quantities only (settled H and the memories' "
               "settled norms), so a run whose learned memory at t = 0 drifts without bound while nothing settled "
