@@ -17,13 +17,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from numba import njit
-from scipy.integrate import solve_ivp
 
 from ilcforce.controllers.base import MemoryController
 from ilcforce.controllers.nd import M_DTHETA, M_THETA, at_py, law_signature
 from ilcforce.noise import draw_iteration
 from ilcforce.plants.fivebar import FiveBar
 from ilcforce.simulate import IterationInputs, run_iteration
+from zohkit import pd_reference
 
 THETA, DTHETA = at_py(M_THETA, 2), at_py(M_DTHETA, 2)
 QUIET = {"noise.disturbance_amplitude": 0.0, "noise.encoder": 0.0, "noise.joint_rate": 0.0,
@@ -151,7 +151,7 @@ def test_press_and_slide_against_solve_ivp(short_config):
     robot = FiveBar(config.plant.links())
     target = robot.inverse_kinematics((0.33, 0.41))
     record = _run(config, pd_law, (*target, *([0.0] * 7)))
-    wall, ts = config.wall, config.simulation.sample_time
+    wall = config.wall
 
     def rhs(t, x, tau):
         theta, dtheta = x[:2], x[2:]
@@ -162,14 +162,7 @@ def test_press_and_slide_against_solve_ivp(short_config):
         friction = -wall.friction * normal * math.tanh(abs(v[0]) / wall.friction_velocity) * np.sign(v[0])
         return np.concatenate([dtheta, robot.forward_dynamics(theta, dtheta, tau, (friction, -normal))])
 
-    x = np.concatenate([robot.inverse_kinematics(config.simulation.initial_position), [0.0, 0.0]])
-    states = [x]
-    for k in range(config.n_control - 1):
-        tau = np.array([_KP * (target[0] - x[0]) - _KD * x[2], _KP * (target[1] - x[1]) - _KD * x[3]])
-        sol = solve_ivp(rhs, (k * ts, (k + 1) * ts), x, args=(tau,), rtol=1e-11, atol=1e-13, method="DOP853")
-        x = sol.y[:, -1]
-        states.append(x)
-    states = np.array(states)[:: config.simulation.log_every]
+    states = pd_reference(rhs, robot, config, target, _KP, _KD)
     np.testing.assert_allclose(record.log["joint_angle"], states[:, :2], rtol=0, atol=1e-8,
                                err_msg="RK4 on the damped wall with friction departs from the solve_ivp reference")
     np.testing.assert_allclose(record.log["joint_rate"], states[:, 2:], rtol=0, atol=1e-6,

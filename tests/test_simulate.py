@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from numba import njit
-from scipy.integrate import solve_ivp
 
 from ilcforce.controllers.base import MemoryController
 from ilcforce.controllers.nd import M_ACCEL, M_DTHETA, M_FORCE_ACCEL, M_THETA, at_py, law_signature
 from ilcforce.noise import draw_iteration
 from ilcforce.plants.fivebar import FiveBar
 from ilcforce.simulate import IterationInputs, run_iteration
+from zohkit import pd_reference
 
 # where the test laws read the measurement on the five-bar (the contract's layout at n = 2)
 THETA, DTHETA, ACCEL, FORCE_ACCEL = (at_py(offset, 2) for offset in (M_THETA, M_DTHETA, M_ACCEL, M_FORCE_ACCEL))
@@ -113,22 +113,13 @@ def test_pd_against_solve_ivp(short_config):
     assert record.status == "complete", record.diverged_reason
 
     wall = config.wall
-    ts = config.simulation.sample_time
-
     def rhs(t, x, tau):
         theta, dtheta = x[:2], x[2:]
         y = robot.forward_kinematics(theta)[1]
         force = (0.0, -wall.contact_force(y))  # the wall pushes back on the robot
         return np.concatenate([dtheta, robot.forward_dynamics(theta, dtheta, tau, force)])
 
-    x = np.concatenate([robot.inverse_kinematics(config.simulation.initial_position), [0.0, 0.0]])
-    states = [x]
-    for k in range(config.n_control - 1):
-        tau = np.array([_KP * (target[0] - x[0]) - _KD * x[2], _KP * (target[1] - x[1]) - _KD * x[3]])
-        sol = solve_ivp(rhs, (k * ts, (k + 1) * ts), x, args=(tau,), rtol=1e-11, atol=1e-13, method="DOP853")
-        x = sol.y[:, -1]
-        states.append(x)
-    states = np.array(states)[:: config.simulation.log_every]
+    states = pd_reference(rhs, robot, config, target, _KP, _KD)
     np.testing.assert_allclose(record.log["joint_angle"], states[:, :2], rtol=0, atol=1e-8,
                                err_msg="RK4 ZOH simulation departs from the solve_ivp reference")
     np.testing.assert_allclose(record.log["joint_rate"], states[:, 2:], rtol=0, atol=1e-6,
