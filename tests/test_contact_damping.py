@@ -242,6 +242,9 @@ def _arm3_numbers(results: Path, cwd: Path) -> dict[str, np.ndarray]:
     return numbers
 
 
+@pytest.mark.slow  # a fresh process compiles the spatial arm through numba (about 70 s on a fresh clone: a model
+# file's arm is not in the ahead-of-time module); tests/test_reference_run.py holds the same contact code bit for
+# bit on the five-bar in every run. `make test-slow` runs it.
 def test_no_damper_no_friction_is_the_spatial_arms_iteration_as_before(tmp_path):
     numbers = _arm3_numbers(tmp_path / "results", Path(__file__).parent.parent)
     found = {}
