@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from ilcforce.report import claim_map, claim_parts, claims, verdicts
+from ilcforce.report import claim_map, claim_parts, claim_seed, claims, verdicts
 from ilcforce.report.claim_ranges import FAIL, PARTLY, PASS, above, below, interval_outcomes, within
 from ilcforce.report.seedframes import split_seeds
 
@@ -136,7 +136,7 @@ def test_every_judged_range_is_the_test_its_part_makes() -> None:
         }
         frames.append(claims.tidy_from_methods(case, seed=seed))
     seeds = split_seeds(pd.concat(frames, ignore_index=True))
-    contexts = [claim_parts._Seed(metrics, 10) for metrics in seeds.values()]
+    contexts = [claim_seed.Seed(metrics, 10) for metrics in seeds.values()]
     judged = [p for p in claim_parts.PARTS if p.role not in claims.NOT_JUDGED]
     assert all(p.margin is not None for p in judged), "every judged part has a passing range"
     for part in judged:
@@ -144,7 +144,7 @@ def test_every_judged_range_is_the_test_its_part_makes() -> None:
         for ctx in contexts:
             try:
                 value, passed = part.evaluate(ctx)
-            except claim_parts._Stop:
+            except claim_seed.Stop:
                 continue
             if math.isfinite(value):
                 assert part.margin.contains(value) == passed, (part.key, value, passed)

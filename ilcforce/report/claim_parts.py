@@ -1,4 +1,5 @@
-"""The paper's five claims as parts: each part's text, role, statistic and its test in one seed.
+"""The paper's five claims as parts: each part's text, role, statistic and its test in one seed (how a seed is
+read: :mod:`ilcforce.report.claim_seed`).
 
 The rule that turns parts into verdicts, and the judging over seeds, are in
 :mod:`ilcforce.report.claims` (its docstring states the rule). Thresholds are named constants here,
@@ -8,15 +9,13 @@ each with the reason for its value.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from dataclasses import dataclass
-
-import numpy as np
 
 from ilcforce.records import task_axes
 from ilcforce.report import paper
 from ilcforce.report.claim_ranges import PassRange, above, below, within
-from ilcforce.report.seedframes import SeedMetrics
+from ilcforce.report.claim_seed import CONVERGED_WINDOW, RELEARN, Seed, Stop, norm_ratio
 
 CENTRAL, SECONDARY, SHOWN = "central", "secondary", "shown"
 #: A shown part that names a modelling choice behind a verdict (C1's exact model, its alpha against
@@ -51,15 +50,6 @@ def _largest_paper_ratio() -> float:
 REDUCTION_RATIO = round(_largest_paper_ratio(), 3)
 #: The text's own figure, shown beside the derived threshold.
 TEXT_REDUCTION_RATIO = 1.0 - paper.ERROR_REDUCTION_C3_VS_C2
-#: Claims 1 and 2 read converged windows of this many iterations: before the perturbation the last
-#: ones before it (j = p-5..p-1, 5..9 in the paper, the window j̄'s definition calls settled), after
-#: it the ones from p + RELEARN on (j = 15..19). Why: the claims are about tracking after learning
-#: ("after convergence"); a mean that includes j = 1, 2, or a value at j̄ (a number ilcforce defines,
-#: which the paper does not), compares iterations still learning.
-CONVERGED_WINDOW = 5
-#: Claim 2's window after the perturbation starts this many iterations after it (re-learning time:
-#: the paper's C2 and C3 converge within 2-4 iterations, Table 2).
-RELEARN = 5
 #: Claim 3: "converges within a few iterations": j̄ at most this (the paper's slowest j̄, 4, plus the
 #: one iteration of j̄'s own resolution). Faster than the paper holds.
 FEW_ITERATIONS = 5
@@ -153,16 +143,6 @@ def statement_at(claim: Claim, perturbation_iteration: int, parameter: str = "m3
     return statement
 
 
-class _Stop(Exception):
-    """Ends one part's evaluation in one seed: ``passed`` False (a failure) or None (not evaluable).
-    ``diverged``: the failure is a divergence of the method the part praises (claims.py counts those
-    seeds: a part whose method diverged in most seeds is not evaluable, with the divergence named)."""
-
-    def __init__(self, passed: bool | None, note: str, diverged: bool = False) -> None:
-        super().__init__(note)
-        self.passed, self.note, self.diverged = passed, note, diverged
-
-
 @dataclass(frozen=True)
 class _Part:
     """A part of a claim: ``evaluate(seed context)`` -> (statistic, passed or None for shown parts).
@@ -180,7 +160,7 @@ class _Part:
     text: str
     role: str
     statistic: str
-    evaluate: Callable[["_Seed"], tuple[float, bool | None]]
+    evaluate: Callable[["Seed"], tuple[float, bool | None]]
     threshold: str = ""  # the pass condition on the statistic, e.g. "< 0.613" ("" for shown parts)
     partly: PassRange | None = None
     partial_text: str = ""  # the weaker condition, e.g. "< 1 (C3 below C2)"
@@ -188,150 +168,7 @@ class _Part:
     #: the same test on other readings of the judged number, by :data:`READINGS` key (claim 5: H settled,
     #: H without t = 0, the ratio at j = p - 1 and at the last iteration): never judged, each says beside a
     #: verdict when it would change it (claims.py, rule 6)
-    readings: tuple[tuple[str, Callable[["_Seed"], tuple[float, bool | None]]], ...] = ()
-
-
-def _ratio(numerator: float, denominator: float) -> float:
-    """numerator / denominator for norms >= 0: x / 0 is inf (0 / 0 is NaN), x / inf is 0."""
-    numerator, denominator = float(numerator), float(denominator)
-    if denominator == 0.0:
-        return math.nan if numerator == 0.0 else math.inf
-    return numerator / denominator
-
-
-class _Seed:
-    """One seed's per-method metrics (:class:`~ilcforce.report.seedframes.SeedMetrics`) plus the checks parts share."""
-
-    def __init__(self, metrics_by_method: Mapping[str, SeedMetrics], p: int, config: Mapping | None = None) -> None:
-        self.metrics, self.p = metrics_by_method, int(p)
-        self.config = config if isinstance(config, Mapping) else {}
-
-    def setting(self, section: str, key: str) -> float:
-        """A number of the setting's resolved configuration; not evaluable when it is not there."""
-        value = self.config.get(section, {}).get(key) if isinstance(self.config.get(section), Mapping) else None
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise _Stop(None, f"the configuration holds no {section}.{key}")
-        return float(value)
-
-    def need(self, *methods: str) -> None:
-        missing = [m for m in methods if m not in self.metrics]
-        if missing:
-            raise _Stop(None, "no results for " + ", ".join(missing))
-
-    def asserted(self, method: str, last: int) -> None:
-        """A method the part praises diverged at or before ``last``: the part fails."""
-        self.need(method)
-        found = self.metrics[method].divergence
-        if found is not None and found[0] <= last:
-            raise _Stop(False, f"{method} diverged at iteration {found[0]}", diverged=True)
-
-    def norm(self, method: str, column: str, j: int) -> float:
-        """The norm at ``j``; inf from a divergence on (a baseline lost tracking); missing -> not evaluable."""
-        self.need(method)
-        found = self.metrics[method].divergence
-        if found is not None and j >= found[0]:
-            return math.inf
-        value = self.metrics[method].value_at(column, j)
-        if not math.isfinite(value):
-            raise _Stop(None, f"{method} has no complete iteration {j}")
-        return value
-
-    def mean_norm(self, method: str, column: str, first: int, last: int) -> float:
-        return float(np.mean([self.norm(method, column, j) for j in range(first, last + 1)]))
-
-    def noise_scale(self) -> float:
-        """noise.scale of the configuration; 1 where it predates the key (every source at its own level)."""
-        noise = self.config.get("noise")
-        value = noise.get("scale", 1.0) if isinstance(noise, Mapping) else 1.0
-        return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else 1.0
-
-    def setting_factor(self) -> float:
-        """The perturbation's factor (true / nominal), from the configuration."""
-        perturbation = self.config.get("plant", {}).get("perturbation", {}) if isinstance(
-            self.config.get("plant"), Mapping) else {}
-        value = perturbation.get("factor") if isinstance(perturbation, Mapping) else None
-        if not isinstance(value, (int, float)):
-            raise _Stop(None, "the configuration holds no plant.perturbation.factor")
-        return float(value)
-
-    def before_last(self) -> int:
-        """The last iteration :meth:`before_window` may read (an asserted method must reach it)."""
-        return self.p - 1 if self.p > 1 else self.p + RELEARN + CONVERGED_WINDOW - 1
-
-    def before_window(self, methods: tuple[str, ...]) -> tuple[int, int]:
-        """The converged window before the perturbation: its last CONVERGED_WINDOW iterations
-        (j = 5..9 in the paper's setup), never j = 0. A plant changed from j = 0 or 1 on (a
-        nominal-model error from the start) leaves no iteration before it: the window is then
-        the converged one under the one changed plant, j = p+RELEARN.. (5..9 for p = 0)."""
-        if self.p <= 1:
-            return self.after_window(methods)
-        last = self.p - 1
-        return max(1, last - CONVERGED_WINDOW + 1), last
-
-    def after_window(self, methods: tuple[str, ...]) -> tuple[int, int]:
-        """The converged window after the perturbation: j = p + RELEARN .. p + RELEARN +
-        CONVERGED_WINDOW - 1 (15..19), ended at the last iteration all ``methods`` completed."""
-        self.need(*methods)
-        first = self.p + RELEARN
-        ends = [max(self.metrics[m].complete_iterations, default=-1) for m in methods]
-        last = min(first + CONVERGED_WINDOW - 1, *ends)
-        if last < first:
-            raise _Stop(None, f"needs iterations up to at least {first}; the runs stop at {min(ends)}")
-        return first, last
-
-    def jbar(self, method: str, column: str) -> int:
-        self.asserted(method, 9)
-        found = self.metrics[method].jbar(column)
-        if found is None:
-            raise _Stop(None, f"{method}: j̄ needs complete iterations 0..9")
-        return found
-
-    def chattering_before(self, method: str, column: str) -> float:
-        """H at j = p - 1, the last iteration before the perturbation (finite, or not evaluable)."""
-        j = self.p - 1
-        if j < 0:
-            raise _Stop(None, f"perturbation at {self.p} leaves no iteration before it")
-        self.need(method)
-        found = self.metrics[method].divergence
-        if found is not None and found[0] <= j:
-            raise _Stop(None, f"{method} diverged at iteration {found[0]}")
-        value = self.metrics[method].value_at(column, j)
-        if not math.isfinite(value):
-            raise _Stop(None, f"{method} has no complete iteration {j}")
-        return value
-
-    def chattering_at(self, method: str, column: str, j: int) -> float:
-        """H at iteration ``j`` (finite, or not evaluable); C3, the method claim 5 praises, fails where it
-        diverged by ``j``."""
-        self.asserted(method, j) if method == "c3" else self.need(method)
-        value = self.metrics[method].value_at(column, j)
-        if not math.isfinite(value):
-            raise _Stop(None, f"{method} has no complete iteration {j}")
-        return value
-
-    def last_common(self, methods: tuple[str, ...]) -> int:
-        """The last iteration every one of ``methods`` completed (-1 when one completed none)."""
-        self.need(*methods)
-        return min(max(self.metrics[m].complete_iterations, default=-1) for m in methods)
-
-    def reading_iteration(self, at: str) -> int:
-        """The iteration another reading of claim 5 reads (:data:`READINGS`): ``"before"`` j = p - 1, the
-        last before the plant changes; ``"last"`` the last iteration C1 and C3 both completed. Not
-        evaluable where that is the judged iteration itself, or (``"last"``) not after it."""
-        j = self.p - 1 if at == "before" else self.last_common(("c1", "c3"))
-        if j < 0 or j == paper.CHATTERING_ITERATION or (at == "last" and j < paper.CHATTERING_ITERATION):
-            raise _Stop(None, f"no other iteration to read ({at})")
-        return j
-
-    def chattering(self, method: str, column: str) -> float:
-        self.asserted(method, paper.CHATTERING_ITERATION) if method == "c3" else self.need(method)
-        j = self.metrics[method].chattering_iteration()
-        if j != paper.CHATTERING_ITERATION:
-            raise _Stop(None, f"{method} has no complete iteration {paper.CHATTERING_ITERATION}")
-        value = self.metrics[method].value_at(column, j)
-        if not math.isfinite(value):
-            raise _Stop(None, f"{column} not available for {method}")
-        return value
+    readings: tuple[tuple[str, Callable[["Seed"], tuple[float, bool | None]]], ...] = ()
 
 
 # ---------------------------------------------------------------------------------------------
@@ -341,40 +178,40 @@ class _Seed:
 
 def _claim1_parts() -> list[_Part]:
     def part(method: str, quantity: str, column: str) -> _Part:
-        def evaluate(s: _Seed) -> tuple[float, bool]:
+        def evaluate(s: Seed) -> tuple[float, bool]:
             s.asserted(method, s.before_last())
             first, last = s.before_window((method,))  # a diverged C1 (the baseline) reads as inf
-            ratio = _ratio(s.mean_norm(method, column, first, last), s.mean_norm("c1", column, first, last))
+            ratio = norm_ratio(s.mean_norm(method, column, first, last), s.mean_norm("c1", column, first, last))
             return ratio, bool(ratio < 1.0)
         return _Part(1, f"{method}_{quantity}", f"{method.upper()} below C1, {quantity}", CENTRAL,
                      f"mean 2-norm over the last {CONVERGED_WINDOW} iterations before p, {method.upper()} / C1",
                      evaluate, "< 1", margin=below(1.0, strict=True))
 
     def whole(method: str, quantity: str, column: str) -> _Part:
-        def evaluate(s: _Seed) -> tuple[float, None]:
+        def evaluate(s: Seed) -> tuple[float, None]:
             last = s.p - 1
             if last < 1:
-                raise _Stop(None, f"perturbation at {s.p} leaves no iteration 1..p-1")
+                raise Stop(None, f"perturbation at {s.p} leaves no iteration 1..p-1")
             s.asserted(method, last)
-            return _ratio(s.mean_norm(method, column, 1, last), s.mean_norm("c1", column, 1, last)), None
+            return norm_ratio(s.mean_norm(method, column, 1, last), s.mean_norm("c1", column, 1, last)), None
         return _Part(1, f"{method}_{quantity}_1_p", f"{method.upper()} / C1 over j = 1..p-1, {quantity}", SHOWN,
                      f"mean 2-norm over j = 1..p-1 (learning transient included), {method.upper()} / C1", evaluate)
-    def model_error(s: _Seed) -> tuple[float, None]:
+    def model_error(s: Seed) -> tuple[float, None]:
         # the true plant over the nominal in the window C1 is judged on: 1 before the change (exact)
         return (s.setting_factor() if s.p <= 1 else 1.0), None
 
-    def alpha_margin(s: _Seed) -> tuple[float, None]:
+    def alpha_margin(s: Seed) -> tuple[float, None]:
         # eq. (2) bounds the disturbance by its norm, ||F_v|| <= alpha; ours is A sin(.) on each of the
         # two task axes, so its norm's bound is sqrt(2) A (times noise.scale, 1 in a file without it)
-        return _ratio(s.setting("c1", "alpha"), math.sqrt(2.0) * s.setting("noise", "disturbance_amplitude")
+        return norm_ratio(s.setting("c1", "alpha"), math.sqrt(2.0) * s.setting("noise", "disturbance_amplitude")
                       * s.noise_scale()), None
 
-    def learned_alpha(s: _Seed) -> tuple[float, None]:
+    def learned_alpha(s: Seed) -> tuple[float, None]:
         s.need("c3")
         j = s.before_window(("c3",))[1]
         value = s.metrics["c3"].value_at("memory_settled_alpha_hat", j)
         if not math.isfinite(value):
-            raise _Stop(None, f"no settled alpha_hat of c3 at iteration {j}")
+            raise Stop(None, f"no settled alpha_hat of c3 at iteration {j}")
         return value, None
 
     causes = [
@@ -393,20 +230,20 @@ def _claim1_parts() -> list[_Part]:
 def _claim2_parts() -> list[_Part]:
     parts = []
     for quantity, column, _unit in METRICS:
-        def before(s: _Seed, column=column) -> tuple[float, bool]:
+        def before(s: Seed, column=column) -> tuple[float, bool]:
             s.asserted("c3", s.before_last())
             first, last = s.before_window(("c3",))  # a diverged C2 (the baseline) reads as inf
-            ratio = _ratio(s.mean_norm("c3", column, first, last), s.mean_norm("c2", column, first, last))
+            ratio = norm_ratio(s.mean_norm("c3", column, first, last), s.mean_norm("c2", column, first, last))
             return ratio, bool(ratio < REDUCTION_RATIO)
 
-        def after(s: _Seed, column=column) -> tuple[float, bool]:
+        def after(s: Seed, column=column) -> tuple[float, bool]:
             s.asserted("c3", s.p + RELEARN + CONVERGED_WINDOW - 1)
             first, last = s.after_window(("c3",))
-            ratio = _ratio(s.mean_norm("c3", column, first, last), s.mean_norm("c2", column, first, last))
+            ratio = norm_ratio(s.mean_norm("c3", column, first, last), s.mean_norm("c2", column, first, last))
             return ratio, bool(ratio < REDUCTION_RATIO)
 
-        def at_jbar(s: _Seed, column=column) -> tuple[float, None]:
-            return _ratio(s.norm("c3", column, s.jbar("c3", column)), s.norm("c2", column, s.jbar("c2", column))), None
+        def at_jbar(s: Seed, column=column) -> tuple[float, None]:
+            return norm_ratio(s.norm("c3", column, s.jbar("c3", column)), s.norm("c2", column, s.jbar("c2", column))), None
 
         weaker = dict(partly=below(1.0, strict=True), partial_text="< 1 (C3 below C2, by less)",
                       margin=below(REDUCTION_RATIO, strict=True))
@@ -431,7 +268,7 @@ def _claim3_parts() -> list[_Part]:
         for quantity, column, _unit in METRICS:
             theirs = getattr(published, f"jbar_{quantity}")
 
-            def evaluate(s: _Seed, method=method, column=column) -> tuple[float, bool]:
+            def evaluate(s: Seed, method=method, column=column) -> tuple[float, bool]:
                 ours = s.jbar(method, column)
                 return float(ours), ours <= FEW_ITERATIONS
 
@@ -441,7 +278,7 @@ def _claim3_parts() -> list[_Part]:
     for quantity, column, _unit in METRICS:
         gap = getattr(paper.table2_row("c3"), f"jbar_{quantity}") - getattr(paper.table2_row("c2"), f"jbar_{quantity}")
 
-        def slower(s: _Seed, column=column) -> tuple[float, bool]:
+        def slower(s: Seed, column=column) -> tuple[float, bool]:
             difference = s.jbar("c3", column) - s.jbar("c2", column)
             return float(difference), difference <= C3_SLOWER_TOLERANCE
 
@@ -452,20 +289,20 @@ def _claim3_parts() -> list[_Part]:
 
 
 def _claim4_parts() -> list[_Part]:
-    def before(s: _Seed) -> tuple[int, int]:
+    def before(s: Seed) -> tuple[int, int]:
         """The converged window before the change: j = p-5..p-1 (5..9), never j = 0 unless p = 1."""
         if s.p < 1:
-            raise _Stop(None, f"perturbation at {s.p} has no iteration before it")
+            raise Stop(None, f"perturbation at {s.p} has no iteration before it")
         return max(min(1, s.p - 1), s.p - CONVERGED_WINDOW), s.p - 1
 
     parts = []
     for quantity, column, _unit in METRICS:
         for method in ("c1", "c2", "c3"):
-            def rise(s: _Seed, method=method, column=column) -> float:
+            def rise(s: Seed, method=method, column=column) -> float:
                 first, last = before(s)
                 if method != "c1":
                     s.asserted(method, s.p)
-                return _ratio(s.norm(method, column, s.p), s.mean_norm(method, column, first, last))
+                return norm_ratio(s.norm(method, column, s.p), s.mean_norm(method, column, first, last))
 
             if method == "c1":
                 parts.append(_Part(4, f"c1_slight_{quantity}", f"C1 degrades slightly, {quantity}", SECONDARY,
@@ -478,11 +315,11 @@ def _claim4_parts() -> list[_Part]:
                                lambda s, f=rise: (f(s), bool(f(s) >= STRONG_RISE)), f">= {STRONG_RISE:g}",
                                margin=above(STRONG_RISE)))
 
-            def again(s: _Seed, method=method, column=column) -> tuple[float, bool]:
+            def again(s: Seed, method=method, column=column) -> tuple[float, bool]:
                 s.asserted(method, paper.CHATTERING_ITERATION)  # a divergence by j = 19 is no reconvergence
                 first, last = before(s)
                 late_first, late_last = s.after_window((method,))
-                value = _ratio(s.mean_norm(method, column, late_first, late_last),
+                value = norm_ratio(s.mean_norm(method, column, late_first, late_last),
                                s.mean_norm(method, column, first, last))
                 return value, bool(value <= RECONVERGED)
 
@@ -549,20 +386,20 @@ def _claim5_parts(n: int = 2) -> list[_Part]:
     for axis, theirs_axis, published in CLAIM5_AXES[n]:
         name = axis.upper() if axis == theirs_axis else f"along {axis} (the paper's {theirs_axis.upper()})"
 
-        def ratio(s: _Seed, axis=axis, form=JUDGED_H, at: str | None = None) -> float:
+        def ratio(s: Seed, axis=axis, form=JUDGED_H, at: str | None = None) -> float:
             column = f"chattering_task_{axis}{form}"
             if at is not None:  # another iteration (READINGS)
                 j = s.reading_iteration(at)
                 c3 = s.chattering_at("c3", column, j)
-                return _ratio(s.chattering_at("c1", column, j), c3)
+                return norm_ratio(s.chattering_at("c1", column, j), c3)
             c3 = s.chattering("c3", column)  # the asserted method first: its divergence settles the part
-            return _ratio(s.chattering("c1", column), c3)
+            return norm_ratio(s.chattering("c1", column), c3)
 
-        def direction(s: _Seed, f=ratio, form=JUDGED_H, at: str | None = None) -> tuple[float, bool]:
+        def direction(s: Seed, f=ratio, form=JUDGED_H, at: str | None = None) -> tuple[float, bool]:
             value = f(s, form=form, at=at)
             return value, bool(value > 1.0)
 
-        def magnitude(s: _Seed, f=ratio, pub=published, form=JUDGED_H, at: str | None = None) -> tuple[float, bool]:
+        def magnitude(s: Seed, f=ratio, pub=published, form=JUDGED_H, at: str | None = None) -> tuple[float, bool]:
             value = f(s, form=form, at=at)  # 0 (a C1 without chattering) or NaN is no match: no log of it
             return value, bool(value > 0 and abs(math.log(value / pub)) <= math.log(RATIO_FACTOR))
 
@@ -577,7 +414,7 @@ def _claim5_parts(n: int = 2) -> list[_Part]:
                                SHOWN, claim5_shown(form), lambda s, f=ratio, form=form: (f(s, form=form), None)))
         parts.append(_Part(5, f"before_perturbation_{axis}", f"H(C1) / H(C3) before the perturbation, {name}",
                            SHOWN, "ratio of H at j = p - 1 (the change of the plant at p alters each law's chattering)",
-                           lambda s, a=axis: (_ratio(s.chattering_before("c1", f"chattering_task_{a}{JUDGED_H}"),
+                           lambda s, a=axis: (norm_ratio(s.chattering_before("c1", f"chattering_task_{a}{JUDGED_H}"),
                                                      s.chattering_before("c3", f"chattering_task_{a}{JUDGED_H}")),
                                               None)))
         for method in ("c1", "c3"):
@@ -593,7 +430,7 @@ def _claim5_parts(n: int = 2) -> list[_Part]:
         parts.append(_Part(5, f"direction_{axis}", f"H(C1) / H(C3) along {axis} (no counterpart in the paper)", SHOWN,
                            f"H(C1) / H(C3) at j = {paper.CHATTERING_ITERATION}, H on the {WHOLE_GRID_NAME} "
                            f"(shown: {axis} has no counterpart in the paper)",
-                           lambda s, a=axis: (_ratio(s.chattering("c1", f"chattering_task_{a}{JUDGED_H}"),
+                           lambda s, a=axis: (norm_ratio(s.chattering("c1", f"chattering_task_{a}{JUDGED_H}"),
                                                      s.chattering("c3", f"chattering_task_{a}{JUDGED_H}")), None)))
     return parts
 

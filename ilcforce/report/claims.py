@@ -81,8 +81,9 @@ import pandas as pd
 from ilcforce.plants import changed_parameter
 from ilcforce.report import paper
 from ilcforce.report.claim_parts import (CAUSE, CENTRAL, CLAIMS, PARTS, SECONDARY, parts_for,  # noqa: F401 (re-exported)
-                                         READINGS, SHOWN, _Part, _Seed, _Stop, statement_at)
+                                         READINGS, SHOWN, _Part, statement_at)
 from ilcforce.report.claim_ranges import FAIL, PARTLY, PASS, interval_outcomes
+from ilcforce.report.claim_seed import Seed, Stop
 from ilcforce.report.seedframes import split_seeds
 from ilcforce.stats import Interval, frequency_interval, median_interval
 
@@ -107,12 +108,12 @@ DIVERGED = "a praised method diverged"
 # ---------------------------------------------------------------------------------------------
 
 
-def _evaluate(part: _Part, seed: _Seed) -> tuple[float, bool | None, str, bool]:
+def _evaluate(part: _Part, seed: Seed) -> tuple[float, bool | None, str, bool]:
     """(statistic, passed, note, diverged) of one part in one seed."""
     try:
         value, passed = part.evaluate(seed)
         return float(value), passed, "", False
-    except _Stop as stop:
+    except Stop as stop:
         return math.nan, stop.passed, stop.note, stop.diverged
 
 
@@ -276,7 +277,7 @@ def judge_claims_over_seeds(metrics: pd.DataFrame, *,
     if deterministic:
         metrics = first_seed_only(metrics)
     seeds = split_seeds(metrics)
-    contexts = {seed: _Seed(frames, perturbation_iteration, config) for seed, frames in seeds.items()}
+    contexts = {seed: Seed(frames, perturbation_iteration, config) for seed, frames in seeds.items()}
     all_parts = parts_for(metrics.columns)  # claim 5 along the task's axes
     results = {part: [_evaluate(part, ctx) for ctx in contexts.values()] for part in all_parts}
     # the judged parts' same tests on the other readings of their number (rule 6): what the verdict would be
@@ -389,10 +390,10 @@ def _other_readings(mine, readings, verdicts: Mapping[str, str], roles: Mapping[
     return "; ".join(said)
 
 
-def _last_common(ctx: _Seed) -> int:
+def _last_common(ctx: Seed) -> int:
     try:
         return ctx.last_common(("c1", "c3"))
-    except _Stop:
+    except Stop:
         return -1
 
 
