@@ -156,7 +156,11 @@ class SurfaceGains:
             raise ValueError(f"surface.selection must have 2 entries (a planar task) or 3 (a spatial one), got {n}")
         for name in ("selection", "lambda_p", "lambda_f1", "lambda_f2"):
             check_vector(f"surface.{name}", getattr(self, name), n)
-        force_axis(self.selection)
+        if force_axis(self.selection) != n - 1:
+            # the wall's normal is the task frame's last axis (ilcforce.task.Wall.frame), where the reference
+            # carries F_d and the plant presses: another force axis would press the wall along a tangent
+            raise ValueError(f"surface.selection must select the wall's normal, the task's last axis "
+                             f"({', '.join(['0'] * (n - 1) + ['1'])}); got {list(self.selection)}")
 
     @property
     def dimension(self) -> int:

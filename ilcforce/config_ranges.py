@@ -55,7 +55,7 @@ RANGES: dict[str, Range] = {
     "wall.stiffness": Range(0, 1e12, low_open=True),
     "wall.damping": Range(0, 1e12),
     "wall.friction": Range(0, 1e3),
-    "wall.friction_velocity": Range(0, 1e3, low_open=True),
+    "wall.friction_velocity": Range(1e-9, 1e3),  # m/s; below, v / v_eps overflows in tanh's argument
     "noise.*": Range(0, 1e6),
     "plant.perturbation.factor": Range(0, 1e6, low_open=True),
     "plant.perturbation.from_iteration": Range(0, 100_000),

@@ -118,6 +118,9 @@ class Wall:
         if not (math.isfinite(self.friction_velocity) and self.friction_velocity > 0):
             raise ValueError(f"wall.friction_velocity must be finite and positive (m/s), "
                              f"got {self.friction_velocity!r}")
+        if self.normal and self.tangent and len(self.normal) != len(self.tangent):
+            raise ValueError(f"wall.normal and wall.tangent must have as many numbers each (the task's axes), got "
+                             f"{list(self.normal)}, {list(self.tangent)}")
         if self.normal or self.tangent:
             given = len(self.normal or self.tangent)
             if given not in TASK_DIMENSIONS:
@@ -142,9 +145,12 @@ class Wall:
         if not (np.all(np.isfinite(normal)) and np.linalg.norm(normal) > 0):
             raise ValueError(f"wall.normal must be a finite non-zero vector, got {list(self.normal)}")
         normal = normal / np.linalg.norm(normal)
+        given = t1
         t1 = t1 - (t1 @ normal) * normal
-        if not (np.all(np.isfinite(t1)) and np.linalg.norm(t1) > 1e-9):
-            raise ValueError(f"wall.tangent must not be parallel to wall.normal, got {list(self.tangent)}")
+        if not (np.all(np.isfinite(t1)) and np.linalg.norm(t1) > 1e-9 * np.linalg.norm(given)):
+            raise ValueError(f"wall.tangent ({list(self.tangent) if self.tangent else 'left out: the x axis'}) must "
+                             f"be non-zero and not parallel to wall.normal "
+                             f"({list(self.normal) if self.normal else 'left out: the y axis'})")
         rows = [t1 / np.linalg.norm(t1)]
         for _ in range(n - 2):  # the in-plane axes after t1: in space the one axis t2 = normal x t1
             rows.append(np.cross(normal, rows[-1]))

@@ -63,6 +63,7 @@ BAD = [
     ({"experiment": {"iterations": 0}}, "experiment.iterations must be in [1, 100000], got 0"),
     ({"experiment": {"iterations": 2.5}}, "experiment.iterations must be an integer"),
     ({"surface": {"selection": [1.0, 1.0]}}, "exactly one force axis"),
+    ({"surface": {"selection": [1.0, 0.0]}}, "must select the wall's normal, the task's last axis (0, 1)"),
     ({"plant": {"perturbation": {"parameter": "m9"}}}, "plant.perturbation.parameter must be one of"),
     ({"noise": {"encoder": -1.0}}, "noise.encoder must be in [0, 1e+06], got -1.0"),
     ({"wall": {"force_sign": "up"}}, "wall.force_sign must be one of"),

@@ -190,7 +190,8 @@ def test_friction_opposes_sliding_with_mu_times_the_normal_force(short_config):
 @pytest.mark.parametrize(("setting", "words"), [
     ("wall.damping=-1", "wall.damping must be in [0"),
     ("wall.friction=-0.1", "wall.friction must be in [0"),
-    ("wall.friction_velocity=0", "wall.friction_velocity must be in (0"),
+    ("wall.friction_velocity=0", "wall.friction_velocity must be in [1e-09"),
+    ("wall.friction_velocity=1e-320", "wall.friction_velocity must be in [1e-09"),
     ("wall.damping=inf", "wall.damping must be finite"),
 ])
 def test_bad_wall_values_are_one_line_and_exit_2(setting, words):

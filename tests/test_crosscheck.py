@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import subprocess
+from pathlib import Path
 import sys
 
 import numpy as np
@@ -219,6 +220,23 @@ def test_bad_input_is_one_line(args, words):
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and words in lines[0], result.stderr
     assert result.stdout == ""
+
+
+def test_a_damped_or_rubbing_wall_is_refused_by_name(tmp_path):
+    """MuJoCo's contact stands for the wall's spring only: a wall with ilcforce's damper or friction is refused with
+    one line, not run on a MuJoCo plant that silently lacks them (its tau_d would still hold the friction)."""
+    shipped = Path(__file__).resolve().parent.parent / "experiments"
+    for key, value in (("damping", 40.0), ("friction", 0.3)):
+        text = (shipped / "serial2r-model.toml").read_text(encoding="utf-8")
+        experiment = tmp_path / f"{key}.toml"
+        experiment.write_text(text.replace('path = "', f'path = "{shipped}/') + f"\n[wall]\n{key} = {value}\n"
+                              if "[wall]" not in text else text.replace("[wall]", f"[wall]\n{key} = {value}"),
+                              encoding="utf-8")
+        result = subprocess.run([sys.executable, "-m", "ilcforce.crosscheck.mujoco_run", str(experiment), "-n", "1"],
+                                capture_output=True, text=True, timeout=120, cwd=tmp_path)
+        assert result.returncode == 2, result.stderr
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1 and f"wall.{key} = {value:g}" in lines[0], result.stderr
 
 
 def test_the_pages_verdict_rule():

@@ -27,7 +27,9 @@ def test_a_planar_wall_left_empty_is_the_world_frame():
 
 @pytest.mark.parametrize("kwargs, words", [({"normal": (1.0, 2.0, 3.0, 4.0)}, "2 or 3 numbers"),
                                            ({"normal": (0.0, 0.0, 0.0)}, "non-zero"),
-                                           ({"normal": (0.0, 1.0, 0.0), "tangent": (0.0, 3.0, 0.0)}, "parallel")])
+                                           ({"normal": (0.0, 1.0, 0.0), "tangent": (0.0, 3.0, 0.0)}, "parallel"),
+                                           ({"normal": (1.0, 0.0)}, r"tangent \(left out: the x axis\)"),
+                                           ({"normal": (0.0, 1.0, 0.0), "tangent": (1.0, 0.0)}, "as many numbers")])
 def test_a_bad_wall_is_one_line(kwargs, words):
     with pytest.raises(ValueError, match=words):
         Wall(**kwargs)
@@ -57,3 +59,10 @@ def test_the_spatial_reference_holds_the_planar_one_on_its_first_and_normal_axes
     np.testing.assert_allclose(spatial[:, 1], 0.01 + 0.025 * (1.0 - np.cos(np.pi * t)), rtol=0, atol=1e-15)
     np.testing.assert_allclose(spatial[:, 4], 0.025 * np.pi * np.sin(np.pi * t), rtol=0, atol=1e-15)
     assert not spatial[:, 10].any() and not spatial[:, 9].any()  # F_d has no in-plane part
+
+
+def test_a_small_tangent_is_a_direction_and_a_round_off_tilt_no_tilt():
+    """The tangent's test is relative to its own length, and a planar robot takes a frame within round-off of I."""
+    R = Wall(normal=(0.0, 1.0, 0.0), tangent=(1e-10, 0.0, 0.0)).frame(3)
+    np.testing.assert_array_equal(R[0], (1.0, 0.0, 0.0))
+    load_config(None, overrides={"wall.normal": [1e-17, 1.0]})  # no error

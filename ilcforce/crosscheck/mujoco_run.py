@@ -81,6 +81,10 @@ def _check(config: Config, method: str) -> str:
     if not simulates(config.plant.nominal()):
         raise ValueError(f"the MuJoCo cross-check has no MuJoCo model of plant.model = {config.plant.model!r}; "
                          "its plants are those read from a model file and the closed forms that give one")
+    if config.wall.damping != 0.0 or config.wall.friction != 0.0:
+        raise ValueError(f"the MuJoCo cross-check maps the wall's spring onto MuJoCo's contact (docs/crosscheck.md), "
+                         f"not its damper or friction: wall.damping = {config.wall.damping:g}, wall.friction = "
+                         f"{config.wall.friction:g}; set both to 0 (MuJoCo's own damping is --damping-ratio)")
     if config.simulation.acceleration != "filtered":
         raise ValueError("the cross-check runs the filtered acceleration scheme (crosscheck_config sets it)")
     return method

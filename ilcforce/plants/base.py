@@ -197,7 +197,7 @@ class Plant:
     def check_frame(self, frame: np.ndarray) -> None:
         """Raise ValueError unless the wall's task frame ``frame`` (``Wall.frame``) is one this plant works in: a
         planar plant's closed forms (its tau_d) take the world's axes, the wall normal to y (``frame`` is I)."""
-        if not np.array_equal(frame, np.eye(2)):
+        if not np.allclose(frame, np.eye(2), rtol=0.0, atol=1e-12):  # a tilt of round-off size is no tilt
             raise ValueError("a planar robot's wall is normal to y: leave wall.normal and wall.tangent out, or give "
                              f"(0, 1) and (1, 0); they make the frame {np.asarray(frame).round(6).tolist()}")
 

@@ -176,8 +176,16 @@ def confusion_text(cases: pd.DataFrame, horizon: int, truth: str = "truth", *, n
     share = f" ({100 * len(false) / len(bounded):.0f}%)" if len(bounded) else ""
     reason = "truth_reason" + truth[len("truth"):]  # truth_1000's reasons are truth_reason_1000
     reason = reason if reason in cases else "truth_reason"
-    missing = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}: {getattr(r, reason)}" for r in missed.itertuples())
-    alarms = "; ".join(f"{r.method}, {r.setting}, seed {r.seed}" for r in false.itertuples()) if names else ""
+    # a case is named by method, setting and seed, and by its study too where two studies share that name
+    named = [f"{r.method}, {r.setting}, seed {r.seed}" for r in cases.itertuples()]
+    shared = {name for name in named if named.count(name) > 1}
+
+    def name(r) -> str:
+        text = f"{r.method}, {r.setting}, seed {r.seed}"
+        return f"{text} ({r.study})" if text in shared and "study" in cases else text
+
+    missing = "; ".join(f"{name(r)}: {getattr(r, reason)}" for r in missed.itertuples())
+    alarms = "; ".join(name(r) for r in false.itertuples()) if names else ""
     return (f"{len(missed)} of the {len(later)} unbounded cases that had not diverged by j = {horizon} missed"
             + (f" ({missing})" if missing else "") + f"; {len(false)} of {len(bounded)} bounded cases flagged{share}"
             + (f" ({alarms})" if alarms else "") + f"; {len(unsure)} not evaluable")
