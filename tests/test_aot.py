@@ -7,6 +7,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -77,13 +78,50 @@ def test_every_law_on_every_plant_gives_numbas_numbers_bit_for_bit():
     assert ahead[3] == jit[3], "the ahead-of-time kernels compute other numbers than numba's"
 
 
+_DIGEST_ARM3 = """
+import hashlib, sys
+from pathlib import Path
+import numpy as np
+from ilcforce.compiled import aot
+from ilcforce.config_load import load_config
+from ilcforce.experiment import make_controller, simulate_iterations
+from ilcforce.plants.spatial_plant import SpatialArm
+digest, used = hashlib.sha256(), []
+short = {"experiment.iterations": 2, "reference.duration": 0.05, "plant.perturbation.from_iteration": 1}
+config = load_config(Path(sys.argv[1]), short)
+for method in ("c1", "c2", "c3", "c3-robust", "pd-ilc"):
+    used.append(aot.simulator(make_controller(config, method), SpatialArm, SpatialArm) is not None)
+    for record in simulate_iterations(config, method):
+        for name in sorted(record.log):
+            digest.update(np.ascontiguousarray(record.log[name]).tobytes())
+        for name in sorted(record.memory):
+            digest.update(np.ascontiguousarray(record.memory[name]).tobytes())
+print("DIGEST", all(used), digest.hexdigest())
+"""
+
+
+@needs_module
+def test_the_spatial_arms_loop_ahead_of_time_gives_numbas_numbers_bit_for_bit():
+    """The spatial arm's loop is in the module, on the one chain kernel every file's arm shares: the same logs
+    and memories as numba's loop (its tau_d, Python's, is numba's either way)."""
+    experiment = str(Path(__file__).resolve().parent.parent / "experiments" / "arm3.toml")
+    runs = []
+    for flag in ("1", "0"):
+        proc = subprocess.run([sys.executable, "-c", _DIGEST_ARM3, experiment], capture_output=True, text=True,
+                              timeout=900, env={**os.environ, "ILCFORCE_AOT": flag})
+        assert proc.returncode == 0, proc.stderr
+        runs.append(next(line for line in proc.stdout.splitlines() if line.startswith("DIGEST")).split())
+    assert runs[0][1] == "True" and runs[1][1] == "False", f"which loop ran: {runs}"
+    assert runs[0][2] == runs[1][2], "the spatial arm's ahead-of-time loop computes other numbers than numba's"
+
+
 @needs_module
 def test_the_plant_api_gives_numbas_numbers():
     """The plants' Python API (forward and inverse kinematics, task-space model) through the
     ahead-of-time kernels and through numba's dispatchers, on a grid of poses."""
     for model in MODELS:
         cls = plant_class(model)
-        if not getattr(cls, "ahead_of_time", True):  # numba's kernels only, by design (a model file's arm)
+        if getattr(cls, "ahead_of_time", True) is not True:  # numba's kernels (a model file's arm), or its loop only
             assert aot.plant_kernels(cls, PlantKernels) is None
             continue
         plant = cls()

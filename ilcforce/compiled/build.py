@@ -57,9 +57,16 @@ def _exports():
     out = []
     for model in MODELS:
         cls = plant_class(model)
-        if not getattr(cls, "ahead_of_time", True):  # numba's kernels only (e.g. any model file's arm)
+        mode = getattr(cls, "ahead_of_time", True)
+        if not mode:  # numba's kernels only (e.g. a planar model file's arm)
             continue
         plant = aot.plant_key(cls)
+        if mode == "loop":  # the loop alone, on one kernel every instance shares (a spatial arm: any file's chain)
+            simulate = loop.simulator(cls.dimension)
+            sim_sig = types.UniTuple(types.int64, 2)(*simulate.signatures[0][3:])
+            for key, law in laws.items():
+                out.append((aot.simulator_name(key, plant), sim_sig, _bind_loop(simulate, law, cls.shared_nd_kernel())))
+            continue
         kernels = cls.kernels()
         for kind, kernel in zip(PlantKernels._fields, kernels):
             out.append((f"{plant}__{kind}", kernel_signature(kind.upper()), kernel.py_func))

@@ -143,7 +143,16 @@ class SpatialArm:
     ``joint_inertia``, ``inverse_dynamics``, ...)."""
 
     params_class = SpatialArmParams
-    ahead_of_time = False  # its kernel is numba's: any file's arm runs it
+    #: the ahead-of-time module holds the loop on its kernel, one for every chain (ilcforce.plants.chain_nd), the
+    #: file's arm read at run time from its packed vector; its tau_d is Python (ilcforce.plants.desired_nd)
+    ahead_of_time = "loop"
+
+    @staticmethod
+    def shared_nd_kernel():
+        """The chain's ``nd_dyn`` every spatial arm runs (``ilcforce.plants.chain_nd.kernel``)."""
+        from ilcforce.plants import chain_nd
+
+        return chain_nd.kernel()
     dimension = JOINTS  # joints = task axes (an instance checks its file's arm has as many)
 
     def check_frame(self, frame: np.ndarray) -> None:
