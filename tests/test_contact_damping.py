@@ -23,7 +23,7 @@ from ilcforce.controllers.nd import M_DTHETA, M_THETA, at_py, law_signature
 from ilcforce.noise import draw_iteration
 from ilcforce.plants.fivebar import FiveBar
 from ilcforce.simulate import IterationInputs, run_iteration
-from zohkit import pd_reference
+from zohkit import KD as _KD, KP as _KP, pd_law, pd_reference
 
 THETA, DTHETA = at_py(M_THETA, 2), at_py(M_DTHETA, 2)
 QUIET = {"noise.disturbance_amplitude": 0.0, "noise.encoder": 0.0, "noise.joint_rate": 0.0,
@@ -37,16 +37,6 @@ def push_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
     on = 1.0 if k < 200 else 0.0  # PUSH_SAMPLES
     tau[0] = on * gains[0]
     tau[1] = on * gains[1]
-    return 0
-
-
-_KP, _KD = 20.0, 1.0
-
-
-@njit(law_signature())
-def pd_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    tau[0] = _KP * (gains[0] - meas[THETA]) - _KD * meas[DTHETA]
-    tau[1] = _KP * (gains[1] - meas[THETA + 1]) - _KD * meas[DTHETA + 1]
     return 0
 
 

@@ -14,20 +14,12 @@ from ilcforce.controllers.nd import M_ACCEL, M_DTHETA, M_FORCE_ACCEL, M_THETA, a
 from ilcforce.noise import draw_iteration
 from ilcforce.plants.fivebar import FiveBar
 from ilcforce.simulate import IterationInputs, run_iteration
-from zohkit import pd_reference
+from zohkit import KD as _KD, KP as _KP, pd_law, pd_reference
 
 # where the test laws read the measurement on the five-bar (the contract's layout at n = 2)
 THETA, DTHETA, ACCEL, FORCE_ACCEL = (at_py(offset, 2) for offset in (M_THETA, M_DTHETA, M_ACCEL, M_FORCE_ACCEL))
 
-# Joint-space PD holding the pose that presses 10 mm into the wall (a smooth case: always in contact).
-_KP, _KD = 20.0, 1.0
-
-
-@njit(law_signature())
-def pd_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
-    tau[0] = _KP * (gains[0] - meas[THETA]) - _KD * meas[DTHETA]
-    tau[1] = _KP * (gains[1] - meas[THETA + 1]) - _KD * meas[DTHETA + 1]
-    return 0
+# tests/zohkit.py's joint PD (pd_law) holds the pose that presses 10 mm into the wall (a smooth case: always in contact)
 
 
 @njit(law_signature())

@@ -5,7 +5,22 @@ tight tolerance on a right-hand side the test writes out itself."""
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 from scipy.integrate import solve_ivp
+
+from ilcforce.controllers.nd import M_DTHETA, M_THETA, at_py, law_signature
+
+#: the joint PD's gains (N m / rad, N m s / rad)
+KP, KD = 20.0, 1.0
+_THETA, _DTHETA = at_py(M_THETA, 2), at_py(M_DTHETA, 2)
+
+
+@njit(law_signature())
+def pd_law(k, t, meas, ref, gains, mem_prev, mem_new, write, diag, tau):
+    """A joint PD holding the pose gains[0:2] (rad), the law :func:`pd_reference` integrates."""
+    tau[0] = KP * (gains[0] - meas[_THETA]) - KD * meas[_DTHETA]
+    tau[1] = KP * (gains[1] - meas[_THETA + 1]) - KD * meas[_DTHETA + 1]
+    return 0
 
 
 def pd_reference(rhs, robot, config, target, kp: float, kd: float) -> np.ndarray:
