@@ -19,13 +19,12 @@ import pytest
 from numba import njit
 
 from ilcforce.controllers.base import MemoryController
-from ilcforce.controllers.nd import M_DTHETA, M_THETA, at_py, law_signature
+from ilcforce.controllers.nd import law_signature
 from ilcforce.noise import draw_iteration
 from ilcforce.plants.fivebar import FiveBar
 from ilcforce.simulate import IterationInputs, run_iteration
 from zohkit import KD as _KD, KP as _KP, pd_law, pd_reference
 
-THETA, DTHETA = at_py(M_THETA, 2), at_py(M_DTHETA, 2)
 QUIET = {"noise.disturbance_amplitude": 0.0, "noise.encoder": 0.0, "noise.joint_rate": 0.0,
          "noise.force_sensor": 0.0}
 #: the push: 20 ms of the joint torque that pushes 5 N into the wall at the start pose, then nothing
