@@ -208,7 +208,7 @@ def _chunk(n, law, dyn_true, dyn_nom, p_true, p_nom, wall, gains, mem_prev, mem_
     v4, o = carve(work, o, n)
     fmeas, o = carve(work, o, n)
     fc, o = carve(work, o, n)  # the true contact force in the task frame at the sample (the log's)
-    fcs, o = carve(work, o, n)  # the same at an RK4 stage (written, not read)
+    fcs, o = carve(work, o, n)  # an RK4 stage's contact-force scratch (the friction's, ilcforce.ndof.contact.drift)
     if o != work.shape[0]:  # before any write: a buffer of another size than work_width's is the caller's bug
         raise ValueError("the loop's scratch buffer is not the size work_width gives")
 
