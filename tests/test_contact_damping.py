@@ -257,3 +257,20 @@ if __name__ == "__main__":  # PYTHONPATH=<tree at eddc1b3> python tests/test_con
         made = _arm3_numbers(Path(tmp) / "results", Path(tmp))
     np.savez_compressed(sys.argv[1], **made)
     print(f"{len(made)} datasets -> {sys.argv[1]}")
+
+
+def test_tau_ds_friction_is_the_plants_law():
+    """simulate.desired_friction writes, on the whole grid in numpy, the friction ndof.contact.drift applies through
+    task.friction_scale: the two forms of one law agree on speeds around v_eps and at rest."""
+    from ilcforce.simulate import desired_friction
+    from ilcforce.task import REF_FORCE, REF_VELOCITY, Wall, friction_scale, reference_block
+
+    wall = Wall(friction=0.3, friction_velocity=0.01)
+    speeds = np.array([0.0, 1e-6, 0.003, 0.01, 0.04, 0.2, -0.05])
+    ref = np.zeros((speeds.size, 12))
+    reference_block(ref, REF_VELOCITY, 2)[:, 0] = speeds
+    reference_block(ref, REF_FORCE, 2)[:, 1] = 7.0
+    got = reference_block(desired_friction(wall, ref, 2), REF_FORCE, 2)[:, 0]
+    want = [wall.sign * 0.3 * 7.0 * friction_scale(abs(v), 0.01) * v for v in speeds]
+    np.testing.assert_allclose(got, want, rtol=1e-14, atol=0.0)
+    assert got[0] == 0.0 and np.all(np.sign(got[1:]) == np.sign(speeds[1:]) * wall.sign)
