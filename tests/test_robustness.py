@@ -16,8 +16,13 @@ from ilcforce import store
 
 # long enough that a signal sent once two iterations are stored lands while the run goes on: the
 # simulation runs up to four iterations ahead of the store (which opens after iteration 0 starts),
-# so at 12 iterations the run could be over by then (seen once in a fresh clone's make test)
-ITERS = "40"
+# so at 12 iterations the run could be over by then (seen once in a fresh clone's make test). C3
+# diverges at j = 117 on the paper's setup, so 100 is as long as a C3 run here can be.
+ITERS = "100"
+# For the stop signals, which need no learned memory: C1 cannot diverge, and 400 iterations (about
+# 10 s) outlast a reader that the store's commits keep out for a while on a loaded machine (40 C3
+# iterations ended before the poll saw two stored, once in CI with both cores busy).
+LONG_C1 = "400"
 
 
 def _start(out, *extra, iters=ITERS, method="c3"):
@@ -94,8 +99,8 @@ def test_kill_9_then_resume_is_bit_identical(tmp_path, uninterrupted):
 def test_ctrl_c_leaves_a_partial_valid_store(tmp_path, sig, code, word):
     """Ctrl-C, and SIGTERM (a batch system's stop; it used to end the run silently), stop after the
     iteration in flight: one line naming the signal, every finished iteration stored."""
-    out = tmp_path / "c3.h5"
-    proc = _start(out)
+    out = tmp_path / "c1.h5"
+    proc = _start(out, iters=LONG_C1, method="c1")
     _wait_for_iterations(proc, out, 2)
     proc.send_signal(sig)
     _, stderr = proc.communicate(timeout=60)
@@ -114,7 +119,7 @@ def test_second_writer_is_refused(tmp_path):
     (C3 does, after about a hundred iterations: a finding of the long-run experiment).
     """
     out = tmp_path / "c1.h5"
-    first = _start(out, iters="400", method="c1")
+    first = _start(out, iters=LONG_C1, method="c1")
     try:
         _wait_for_iterations(first, out, 1)
         second = subprocess.run([sys.executable, "-m", "ilcforce", "simulate", "-m", "c1", "-n", ITERS, "--out", str(out),
