@@ -34,7 +34,7 @@ import pandas as pd
 
 from ilcforce import stability
 from ilcforce.stability import diverged_at
-from ilcforce.report import c3_robust_ablation, cause_seeds, growth_validation, table_write, tables
+from ilcforce.report import c3_robust_ablation, cause_seeds, growth_pages, growth_validation, table_write, tables
 from ilcforce.report.study import studies_provenance
 from ilcforce.report.growth_validation import (
     JUDGED_AT, TRUTH_FROM, setting_config, study_settings, confusion, confusion_text, validation_cases,
@@ -330,8 +330,10 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
         lines += ["## C3-robust taken apart", "",
                   f"Each of C3-robust's four changes to C3 alone and left out: [{ablation[-1].name}]({ablation[-1].name}).",
                   ""]
-    fresh = growth_validation.fresh_headline(results_dir)  # the test out of sample: what the findings state
-    summary = {"provenance": provenance, "headline": headline_lines(found, cases) + ([fresh] if fresh else [])}
+    # the test out of sample: what the findings state
+    outside = [line for line in (growth_pages.fresh_headline(results_dir), growth_pages.third_headline(results_dir))
+               if line]
+    summary = {"provenance": provenance, "headline": headline_lines(found, cases) + outside}
     (out_dir / SUMMARY).write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
     written.append(out_dir / SUMMARY)
     page = out_dir / "long-run.md"
@@ -372,12 +374,11 @@ REPORT_FOLDER = "long-run"
 def report_pages(results_dir: Path, out_dir: Path) -> list[Path]:
     """The long runs' pages in a report (``out_dir`` is its :data:`REPORT_FOLDER`): written from the long
     studies under ``results_dir/studies`` where they are stored (:func:`write_page`,
-    :func:`ilcforce.report.growth_validation.write_heldout_page`), and the committed pages of ``make long`` (:data:`COMMITTED`) copied in
+    :func:`ilcforce.report.growth_pages.write_pages`), and the committed pages of ``make long`` (:data:`COMMITTED`) copied in
     for what they did not write; nothing where there are neither (an installed package has no docs)."""
     from ilcforce.report.figure_files import copy_committed
 
-    written = (write_page(results_dir, out_dir) + growth_validation.write_heldout_page(results_dir, out_dir)
-               + growth_validation.write_fresh_page(results_dir, out_dir))
+    written = write_page(results_dir, out_dir) + growth_pages.write_pages(results_dir, out_dir)
     return written + copy_committed(COMMITTED, out_dir, skip=frozenset(path.name for path in written))
 
 
@@ -394,7 +395,7 @@ def committed_summary(directory: Path | None = None) -> dict | None:
 def is_long_study(name: str) -> bool:
     """A study of ``make long`` (summarised by its committed page, not by the findings of a report)."""
     return name.startswith((VALIDATION_PREFIX, growth_validation.HELDOUT_PREFIX, growth_validation.LONGER_PREFIX,
-                            growth_validation.FRESH_PREFIX)) or name in (
+                            growth_validation.FRESH_PREFIX, growth_validation.THIRD_PREFIX)) or name in (
         LONG_RUN, CAUSE, cause_seeds.STUDY, ARM3_LONG, c3_robust_ablation.STUDY, c3_robust_ablation.LEAK_CHECK)
 
 
@@ -403,8 +404,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--results", type=Path, default=Path("results"))
     parser.add_argument("--out", type=Path, default=Path("docs/long-run"))
     args = parser.parse_args(argv)
-    written = (write_page(args.results, args.out) + growth_validation.write_heldout_page(args.results, args.out)
-               + growth_validation.write_fresh_page(args.results, args.out))
+    written = write_page(args.results, args.out) + growth_pages.write_pages(args.results, args.out)
     if not written:
         print(f"error: no long-run or growth-validation study in {args.results / 'studies'} (run make long)",
               file=sys.stderr)
