@@ -6,7 +6,8 @@ This module states one test and applies it the same way to a single run (one see
 (many seeds). How well it predicts what long runs do is measured, not assumed: the growth-validation
 study (``make long``; docs/long-run/long-run.md) applies it to the first 20, 40, 100 and 200 iterations of runs
 of 300 and more and counts what it misses and what it flags falsely; out of sample on two held-out sets drawn
-after these rules were frozen (docs/long-run/growth-heldout.md, growth-fresh.md) it does not meet its target.
+after these rules were frozen (docs/long-run/growth-heldout.md, growth-fresh.md, and growth-third.md against a
+three-class truth frozen before that set was drawn) it does not meet its target.
 
 The test
 --------

@@ -324,8 +324,9 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
     lines += ["## The growth test out of sample", "",
               "The cases above are in sample: the test's rules were changed on them. Its validation on cases drawn "
               "after its rules were frozen: [growth-heldout.md](growth-heldout.md) (seeds 560-562, on which its "
-              "stated horizon was then chosen) and [growth-fresh.md](growth-fresh.md) (seeds 600-602, drawn after "
-              "the horizon was frozen too).", ""]
+              "stated horizon was then chosen), [growth-fresh.md](growth-fresh.md) (seeds 600-602, drawn after "
+              "the horizon was frozen too, on which a three-class truth was then chosen) and "
+              "[growth-third.md](growth-third.md) (seeds 700-702, drawn after that truth was frozen).", ""]
     if ablation:
         lines += ["## C3-robust taken apart", "",
                   f"Each of C3-robust's four changes to C3 alone and left out: [{ablation[-1].name}]({ablation[-1].name}).",
