@@ -27,7 +27,10 @@ The test
   = 30 (a short run has no late part distinct from the rest). The perturbation moves the level of a
   quantity, not its trend, so the fit carries a step there when the window spans it (a 20-iteration
   run is fitted over j = 3..9 and 15..19, a 40-iteration one over 5..9 and 15..39). Fewer than
-  MIN_WINDOW: not evaluable.
+  MIN_WINDOW: not evaluable. A run of MIDPOINT_FROM = 100 iterations or more is also read as the test
+  would have read it at its midpoint (the same window of its first half: j = 54..99 of a 200-iteration
+  run), and a quantity grows in a seed when either reading finds it growing: growth that slows inside
+  the later window and resumes after it escapes that window alone (the third held-out set).
 * Per seed and quantity: :func:`ilcforce.stats.growth_rate` over the window (a geometric rate per
   iteration with a 95% t interval). A memory the law projects onto a bound (alpha_hat <= alpha_max of
   C3-leak and C3-robust) is shown, not judged: its growth is bounded by construction. The quantity
@@ -70,6 +73,13 @@ SHORT_RUN = 30
 FIRST = 3
 #: Iterations from the perturbation on left to re-learning (bounded by design, never judged).
 RELEARN = 5
+#: From this many iterations on, a run is read twice: over the later half of its iterations and over the later
+#: half of its first half (what the test said at the run's midpoint); a quantity grows in a seed when either
+#: reading finds it growing (:func:`readings`). Added after the third held-out set (docs/long-run/growth-third.md):
+#: there the robust laws' memory at t = 0 grew tenfold over j = 50-100, slowed inside the window j = 100-199
+#: (0.87% per iteration, under MIN_RATE) and grew x3,300 by j = 999. Runs shorter than this (the paper's 20
+#: iterations, tuning's 60-iteration checks) are read as before.
+MIDPOINT_FROM = 100
 #: Quantities judged (metric columns, those a frame has); every learned-memory norm is added when present.
 #: Settled H per task axis: x, y of a 2-axis task, u, v, n of a 3-axis one (records.task_axes).
 WATCHED = ("chattering_task_x_settled", "chattering_task_y_settled",
@@ -129,6 +139,16 @@ def growth_window(iterations: list[int], perturbation_iteration: int) -> list[in
         return []
     size = max(MIN_WINDOW, math.ceil(len(pool) / 2), min(len(pool), SHORT_RUN))
     return pool[-size:]
+
+
+def readings(iterations: list[int], perturbation_iteration: int) -> list[list[int]]:
+    """The windows a run is read over: :func:`growth_window` of all its iterations and, for a run of at least
+    MIDPOINT_FROM iterations, of its first half too (empty windows left out)."""
+    done = sorted(iterations)
+    windows = [growth_window(done, perturbation_iteration)]
+    if done and done[-1] + 1 >= MIDPOINT_FROM:
+        windows.append(growth_window([j for j in done if j < (done[-1] + 1) // 2], perturbation_iteration))
+    return [w for w in windows if w]
 
 
 def watched_columns(frame: pd.DataFrame) -> list[tuple[str, bool]]:
@@ -214,32 +234,27 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
     runs = _runs(metrics, [c for c, _ in columns])
     p = perturbation_iteration
     for method in dict.fromkeys(metrics["method"].astype(str)):  # methods in order of appearance
-        # each seed's window is found once and read for every watched column
-        windows = []
+        # each seed's windows (readings) are found once and read for every watched column
+        seeds = []
         for iterations, values in runs.get(method, []):
-            window = growth_window(list(iterations), p)
-            at = np.searchsorted(iterations, window)
-            windows.append((window, {c: values[c][at] for c, _ in columns}))
+            seeds.append([(window, {c: values[c][np.searchsorted(iterations, window)] for c, _ in columns})
+                          for window in readings(list(iterations), p)])
         caps = capped(config, str(method))
         for column, judged in columns:
             judged = judged and not any(column.startswith(prefix) and column.removeprefix(prefix) in caps
                                         for prefix in MEMORY_PREFIXES)
             rates, grown, ends, seen, fits, saturated = [], [], [], set(), [], []
-            for window, values_by_column in windows:
-                values = np.asarray(values_by_column[column], dtype=float) if window else np.array([])
-                if values.size < 3 or not np.all(np.isfinite(values)):
+            for windows in seeds:
+                read = [r for r in (_read(column, judged, window, by_column, p) for window, by_column in windows) if r]
+                if not read:
                     continue
-                if judged and negligible(column, values, values_by_column):
-                    continue
-                fitted = growth_rate(values, iterations=window, shift_at=p)
-                if not math.isfinite(fitted.estimate):
-                    continue
+                # the seed's reading: the fastest one that grows, else the whole run's (the first)
+                rising = [r for r in read if r[2]]
+                window, fitted, growing, levelling, end = max(rising, key=lambda r: r[1].estimate) if rising else read[0]
                 rates.append(fitted.estimate)
                 fits.append(fitted)
-                ends.append(float(values[-1]))
-                rising = bool(fitted.low > MIN_RATE)
-                levelling = rising and saturates(values, window)
-                grown.append(rising and not levelling)
+                ends.append(end)
+                grown.append(growing)
                 saturated.append(levelling)
                 seen.add(window_text(window))
             if not rates:
@@ -256,6 +271,22 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
                                               and median.low < 1.0),
                          "value_end": float(np.median(ends)), "iterations_to_10x": iterations_to_10x(median.estimate)})
     return pd.DataFrame(rows, columns=GROWTH_COLUMNS)
+
+
+def _read(column: str, judged: bool, window: list[int], values_by_column: Mapping[str, np.ndarray], p: int):
+    """One reading of one quantity in one seed: (window, fitted rate, grows, saturating, value at the window's
+    end), or None where it cannot be read (too few or non-finite values, a judged memory of round-off size)."""
+    values = np.asarray(values_by_column[column], dtype=float)
+    if values.size < 3 or not np.all(np.isfinite(values)):
+        return None
+    if judged and negligible(column, values, values_by_column):
+        return None
+    fitted = growth_rate(values, iterations=window, shift_at=p)
+    if not math.isfinite(fitted.estimate):
+        return None
+    rising = bool(fitted.low > MIN_RATE)
+    levelling = rising and saturates(values, window)
+    return window, fitted, rising and not levelling, levelling, float(values[-1])
 
 
 def growth_text(row) -> str:

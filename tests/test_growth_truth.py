@@ -79,3 +79,31 @@ def test_slow_cases_are_counted_apart_never_as_misses_or_false_alarms():
     two = cases[cases["truth_3"] != "slow"]
     assert gv.confusion(two, h, "truth_3").index.tolist() == ["unbounded", "bounded"]
     assert "slow" not in " ".join(gv.rates(two, h, "truth_3")["what"])
+
+
+def _memory_run(iterations: int) -> pd.DataFrame:
+    """A t = 0 memory growing 5% per iteration over j = 50..99, then 0.5% per iteration: H and the settled memory flat."""
+    j = np.arange(iterations)
+    log_rate = np.where(j < 50, 0.0, np.where(j < 100, np.log(1.05), np.log(1.005)))
+    start = 1e-3 * np.exp(np.cumsum(log_rate))
+    return pd.DataFrame({"seed": 0, "method": "c2-robust", "iteration": j, "status": "complete",
+                         "chattering_task_x_settled": 0.5, "chattering_task_y_settled": 0.2,
+                         "memory_settled_v": 0.04, "memory_norm_v": 0.1, "memory_start_v": start})
+
+
+def test_a_long_run_is_also_read_at_its_midpoint():
+    """Growth that slows inside the later half's window is caught by the reading of the run's first half
+    (the third held-out set's robust laws); at 200 iterations the later half alone (j = 104..199, 0.5% per
+    iteration) finds nothing."""
+    from ilcforce import stability
+
+    assert stability.readings(list(range(200)), 10) == [list(range(104, 200)), list(range(54, 100))]
+    assert len(stability.readings(list(range(99)), 10)) == 1  # shorter than MIDPOINT_FROM: one reading
+    said, text = stability.verdict_of(_memory_run(200), "c2-robust", 200, 10)
+    assert said == stability.FLAGGED and text.startswith("|v| t = 0 grows x1.05")
+    growth = stability.learning_growth(_memory_run(200), perturbation_iteration=10)
+    assert growth.set_index("quantity").loc["memory_start_v", "window"] == "j = 54..99"
+    # the later window alone does not flag it: what the test said before the midpoint reading
+    later = stability.growth_window(list(range(200)), 10)
+    values = _memory_run(200)["memory_start_v"].to_numpy()[later]
+    assert stability.growth_rate(values, iterations=later).low < stability.MIN_RATE

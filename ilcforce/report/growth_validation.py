@@ -165,6 +165,9 @@ RULE_HISTORY = (
     ("the three-class truth (every judged quantity counts; growth of 5-20x is \"slow\", neither right nor wrong; "
      "the test's rules and horizon unchanged)", "on the fresh set, seeds 600-602, whose false alarms were C2-robust "
      "runs with a drifting t = 0 memory; the third set was drawn after it"),
+    ("the midpoint reading (a run of 100 iterations or more is also read over the later half of its first "
+     "half; runs shorter than 100 read as before)", "on the third set, seeds 700-702, where the robust laws' t = 0 "
+     "memory grew fast over j = 50-100 and slowly over j = 100-199; the fourth set was drawn after it"),
 )
 #: Studies drawn after the horizon was frozen (``experiments/long/growth-fresh-*.toml``, seeds 600-602, runs of
 #: 1,000 iterations): the set the stated horizon is validated on.
