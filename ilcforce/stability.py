@@ -141,12 +141,13 @@ def growth_window(iterations: list[int], perturbation_iteration: int) -> list[in
     return pool[-size:]
 
 
-def readings(iterations: list[int], perturbation_iteration: int) -> list[list[int]]:
+def readings(iterations: list[int], perturbation_iteration: int, midpoint: bool = True) -> list[list[int]]:
     """The windows a run is read over: :func:`growth_window` of all its iterations and, for a run of at least
-    MIDPOINT_FROM iterations, of its first half too (empty windows left out)."""
+    MIDPOINT_FROM iterations, of its first half too (empty windows left out). ``midpoint=False``: the first
+    alone, the test as it was frozen before the midpoint reading (for the validation pages)."""
     done = sorted(iterations)
     windows = [growth_window(done, perturbation_iteration)]
-    if done and done[-1] + 1 >= MIDPOINT_FROM:
+    if midpoint and done and done[-1] + 1 >= MIDPOINT_FROM:
         windows.append(growth_window([j for j in done if j < (done[-1] + 1) // 2], perturbation_iteration))
     return [w for w in windows if w]
 
@@ -213,12 +214,13 @@ def _runs(metrics: pd.DataFrame, columns: list[str]) -> dict[str, list[tuple[np.
 
 
 def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
-                    config: Mapping[str, object] | None = None) -> pd.DataFrame:
+                    config: Mapping[str, object] | None = None, midpoint: bool = True) -> pd.DataFrame:
     """Growth rates per method and quantity over the seeds of ONE setting.
 
     ``metrics``: tidy frame (``seed``, ``method``, ``iteration``, metric columns, and optionally
     ``memory_settled_*``, ``memory_norm_*``, ``memory_start_*`` columns). ``config``: the setting's
     resolved configuration as a dict, to find the memories a law caps (:func:`capped`: shown, not judged).
+    ``midpoint``: read a long run at its midpoint too (:func:`readings`; False only to show the test as it was).
 
     Returns one row per (method, quantity) with a fittable rate: ``method``, ``quantity``,
     ``judged`` (False: shown only), ``window`` (e.g. "j = 5..9, 15..19"), ``rate`` (median over seeds
@@ -238,7 +240,7 @@ def learning_growth(metrics: pd.DataFrame, *, perturbation_iteration: int,
         seeds = []
         for iterations, values in runs.get(method, []):
             seeds.append([(window, {c: values[c][np.searchsorted(iterations, window)] for c, _ in columns})
-                          for window in readings(list(iterations), p)])
+                          for window in readings(list(iterations), p, midpoint)])
         caps = capped(config, str(method))
         for column, judged in columns:
             judged = judged and not any(column.startswith(prefix) and column.removeprefix(prefix) in caps
@@ -342,13 +344,14 @@ def diverged_at(frame: pd.DataFrame) -> float:
 
 
 def verdict_of(frame: pd.DataFrame, method: str, horizon: int, perturbation_iteration: int,
-               config: dict | None = None) -> tuple[str, str]:
-    """(class, text) of the growth test on the first ``horizon`` iterations of one run."""
+               config: dict | None = None, midpoint: bool = True) -> tuple[str, str]:
+    """(class, text) of the growth test on the first ``horizon`` iterations of one run (``midpoint``: as in
+    :func:`learning_growth`)."""
     first = frame[frame["iteration"] < horizon]
     diverged = diverged_at(first)
     if math.isfinite(diverged):
         return FLAGGED, f"diverged at j = {int(diverged)}"
-    growth = learning_growth(first, perturbation_iteration=perturbation_iteration, config=config)
+    growth = learning_growth(first, perturbation_iteration=perturbation_iteration, config=config, midpoint=midpoint)
     said = verdict(growth, method)
     if said == "grows":
         fastest = growth[growth["grows"]].sort_values("rate", ascending=False).iloc[0]

@@ -121,9 +121,10 @@ def setting_config(results, k: int) -> dict:
     return json.loads(str(results.settings.set_index("setting").loc[k, "config_json"]))
 
 
-def validation_cases(studies: dict[str, object]) -> pd.DataFrame:
+def validation_cases(studies: dict[str, object], midpoint: bool = True) -> pd.DataFrame:
     """One row per run of the given study results (name -> ``read_study`` result): the truth from the
-    whole run and the test's verdict at each horizon of JUDGED_AT."""
+    whole run and the test's verdict at each horizon of JUDGED_AT (``midpoint=False``: the test as frozen at
+    c281101bd574, before the midpoint reading)."""
     rows = []
     for name, results in studies.items():
         for k, label, p in study_settings(results):
@@ -142,7 +143,8 @@ def validation_cases(studies: dict[str, object]) -> pd.DataFrame:
                                                else "bounded")}
                 row["truth_3"], row["truth_reason_3"], row["growth_3"] = truth_3_of(frame, str(method), config)
                 for horizon in JUDGED_AT:
-                    row[f"verdict_{horizon}"], row[f"test_{horizon}"] = verdict_of(frame, str(method), horizon, p, config)
+                    row[f"verdict_{horizon}"], row[f"test_{horizon}"] = verdict_of(frame, str(method), horizon, p, config,
+                                                                                midpoint)
                 rows.append(row)
     return pd.DataFrame(rows)
 
@@ -175,6 +177,9 @@ FRESH_PREFIX = "growth-fresh"
 #: Studies drawn after the three-class truth was frozen (``experiments/long/growth-third-*.toml``, runs of 1,000
 #: iterations): the set the test is validated on against that truth.
 THIRD_PREFIX = "growth-third"
+#: Studies drawn after the midpoint reading was frozen (``experiments/long/growth-fourth-*.toml``, runs of 1,000
+#: iterations): the set the test with that reading is validated on.
+FOURTH_PREFIX = "growth-fourth"
 
 
 def rates(cases: pd.DataFrame, horizon: int, truth: str = "truth") -> pd.DataFrame:

@@ -326,13 +326,16 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
               "after its rules were frozen: [growth-heldout.md](growth-heldout.md) (seeds 560-562, on which its "
               "stated horizon was then chosen), [growth-fresh.md](growth-fresh.md) (seeds 600-602, drawn after "
               "the horizon was frozen too, on which a three-class truth was then chosen) and "
-              "[growth-third.md](growth-third.md) (seeds 700-702, drawn after that truth was frozen).", ""]
+              "[growth-third.md](growth-third.md) (seeds 700-702, drawn after that truth was frozen, on which the "
+              "test's midpoint reading was then chosen) and [growth-fourth.md](growth-fourth.md) (seeds 800-802, "
+              "drawn after that).", ""]
     if ablation:
         lines += ["## C3-robust taken apart", "",
                   f"Each of C3-robust's four changes to C3 alone and left out: [{ablation[-1].name}]({ablation[-1].name}).",
                   ""]
     # the test out of sample: what the findings state
-    outside = [line for line in (growth_pages.fresh_headline(results_dir), growth_pages.third_headline(results_dir))
+    outside = [line for line in (growth_pages.fresh_headline(results_dir),
+                                 *(growth_pages.set_headline(results_dir, p) for p in growth_pages.THREE_CLASS_SETS))
                if line]
     summary = {"provenance": provenance, "headline": headline_lines(found, cases) + outside}
     (out_dir / SUMMARY).write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
@@ -396,7 +399,8 @@ def committed_summary(directory: Path | None = None) -> dict | None:
 def is_long_study(name: str) -> bool:
     """A study of ``make long`` (summarised by its committed page, not by the findings of a report)."""
     return name.startswith((VALIDATION_PREFIX, growth_validation.HELDOUT_PREFIX, growth_validation.LONGER_PREFIX,
-                            growth_validation.FRESH_PREFIX, growth_validation.THIRD_PREFIX)) or name in (
+                            growth_validation.FRESH_PREFIX, growth_validation.THIRD_PREFIX,
+                            growth_validation.FOURTH_PREFIX)) or name in (
         LONG_RUN, CAUSE, cause_seeds.STUDY, ARM3_LONG, c3_robust_ablation.STUDY, c3_robust_ablation.LEAK_CHECK)
 
 
