@@ -108,7 +108,8 @@ def test_the_table_of_a_stored_study_with_known_answers(stored):
     assert c3["diverged"] == "3 of 5" and c3["diverged at j (median)"] == 7
     assert c3["divergence rate [95% Wilson]"] == f"0.60 [{wilson.low:.2f}, {wilson.high:.2f}]"
     assert (c2["e_P against no-ilc's"], c2["e_F against no-ilc's"]) == (page.LOWER, page.NOT_SEPARATED)
-    assert c3["e_P against no-ilc's"] == page.NOT_SEPARATED and no_ilc["e_P against no-ilc's"] == "-"
+    assert c3["e_P against no-ilc's"] == page.NOT_SEPARATED and no_ilc["e_P against no-ilc's"] == page.NO_VALUE
+    assert c3["diverged at j (range)"] == "7-7" and no_ilc["diverged at j (range)"] == "-"
     assert set(table["gains"]) == {"tuned by fivebar-tune", "the paper's (the tuning withheld it)"}
 
 
@@ -125,6 +126,7 @@ def test_the_page_is_written_beside_the_long_run_pages(stored, tmp_path):
     assert "- c3, gains the paper's (the tuning withheld it): diverged in 3 of 5 seeds" in text
     assert "on the 2 that ran all, the growth test: no growth" in text  # constant rows: nothing grows
     assert "against no-ilc, its e_P is lower and its e_F not separated" in text
+    assert "Settled H at the end over the cap, median [95% interval]: c2-robust 2, no-ilc 0.5, c3 0.512." in text
     assert ":func:" not in text and "``" not in text
 
 
@@ -142,4 +144,4 @@ def test_two_medians_are_ordered_only_when_their_intervals_are_disjoint(a, b, ex
     from ilcforce.stats import Interval
 
     assert page.compare(Interval(*a, 5), Interval(*b, 5)) == expected
-    assert page.compare(Interval(math.nan, math.nan, math.nan, 0), Interval(*b, 5)) == page.NOT_SEPARATED
+    assert page.compare(Interval(math.nan, math.nan, math.nan, 0), Interval(*b, 5)) == page.NO_VALUE

@@ -45,8 +45,9 @@ TABLE = "equal_chattering_long"
 LAST = 5
 #: The method every other one is compared with.
 SUBJECT = "no-ilc"
-#: Where the seeds' values of two methods stand (disjoint 95% intervals of the medians, or not).
-LOWER, HIGHER, NOT_SEPARATED = "lower", "higher", "not separated"
+#: Where the seeds' values of two methods stand (disjoint 95% intervals of the medians, or not; or no value:
+#: no seed of one of them ran every iteration).
+LOWER, HIGHER, NOT_SEPARATED, NO_VALUE = "lower", "higher", "not separated", "-"
 
 
 def is_study(name: str) -> bool:
@@ -108,6 +109,7 @@ def method_rows(results, cap, gains: str) -> list[dict]:
             "diverged": f"{len(diverged)} of {seeds}",
             "divergence rate [95% Wilson]": f"{rate.estimate:.2f} [{rate.low:.2f}, {rate.high:.2f}]",
             "diverged at j (median)": float(np.median(stopped)) if stopped else math.nan,
+            "diverged at j (range)": f"{min(stopped):.0f}-{max(stopped):.0f}" if stopped else "-",
             "growth test (seeds that ran all)": stability.verdict(growth, method) if whole else "-",
             "_e_p": median_interval(e_p), "_e_f": median_interval(e_f)})
     return rows
@@ -120,10 +122,10 @@ def _against(error: str) -> str:
 
 def compare(a, b) -> str:
     """Where median ``a`` stands against median ``b`` (two :class:`ilcforce.stats.Interval`): :data:`LOWER`
-    or :data:`HIGHER` when their 95% intervals are disjoint, :data:`NOT_SEPARATED` otherwise (or when
-    either has no value)."""
+    or :data:`HIGHER` when their 95% intervals are disjoint, :data:`NOT_SEPARATED` otherwise, :data:`NO_VALUE`
+    when either has none."""
     if a.n == 0 or b.n == 0:
-        return NOT_SEPARATED
+        return NO_VALUE
     if a.high < b.low:
         return LOWER
     if a.low > b.high:
@@ -147,8 +149,8 @@ def comparison_table(studies: dict[str, object]) -> pd.DataFrame:
     subject = next((r for r in rows if r["method"] == SUBJECT), None)
     for row in rows:
         for key, name in (("_e_p", "e_P"), ("_e_f", "e_F")):
-            row[_against(name)] = ("-" if subject is None or row is subject
-                                                  else compare(row[key], subject[key]))
+            row[_against(name)] = (NO_VALUE if subject is None or row is subject
+                                   else compare(row[key], subject[key]))
     return pd.DataFrame(rows).drop(columns=["_e_p", "_e_f"])
 
 
@@ -156,8 +158,12 @@ def summary_lines(table: pd.DataFrame) -> list[str]:
     """The page's sentences, each read off a row of ``table``."""
     if table.empty:
         return []
-    lines = []
     ran = next(c for c in table.columns if c.startswith("ran all "))
+    ratio = next(c for c in table.columns if c.startswith("settled H / cap"))
+    placed = [f"{r['method']} {r[ratio]}" for r in table.to_dict("records") if r[ran]]
+    lines = [f"Settled H at the end over the cap, median [95% interval]: {', '.join(placed)}. All are compared "
+             "under the same cap, not at the same H: an error told apart here may be bought with chattering "
+             "(the tuning pages read every front at the same H: docs/tuning.md).", ""] if placed else []
     for row in table.to_dict("records"):
         text = (f"{row['method']}, gains {row['gains']}: diverged in {row['diverged']} seeds (rate "
                 f"{row['divergence rate [95% Wilson]']})")
@@ -166,7 +172,7 @@ def summary_lines(table: pd.DataFrame) -> list[str]:
         if row[ran]:
             text += f"; settled H at the end {row['against the cap']} the cap"
         against_p, against_f = row[_against("e_P")], row[_against("e_F")]
-        if row["method"] != SUBJECT and against_p != "-":
+        if row["method"] != SUBJECT and against_p != NO_VALUE:
             text += f"; against {SUBJECT}, its e_P is {against_p} and its e_F {against_f}"
         lines.append(f"- {text}.")
     return lines
