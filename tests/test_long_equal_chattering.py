@@ -54,7 +54,8 @@ def test_their_seeds_are_held_out_from_every_other_study_and_they_are_long_studi
 
 def _stand_in(config, method, keep_store=None, stop=None):
     """Known rows: NO-ILC e_P 1 mm (+1% per seed), C2-robust 100x smaller; e_F 0.1 N for all; settled H
-    0.5x the cap (NO-ILC) or 2x (C2-robust); C3 diverges at j = 7 on seeds 0-2 and runs like NO-ILC on 3-4."""
+    0.5x the cap (NO-ILC) or 2x (C2-robust); C3 diverges at j = 7 on seeds 0-2 and runs like NO-ILC on 3-4.
+    The plant's change (j = 10) multiplies e_P by 4, the next iteration by 2, then it is back."""
     cap = config.tuning.cap or (0.1, 0.5)
     seed = config.experiment.seed
     e_p = (1e-5 if method == "c2-robust" else 1e-3) * (1 + 0.01 * seed)
@@ -66,7 +67,7 @@ def _stand_in(config, method, keep_store=None, stop=None):
         row = {c: (0 if metrics.column_kind(c) == "int" else 0.01) for c in metrics.metric_columns(2)}
         row.update({"iteration": j, "status": "complete" if done else "diverged",
                     "diverged_time": math.nan if done else 0.5,
-                    "position_error_2norm": e_p if done else math.nan,
+                    "position_error_2norm": e_p * {10: 4.0, 11: 2.0}.get(j, 1.0) if done else math.nan,
                     "force_error_2norm": 0.1 if done else math.nan,
                     "chattering_task_x_settled": share * cap[0] if done else math.nan,
                     "chattering_task_y_settled": share * cap[1] if done else math.nan})
@@ -110,6 +111,8 @@ def test_the_table_of_a_stored_study_with_known_answers(stored):
     assert (c2["e_P against no-ilc's"], c2["e_F against no-ilc's"]) == (page.LOWER, page.NOT_SEPARATED)
     assert c3["e_P against no-ilc's"] == page.NOT_SEPARATED and no_ilc["e_P against no-ilc's"] == page.NO_VALUE
     assert c3["diverged at j (range)"] == "7-7" and no_ilc["diverged at j (range)"] == "-"
+    assert no_ilc["e_P j = 10 / j = 9 (median)"] == 4.0 and no_ilc["e_P j = 12 / j = 9 (median)"] == 1.0
+    assert c3["e_P j = 10 / j = 9 (median)"] == 4.0, "the seeds that diverged before the change are left out"
     assert set(table["gains"]) == {"tuned by fivebar-tune", "the paper's (the tuning withheld it)"}
 
 
@@ -124,6 +127,7 @@ def test_the_page_is_written_beside_the_long_run_pages(stored, tmp_path):
     assert "ilcforce study experiments/long/long-equal-chattering-withheld.toml" in text
     assert "m3 x 1.4 from j = 10" in text and "seeds 0, 1, 2, 3, 4" in text
     assert "- c3, gains the paper's (the tuning withheld it): diverged in 3 of 5 seeds" in text
+    assert "the plant's change multiplies its e_P by 4.00 (e_P j = 10 / j = 9), and e_P j = 12 / j = 9 is 1.00" in text
     assert "on the 2 that ran all, the growth test: no growth" in text  # constant rows: nothing grows
     assert "against no-ilc, its e_P is lower and its e_F not separated" in text
     assert "Settled H at the end over the cap, median [95% interval]: c2-robust 2, no-ilc 0.5, c3 0.512." in text

@@ -18,6 +18,9 @@ Per method, over its seeds:
   within the cap on every axis; uncertain when it crosses it);
 * **divergence**: the seeds that did not complete every iteration, with the 95% Wilson interval of that rate,
   and the first iteration that did not complete (median over those seeds);
+* **the plant's change**: the position error 2-norm at the change's first iteration p, and at p + 2, over its
+  value at p - 1 (median over the seeds that ran to p + 2): how far the change throws the method back, and
+  whether it has recovered two iterations later;
 * **growth**: the learning-growth test's verdict on the seeds that ran every iteration
   (:func:`ilcforce.stability.verdict`, over its late window: after the plant's change).
 
@@ -43,6 +46,8 @@ PAGE = "equal-chattering-long.md"
 TABLE = "equal_chattering_long"
 #: The iterations at the end of a run whose error 2-norms are averaged.
 LAST = 5
+#: The iterations after the plant's change at which the position error is set against the one before it.
+RECOVERY = 2
 #: The method every other one is compared with.
 SUBJECT = "no-ilc"
 #: Where the seeds' values of two methods stand (disjoint 95% intervals of the medians, or not; or no value:
@@ -81,10 +86,15 @@ def method_rows(results, cap, gains: str) -> list[dict]:
     for method in ordered_methods(metrics["method"].unique().tolist()):
         mine = metrics[metrics["method"] == method]
         e_p, e_f, ratio, by_axis, diverged, whole = [], [], [], {a: [] for a in axes}, [], []
+        jump, after = [], []
         for seed, run in mine.groupby("seed", sort=True):
             run = run.sort_values("iteration")
             j = stability.diverged_at(run)
             complete = run[run["status"] == "complete"]
+            e_at = complete.set_index("iteration")["position_error_2norm"]
+            if {p - 1, p, p + RECOVERY} <= set(e_at.index):
+                jump.append(float(e_at[p] / e_at[p - 1]))
+                after.append(float(e_at[p + RECOVERY] / e_at[p - 1]))
             if math.isfinite(j) or len(complete) < iterations:
                 diverged.append(j)
                 continue
@@ -110,6 +120,8 @@ def method_rows(results, cap, gains: str) -> list[dict]:
             "divergence rate [95% Wilson]": f"{rate.estimate:.2f} [{rate.low:.2f}, {rate.high:.2f}]",
             "diverged at j (median)": float(np.median(stopped)) if stopped else math.nan,
             "diverged at j (range)": f"{min(stopped):.0f}-{max(stopped):.0f}" if stopped else "-",
+            f"e_P j = {p} / j = {p - 1} (median)": float(np.median(jump)) if jump else math.nan,
+            f"e_P j = {p + RECOVERY} / j = {p - 1} (median)": float(np.median(after)) if after else math.nan,
             "growth test (seeds that ran all)": stability.verdict(growth, method) if whole else "-",
             "_e_p": median_interval(e_p), "_e_f": median_interval(e_f)})
     return rows
@@ -164,9 +176,13 @@ def summary_lines(table: pd.DataFrame) -> list[str]:
     lines = [f"Settled H at the end over the cap, median [95% interval]: {', '.join(placed)}. All are compared "
              "under the same cap, not at the same H: an error told apart here may be bought with chattering "
              "(the tuning pages read every front at the same H: docs/tuning.md).", ""] if placed else []
+    jump, after = (c for c in table.columns if c.startswith("e_P j = ") and c.endswith("(median)"))
     for row in table.to_dict("records"):
         text = (f"{row['method']}, gains {row['gains']}: diverged in {row['diverged']} seeds (rate "
                 f"{row['divergence rate [95% Wilson]']})")
+        if math.isfinite(row[jump]):
+            text += (f"; the plant's change multiplies its e_P by {row[jump]:.2f} ({jump.split(' (')[0]}), and "
+                     f"{after.split(' (')[0]} is {row[after]:.2f}")
         if row[ran]:
             text += f"; on the {row[ran]} that ran all, the growth test: {row['growth test (seeds that ran all)']}"
         if row[ran]:
