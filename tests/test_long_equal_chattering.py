@@ -14,7 +14,7 @@ import pytest
 from ilcforce import metrics
 from ilcforce.report import long_equal_chattering as page
 from ilcforce.stats import frequency_interval
-from ilcforce.study import build_study, run_study
+from ilcforce.study import run_study
 from ilcforce.study.spec import is_study_file, load_study
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,13 +80,15 @@ def _stand_in(config, method, keep_store=None, stop=None):
 @pytest.fixture(scope="module")
 def stored(tmp_path_factory):
     """A results folder holding both studies, small (5 seeds x 30 iterations), made by the study engine."""
-    results = tmp_path_factory.mktemp("results")
-    common = {"seeds": "0-4", "set": {"experiment.iterations": ITERATIONS}}
-    for name, experiment, methods in ((page.STUDY, "fivebar-tuned.toml", ["no-ilc", "c2-robust"]),
-                                      (page.WITHHELD_STUDY, "paper.toml", ["c3"])):
-        study = build_study({"study": {"name": name, "experiment": str(ROOT / "experiments" / experiment),
-                                       "methods": methods, "description": f"constructed {name}", **common}})
-        run_study(study, results, workers=1, cell_function=_stand_in)
+    results, files = tmp_path_factory.mktemp("results"), tmp_path_factory.mktemp("files")
+    for name, experiment, methods in ((page.STUDY, "fivebar-tuned.toml", '["no-ilc", "c2-robust"]'),
+                                      (page.WITHHELD_STUDY, "paper.toml", '["c3"]')):
+        study_file = files / f"{name}.toml"
+        study_file.write_text("\n".join([
+            "[study]", f'name = "{name}"', f'description = "constructed {name}"',
+            f'experiment = "{ROOT / "experiments" / experiment}"', f"methods = {methods}", 'seeds = "0-4"',
+            "[study.set]", f'"experiment.iterations" = {ITERATIONS}', ""]), encoding="utf-8")
+        run_study(load_study(study_file), results, workers=1, cell_function=_stand_in)
     return results
 
 
@@ -131,6 +133,8 @@ def test_the_page_is_written_beside_the_long_run_pages(stored, tmp_path):
     assert "on the 2 that ran all, the growth test: no growth" in text  # constant rows: nothing grows
     assert "against no-ilc, its e_P is lower and its e_F not separated" in text
     assert "Settled H at the end over the cap, median [95% interval]: c2-robust 2, no-ilc 0.5, c3 0.512." in text
+    assert f"`ilcforce simulate -c {ROOT / 'experiments' / 'paper.toml'} -m METHOD -n {ITERATIONS} --seed SEED` " \
+           "(METHOD c3)" in text, "each study's single run, from the experiment its study file names"
     assert ":func:" not in text and "``" not in text
 
 
