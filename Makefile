@@ -113,7 +113,9 @@ reproduce: $(STAMP) aot ## run every experiment (every registered method, in par
 # The long runs (experiments/long/): every method over 1,000 iterations on 10 held-out seeds and the growth
 # test checked against 300-iteration truth, and C3-robust taken apart (c3-robust-ablation.toml: 65 cells of 300
 # iterations, about 17 minutes more; its own page docs/long-run/c3-robust-ablation.md, linked from long-run.md;
-# c3-robust-leak-1000.toml, 4 cells of 1,000 iterations, about 3 minutes).
+# c3-robust-leak-1000.toml, 4 cells of 1,000 iterations, about 3 minutes), and the tuned five-bar's NO-ILC
+# against C3 and the robust variants at equal chattering (long-equal-chattering*.toml: 20 cells of 300
+# iterations, about 2 minutes; its own page docs/long-run/equal-chattering-long.md, linked from long-run.md).
 # Not part of `make reproduce` (about 30 minutes on 2 cores before the ablation); its
 # summary page is committed as docs/long-run/long-run.md (dated, with the commit) and the findings cite it.
 # `ilcforce report` writes the same pages into the report when these stores are in $(RESULTS)/studies/, and

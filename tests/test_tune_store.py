@@ -589,24 +589,32 @@ def test_renamed_copies_of_a_study_store_get_their_own_report_pages(tmp_path):
 
 
 def test_a_method_the_tuning_did_not_search_is_left_out_of_studies_and_refused_by_name(tmp_path):
-    """A method registered after a tuning ran (no-ilc, after the shipped fivebar-tune) has no tuned gains in its
-    tuned file ([tuning] methods lists what the tuning searched): a study of that file leaves it out of its
-    default methods and refuses it by name, and simulate refuses it in one line; the tuning's own methods run."""
+    """A method registered after a tuning ran has no tuned gains in its tuned file ([tuning] methods lists what
+    the tuning searched): a study of that file leaves it out of its default methods and refuses it by name, and
+    simulate refuses it in one line; the tuning's own methods run. The shipped fivebar-tune searched no-ilc too
+    (since it was rerun), so its tuned file is copied with no-ilc left out of [tuning] methods, as the file read
+    before that rerun."""
     from ilcforce.config_load import load_config
     from ilcforce.study.spec import StudyError, load_study
 
-    config = load_config("experiments/fivebar-tuned.toml")
+    shipped = Path("experiments/fivebar-tuned.toml").read_text(encoding="utf-8")
+    searched = '"c2-robust", "c3-robust", "no-ilc"]'
+    assert searched in shipped and "no-ilc" in load_config("experiments/fivebar-tuned.toml").tuning.methods
+    older = tmp_path / "older-tuned.toml"
+    older.write_text(shipped.replace(searched, '"c2-robust", "c3-robust"]'), encoding="utf-8")
+    config = load_config(older)
     assert "no-ilc" not in config.tuning.methods and "c1" in config.tuning.methods
     assert "was not tuned by fivebar-tune" in config.tuning.refusal("no-ilc")
     assert config.tuning.refusal("c1") is None and "withheld" in config.tuning.refusal("c2")
-    study = load_study("experiments/tuned-mc.toml")
+    default = tmp_path / "default.toml"
+    default.write_text(f'[study]\nname = "default"\nexperiment = "{older}"\nseeds = "0-1"\n')
+    study = load_study(default)
     assert "no-ilc" not in study.methods and "c2" not in study.methods and "c1" in study.methods
     named = tmp_path / "named.toml"
-    named.write_text(f'[study]\nname = "named"\nexperiment = "{Path("experiments/fivebar-tuned.toml").resolve()}"\n'
-                     'methods = ["c1", "no-ilc"]\nseeds = "0-1"\n')
+    named.write_text(f'[study]\nname = "named"\nexperiment = "{older}"\nmethods = ["c1", "no-ilc"]\nseeds = "0-1"\n')
     with pytest.raises(StudyError, match="no-ilc was not tuned by fivebar-tune"):
         load_study(named)
-    run = CliRunner().invoke(app, ["simulate", "-c", "experiments/fivebar-tuned.toml", "-m", "no-ilc", "--iters", "1",
+    run = CliRunner().invoke(app, ["simulate", "-c", str(older), "-m", "no-ilc", "--iters", "1",
                                    "--out", str(tmp_path / "sim.h5")])
     assert run.exit_code == 2 and len(run.output.strip().splitlines()) == 1 and "was not tuned" in run.output, run.output
     assert not (tmp_path / "sim.h5").exists()

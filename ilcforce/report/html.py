@@ -48,7 +48,7 @@ HTML_NAME = "index.html"
 #: make long's pages as the report holds them (``ilcforce.report.long_run``), and their HTML page: the
 #: folder is shared with a run of the experiment ``long-run``, whose page is ``long-run/index.html``.
 LONG_RUN_PAGES = ("long-run/long-run.md", "long-run/growth-heldout.md", "long-run/growth-fresh.md",
-                  "long-run/growth-third.md", "long-run/growth-fourth.md",
+                  "long-run/growth-third.md", "long-run/growth-fourth.md", "long-run/equal-chattering-long.md",
                   "long-run/c3-robust-ablation.md")  # in the order shown
 LONG_RUN_UNIT = "long runs"
 LONG_RUN_HTML = "long-run/long-runs.html"

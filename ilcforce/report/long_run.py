@@ -16,6 +16,9 @@ Three kinds of study feed this page (``make long``; their files are in ``experim
   over the late half, and the test's verdict at j = 20 and 40 beside what the 1,000 iterations show.
 * **C3-robust taken apart** (``c3-robust-ablation``): its own page, ``c3-robust-ablation.md``
   (:mod:`ilcforce.report.c3_robust_ablation`), written beside this one and linked from it.
+* **NO-ILC at equal chattering** (``long-equal-chattering*``): the tuned five-bar's NO-ILC, C2-robust and
+  C3-robust, and C3 with the paper's gains, over 300 iterations: its own page, ``equal-chattering-long.md``
+  (:mod:`ilcforce.report.long_equal_chattering`), linked from this one.
 
 ``python -m ilcforce.report.long_run --results results --out docs/long-run`` writes ``long-run.md``, the
 CSV tables and the figures; ``ilcforce report`` writes the same into its output when the stores exist.
@@ -34,7 +37,8 @@ import pandas as pd
 
 from ilcforce import stability
 from ilcforce.stability import diverged_at
-from ilcforce.report import c3_robust_ablation, cause_seeds, growth_pages, growth_validation, table_write, tables
+from ilcforce.report import (c3_robust_ablation, cause_seeds, growth_pages, growth_validation, long_equal_chattering,
+                             table_write, tables)
 from ilcforce.report.study import studies_provenance
 from ilcforce.report.growth_validation import (
     JUDGED_AT, TRUTH_FROM, setting_config, study_settings, confusion, confusion_text, validation_cases,
@@ -253,11 +257,12 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
             except (StudyStoreError, OSError, KeyError, ValueError, TypeError):
                 continue
     ablation = c3_robust_ablation.write_page(results_dir, out_dir)  # its own page, with or without the others
+    compared = long_equal_chattering.write_page(results_dir, out_dir)  # the same
     if not found:
-        return ablation
+        return ablation + compared
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = list(ablation)
+    written: list[Path] = [*ablation, *compared]
     provenance = studies_provenance(found)
     cases = pd.DataFrame()
     lines = ["# Long runs: does learning stay bounded, and does the growth test see it coming?", "",
@@ -333,6 +338,10 @@ def write_page(results_dir: Path, out_dir: Path) -> list[Path]:
         lines += ["## C3-robust taken apart", "",
                   f"Each of C3-robust's four changes to C3 alone and left out: [{ablation[-1].name}]({ablation[-1].name}).",
                   ""]
+    if compared:
+        lines += ["## NO-ILC at equal chattering", "",
+                  "The tuned NO-ILC against C3 and the robust variants over 300 iterations: "
+                  f"[{compared[-1].name}]({compared[-1].name}).", ""]
     # the test out of sample: what the findings state
     outside = [line for line in (growth_pages.fresh_headline(results_dir),
                                  *(growth_pages.set_headline(results_dir, p) for p in growth_pages.THREE_CLASS_SETS))
@@ -401,7 +410,8 @@ def is_long_study(name: str) -> bool:
     return name.startswith((VALIDATION_PREFIX, growth_validation.HELDOUT_PREFIX, growth_validation.LONGER_PREFIX,
                             growth_validation.FRESH_PREFIX, growth_validation.THIRD_PREFIX,
                             growth_validation.FOURTH_PREFIX)) or name in (
-        LONG_RUN, CAUSE, cause_seeds.STUDY, ARM3_LONG, c3_robust_ablation.STUDY, c3_robust_ablation.LEAK_CHECK)
+        LONG_RUN, CAUSE, cause_seeds.STUDY, ARM3_LONG, c3_robust_ablation.STUDY, c3_robust_ablation.LEAK_CHECK
+    ) or long_equal_chattering.is_study(name)
 
 
 def main(argv: list[str] | None = None) -> int:
