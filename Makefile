@@ -126,6 +126,7 @@ LONG_STUDIES := $(sort $(shell grep -l '^\[study\]' experiments/long/*.toml))
 long: $(STAMP) aot ## run the long studies (1,000 iterations; the growth test's validation) and write docs/long-run/
 	$(VENV)/bin/ilcforce study $(LONG_STUDIES) --results $(RESULTS) --replace-stale
 	$(PY) -m ilcforce.report.long_run --results $(RESULTS) --out docs/long-run
+	$(PY) -m ilcforce.theory.q_evidence --results $(RESULTS) --out docs/lifted
 
 # The lifted check against the simulation (ilcforce/theory/): each learning method's predicted band growth
 # beside the growth measured from 220-iteration runs with noise on held-out seeds, and the predicted
