@@ -157,9 +157,9 @@ check-readme: check-findings
 # fronts.png, convergence.png), which `ilcforce report` copies into the report when no tuning store is there.
 # `tune -o` never replaces a file unasked (and --overwrite would also discard the stored trials), so each
 # tuned file is written beside the results, then moved over the committed one on success.
-TUNINGS := fivebar serial2r
+TUNINGS := fivebar serial2r arm3
 
-tune: $(STAMP) aot ## tune every method's gains (error and chattering, stable over 60 iterations) on both robots; writes experiments/*-tuned.toml and docs/tuning/
+tune: $(STAMP) aot ## tune each tuning file's methods (error and chattering, stable over 60 iterations) on every robot (experiments/tuning/); writes experiments/*-tuned.toml and docs/tuning/
 	@times=""; for robot in $(TUNINGS); do \
 	  rm -f $(RESULTS)/$$robot-tuned.toml && start=$$(date +%s) && \
 	  $(VENV)/bin/ilcforce tune experiments/tuning/$$robot-tune.toml --results $(RESULTS) -o $(RESULTS)/$$robot-tuned.toml && \
