@@ -9,6 +9,7 @@ The planar task's stores keep their x, y keys (tests/test_tune*.py run them unch
 from __future__ import annotations
 
 import json
+from pathlib import Path
 import shutil
 import tomllib
 
@@ -159,3 +160,21 @@ def test_tiny_three_axis_tuning_end_to_end(tmp_path):
     other = tampered("other", all_planar)
     assert other.exit_code == 2 and len(other.output.strip().splitlines()) == 1, other.output
     assert "are not of the task axes u, v, n of its experiment" in other.output, other.output
+
+
+def test_a_tuned_file_written_elsewhere_names_its_model_file_relative_to_itself(tmp_path):
+    """The spatial arm's model file is an absolute path in the configuration; written with -o, the tuned file names
+    it relative to the file's own folder (an experiment file reads a relative path relative to itself), so the file
+    loads from a clone anywhere, not only on the machine the tuning ran on."""
+    from ilcforce.config_load import load_config
+
+    path = tmp_path / "arm3-tune.toml"
+    path.write_text(ARM3)
+    out = tmp_path / "deeper" / "arm3-tiny-tuned.toml"
+    result = CliRunner().invoke(app, ["tune", str(path), "--results", str(tmp_path / "r"), "--workers", "1",
+                                      "-o", str(out)])
+    assert result.exit_code == 0, result.output
+    written = tomllib.loads(out.read_text())["plant"]["spatial_arm"]["path"]
+    assert not Path(written).is_absolute() and written.endswith("models/arm3.xml"), written
+    assert (out.parent / written).resolve() == (Path(__file__).parents[1] / "experiments/models/arm3.xml").resolve()
+    assert load_config(out).plant.model == "spatial_arm"

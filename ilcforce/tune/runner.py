@@ -197,7 +197,8 @@ def run_tuning(tuning: Tuning, results_dir: Path | str = "results", *, workers: 
                 tuned = store.write_tuned(text) if store.tuned_text() != text else store.path / "tuned.toml"
             else:
                 tuned = store.path / "tuned.toml"
-            if output is not None:
+            if output is not None:  # its model-file paths relative to where it is written
+                text = tuned_experiment(tuning, chosen, states, cap, name=name, folder=Path(output).parent)
                 tuned = write_output(Path(output), text, replace=overwrite)
         else:  # no method ships gains: no tuned file, and none left from an earlier run to be taken for one
             (store.path / "tuned.toml").unlink(missing_ok=True)
