@@ -45,7 +45,7 @@ def evidence(results_dir: Path, progress=None) -> pd.DataFrame:
     value sigma at j = 20 (noise off) and its prediction, beside the setting's three-class truths over its seeds."""
     from ilcforce.config_load import config_from_dict
     from ilcforce.report.growth_validation import setting_config, study_settings
-    from ilcforce.theory.lifted import analyze
+    from ilcforce.theory.lifted import AnalysisError, analyze
 
     found, cases = _cases(results_dir)
     rows = []
@@ -58,16 +58,22 @@ def evidence(results_dir: Path, progress=None) -> pd.DataFrame:
                 mine = cases[(cases["study"] == name) & (cases["setting"] == setting) & (cases["method"] == method)]
                 if mine.empty:
                     continue
-                check = analyze(config, method)
+                try:
+                    check = analyze(config, method)
+                except AnalysisError as exc:  # e.g. the noise-free run diverges before j = 20: nothing to linearise
+                    check, said = None, f"not analysed: {exc}"
+                else:
+                    said = "bounded" if check.bounded else "unbounded"
                 if progress is not None:
-                    progress(f"{name} / {setting} / {method}: rho {check.spectral_radius:.4f} ({check.seconds:.0f} s)")
+                    progress(f"{name} / {setting} / {method}: {said if check is None else check.spectral_radius}")
                 counts = {c: int((mine["truth_3"] == c).sum()) for c in ("unbounded", "slow", "bounded")}
                 truth = ("unbounded" if counts["unbounded"] == len(mine) else
                          "bounded" if counts["bounded"] == len(mine) else "mixed")
                 rows.append({"set": name.rsplit("-", 1)[0], "experiment": config.experiment.name, "setting": setting,
                              "method": method, "q_cutoff_hz": float(data.get(method, {}).get("q_cutoff", math.nan)),
-                             "rho": check.spectral_radius, "sigma": check.max_singular_value,
-                             "predicted": "bounded" if check.bounded else "unbounded", "seeds": len(mine), **counts,
+                             "rho": math.nan if check is None else check.spectral_radius,
+                             "sigma": math.nan if check is None else check.max_singular_value,
+                             "predicted": said, "seeds": len(mine), **counts,
                              "truth": truth, "first_divergence": float(mine["diverged_at"].min()),
                              "largest_growth": float(mine["growth_3"].max())})
     return pd.DataFrame(rows, columns=COLUMNS)
@@ -78,6 +84,7 @@ def boundary(table: pd.DataFrame) -> pd.DataFrame:
     settings unbounded on any seed; the two overlap where no margin in rho separates them."""
     rows = []
     for (experiment, method), group in table.groupby(["experiment", "method"], sort=True):
+        group = group[group["rho"].notna()]  # a setting the check could not linearise says nothing of rho
         bounded = group[group["truth"] == "bounded"]["rho"]
         unbounded = group[group["unbounded"] > 0]["rho"]
         low, high = (float(bounded.max()) if len(bounded) else math.nan), (float(unbounded.min()) if len(unbounded)
