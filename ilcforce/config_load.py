@@ -15,6 +15,7 @@ import dataclasses
 import datetime
 import difflib
 import math
+import os
 import tomllib
 import typing
 from pathlib import Path
@@ -432,6 +433,18 @@ def _absolute_paths(data: dict, folder: Path) -> None:
         table = plant.get(model) if isinstance(plant, dict) else None
         if isinstance(table, dict) and key in table:
             table[key] = _absolute_path(table[key], folder)
+
+
+def relative_paths(data: dict, folder: Path) -> None:
+    """The inverse of reading a file's paths (:func:`_absolute_paths`): every absolute model-file path in a
+    configuration's ``data`` rewritten relative to ``folder``, where an experiment file holding ``data`` is
+    written, so that the file names the same model from any checkout it is copied with (``ilcforce tune -o``)."""
+    for dotted in _path_keys():
+        _, model, key = dotted.split(".")
+        plant = data.get("plant")
+        table = plant.get(model) if isinstance(plant, dict) else None
+        if isinstance(table, dict) and isinstance(table.get(key), str) and os.path.isabs(table[key]):
+            table[key] = Path(os.path.relpath(os.path.normpath(table[key]), os.path.abspath(folder))).as_posix()
 
 
 def load_config(path: Path | str | None = None, overrides: dict[str, object] | None = None, *,

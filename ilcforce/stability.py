@@ -78,7 +78,7 @@ RELEARN = 5
 #: From this many iterations on, a run is read twice: over the later half of its iterations and over the later
 #: half of its first half (what the test said at the run's midpoint); a quantity grows in a seed when either
 #: reading finds it growing (:func:`readings`). Added after the third held-out set (docs/long-run/growth-third.md):
-#: there the robust laws' memory at t = 0 grew tenfold over j = 50-100, slowed inside the window j = 100-199
+#: there the robust laws' memory at t = 0 grew tenfold over j = 50-100, slowed inside the window j = 104-199
 #: (0.87% per iteration, under MIN_RATE) and grew x3,300 by j = 999. Runs shorter than this (the paper's 20
 #: iterations, tuning's 60-iteration checks) are read as before.
 MIDPOINT_FROM = 100

@@ -122,21 +122,6 @@ def write_output(output: Path, text: str, *, replace: bool) -> Path:
     return output
 
 
-def _model_paths_relative(document: dict, folder: Path) -> None:
-    """Rewrite the plant's model-file paths in ``document`` (absolute in a configuration) relative to ``folder``,
-    where the tuned file is written: an experiment file reads a relative path relative to itself, so the file
-    keeps working in a clone elsewhere (an absolute path named the folder the tuning ran in)."""
-    from ilcforce.plants import params_class
-
-    model = document.get("plant", {}).get("model")
-    table = document.get("plant", {}).get(model)
-    if not isinstance(table, dict):
-        return
-    for key in getattr(params_class(model), "path_keys", ()):
-        if isinstance(table.get(key), str) and os.path.isabs(table[key]):
-            table[key] = Path(os.path.relpath(os.path.normpath(table[key]), os.path.abspath(folder))).as_posix()
-
-
 def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: dict[str, dict], cap, *,
                      name: str | None = None, folder: Path | None = None) -> str:
     """The experiment file of the tuning (its experiment with ``[tune.set]``, named ``name``) with each
@@ -145,7 +130,7 @@ def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: d
     A method with no stable point under the cap keeps the experiment's gains and is listed under
     ``[tuning] withheld``: simulate, compare and studies refuse to run it with this file. ``folder``: where the
     file will be written (its model-file paths are then written relative to it; absolute without)."""
-    from ilcforce.config_load import load_config
+    from ilcforce.config_load import load_config, relative_paths
     from ilcforce.tomlfile import dump_toml, toml_comment
     from ilcforce.tune.heldout import NONE_UNDER_CAP
     from ilcforce.tune.objectives import per_axis_text
@@ -162,7 +147,7 @@ def tuned_experiment(tuning: Tuning, chosen: dict[str, dict | None], searches: d
         if point is not None:
             document[method] = load_config(tuning.experiment, {**tuning.fixed, **point["gains"]}).to_dict()[method]
     if folder is not None:
-        _model_paths_relative(document, folder)
+        relative_paths(document, folder)
     withheld = [m for m in tuning.methods if chosen.get(m) is None]
     document["tuning"] = {"source": tuning.name, "withheld": withheld, "methods": list(tuning.methods),
                           "cap_reference": tuning.cap_reference,
