@@ -142,12 +142,12 @@ def test_makefile_method_list_is_the_registry():
 
 
 def test_report_reads_labels_colours_and_order_from_the_registry():
-    from ilcforce.report import figures, tables
+    from ilcforce.report import figure_style, figures, tables
 
     shuffled = list(reversed(METHODS)) + ["zz-unregistered"]
     assert tables.ordered_methods(shuffled) == METHODS + ["zz-unregistered"]
     for name, spec in REGISTRY.items():
-        assert figures._label(name) == spec.label and figures._color(name) == spec.color
+        assert figure_style.method_text(name) == spec.label and figure_style.method_color(name) == spec.color
 
 
 # ---------------------------------------------------------------------------------------------

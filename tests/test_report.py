@@ -20,7 +20,7 @@ from matplotlib.artist import Artist
 from matplotlib.figure import Figure
 
 from ilcforce.records import LOG_SIGNALS, IterationRecord
-from ilcforce.report import build, claim_parts, claims, figures, paper, table_write, tables
+from ilcforce.report import build, claim_parts, claims, figure_style, figures, paper, table_write, tables
 from ilcforce.report.build import ReportSummary, write_report
 from ilcforce.store import SCHEMA_VERSION, StoreWriter, read_metrics
 
@@ -748,7 +748,7 @@ def test_error_norms_mark_divergence_without_hiding_one_method_under_another() -
     bottom, top = (math.log10(v) for v in ax.get_ylim())
     data_top = (math.log10(1e-3) - bottom) / (top - bottom)  # where the highest data value sits, axes fraction
     assert data_top < min(heights) - 0.02, "every cross stands above the data"
-    assert [c.get_color() for c in crosses] == [figures._color(m) for m in early]
+    assert [c.get_color() for c in crosses] == [figure_style.method_color(m) for m in early]
     assert "m2 x 1.4 from j = 10" in [t.get_text() for t in ax.get_legend().get_texts()]
     legend_box = ax.get_legend().get_window_extent()
     assert legend_box.x0 >= ax.get_window_extent().x1, "the legend is outside the axes, off the data"

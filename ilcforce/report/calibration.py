@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from ilcforce.report import figures, paper
+from ilcforce.report import figure_style, figures, paper
 from ilcforce.report.calibration_fit import (FITTED, KEY, QUANTITIES, GridFit, converged_norms, fit_grids,
                                              our_samples, seed_norms, targets)
 from ilcforce.report.claims import spread
@@ -196,7 +196,7 @@ def figure(norms: pd.DataFrame, found: Calibration | None) -> Figure:
         mine = norms[(norms["quantity"] == quantity) & (norms["noise_scale"] > 0)]
         for method in sorted(mine["method"].unique()):
             line = mine[mine["method"] == method].sort_values("noise_scale")
-            color = figures._color(method)
+            color = figure_style.method_color(method)
             ax.plot(line["noise_scale"], line["median"], marker="o", markersize=3, color=color,
                     label=figures.method_label(method))
             ax.fill_between(line["noise_scale"], line["low"], line["high"], color=color, alpha=0.2, linewidth=0)

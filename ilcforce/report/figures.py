@@ -12,13 +12,10 @@ iteration frames and the reference indexed by time t (s) with columns ``<signal>
 
 from __future__ import annotations
 
-import contextlib
 import math
 import textwrap
-from collections.abc import Iterator, Mapping, Sequence
-from importlib import resources
+from collections.abc import Mapping, Sequence
 
-import matplotlib.style
 import numpy as np
 import pandas as pd
 from matplotlib.artist import Artist
@@ -26,71 +23,14 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
-from ilcforce.controllers import REGISTRY
 from ilcforce.records import STATUS_COMPLETE, axis_text
 from ilcforce.report import paper
-
-#: Colours and labels come from the method registry (``MethodSpec.color``, ``.label``) and stay with
-#: the method across every figure ("C<n>" is the n-th colour of the style's cycle).
+from ilcforce.report.figure_style import (HEADROOM, HEADROOM_BASE, HEADROOM_PER_ROW, RANGE_FROM, free_top,  # noqa: F401
+                                          method_color, method_label, method_text, range_without_start,
+                                          report_style)
 
 #: Fig. 5 shows these iterations (Section 4.2.1).
 TRACKING_ITERATIONS = (0, 5, 10, 15)
-
-
-def _color(method: str) -> str | None:
-    spec = REGISTRY.get(method)
-    return spec.color if spec is not None else None
-
-
-def _label(method: str, labels: Mapping[str, str] | None = None) -> str:
-    if labels and method in labels:
-        return labels[method]
-    spec = REGISTRY.get(method)
-    return spec.label if spec is not None else method
-
-
-def method_label(method: str) -> str:
-    """The method's plain figure label (the report appends law differences and flags)."""
-    return _label(method)
-
-
-#: Time from which the y range of input plots is set: the t = 0 start mismatch stays off scale.
-RANGE_FROM = 0.02
-
-
-#: Free band above the data of an input panel, as a fraction of the data's range: the legend and the
-#: "off scale" note stand in it, so neither covers a sample (the signals fill their whole range).
-HEADROOM = 0.45
-#: The same band sized to the legend it holds: this much per legend row, plus HEADROOM_BASE (a fixed
-#: 0.45 left a panel 40% empty above a one-row legend; Fig. 7 (a) ran to 50 N for data under 32 N).
-HEADROOM_PER_ROW, HEADROOM_BASE = 0.1, 0.04
-
-
-def _range_without_start(ax: Axes, series: Sequence[tuple[np.ndarray, np.ndarray]], headroom: float = 0.0) -> str:
-    """Set ax's y range from the samples at t >= RANGE_FROM, with ``headroom`` x the range free above
-    them; return a note on what is off scale."""
-    inside = [np.asarray(v, dtype=float)[np.asarray(t) >= RANGE_FROM] for t, v in series]
-    inside = [v[np.isfinite(v)] for v in inside]
-    values = np.concatenate(inside) if inside else np.array([])
-    if values.size == 0:
-        return ""
-    low, high = float(values.min()), float(values.max())
-    pad = 0.08 * (high - low) if high > low else max(abs(high), 1e-12) * 0.1
-    ax.set_ylim(low - pad, high + pad + headroom * (high - low + 2 * pad))
-    outside = [float(np.nanmax(np.abs(np.asarray(v, dtype=float)[np.asarray(t) < RANGE_FROM])))
-               for t, v in series if np.any(np.asarray(t) < RANGE_FROM)]
-    peak = max(outside, default=0.0)
-    if peak > max(abs(low), abs(high)) + pad:
-        return f"off scale before t = {RANGE_FROM * 1e3:.0f} ms:\n|value| up to {peak:.3g}"
-    return ""
-
-
-@contextlib.contextmanager
-def report_style() -> Iterator[None]:
-    """Context in which figures are created and saved with ``style.mplstyle``."""
-    style = resources.files("ilcforce.report").joinpath("style.mplstyle")
-    with resources.as_file(style) as path, matplotlib.style.context(str(path)):
-        yield
 
 
 def _time(frame: pd.DataFrame) -> np.ndarray:
@@ -126,17 +66,6 @@ def plot_desired_force(ax: Axes, reference: pd.DataFrame, axis: str = "y") -> li
     return artists
 
 
-def _free_top(ax: Axes, fraction: float) -> None:
-    """Raise the top of ax's y range so that the upper ``fraction`` of the axes holds no data (on a
-    log axis, in decades)."""
-    low, high = ax.get_ylim()
-    if ax.get_yscale() == "log" and low > 0 and high > low:
-        span = math.log10(high) - math.log10(low)
-        ax.set_ylim(low, 10 ** (math.log10(low) + span / (1.0 - fraction)))
-    elif high > low:
-        ax.set_ylim(low, low + (high - low) / (1.0 - fraction))
-
-
 #: Marker of the iteration at which a method diverged (Figs. 3, 4): drawn at the top of the axes,
 #: stacked when several methods diverged at the same iteration, never at a data value.
 DIVERGED_MARKER = "X"
@@ -170,11 +99,11 @@ def plot_error_norms(
         complete = metrics["status"].astype(str).to_numpy() == STATUS_COMPLETE
         j = np.asarray(metrics.index.to_numpy()[complete], dtype=float)
         values = np.asarray(metrics[column].to_numpy()[complete], dtype=float)
-        label = _label(method, labels)
+        label = method_text(method, labels)
         diverged = metrics.index[metrics["status"].astype(str).to_numpy() != STATUS_COMPLETE]
         if len(diverged):
             label += f", diverged at j = {int(diverged[0])}"
-        (line,) = ax.plot(j, values, marker="o", color=_color(method), label=label, zorder=2 + 0.01 * k,
+        (line,) = ax.plot(j, values, marker="o", color=method_color(method), label=label, zorder=2 + 0.01 * k,
                           markersize=max(3.0, 8.0 - 0.7 * k), linewidth=max(0.9, 2.8 - 0.3 * k))
         artists.append(line)
         if len(diverged):
@@ -187,7 +116,7 @@ def plot_error_norms(
            and line.get_marker() == "o"):
         ax.set_yscale("log")
     if stacked:  # room above the data for the crosses, and one legend entry that says what they are
-        _free_top(ax, 0.06 * max(stacked.values()) + 0.04)
+        free_top(ax, 0.06 * max(stacked.values()) + 0.04)
         ax.plot([], [], linestyle="none", marker=DIVERGED_MARKER, markersize=8, color="0.35",
                 label="diverged at this j (no value from there on)")
     if perturbation_iteration is not None:
@@ -247,8 +176,8 @@ def plot_tracking_error(
 
 def _input_label(method: str, iterations: Mapping[str, int] | None, labels: Mapping[str, str] | None = None) -> str:
     if iterations is None or method not in iterations:
-        return _label(method, labels)
-    return f"{_label(method, labels)}, j = {iterations[method]}"
+        return method_text(method, labels)
+    return f"{method_text(method, labels)}, j = {iterations[method]}"
 
 
 def plot_task_input(
@@ -263,7 +192,7 @@ def plot_task_input(
     artists: list[Artist] = []
     for method, frame in frames_by_method.items():
         artists += ax.plot(
-            _time(frame), frame[f"task_input_{axis}"], color=_color(method),
+            _time(frame), frame[f"task_input_{axis}"], color=method_color(method),
             label=_input_label(method, iterations, labels)
         )
     for frame in list(frames_by_method.values())[:1]:
@@ -286,7 +215,7 @@ def plot_input_deviation(
     for method, frame in frames_by_method.items():
         delta = frame[f"desired_task_input_{axis}"] - frame[f"task_input_{axis}"]
         artists += ax.plot(
-            _time(frame), delta, color=_color(method), label=_input_label(method, iterations, labels), linewidth=0.8
+            _time(frame), delta, color=method_color(method), label=_input_label(method, iterations, labels), linewidth=0.8
         )
     ax.set_xlabel("time (s)")
     ax.set_ylabel(rf"$\Delta\tau$ {axis_text(axis)} (N)")
@@ -319,7 +248,7 @@ def plot_switching_gain(
     ax.set_ylabel(rf"learned switching gain $\hat\alpha_j$ ({unit})")
     # the y range from t >= RANGE_FROM: the spike at t = 0 (the start mismatch) no longer flattens
     # the settled alpha_hat, the value the findings quote; it is named in the legend
-    note = _range_without_start(ax, series, headroom=0.35) if series else ""
+    note = range_without_start(ax, series, headroom=0.35) if series else ""
     if artists:
         handles, texts = ax.get_legend_handles_labels()
         if note:
@@ -346,8 +275,8 @@ def plot_switching_gain_mean(
     peak = [float(np.max(settled(alpha_by_iteration[j]))) for j in js]
     over = "over t" if duration is None else f"over t >= {RANGE_FROM * 1e3:.0f} ms"
     artists: list[Artist] = []
-    artists += ax.plot(js, mean, marker="o", color=_color("c3"), label=f"mean {over}")
-    artists += ax.plot(js, peak, marker="s", color=_color("c3"), linestyle=":", label=f"max {over}")
+    artists += ax.plot(js, mean, marker="o", color=method_color("c3"), label=f"mean {over}")
+    artists += ax.plot(js, peak, marker="s", color=method_color("c3"), linestyle=":", label=f"max {over}")
     if perturbation_iteration is not None and js and js[0] <= perturbation_iteration <= js[-1]:
         artists.append(ax.axvline(perturbation_iteration, color="0.4", linestyle="--", linewidth=1.0,
                                   label=f"{perturbation_label} from j = {perturbation_iteration}"))
@@ -423,7 +352,7 @@ def figure_tracking_error(frames: Mapping[str, Mapping[int, pd.DataFrame]], *,
         panels = [axes[per * block + r, column] for r in range(per)]
         for r, (ax, (signal, label)) in enumerate(zip(panels, rows)):
             plot_tracking_error(ax, frames[method], signal, ylabel=label if column == 0 else "",
-                                title=_label(method, labels) if r == 0 else "", legend=False)
+                                title=method_text(method, labels) if r == 0 else "", legend=False)
             if r < per - 1:
                 ax.set_xlabel("")
         if k + columns < n:  # another method below in this column: its time axis serves both
@@ -465,7 +394,7 @@ def figure_input(
     axes = np.atleast_2d(fig.subplots(n, 2, sharex=True, squeeze=False))
     for k, method in enumerate(methods):
         one = {method: frames_by_method[method]}
-        named = {method: _label(method, labels)}
+        named = {method: method_text(method, labels)}
         ax_input, ax_delta = axes[k]
         plot_task_input(ax_input, one, axis, iterations=iterations, labels=named)
         plot_input_deviation(ax_delta, one, axis, iterations=iterations, labels=named)
@@ -478,7 +407,7 @@ def figure_input(
             # the data fill the lower part; the legend, the note its last line, stands in the band above,
             # which is as tall as the legend's rows, at its RIGHT end: the only samples that reach into the
             # band are the start mismatch's before t = RANGE_FROM (off scale), at the left edge
-            note = _range_without_start(ax, series)
+            note = range_without_start(ax, series)
             handles, texts = ax.get_legend_handles_labels()
             if note:  # one more line of the legend: a long method label can never cover it
                 from matplotlib.lines import Line2D
@@ -486,7 +415,7 @@ def figure_input(
                 handles, texts = [*handles, Line2D([], [], linestyle="none")], [*texts, note.replace("\n", " ")]
             columns = 2 if not note else 1
             rows = -(-len(texts) // columns)
-            _range_without_start(ax, series, headroom=HEADROOM_BASE + HEADROOM_PER_ROW * rows)
+            range_without_start(ax, series, headroom=HEADROOM_BASE + HEADROOM_PER_ROW * rows)
             ax.legend(handles, texts, loc="upper right", ncols=columns, fontsize="x-small")
         if k < n - 1:
             ax_input.set_xlabel("")
@@ -494,7 +423,7 @@ def figure_input(
     axes[0, 0].set_title(f"(a) control input, {axis_text(axis)}")
     axes[0, 1].set_title(rf"(b) $\Delta\tau$, {axis_text(axis)}")
     if absent:  # ``absent``: method -> why it has no row here
-        fig.suptitle("; ".join(f"{_label(m, labels)} not drawn: {why}" for m, why in absent.items()),
+        fig.suptitle("; ".join(f"{method_text(m, labels)} not drawn: {why}" for m, why in absent.items()),
                      fontsize="small")
     return fig
 

@@ -98,7 +98,7 @@ def long_run_table(results) -> pd.DataFrame:
 
 
 def _band(ax, frame: pd.DataFrame, column: str, method: str) -> None:
-    from ilcforce.report.figures import _color, _label
+    from ilcforce.report.figure_style import method_color, method_text
 
     # a diverged iteration's value is not data
     wide = frame[frame["status"] == "complete"].pivot_table(index="iteration", columns="seed", values=column)
@@ -109,9 +109,9 @@ def _band(ax, frame: pd.DataFrame, column: str, method: str) -> None:
         median = np.nanmedian(values[keep], axis=1)
         low, high = np.nanpercentile(values[keep], 5, axis=1), np.nanpercentile(values[keep], 95, axis=1)
     j = wide.index.to_numpy()[keep]
-    color = _color(method)
+    color = method_color(method)
     ax.fill_between(j, low, high, color=color, alpha=0.15, linewidth=0)
-    ax.plot(j, median, color=color, lw=1.2, label=_label(method))
+    ax.plot(j, median, color=color, lw=1.2, label=method_text(method))
     for seed in wide.columns:
         ended = frame[(frame["seed"] == seed) & (frame["status"] != "complete")]
         if len(ended):

@@ -36,7 +36,8 @@ from matplotlib.ticker import MaxNLocator
 
 from ilcforce.records import STATUS_DIVERGED, axis_text, task_axes
 from ilcforce.report import paper, tables
-from ilcforce.report.figures import TRACKING_ITERATIONS, _color, _label
+from ilcforce.report.figure_style import method_color, method_text
+from ilcforce.report.figures import TRACKING_ITERATIONS
 from ilcforce.report.figure_files import save_figure
 from ilcforce.report.study_figures import _band_plot, _bands, _log_scale, band_legend_entries
 from ilcforce.stats import BOOTSTRAP_SEED, LEVEL, N_BOOTSTRAP
@@ -101,21 +102,21 @@ def _draw(ax, frame: pd.DataFrame, methods, column: str, n_seeds: int, seed: int
         wide = mine.pivot(index="iteration", columns="seed", values=column).sort_index()
         stats = [band_row(row) for row in wide.to_numpy(dtype=float)]
         n_end = stats[-1][5] if stats else 0
-        label = _label(method) + (" (unstable learning)" if flags and method in flags else "")
+        label = method_text(method) + (" (unstable learning)" if flags and method in flags else "")
         label += f", {n_end} of {n_seeds} seeds" if n_end != n_seeds else ""
         drawn.append(_band_plot(ax, wide.index.to_numpy(), stats, method, label if legend else None))
         if seed is None or seed not in wide.columns:
             continue
         one = mine[mine["seed"] == seed].set_index("iteration").sort_index()
         ok = one["status"].astype(str) != STATUS_DIVERGED
-        ax.plot(one.index[ok], one.loc[ok, column], color=_color(method), linestyle="--", linewidth=0.9,
+        ax.plot(one.index[ok], one.loc[ok, column], color=method_color(method), linestyle="--", linewidth=0.9,
                 marker="none")
         diverged = one.index[~ok]
         if len(diverged):
             where = float(diverged[0])
-            ax.axvline(where, color=_color(method), linestyle=":", linewidth=1.5)
+            ax.axvline(where, color=method_color(method), linestyle=":", linewidth=1.5)
             ax.text(where, 0.98, f" seed {seed} diverged", transform=ax.get_xaxis_transform(), rotation=90,
-                    va="top", ha="right", fontsize="x-small", color=_color(method))
+                    va="top", ha="right", fontsize="x-small", color=method_color(method))
     return drawn
 
 

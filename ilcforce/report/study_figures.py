@@ -22,7 +22,7 @@ from ilcforce.config_units import axis_label
 from ilcforce.records import STATUS_DIVERGED
 from ilcforce.report import table_write, tables
 from ilcforce.report.figure_files import save_figure
-from ilcforce.report.figures import _color, _label
+from ilcforce.report.figure_style import method_color, method_text
 from ilcforce.stats import median_interval
 
 BAND_CAPTION = ("Line: median over seeds. Dark band: 95% percentile-bootstrap interval of that median. "
@@ -67,7 +67,7 @@ def _bar_legend_entries(ax) -> None:
 
 def _band_plot(ax, x, stats, method: str, label: str) -> np.ndarray:
     stats = np.asarray(stats, dtype=float).reshape(-1, 6)
-    color = _color(method)
+    color = method_color(method)
     ax.fill_between(x, stats[:, 3], stats[:, 4], color=color, alpha=0.12, linewidth=0)
     ax.fill_between(x, stats[:, 1], stats[:, 2], color=color, alpha=0.35, linewidth=0)
     ax.plot(x, stats[:, 0], marker="o", markersize=3, color=color, label=label)
@@ -78,7 +78,7 @@ def _category_plot(ax, x, stats, method: str, label: str, offset: float) -> np.n
     """Bands for unordered settings (a settings list): no line joins two settings; per setting a
     marker at the median, a thick bar for its 95% interval and a thin bar for the central 95%."""
     stats = np.asarray(stats, dtype=float).reshape(-1, 6)
-    color = _color(method)
+    color = method_color(method)
     xs = np.asarray(x, dtype=float) + offset
     ax.vlines(xs, stats[:, 3], stats[:, 4], color=color, alpha=0.45, linewidth=1.0)
     ax.vlines(xs, stats[:, 1], stats[:, 2], color=color, linewidth=4.0, alpha=0.8)
@@ -101,7 +101,7 @@ def norm_band_figure(frame: pd.DataFrame, column: str, ylabel: str, title: str,
         wide = wide.sort_index()
         stats = [_bands(wide.loc[j].to_numpy(dtype=float)) for j in wide.index]
         n_end = stats[-1][5] if stats else 0
-        label = _label(method) + (" (unstable learning)" if flags and method in flags else "")
+        label = method_text(method) + (" (unstable learning)" if flags and method in flags else "")
         label += f", {n_end} of {n_seeds} seeds" if n_end != n_seeds else ""
         drawn.append(_band_plot(ax, wide.index.to_numpy(), stats, method, label))
     _log_scale(ax, drawn)
@@ -228,9 +228,9 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
                          for k in range(len(values))]
                 if labelled:
                     offset = 0.12 * (n - (len(methods) - 1) / 2)
-                    drawn.append(_category_plot(ax, x, stats, method, _label(method), offset))
+                    drawn.append(_category_plot(ax, x, stats, method, method_text(method), offset))
                 else:
-                    drawn.append(_band_plot(ax, x, stats, method, _label(method)))
+                    drawn.append(_band_plot(ax, x, stats, method, method_text(method)))
                 # a setting where no seed has the number (every seed diverged before it) is marked,
                 # not silently left out of the line
                 gone = [float(x[i]) for i, row in enumerate(stats) if not math.isfinite(row[0])]
@@ -238,7 +238,7 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
             ax.set_ylabel(ylabel, fontsize="small")
             _log_scale(ax, drawn)
             for xi, method in missing:  # at the axes' foot (y as a fraction of the axes)
-                ax.plot([xi], [0.04], marker="x", markersize=7, color=_color(method), linestyle="none",
+                ax.plot([xi], [0.04], marker="x", markersize=7, color=method_color(method), linestyle="none",
                         transform=ax.get_xaxis_transform(), clip_on=False)
             missing_drawn = missing_drawn or bool(missing)
         if numeric and min(values) > 0 and max(values) / min(values) >= 10:
@@ -299,7 +299,7 @@ def sweep_figures(results, directory: Path, formats: tuple[str, ...]) -> tuple[l
             ax.set_yticks(range(len(v1)), v1, fontsize="small")
             ax.set_xlabel(axis_label(second))
             ax.set_ylabel(axis_label(first))
-            ax.set_title(f"{_label(method)}: first diverged iteration", fontsize="small")
+            ax.set_title(f"{method_text(method)}: first diverged iteration", fontsize="small")
         fig.colorbar(image, ax=list(axes), label="earliest diverged iteration over seeds")
         files += save_figure(fig, directory, "sweep_divergence_heatmap", formats)
         extra = f" ({', '.join(keys[2:])} pooled)" if len(keys) > 2 else ""

@@ -22,7 +22,7 @@ from ilcforce.records import STATUS_DIVERGED, task_axes
 from ilcforce import stability
 from ilcforce.report import calibration, claim_map, claim_parts, equal_chattering
 from ilcforce.report import claims as claims_module
-from ilcforce.report import figures, paper
+from ilcforce.report import figure_style, figures, paper
 from ilcforce.report.figure_files import save_figure, write_text_whole
 from ilcforce.report.study import incomplete_text, setting_iterations, setting_perturbation
 from ilcforce.report import verdicts as verdict_rows
@@ -221,7 +221,7 @@ def figure_boundary(results) -> Figure | None:
     offsets = {m: 1 + 0.06 * (k - (len(methods) - 1) / 2) for k, m in enumerate(methods)}
     top, rates_drawn = 0, 0
     for method in methods:
-        color = figures._color(method)
+        color = figure_style.method_color(method)
         for setting, x in zip(results.settings.index, xs, strict=True):
             frame = results.setting_metrics(int(setting))
             frame = frame[frame["method"] == method]
